@@ -1,0 +1,32 @@
+"""Design and certify networked predictive controllers for switched plants.
+
+Public names::
+
+    from solver import PlantFamily, design, analyze, simulate
+
+See ``design`` for the methods, ``analyze`` for certificates and verdicts and
+``simulate`` for seeded runs of the network of the paper's Sec. II.
+"""
+
+from .analysis import AnalysisReport, analyze
+from .design import METHODS, design
+from .errors import InvalidInput, SolverFailed
+from .lyapunov import Certificate
+from .plant import PlantFamily
+from .result import DesignResult, IterationRecord
+from .simulate import SimulationResult, simulate
+
+__all__ = [
+    "PlantFamily",
+    "design",
+    "analyze",
+    "simulate",
+    "METHODS",
+    "DesignResult",
+    "IterationRecord",
+    "AnalysisReport",
+    "SimulationResult",
+    "Certificate",
+    "InvalidInput",
+    "SolverFailed",
+]

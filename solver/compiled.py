@@ -1,0 +1,200 @@
+"""Compiled conic problems: build a cvxpy problem once per shape, re-solve with new data.
+
+cvxpy canonicalizes a problem on every fresh ``solve()`` (tens of ms), while
+Clarabel solves the small SDPs here in about a millisecond.  Every method
+therefore builds its problem with :class:`cvxpy.Parameter` (DPP) once per
+*shape* and keeps it in a bounded per-process LRU cache; re-solving only
+maps new parameter values to the conic data.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable, Hashable
+
+import cvxpy as cp
+import numpy as np
+
+from .errors import InvalidInput, SolverFailed
+
+#: Solvers a user may pick.  Clarabel is the default; SCS is a first-order fallback.
+SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+
+_ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+
+
+def check_solver(solver: str) -> str:
+    name = str(solver).upper()
+    if name not in SOLVERS:
+        raise InvalidInput(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", ("solver",))
+    return name
+
+
+@dataclass
+class SolveInfo:
+    """What one conic solve reported.
+
+    Attributes
+    ----------
+    status : str
+        cvxpy status string (``"optimal"``, ``"optimal_inaccurate"``, ...).
+    solver : str
+        Solver name.
+    solve_time : float
+        The solver's own reported solve time (s).
+    wall_time : float
+        Wall time of the whole re-solve through cvxpy (s).
+    objective : float
+    iterations : int or None
+        Solver iterations.
+    """
+
+    status: str
+    solver: str
+    solve_time: float
+    wall_time: float
+    objective: float
+    iterations: int | None
+
+
+class CompiledProblem:
+    """A DPP cvxpy problem with named parameters and variables.
+
+    Parameters
+    ----------
+    problem : cvxpy.Problem
+    parameters : dict of str -> cvxpy.Parameter or list of them
+    variables : dict of str -> cvxpy.Variable or list of them
+    """
+
+    def __init__(self, problem: cp.Problem, parameters: dict, variables: dict):
+        if not problem.is_dcp(dpp=True):
+            raise AssertionError("compiled problems must be DPP")
+        self.problem = problem
+        self.parameters = parameters
+        self.variables = variables
+        self.n_solves = 0
+        self._lock = threading.Lock()
+
+    def solve(self, values: dict, solver: str = "CLARABEL", time_limit: float | None = None) -> SolveInfo:
+        """Set parameter values, solve, and return solver facts.
+
+        Parameters
+        ----------
+        values : dict
+            ``name -> ndarray`` (or list of ndarrays for list parameters).
+        solver : {"CLARABEL", "SCS"}
+        time_limit : float, optional
+            Seconds the solver may take.
+
+        Raises
+        ------
+        SolverFailed
+            When the solver errors out or ends without an optimal (or
+            optimal-inaccurate) answer.  Every problem built here is feasible
+            and bounded by construction, so any other status is a failure of
+            the solver, not a property of the plant.
+        """
+        name = check_solver(solver)
+        opts: dict = {}
+        if name == "SCS":
+            opts.update(eps_abs=1e-7, eps_rel=1e-7, max_iters=200_000)
+            if time_limit is not None:
+                opts["time_limit_secs"] = float(time_limit)
+        elif time_limit is not None:
+            opts["time_limit"] = float(time_limit)
+        with self._lock:
+            for key, value in values.items():
+                param = self.parameters[key]
+                if isinstance(param, list):
+                    for p, v in zip(param, value):
+                        p.value = v
+                else:
+                    param.value = value
+            start = time.perf_counter()
+            try:
+                self.problem.solve(solver=SOLVERS[name], **opts)
+            except cp.error.SolverError as err:
+                raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
+            wall = time.perf_counter() - start
+            self.n_solves += 1
+            status = self.problem.status
+            stats = self.problem.solver_stats
+            info = SolveInfo(
+                status=status,
+                solver=name,
+                solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
+                wall_time=wall,
+                objective=float(self.problem.value) if self.problem.value is not None else float("nan"),
+                iterations=stats.num_iters if stats else None,
+            )
+        if status not in _ACCEPTED:
+            raise SolverFailed(f"{name} ended with status {status!r}", status=status)
+        return info
+
+    def value(self, name: str):
+        var = self.variables[name]
+        if isinstance(var, list):
+            return [np.array(v.value, dtype=np.float64) for v in var]
+        return np.array(var.value, dtype=np.float64)
+
+
+class ProblemCache:
+    """Bounded LRU cache of compiled problems, keyed by shape (one per process).
+
+    Parameters
+    ----------
+    maxsize : int
+        Number of compiled problems kept; the least recently used is dropped.
+    """
+
+    def __init__(self, maxsize: int = 32):
+        self.maxsize = maxsize
+        self._items: OrderedDict[Hashable, CompiledProblem] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: Hashable, build: Callable[[], CompiledProblem]) -> tuple[CompiledProblem, bool]:
+        """Return ``(problem, was_cached)``, building and storing it on a miss."""
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                self.hits += 1
+                return self._items[key], True
+        compiled = build()
+        with self._lock:
+            self.misses += 1
+            self._items[key] = compiled
+            self._items.move_to_end(key)
+            while len(self._items) > self.maxsize:
+                self._items.popitem(last=False)
+        return compiled, False
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def keys(self) -> list:
+        with self._lock:
+            return list(self._items)
+
+
+#: The process-wide cache every method uses.
+problem_cache = ProblemCache()
+
+
+def schur_block(top_left, lower_left, bottom_right) -> cp.Expression:
+    """The symmetric block matrix ``[[top_left, lower_left^T], [lower_left, bottom_right]]``.
+
+    cvxpy's ``>>`` silently symmetrizes its argument, so an asymmetric block
+    would be a wrong constraint rather than an error: every LMI here is built
+    through this one function, which transposes the same expression.
+    """
+    return cp.bmat([[top_left, lower_left.T], [lower_left, bottom_right]])

@@ -1,0 +1,132 @@
+"""Result objects of :func:`solver.design` (named fields, like scipy's ``OptimizeResult``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .lyapunov import Certificate
+
+OUTCOMES = ("stabilized", "infeasible", "not_converged")
+
+
+def _num(x):
+    """JSON-safe float (NaN/inf become None)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+@dataclass
+class IterationRecord:
+    """One iteration of an iterative method (one record for one-shot methods).
+
+    Attributes
+    ----------
+    iteration : int
+        0 is the feasible start (CCL Step 1), then 1, 2, ...
+    objective : float
+        Objective value of the solved SDP.
+    trace_gap : float or None
+        ``trace(P Q) / (n n_drop) - 1`` (CCL only): 0 when PQ = I.
+    theorem1 : bool
+        Whether the iterate's gains satisfy Theorem 1 (a certificate re-checked in float64).
+    certificate_margin : float or None
+        Relative margin of that certificate.
+    solve_time : float
+        The solver's own time for this iteration (s).
+    elapsed : float
+        Wall time since the design started (s).
+    """
+
+    iteration: int
+    objective: float
+    trace_gap: float | None
+    theorem1: bool
+    certificate_margin: float | None
+    solve_time: float
+    elapsed: float
+
+    def to_dict(self) -> dict:
+        return {
+            "iteration": self.iteration,
+            "objective": _num(self.objective),
+            "trace_gap": _num(self.trace_gap),
+            "theorem1": self.theorem1,
+            "certificate_margin": _num(self.certificate_margin),
+            "solve_time": _num(self.solve_time),
+            "elapsed": _num(self.elapsed),
+        }
+
+
+@dataclass
+class DesignResult:
+    """Outcome of a controller design.
+
+    Attributes
+    ----------
+    outcome : {"stabilized", "infeasible", "not_converged"}
+        ``stabilized`` only with a certificate that passed the float64 re-check.
+    gains : ndarray, shape (n_drop, m, n), or None
+        ``gains[q-1] = K_q``; the last iterate's gains when not stabilized (may be None).
+    certificate : Certificate or None
+    method : str
+    n_drop : int
+    history : list of IterationRecord
+    solver : str
+    solver_status : str
+        Status of the last conic solve.
+    timings : dict
+        ``total`` wall time, ``setup`` (problem build, 0 when cached),
+        ``solver`` (sum of the solver's own times), ``overhead`` (the rest), in s;
+        ``cached`` whether the compiled problem was reused; ``solves`` count.
+    message : str
+    spectral_radii : ndarray, shape (r, n_drop), or None
+        Spectral radius of every interval closed loop for ``gains``.
+    """
+
+    outcome: str
+    gains: np.ndarray | None
+    certificate: Certificate | None
+    method: str
+    n_drop: int
+    history: list[IterationRecord] = field(default_factory=list)
+    solver: str = "CLARABEL"
+    solver_status: str = ""
+    timings: dict = field(default_factory=dict)
+    message: str = ""
+    spectral_radii: np.ndarray | None = None
+
+    @property
+    def iterations(self) -> int:
+        """Number of solved iterations after the start (0 for one-shot methods)."""
+        return max((rec.iteration for rec in self.history), default=0)
+
+    @property
+    def success(self) -> bool:
+        return self.outcome == "stabilized"
+
+    def to_dict(self, include_certificate_matrix: bool = True) -> dict:
+        cert = None
+        if self.certificate is not None:
+            cert = self.certificate.to_dict()
+            if not include_certificate_matrix:
+                cert.pop("P")
+                cert.pop("X")
+        return {
+            "outcome": self.outcome,
+            "method": self.method,
+            "n_drop": self.n_drop,
+            "gains": None if self.gains is None else self.gains.tolist(),
+            "certificate": cert,
+            "spectral_radii": None if self.spectral_radii is None else self.spectral_radii.tolist(),
+            "max_spectral_radius": None if self.spectral_radii is None else float(np.max(self.spectral_radii)),
+            "history": [rec.to_dict() for rec in self.history],
+            "iterations": self.iterations,
+            "solver": self.solver,
+            "solver_status": self.solver_status,
+            "timings": {k: (_num(v) if isinstance(v, float) else v) for k, v in self.timings.items()},
+            "message": self.message,
+        }

@@ -1,0 +1,244 @@
+"""Seeded step-by-step simulation of the networked predictive loop (Sec. II).
+
+Per sample k the sensor packet crosses switch S1 and, if it arrived, the
+time-stamped control packet ``[K_1 x(k), ..., K_N x(k)]`` crosses S2.  A step
+is *effective* when both arrive (Sec. II.E); the buffer (Sec. II.F) then
+holds the new predictions and plays ``u(i_m + q - 1) = K_q x(i_m)`` until the
+next effective step.  At most ``n_drop - 1`` consecutive steps are
+non-effective: a step that would exceed the bound is forced effective.
+Sample 0 is effective (the loop starts with a delivered packet).
+
+Randomness comes from ``numpy.random.Generator(PCG64(seed))`` with all
+draws made up front in a fixed order, so a seed gives the same run on every
+machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInput
+from .network import check_gains, check_n_drop
+from .plant import PlantFamily
+
+LOSS_MODELS = ("paper", "bernoulli")
+PLANT_SWITCHING = ("per_interval", "per_sample", "none")
+
+
+@dataclass
+class SimulationResult:
+    """A simulated run; arrays are indexed by sample k.
+
+    Attributes
+    ----------
+    time : ndarray, shape (steps + 1,)
+        ``k * h`` in seconds (``k`` when the family has no sampling period).
+    state : ndarray, shape (steps + 1, n)
+    input : ndarray, shape (steps, m)
+        Input applied over [k, k+1).
+    mode : ndarray of int, shape (steps,)
+        Plant mode (0-based) active over [k, k+1).
+    sensor_arrived, control_arrived, effective : ndarray of bool, shape (steps,)
+        Switch S1 closed, switch S2 closed, and both (a new packet reached the buffer).
+    buffer_index : ndarray of int, shape (steps,)
+        q of the prediction ``K_q x(i_m)`` applied at k (1 = fresh packet).
+    interval_start : ndarray of int
+        Effective samples ``i_m``.
+    eta : ndarray of int
+        ``i_{m+1} - i_m`` for every completed interval (len(interval_start) - 1 entries).
+    """
+
+    time: np.ndarray
+    state: np.ndarray
+    input: np.ndarray
+    mode: np.ndarray
+    sensor_arrived: np.ndarray
+    control_arrived: np.ndarray
+    effective: np.ndarray
+    buffer_index: np.ndarray
+    interval_start: np.ndarray
+    eta: np.ndarray
+    seed: int
+    loss_model: str
+    plant_switching: str
+    n_drop: int
+
+    def to_dict(self) -> dict:
+        return {
+            "t": self.time.tolist(),
+            "x": self.state.tolist(),
+            "u": self.input.tolist(),
+            "mode": self.mode.tolist(),
+            "sensor_arrived": self.sensor_arrived.tolist(),
+            "control_arrived": self.control_arrived.tolist(),
+            "effective": self.effective.tolist(),
+            "buffer_index": self.buffer_index.tolist(),
+            "interval_start": self.interval_start.tolist(),
+            "eta": self.eta.tolist(),
+            "seed": self.seed,
+            "loss_model": self.loss_model,
+            "plant_switching": self.plant_switching,
+            "n_drop": self.n_drop,
+        }
+
+
+def _probability(name: str, value) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be a probability in [0, 1)", (name,)) from None
+    if not (0.0 <= value < 1.0):
+        raise InvalidInput(f"{name} must be a probability in [0, 1), got {value}", (name,))
+    return value
+
+
+def simulate(
+    family: PlantFamily,
+    gains,
+    n_drop: int,
+    x0,
+    steps: int,
+    seed: int,
+    *,
+    loss_model: str = "paper",
+    sensor_loss: float = 0.2,
+    control_loss: float = 0.2,
+    plant_switching: str = "per_interval",
+    mode: int | None = None,
+    switch_probability: float = 1.0,
+) -> SimulationResult:
+    """Simulate the networked loop with random packet losses and plant jumps.
+
+    Parameters
+    ----------
+    family : PlantFamily
+    gains : array_like, shape (n_drop, m, n)
+    n_drop : int
+    x0 : array_like, shape (n,)
+        Initial state.
+    steps : int
+        Number of samples simulated (>= 1).
+    seed : int
+        Seed of ``Generator(PCG64(seed))``.
+    loss_model : {"paper", "bernoulli"}
+        ``"paper"``: at each effective step the next interval length eta is
+        uniform in 1..n_drop, and each lost step loses the sensor or the
+        control packet with equal chance.  ``"bernoulli"``: every sensor packet
+        is lost with probability ``sensor_loss`` and every control packet with
+        ``control_loss``, independently, truncated by the bound.
+    sensor_loss, control_loss : float
+        Loss probabilities of the Bernoulli model, in [0, 1).
+    plant_switching : {"per_interval", "per_sample", "none"}
+        When the plant mode may jump: at effective steps (the paper's model),
+        at every sample, or never.
+    mode : int, optional
+        Initial plant mode (0-based); drawn at random when None.
+    switch_probability : float
+        Chance that a jump opportunity redraws the mode (uniformly among all r).
+
+    Returns
+    -------
+    SimulationResult
+    """
+    if not isinstance(family, PlantFamily):
+        raise InvalidInput("family must be a PlantFamily", ("family",))
+    n_drop = check_n_drop(n_drop)
+    n, m, r = family.n_states, family.n_inputs, family.n_modes
+    K = check_gains(gains, n_drop, m, n)
+    try:
+        x = np.array(x0, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("x0 must be a list of numbers", ("x0",)) from None
+    if x.shape != (n,) or not np.all(np.isfinite(x)):
+        raise InvalidInput(f"x0 must hold {n} finite numbers", ("x0",))
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise InvalidInput("steps must be an integer >= 1", ("steps",))
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InvalidInput("seed must be a non-negative integer", ("seed",))
+    if loss_model not in LOSS_MODELS:
+        raise InvalidInput(f"loss_model must be one of {LOSS_MODELS}", ("loss_model",))
+    if plant_switching not in PLANT_SWITCHING:
+        raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
+    sensor_loss = _probability("sensor_loss", sensor_loss)
+    control_loss = _probability("control_loss", control_loss)
+    switch_probability = float(switch_probability)
+    if not 0.0 <= switch_probability <= 1.0:
+        raise InvalidInput("switch_probability must be in [0, 1]", ("switch_probability",))
+    if mode is not None and (isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < r):
+        raise InvalidInput(f"mode must be an integer in 0..{r - 1}", ("mode",))
+
+    rng = np.random.Generator(np.random.PCG64(int(seed)))
+    # All draws up front, in a fixed order: reproducible whatever branch a step takes.
+    draw_sensor = rng.random(steps)
+    draw_control = rng.random(steps)
+    draw_eta = rng.integers(1, n_drop + 1, size=steps)
+    draw_switch = rng.random(steps)
+    draw_mode = rng.integers(0, r, size=steps)
+    current = int(rng.integers(0, r)) if mode is None else int(mode)
+
+    state = np.empty((steps + 1, n))
+    inputs = np.empty((steps, m))
+    modes = np.empty(steps, dtype=np.int64)
+    sensor = np.empty(steps, dtype=bool)
+    control = np.empty(steps, dtype=bool)
+    effective = np.empty(steps, dtype=bool)
+    qs = np.empty(steps, dtype=np.int64)
+    state[0] = x
+    buffer = None
+    q = 0
+    lost_in_row = 0
+    next_effective = 0  # paper model: the sample of the next effective packet
+    for k in range(steps):
+        if k == 0:
+            s_ok = c_ok = True
+        elif loss_model == "paper":
+            if k == next_effective:
+                s_ok = c_ok = True
+            else:
+                s_ok = draw_sensor[k] >= 0.5
+                c_ok = False
+        else:
+            s_ok = draw_sensor[k] >= sensor_loss
+            c_ok = s_ok and draw_control[k] >= control_loss
+            if not (s_ok and c_ok) and lost_in_row >= n_drop - 1:
+                s_ok = c_ok = True  # the bound: at most n_drop - 1 consecutive losses
+        eff = s_ok and c_ok
+        if eff:
+            buffer = K @ x  # (n_drop, m): the predictions K_q x(i_m)
+            q = 1
+            lost_in_row = 0
+            if loss_model == "paper":
+                next_effective = k + int(draw_eta[k])
+        else:
+            q += 1
+            lost_in_row += 1
+        jump = (plant_switching == "per_sample" and k > 0) or (plant_switching == "per_interval" and eff and k > 0)
+        if jump and draw_switch[k] < switch_probability:
+            current = int(draw_mode[k])
+        u = buffer[q - 1]
+        x = family.F[current] @ x + family.G[current] @ u
+        state[k + 1] = x
+        inputs[k] = u
+        modes[k] = current
+        sensor[k], control[k], effective[k], qs[k] = s_ok, c_ok, eff, q
+    starts = np.flatnonzero(effective)
+    h = family.sampling_period
+    time_axis = np.arange(steps + 1) * (h if h is not None else 1.0)
+    return SimulationResult(
+        time=time_axis,
+        state=state,
+        input=inputs,
+        mode=modes,
+        sensor_arrived=sensor,
+        control_arrived=control,
+        effective=effective,
+        buffer_index=qs,
+        interval_start=starts,
+        eta=np.diff(starts),
+        seed=int(seed),
+        loss_model=loss_model,
+        plant_switching=plant_switching,
+        n_drop=n_drop,
+    )
