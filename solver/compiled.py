@@ -10,6 +10,7 @@ maps new parameter values to the conic data.
 from __future__ import annotations
 
 import threading
+import warnings
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -66,7 +67,7 @@ class CompiledProblem:
     Parameters
     ----------
     problem : cvxpy.Problem
-    parameters : dict of str -> cvxpy.Parameter or list of them
+    parameters : dict of str -> cvxpy.Parameter
     variables : dict of str -> cvxpy.Variable or list of them
     """
 
@@ -85,7 +86,7 @@ class CompiledProblem:
         Parameters
         ----------
         values : dict
-            ``name -> ndarray`` (or list of ndarrays for list parameters).
+            ``name -> ndarray`` for every parameter.
         solver : {"CLARABEL", "SCS"}
         time_limit : float, optional
             Seconds the solver may take.
@@ -108,15 +109,16 @@ class CompiledProblem:
             opts["time_limit"] = float(time_limit)
         with self._lock:
             for key, value in values.items():
-                param = self.parameters[key]
-                if isinstance(param, list):
-                    for p, v in zip(param, value):
-                        p.value = v
-                else:
-                    param.value = value
+                self.parameters[key].value = value
             start = time.perf_counter()
             try:
-                self.problem.solve(solver=SOLVERS[name], **opts)
+                with warnings.catch_warnings():
+                    # cvxpy warns on inaccurate solutions; the status is returned and acted on instead.
+                    warnings.simplefilter("ignore", UserWarning)
+                    # warm_start=False: cvxpy would otherwise hand Clarabel the previous
+                    # solver object to update, and the answer would depend on what this
+                    # problem solved before, not only on the data.
+                    self.problem.solve(solver=SOLVERS[name], warm_start=False, **opts)
             except cp.error.SolverError as err:
                 raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
             wall = time.perf_counter() - start
@@ -198,3 +200,8 @@ def schur_block(top_left, lower_left, bottom_right) -> cp.Expression:
     through this one function, which transposes the same expression.
     """
     return cp.bmat([[top_left, lower_left.T], [lower_left, bottom_right]])
+
+
+def block(stacked: cp.Expression, index: int, rows: int) -> cp.Expression:
+    """Row block ``index`` (``rows`` rows) of a vertically stacked parameter."""
+    return stacked[index * rows:(index + 1) * rows, :]

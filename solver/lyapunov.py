@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import cvxpy as cp
 import numpy as np
 
-from .compiled import CompiledProblem, SolveInfo, problem_cache, schur_block
+from .compiled import CompiledProblem, SolveInfo, block, problem_cache, schur_block
 from .network import augmented_matrices
 
 #: Smallest relative decrease ``lambda_min(P - Phi^T P Phi) / lambda_max(P)``
@@ -131,12 +131,12 @@ def lift(X: np.ndarray, A: np.ndarray) -> np.ndarray:
 def _build_theorem1(n: int, n_modes: int) -> CompiledProblem:
     X = cp.Variable((n, n), symmetric=True)
     t = cp.Variable()
-    A = [cp.Parameter((n, n)) for _ in range(n_modes)]
+    A = cp.Parameter((n_modes * n, n))  # row block s: A_s
     eye = np.eye(n)
     cons = [X >> t * eye, cp.trace(X) == n]
-    for As in A:
+    for s in range(n_modes):
         # Schur form of X - A^T X A >= t I: linear in X for a given A (DPP).
-        cons.append(schur_block(X - t * eye, X @ As, X) >> 0)
+        cons.append(schur_block(X - t * eye, X @ block(A, s, n), X) >> 0)
     prob = cp.Problem(cp.Maximize(t), cons)
     return CompiledProblem(prob, {"A": A}, {"X": X, "t": t})
 
@@ -159,5 +159,5 @@ def theorem1_lmi(A: np.ndarray, solver: str = "CLARABEL", time_limit: float | No
     """
     r, N, n, _ = A.shape
     compiled, _ = problem_cache.get(("theorem1", n, r * N), lambda: _build_theorem1(n, r * N))
-    info: SolveInfo = compiled.solve({"A": list(A.reshape(r * N, n, n))}, solver=solver, time_limit=time_limit)
+    info: SolveInfo = compiled.solve({"A": A.reshape(r * N * n, n)}, solver=solver, time_limit=time_limit)
     return compiled.value("X"), float(compiled.value("t")), info

@@ -23,7 +23,7 @@ import time
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, problem_cache, schur_block
+from ..compiled import CompiledProblem, block, problem_cache, schur_block
 from ..network import IntervalData, spectral_radii
 from ..plant import PlantFamily
 from ..result import DesignResult, IterationRecord
@@ -46,8 +46,8 @@ def build(n: int, m: int, r: int, n_drop: int) -> CompiledProblem:
     Q_k = cp.Parameter((size, size), symmetric=True)
     start_weight = cp.Parameter(nonneg=True)
     margin = cp.Parameter(nonneg=True)
-    F_pow = [[cp.Parameter((n, n)) for _ in range(N)] for _ in range(r)]
-    FtG = [[cp.Parameter((n, m)) for _ in range(N)] for _ in range(r)]
+    F_pow = cp.Parameter((r * N * n, n))  # row block l*N + eta-1: F_l^eta
+    FtG = cp.Parameter((r * N * n, m))  # row block l*N + t: F_l^t G_l
     eye_n = np.eye(n)
     zero_n = np.zeros((n, n))
     eye_2 = np.eye(2 * size)
@@ -56,7 +56,7 @@ def build(n: int, m: int, r: int, n_drop: int) -> CompiledProblem:
     cons = [schur_block(P, np.eye(size), Q) >> 0]  # (15)
     for l in range(r):
         for eta in range(1, N + 1):
-            A_s = F_pow[l][eta - 1] + sum(FtG[l][s] @ K[eta - s - 1] for s in range(eta))
+            A_s = block(F_pow, l * N + eta - 1, n) + sum(block(FtG, l * N + s, n) @ K[eta - s - 1] for s in range(eta))
             Phi = cp.bmat([[A_s] + [zero_n] * (N - 1)] + shift_rows) if N > 1 else A_s
             cons.append(schur_block(P, Phi, Q) - margin * eye_2 >> 0)  # (13)
     objective = cp.sum(cp.multiply(P, Q_k)) + cp.sum(cp.multiply(P_k, Q)) + start_weight * (cp.trace(P) + cp.trace(Q))
@@ -66,8 +66,8 @@ def build(n: int, m: int, r: int, n_drop: int) -> CompiledProblem:
         "Q_k": Q_k,
         "start_weight": start_weight,
         "margin": margin,
-        "F_pow": [p for row in F_pow for p in row],
-        "FtG": [p for row in FtG for p in row],
+        "F_pow": F_pow,
+        "FtG": FtG,
     }
     return CompiledProblem(prob, params, {"P": P, "Q": Q, "K": K})
 
@@ -86,8 +86,8 @@ def run(family: PlantFamily, n_drop: int, options: DesignOptions) -> DesignResul
     r, n, m = family.n_modes, family.n_states, family.n_inputs
     size = n * n_drop
     values = {
-        "F_pow": list(data.F_pow.reshape(r * n_drop, n, n)),
-        "FtG": list(data.FtG.reshape(r * n_drop, n, m)),
+        "F_pow": data.F_pow.reshape(r * n_drop * n, n),
+        "FtG": data.FtG.reshape(r * n_drop * n, m),
         "margin": options.margin,
         "P_k": np.zeros((size, size)),
         "Q_k": np.zeros((size, size)),
