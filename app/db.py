@@ -1,0 +1,127 @@
+"""Database engine, sessions and migrations.
+
+SQLite gets WAL mode, a busy timeout and explicit transactions: read
+sessions begin ``DEFERRED``; write sessions begin ``IMMEDIATE`` so that a
+transaction that reads before it writes can never fail with "database is
+locked" on a stale snapshot (it waits for the write lock instead, up to the
+busy timeout). PostgreSQL uses the same code with its default isolation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from sqlalchemy import create_engine, event, text
+from sqlalchemy.engine import Engine
+from sqlalchemy.orm import Session, sessionmaker
+
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+
+
+def is_sqlite(url: str) -> bool:
+    return url.startswith("sqlite")
+
+
+def make_engine(url: str) -> Engine:
+    if is_sqlite(url):
+        engine = create_engine(
+            url,
+            connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000, "check_same_thread": False},
+            pool_size=20,
+            max_overflow=40,
+            pool_timeout=60,
+        )
+
+        @event.listens_for(engine, "connect")
+        def _on_connect(dbapi_conn, _record):
+            # Take transaction control away from the sqlite3 module; we emit BEGIN ourselves.
+            dbapi_conn.isolation_level = None
+            cur = dbapi_conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+            cur.execute("PRAGMA synchronous=NORMAL")
+            cur.execute("PRAGMA foreign_keys=ON")
+            cur.close()
+
+        @event.listens_for(engine, "begin")
+        def _on_begin(conn):
+            if conn.get_execution_options().get("ncs_write"):
+                conn.exec_driver_sql("BEGIN IMMEDIATE")
+            else:
+                conn.exec_driver_sql("BEGIN")
+
+        return engine
+    return create_engine(url, pool_size=10, max_overflow=40, pool_pre_ping=True, pool_timeout=60)
+
+
+class Database:
+    """Engine plus two session factories: ``read()`` and ``write()``."""
+
+    def __init__(self, url: str):
+        self.url = url
+        self.engine = make_engine(url)
+        self._read = sessionmaker(self.engine, expire_on_commit=False)
+        self._write = sessionmaker(
+            self.engine.execution_options(ncs_write=True), expire_on_commit=False
+        )
+
+    @property
+    def sqlite(self) -> bool:
+        return is_sqlite(self.url)
+
+    def read_session(self) -> Session:
+        return self._read()
+
+    def write_session(self) -> Session:
+        return self._write()
+
+    @contextmanager
+    def write(self) -> Iterator[Session]:
+        """A short write transaction: commits on success, rolls back on error."""
+        with self._write() as session:
+            with session.begin():
+                yield session
+
+    @contextmanager
+    def read(self) -> Iterator[Session]:
+        with self._read() as session:
+            yield session
+            session.rollback()
+
+    def ping(self) -> None:
+        with self.engine.connect() as conn:
+            conn.execute(text("SELECT 1"))
+            conn.rollback()
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+
+def find_alembic_dir(configured: Path | None = None) -> Path:
+    candidates = []
+    if configured is not None:
+        candidates.append(Path(configured))
+    candidates.append(Path(__file__).resolve().parent.parent / "alembic")
+    candidates.append(Path.cwd() / "alembic")
+    for c in candidates:
+        if (c / "env.py").is_file():
+            return c
+    raise RuntimeError(
+        "Alembic migration directory not found (looked in: "
+        + ", ".join(str(c) for c in candidates)
+        + "); set NCS_ALEMBIC_DIR"
+    )
+
+
+def run_migrations(url: str, alembic_dir: Path | None = None) -> None:
+    """Upgrade the database at ``url`` to the newest migration (idempotent)."""
+    from alembic import command
+    from alembic.config import Config
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(find_alembic_dir(alembic_dir)))
+    cfg.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
+    cfg.attributes["configure_logger"] = False
+    command.upgrade(cfg, "head")

@@ -1,0 +1,324 @@
+"""Dispatcher: claims queued jobs from the database and runs them on a pool
+of worker processes.
+
+One daemon thread per service process. It owns ``workers`` long-lived
+worker processes (``spawn`` start method; see ``app.worker``), and in a
+loop it
+
+* reads worker messages (progress -> job row, results -> finished job),
+* replaces dead workers and retries their job (bounded by ``max_attempts``),
+* kills a worker whose job exceeded ``job_time_limit`` (job -> failed),
+* forwards cancel requests (cooperative first, kill after ``cancel_grace``),
+* renews the leases of its running jobs and re-queues jobs whose lease
+  expired (their service was killed),
+* claims a queued job for every idle worker.
+
+It sleeps in ``multiprocessing.connection.wait`` on the worker pipes, the
+process sentinels and a self-pipe that ``notify()`` writes to, so it reacts
+immediately to results, deaths and new submissions.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import threading
+import time
+import uuid
+from multiprocessing.connection import wait as mp_wait
+from typing import Any
+
+from app import jobs
+from app.db import Database
+from app.models import CANCELLED, FAILED, SUCCEEDED
+from app.settings import Settings
+
+log = logging.getLogger("app.dispatcher")
+_CTX = mp.get_context("spawn")
+
+
+class _Slot:
+    def __init__(self, index: int):
+        self.index = index
+        self.proc: Any = None
+        self.conn: Any = None
+        self.pid: int | None = None
+        self.ready = False
+        self.job_id: str | None = None
+        self.attempt = 0
+        self.started = 0.0
+        self.cancel_sent: float | None = None
+        self.progress: dict[str, Any] | None = None
+        self.progress_written = 0.0
+        self.progress_dirty = False
+
+    def clear_job(self) -> None:
+        self.job_id = None
+        self.cancel_sent = None
+        self.progress = None
+        self.progress_dirty = False
+
+
+class Dispatcher:
+    def __init__(self, db: Database, settings: Settings):
+        self.db = db
+        self.settings = settings
+        self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.slots = [_Slot(i) for i in range(settings.workers)]
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._last_heartbeat = 0.0
+        self._last_recover = 0.0
+        self._last_cancel_check = 0.0
+        self.error: str | None = None
+        self.started_workers = 0
+
+    # -- public -----------------------------------------------------------
+    def start(self) -> None:
+        for slot in self.slots:
+            self._spawn(slot)
+        self._thread = threading.Thread(target=self._run, name="ncs-dispatcher", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        self.notify()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def notify(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except (BlockingIOError, OSError):
+            pass
+
+    def thread_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def alive_workers(self) -> int:
+        return sum(1 for s in self.slots if s.proc is not None and s.proc.is_alive())
+
+    def ready_workers(self) -> int:
+        return sum(1 for s in self.slots if s.ready and s.proc is not None and s.proc.is_alive())
+
+    def worker_pids(self) -> list[int]:
+        return [s.pid for s in self.slots if s.pid]
+
+    # -- worker processes --------------------------------------------------
+    def _spawn(self, slot: _Slot) -> None:
+        from app.worker import worker_main
+
+        parent_conn, child_conn = _CTX.Pipe(duplex=True)
+        proc = _CTX.Process(target=worker_main, args=(child_conn, os.getpid()),
+                            name=f"ncs-worker-{slot.index}", daemon=True)
+        proc.start()
+        child_conn.close()
+        slot.proc, slot.conn, slot.pid, slot.ready = proc, parent_conn, proc.pid, False
+        self.started_workers += 1
+
+    def _kill(self, slot: _Slot) -> None:
+        if slot.proc is not None:
+            try:
+                slot.proc.kill()
+                slot.proc.join(5)
+            except Exception:  # pragma: no cover
+                pass
+        if slot.conn is not None:
+            try:
+                slot.conn.close()
+            except Exception:  # pragma: no cover
+                pass
+        slot.proc = slot.conn = None
+        slot.pid = None
+        slot.ready = False
+
+    def _respawn(self, slot: _Slot) -> None:
+        self._kill(slot)
+        if not self._stop.is_set():
+            self._spawn(slot)
+
+    # -- main loop ---------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                try:
+                    self._tick()
+                    self.error = None
+                except Exception as exc:  # database hiccup: log, back off, go on
+                    self.error = f"{type(exc).__name__}: {exc}"
+                    log.exception("dispatcher tick failed")
+                    self._stop.wait(1.0)
+                    continue
+                self._sleep()
+        finally:
+            self._shutdown()
+
+    def _sleep(self) -> None:
+        waitables: list[Any] = [self._wake_r]
+        for s in self.slots:
+            if s.conn is not None:
+                waitables.append(s.conn)
+            if s.proc is not None:
+                waitables.append(s.proc.sentinel)
+        try:
+            ready = mp_wait(waitables, timeout=self.settings.poll_interval)
+        except OSError:
+            ready = []
+        if self._wake_r in ready:
+            try:
+                while os.read(self._wake_r, 4096):
+                    pass
+            except (BlockingIOError, OSError):
+                pass
+
+    def _tick(self) -> None:
+        st = self.settings
+        now = time.monotonic()
+        for slot in self.slots:
+            self._drain(slot)
+        for slot in self.slots:
+            self._check(slot, now)
+        self._flush_progress(now)
+        if now - self._last_heartbeat >= st.lease_seconds / 3:
+            jobs.heartbeat(self.db, self.owner, [s.job_id for s in self.slots if s.job_id], st.lease_seconds)
+            self._last_heartbeat = now
+        if now - self._last_recover >= min(2.0, st.lease_seconds / 2):
+            if jobs.recover_expired(self.db, st.max_attempts):
+                self.notify()
+            self._last_recover = now
+        if now - self._last_cancel_check >= st.poll_interval * 0.8:
+            self._check_cancels(now)
+            self._last_cancel_check = now
+        self._fill()
+
+    def _drain(self, slot: _Slot) -> None:
+        if slot.conn is None:
+            return
+        try:
+            while slot.conn.poll():
+                self._handle(slot, slot.conn.recv())
+        except (EOFError, OSError):
+            pass  # the process is dead; _check handles it
+
+    def _handle(self, slot: _Slot, msg: tuple) -> None:
+        kind = msg[0]
+        if kind == "ready":
+            slot.ready, slot.pid = True, msg[1]
+            return
+        job_id = msg[1]
+        if job_id != slot.job_id:
+            return  # stale message of a job we already gave up
+        if kind == "progress":
+            slot.progress, slot.progress_dirty = msg[2], True
+        elif kind == "done":
+            jobs.finish(self.db, job_id, self.owner, SUCCEEDED, result=msg[2], progress=slot.progress)
+            slot.clear_job()
+        elif kind == "cancelled":
+            jobs.finish(self.db, job_id, self.owner, CANCELLED, error="cancelled by request",
+                        progress=slot.progress)
+            slot.clear_job()
+        elif kind == "error":
+            jobs.finish(self.db, job_id, self.owner, FAILED, error=msg[2], progress=slot.progress)
+            slot.clear_job()
+
+    def _check(self, slot: _Slot, now: float) -> None:
+        st = self.settings
+        if slot.proc is None:
+            self._spawn(slot)
+            return
+        if not slot.proc.is_alive():
+            code = slot.proc.exitcode
+            if slot.job_id is not None:
+                job_id = slot.job_id
+                slot.clear_job()
+                outcome = jobs.retry_or_fail(self.db, job_id, self.owner,
+                                             f"worker process died (exit code {code})", st.max_attempts)
+                log.warning("worker %s died (exit %s) running job %s -> %s", slot.pid, code, job_id, outcome)
+            else:
+                log.warning("idle worker %s died (exit %s); replacing it", slot.pid, code)
+            self._respawn(slot)
+            return
+        if slot.job_id is None:
+            return
+        if now - slot.started > st.job_time_limit:
+            job_id = slot.job_id
+            slot.clear_job()
+            self._respawn(slot)
+            jobs.finish(self.db, job_id, self.owner, FAILED,
+                        error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
+                              f"(NCS_JOB_TIME_LIMIT) and was stopped")
+            return
+        if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
+            job_id = slot.job_id
+            slot.clear_job()
+            self._respawn(slot)
+            jobs.finish(self.db, job_id, self.owner, CANCELLED,
+                        error="cancelled by request (worker stopped)")
+
+    def _check_cancels(self, now: float) -> None:
+        running = [s.job_id for s in self.slots if s.job_id and s.cancel_sent is None]
+        if not running:
+            return
+        wanted = jobs.cancel_requested_among(self.db, running)
+        for slot in self.slots:
+            if slot.job_id in wanted:
+                slot.cancel_sent = now
+                try:
+                    slot.conn.send(("cancel", slot.job_id))
+                except (OSError, ValueError):
+                    pass
+                if self.settings.cancel_grace == 0:
+                    self._check(slot, now + 1)
+
+    def _flush_progress(self, now: float) -> None:
+        for slot in self.slots:
+            if slot.job_id and slot.progress_dirty and now - slot.progress_written >= 0.2:
+                jobs.update_progress(self.db, slot.job_id, self.owner, slot.progress)
+                slot.progress_dirty = False
+                slot.progress_written = now
+
+    def _fill(self) -> None:
+        idle = [s for s in self.slots if s.job_id is None and s.ready and s.proc is not None and s.proc.is_alive()]
+        if not idle or not jobs.has_queued(self.db):
+            return
+        for slot in idle:
+            claimed = jobs.claim_next(self.db, self.owner, self.settings.lease_seconds)
+            if claimed is None:
+                return
+            slot.job_id, slot.attempt, slot.started = claimed.id, claimed.attempts, time.monotonic()
+            slot.cancel_sent, slot.progress, slot.progress_dirty = None, None, False
+            try:
+                slot.conn.send(("run", claimed.id, claimed.request))
+            except (OSError, ValueError):
+                pass  # dead worker: the next _check retries the job
+            jobs.set_worker_pid(self.db, claimed.id, self.owner, slot.pid or 0)
+
+    def _shutdown(self) -> None:
+        for slot in self.slots:
+            job_id = slot.job_id
+            if job_id is not None:
+                self._kill(slot)
+                try:
+                    jobs.release(self.db, job_id, self.owner)
+                except Exception:  # pragma: no cover - the lease will expire instead
+                    log.exception("could not release job %s", job_id)
+                slot.clear_job()
+            elif slot.conn is not None:
+                try:
+                    slot.conn.send(("stop",))
+                except (OSError, ValueError):
+                    pass
+        deadline = time.monotonic() + 2.0
+        for slot in self.slots:
+            if slot.proc is not None:
+                slot.proc.join(max(0.0, deadline - time.monotonic()))
+            self._kill(slot)

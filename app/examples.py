@@ -1,0 +1,56 @@
+"""OpenAPI examples. The paper's example (eq. 19, h = 0.1, N_drop = 3) comes first."""
+
+PAPER_PLANT = {
+    "kind": "continuous",
+    "A": [
+        [[-4.0, -0.03], [0.5, -6.667]],
+        [[-4.0, -0.03], [0.75, -10.0]],
+        [[-4.0, -0.03], [1.5, -20.0]],
+    ],
+    "B": [[[2.0], [0.0]], [[2.0], [0.0]], [[2.0], [0.0]]],
+    "sampling_period": 0.1,
+}
+
+PAPER_GAINS_H01 = [[[-4.0726, -0.0823]], [[0.0024, 0.0375]], [[0.0006, 0.0114]]]  # eq. 23
+
+DESIGN_EXAMPLES = {
+    "paper_lmi": {
+        "summary": "Paper example (eq. 19, h = 0.1), exact convex design",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"},
+    },
+    "paper_ccl": {
+        "summary": "Paper example with the paper's CCL iteration",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "method": "ccl", "options": {"max_iter": 50}},
+    },
+    "dc_motor": {
+        "summary": "DC motor from physical parameters (Table I), three inertias",
+        "value": {"plant": {"kind": "dc_motor", "inertias": [0.03, 0.02, 0.01], "sampling_period": 0.1,
+                            "resistance": 2.0, "inductance": 0.5, "torque_constant": 0.15,
+                            "back_emf_constant": 0.15, "damping": 0.2},
+                  "n_drop": 3, "method": "lmi"},
+    },
+    "discrete": {
+        "summary": "Discrete-time family (eq. 20 at h = 0.1)",
+        "value": {"plant": {"kind": "discrete",
+                            "F": [[[0.6703, -0.0018], [0.0294, 0.5134]], [[0.6703, -0.0015], [0.0378, 0.3678]],
+                                  [[0.6702, -0.0010], [0.0502, 0.1353]]],
+                            "G": [[[0.1648], [0.0035]], [[0.1648], [0.0048]], [[0.1648], [0.0073]]],
+                            "sampling_period": 0.1},
+                  "n_drop": 3, "method": "lmi"},
+    },
+}
+
+ANALYSIS_EXAMPLES = {
+    "paper_eq23": {
+        "summary": "The paper's gains (eq. 23) on the paper's plant",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01},
+    },
+}
+
+SIMULATION_EXAMPLES = {
+    "paper_fig3": {
+        "summary": "Fig. 3-like run: paper plant and gains, x0 = [-3, 2]",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01, "x0": [-3.0, 2.0],
+                  "steps": 100, "seed": 42},
+    },
+}

@@ -1,0 +1,150 @@
+"""Job-table operations shared by the HTTP routes and the dispatcher.
+
+Every state change is one short transaction guarded by the job's current
+status (and, for running jobs, by the lease owner), so two dispatchers or a
+dispatcher and a cancel request can never both win.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+from sqlalchemy import and_, select, update
+
+from app.db import Database
+from app.models import CANCELLED, FAILED, QUEUED, RUNNING, SUCCEEDED, Job, utcnow
+
+
+@dataclass
+class Claimed:
+    id: str
+    request: dict[str, Any]
+    attempts: int
+
+
+def has_queued(db: Database) -> bool:
+    with db.read() as s:
+        return s.execute(select(Job.id).where(Job.status == QUEUED).limit(1)).first() is not None
+
+
+def claim_next(db: Database, owner: str, lease_seconds: float) -> Claimed | None:
+    """Atomically move the oldest queued job to running, owned by ``owner``."""
+    with db.write() as s:
+        row = s.execute(
+            select(Job.id)
+            .where(Job.status == QUEUED)
+            .order_by(Job.created_at, Job.id)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+        ).first()
+        if row is None:
+            return None
+        now = utcnow()
+        res = s.execute(
+            update(Job)
+            .where(Job.id == row.id, Job.status == QUEUED)
+            .values(status=RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
+                    attempts=Job.attempts + 1, started_at=now, worker_pid=None, updated_at=now)
+        )
+        if res.rowcount != 1:
+            return None
+        job = s.execute(select(Job.request, Job.attempts).where(Job.id == row.id)).one()
+        return Claimed(row.id, job.request, job.attempts)
+
+
+def _running_owned(job_id: str, owner: str):
+    return and_(Job.id == job_id, Job.status == RUNNING, Job.lease_owner == owner)
+
+
+def set_worker_pid(db: Database, job_id: str, owner: str, pid: int) -> None:
+    with db.write() as s:
+        s.execute(update(Job).where(_running_owned(job_id, owner)).values(worker_pid=pid, updated_at=utcnow()))
+
+
+def update_progress(db: Database, job_id: str, owner: str, progress: dict[str, Any]) -> None:
+    with db.write() as s:
+        s.execute(update(Job).where(_running_owned(job_id, owner)).values(progress=progress, updated_at=utcnow()))
+
+
+def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[str, Any] | None = None,
+           error: str | None = None, progress: dict[str, Any] | None = None) -> bool:
+    assert status in (SUCCEEDED, FAILED, CANCELLED)
+    now = utcnow()
+    values: dict[str, Any] = dict(status=status, finished_at=now, updated_at=now, lease_owner=None,
+                                  lease_expires_at=None, result=result, error=error)
+    if progress is not None:
+        values["progress"] = progress
+    with db.write() as s:
+        return s.execute(update(Job).where(_running_owned(job_id, owner)).values(**values)).rowcount == 1
+
+
+def retry_or_fail(db: Database, job_id: str, owner: str, reason: str, max_attempts: int) -> str | None:
+    """After a worker died: queue the job again, or fail it when its attempts are used up."""
+    now = utcnow()
+    with db.write() as s:
+        job = s.execute(select(Job.attempts, Job.cancel_requested).where(_running_owned(job_id, owner))).first()
+        if job is None:
+            return None
+        if job.cancel_requested:
+            values = dict(status=CANCELLED, finished_at=now, error="cancelled by request")
+        elif job.attempts >= max_attempts:
+            values = dict(status=FAILED, finished_at=now,
+                          error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
+        else:
+            values = dict(status=QUEUED, error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)")
+        s.execute(update(Job).where(_running_owned(job_id, owner))
+                  .values(lease_owner=None, lease_expires_at=None, worker_pid=None, updated_at=now, **values))
+        return values["status"]
+
+
+def release(db: Database, job_id: str, owner: str) -> None:
+    """Graceful shutdown: give a running job back to the queue without using up an attempt."""
+    with db.write() as s:
+        s.execute(update(Job).where(_running_owned(job_id, owner))
+                  .values(status=QUEUED, attempts=Job.attempts - 1, lease_owner=None, lease_expires_at=None,
+                          worker_pid=None, progress=None, updated_at=utcnow()))
+
+
+def heartbeat(db: Database, owner: str, job_ids: list[str], lease_seconds: float) -> None:
+    if not job_ids:
+        return
+    now = utcnow()
+    with db.write() as s:
+        s.execute(update(Job).where(Job.id.in_(job_ids), Job.status == RUNNING, Job.lease_owner == owner)
+                  .values(lease_expires_at=now + timedelta(seconds=lease_seconds)))
+
+
+def recover_expired(db: Database, max_attempts: int) -> list[str]:
+    """Jobs whose service died (lease expired) go back to the queue (or fail/cancel)."""
+    now = utcnow()
+    with db.read() as s:
+        rows = s.execute(select(Job.id).where(Job.status == RUNNING, Job.lease_expires_at < now)).all()
+    recovered = []
+    for (job_id,) in rows:
+        with db.write() as s:
+            job = s.execute(select(Job.attempts, Job.cancel_requested, Job.lease_owner)
+                            .where(Job.id == job_id, Job.status == RUNNING, Job.lease_expires_at < now)).first()
+            if job is None:
+                continue
+            reason = "the service running this job stopped (lease expired)"
+            if job.cancel_requested:
+                values = dict(status=CANCELLED, finished_at=now, error="cancelled by request")
+            elif job.attempts >= max_attempts:
+                values = dict(status=FAILED, finished_at=now,
+                              error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
+            else:
+                values = dict(status=QUEUED, error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts})")
+            s.execute(update(Job).where(Job.id == job_id, Job.status == RUNNING, Job.lease_owner == job.lease_owner)
+                      .values(lease_owner=None, lease_expires_at=None, worker_pid=None, updated_at=now, **values))
+            recovered.append(job_id)
+    return recovered
+
+
+def cancel_requested_among(db: Database, job_ids: list[str]) -> set[str]:
+    if not job_ids:
+        return set()
+    with db.read() as s:
+        rows = s.execute(select(Job.id).where(Job.id.in_(job_ids), Job.cancel_requested.is_(True))).all()
+    return {r[0] for r in rows}

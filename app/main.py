@@ -1,0 +1,125 @@
+"""Application factory."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
+from fastapi.staticfiles import StaticFiles
+
+from app import problems
+from app.db import Database, run_migrations
+from app.dispatcher import Dispatcher
+from app.middleware import BodySizeLimit
+from app.routers import compute, designs, health
+from app.settings import Settings
+from app.syncpool import SyncPool
+
+log = logging.getLogger("app")
+
+DESCRIPTION = """
+Design and certify **networked predictive controllers for switched plants** with bounded packet losses
+(Routh, Das, Das, Pan: *Stabilization Based Networked Predictive Controller Design for Switched Plants*).
+
+* `POST /v1/designs` queues a design job (202 + `Location`); poll `GET /v1/designs/{id}` or stream
+  `GET /v1/designs/{id}/events` until `succeeded`, then read `result.gains` (n_drop matrices m x n, K_1 first)
+  and the re-checked Lyapunov certificate.
+* `GET /v1/designs/{id}/trace` simulates the designed loop (seeded, reproducible).
+* `POST /v1/analyses` checks given gains; `POST /v1/simulations` simulates them.
+
+Errors are RFC 9457 `application/problem+json`; `errors[].pointer` names the offending field.
+"""
+
+
+class LRU:
+    def __init__(self, size: int = 128):
+        self.size = size
+        self._d: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            if key in self._d:
+                self._d.move_to_end(key)
+                return self._d[key]
+            return None
+
+    def put(self, key, value) -> None:
+        with self._lock:
+            self._d[key] = value
+            self._d.move_to_end(key)
+            while len(self._d) > self.size:
+                self._d.popitem(last=False)
+
+
+def _docs_static_dir() -> Path:
+    import fastapi_offline
+
+    return Path(fastapi_offline.__file__).parent / "static"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        run_migrations(settings.database_url, settings.alembic_dir)
+        db = Database(settings.database_url)
+        app.state.db = db
+        app.state.sync_pool = SyncPool(settings.sync_workers, settings.sync_time_limit)
+        app.state.dispatcher = None
+        if settings.run_dispatcher:
+            app.state.dispatcher = Dispatcher(db, settings)
+            app.state.dispatcher.start()
+        try:
+            yield
+        finally:
+            if app.state.dispatcher is not None:
+                app.state.dispatcher.stop()
+            app.state.sync_pool.shutdown()
+            db.dispose()
+
+    app = FastAPI(
+        title="ncs-design",
+        version="0.1.0",
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,
+    )
+    app.state.settings = settings
+    app.state.trace_cache = LRU(128)
+    problems.install(app)
+    app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    app.include_router(designs.router)
+    app.include_router(compute.router)
+    app.include_router(health.router)
+
+    # Swagger UI and ReDoc from local files (no CDN): /docs works offline.
+    static = "/static/docs"
+    app.mount(static, StaticFiles(directory=_docs_static_dir()), name="docs-static")
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui(request: Request):
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url, title="ncs-design - API docs",
+            swagger_js_url=f"{static}/swagger-ui-bundle.js", swagger_css_url=f"{static}/swagger-ui.css",
+            swagger_favicon_url=f"{static}/favicon.png", oauth2_redirect_url="/docs/oauth2-redirect",
+        )
+
+    @app.get("/docs/oauth2-redirect", include_in_schema=False)
+    def swagger_redirect():
+        return get_swagger_ui_oauth2_redirect_html()
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc():
+        return get_redoc_html(openapi_url=app.openapi_url, title="ncs-design - API reference",
+                              redoc_js_url=f"{static}/redoc.standalone.js", redoc_favicon_url=f"{static}/favicon.png",
+                              with_google_fonts=False)
+
+    return app

@@ -1,0 +1,60 @@
+"""ASGI middleware: request body size limit (413 as problem+json)."""
+
+from __future__ import annotations
+
+import json
+
+from starlette.exceptions import HTTPException
+
+from app.problems import PROBLEM_MEDIA_TYPE
+
+
+class BodyTooLarge(HTTPException):
+    def __init__(self, limit: int):
+        super().__init__(413, f"the request body is larger than the limit of {limit} bytes (NCS_MAX_BODY_BYTES)")
+
+
+class BodySizeLimit:
+    """Rejects bodies over ``limit`` bytes: by Content-Length up front, and by
+    counting the streamed chunks (chunked transfer or a lying header)."""
+
+    def __init__(self, app, limit: int):
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        for name, value in scope.get("headers", ()):
+            if name == b"content-length":
+                try:
+                    too_big = int(value) > self.limit
+                except ValueError:
+                    too_big = False
+                if too_big:
+                    return await self._reject(scope, send)
+        received = 0
+        limit = self.limit
+
+        async def limited_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    raise BodyTooLarge(limit)
+            return message
+
+        await self.app(scope, limited_receive, send)
+
+    async def _reject(self, scope, send):
+        body = json.dumps({
+            "type": "about:blank", "title": "Content Too Large", "status": 413,
+            "detail": f"the request body is larger than the limit of {self.limit} bytes (NCS_MAX_BODY_BYTES)",
+            "instance": scope.get("path", ""),
+        }).encode()
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
+                                (b"content-length", str(len(body)).encode()),
+                                (b"connection", b"close")]})
+        await send({"type": "http.response.body", "body": body})

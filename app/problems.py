@@ -1,0 +1,118 @@
+"""RFC 9457 problem details for every error response."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+log = logging.getLogger("app")
+
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+TYPE_BASE = "https://ncs-design.invalid/problems/"
+PLANT_KINDS = {"continuous", "discrete", "dc_motor"}
+
+
+def json_pointer(loc: Sequence[Any]) -> str:
+    """JSON pointer (RFC 6901) into the request body for a pydantic ``loc``.
+
+    ``("body", "plant", "continuous", "A", 1)`` -> ``/plant/A/1`` (the
+    discriminated union's tag is not part of the document).
+    """
+    parts = list(loc)
+    if parts and parts[0] in ("body", "query", "path", "header"):
+        parts = parts[1:]
+    out = []
+    for i, p in enumerate(parts):
+        if i > 0 and parts[i - 1] == "plant" and p in PLANT_KINDS:
+            continue
+        out.append(str(p).replace("~", "~0").replace("/", "~1"))
+    return "/" + "/".join(out) if out else ""
+
+
+def field_error(loc: Sequence[Any], msg: str, type_: str = "value_error") -> dict[str, Any]:
+    loc = [p if isinstance(p, int) else str(p) for p in loc]
+    return {"loc": loc, "pointer": json_pointer(loc), "msg": msg, "type": type_}
+
+
+class ProblemException(Exception):
+    """Raise anywhere in a request to answer with a problem+json response."""
+
+    def __init__(self, status: int, detail: str, *, title: str | None = None,
+                 type_: str | None = None, errors: Iterable[dict[str, Any]] | None = None,
+                 headers: dict[str, str] | None = None):
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+        self.title = title or HTTPStatus(status).phrase
+        self.type = type_ or "about:blank"
+        self.errors = list(errors) if errors is not None else None
+        self.headers = headers
+
+
+def invalid(errors: list[dict[str, Any]], detail: str | None = None) -> ProblemException:
+    if detail is None:
+        detail = "; ".join(f"{e['pointer'] or '/'}: {e['msg']}" for e in errors)
+    return ProblemException(422, detail, title="Invalid request", type_=TYPE_BASE + "invalid-request",
+                            errors=errors)
+
+
+def problem_response(request: Request | None, status: int, title: str, detail: str | None = None,
+                     type_: str = "about:blank", errors: list[dict[str, Any]] | None = None,
+                     headers: dict[str, str] | None = None) -> JSONResponse:
+    body: dict[str, Any] = {"type": type_, "title": title, "status": status}
+    if detail is not None:
+        body["detail"] = detail
+    if request is not None:
+        body["instance"] = request.url.path
+    if errors is not None:
+        body["errors"] = errors
+    return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)
+
+
+def _clean_validation_errors(errors: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    out = []
+    for e in errors:
+        loc = list(e.get("loc", ()))
+        out.append(field_error(loc, e.get("msg", "invalid"), e.get("type", "value_error")))
+    return out
+
+
+def install(app: FastAPI) -> None:
+    @app.exception_handler(ProblemException)
+    async def _problem(request: Request, exc: ProblemException):
+        return problem_response(request, exc.status, exc.title, exc.detail, exc.type, exc.errors,
+                                exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError):
+        errors = _clean_validation_errors(exc.errors())
+        if any(e["type"] == "json_invalid" for e in errors):
+            return problem_response(request, 422, "Malformed JSON",
+                                    "The request body is not valid JSON: " + errors[0]["msg"],
+                                    TYPE_BASE + "malformed-json", errors)
+        detail = "; ".join(f"{e['pointer'] or '/'}: {e['msg']}" for e in errors[:10])
+        return problem_response(request, 422, "Invalid request", detail,
+                                TYPE_BASE + "invalid-request", errors)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException):
+        try:
+            title = HTTPStatus(exc.status_code).phrase
+        except ValueError:
+            title = "Error"
+        detail = exc.detail if isinstance(exc.detail, str) else title
+        return problem_response(request, exc.status_code, title, detail,
+                                headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(Exception)
+    async def _unhandled(request: Request, exc: Exception):
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem_response(request, 500, "Internal Server Error",
+                                "An unexpected error occurred; it has been logged.")

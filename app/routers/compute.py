@@ -1,0 +1,75 @@
+"""/v1/simulations and /v1/analyses: synchronous, size-limited, run on the sync process pool."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Depends, Request
+
+from app import validation
+from app.deps import get_settings, require_api_key
+from app.examples import ANALYSIS_EXAMPLES, SIMULATION_EXAMPLES
+from app.problems import invalid
+from app.schemas import AnalysisRequest, SimulationRequest
+from app.settings import Settings
+from app.syncpool import unwrap
+
+router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)])
+PROBLEM = {"content": {"application/problem+json": {}}}
+
+
+@router.post(
+    "/simulations", tags=["simulations"], summary="Simulate given gains (seeded)",
+    description="Seeded simulation of the networked loop with the given gains: packet losses (sensor and "
+                "control), plant switching and the predictive buffer. Returns t, x, u, mode, sensor_arrived, "
+                "control_arrived, effective, eta, ...",
+    responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
+)
+async def simulate(request: Request,
+                   body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
+                   settings: Settings = Depends(get_settings)) -> dict:
+    errors: list = []
+    shape = validation.plant_shape(body.plant, settings, errors)
+    if body.n_drop is not None:
+        validation.check_n_drop(body.n_drop, settings, errors)
+    validation.check_steps(body.steps, settings, errors, ["body", "steps"])
+    if shape is not None:
+        validation.check_gains(body.gains, body.n_drop, shape, errors)
+        validation.check_x0(body.x0, shape, errors, ["body", "x0"])
+        validation.check_mode(body.mode, shape, errors, ["body", "mode"])
+    if errors:
+        raise invalid(errors)
+    req = body.model_dump(mode="json")
+    out = await request.app.state.sync_pool.run("simulation", req)
+    return unwrap(out, ["body"], set(req["plant"].keys()))
+
+
+@router.post(
+    "/analyses", tags=["analyses"], summary="Analyze given gains (Theorem 1 certificate, spectral radii)",
+    description="Runs synchronously (the family and the mode products are bounded by the size limits). "
+                "`stable` is true (certified by a re-checked Lyapunov certificate), false (a mode product is "
+                "unstable) or null (unknown).",
+    responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
+)
+async def analyses(request: Request,
+                   body: Annotated[AnalysisRequest, Body(openapi_examples=ANALYSIS_EXAMPLES)],
+                   settings: Settings = Depends(get_settings)) -> dict:
+    errors: list = []
+    shape = validation.plant_shape(body.plant, settings, errors)
+    if body.n_drop is not None:
+        validation.check_n_drop(body.n_drop, settings, errors)
+    req = body.model_dump(mode="json")
+    if shape is not None:
+        n_drop = validation.check_gains(body.gains, body.n_drop, shape, errors)
+        if not errors:
+            validation.check_n_drop(n_drop, settings, errors)
+            size = validation.lmi_size("ccl", shape.n, shape.r, n_drop)
+            if size > settings.max_lmi_size:
+                errors.append(validation.field_error(
+                    ["body", "gains"], f"the analysis has total LMI size {size}, over the limit of "
+                    f"{settings.max_lmi_size} (NCS_MAX_LMI_SIZE)", "limit_exceeded"))
+            req["max_products"] = settings.max_analysis_products
+    if errors:
+        raise invalid(errors)
+    out = await request.app.state.sync_pool.run("analysis", req)
+    return unwrap(out, ["body"], set(req["plant"].keys()))

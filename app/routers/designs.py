@@ -1,0 +1,310 @@
+"""/v1/designs: submit, inspect, list, stream, cancel design jobs; traces."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import math
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
+from sqlalchemy import func, select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from app import tasks, validation
+from app.deps import get_database, get_session, get_settings, get_write_session, require_api_key
+from app.examples import DESIGN_EXAMPLES
+from app.models import CANCELLED, QUEUED, RUNNING, STATUSES, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
+from app.problems import ProblemException, field_error, invalid
+from app.schemas import DesignRequest, Job, JobList
+from app.syncpool import unwrap
+from app.settings import Settings
+from app.views import full, summary
+
+router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)])
+
+PROBLEM = {"model": None, "content": {"application/problem+json": {}}}
+ERRORS = {
+    404: {"description": "Unknown job id", "content": {"application/problem+json": {}}},
+    422: {"description": "Invalid request (problem+json naming the field)", "content": {"application/problem+json": {}}},
+}
+
+
+def canonical_json(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def _not_found(job_id: str) -> ProblemException:
+    return ProblemException(404, f"no design job with id {job_id!r}", title="Not Found")
+
+
+def _load(session: Session, job_id: str) -> JobRow:
+    row = session.get(JobRow, job_id) if len(job_id) <= 36 else None
+    if row is None:
+        raise _not_found(job_id)
+    return row
+
+
+def validate_family(plant_dict: dict, plant_keys: set[str]) -> None:
+    """Build the family with the solver (cheap: ZOH of small matrices) to catch what it rejects."""
+    from solver import InvalidInput
+
+    try:
+        tasks.build_family(plant_dict)
+    except InvalidInput as exc:
+        raise invalid([validation.solver_field_error(getattr(exc, "field", ()), str(exc), plant_keys)])
+
+
+@router.post(
+    "", status_code=202, response_model=Job,
+    summary="Submit a design job",
+    responses={202: {"description": "Accepted; poll the Location or stream /events"},
+               413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
+               422: ERRORS[422]},
+)
+def submit_design(
+    request: Request,
+    response: Response,
+    body: Annotated[DesignRequest, Body(openapi_examples=DESIGN_EXAMPLES)],
+    idempotency_key: Annotated[str | None, Header(max_length=255, description="Same key and body -> same job")] = None,
+    settings: Settings = Depends(get_settings),
+    session: Session = Depends(get_write_session),
+) -> Job:
+    validation.check_design(body, settings)
+    req = body.model_dump(mode="json")
+    validate_family(req["plant"], set(req["plant"].keys()))
+    digest = hashlib.sha256(canonical_json(req).encode()).hexdigest()
+
+    def replay(row: JobRow) -> Job:
+        if row.request_hash != digest:
+            raise invalid([field_error(["header", "Idempotency-Key"],
+                                       "this Idempotency-Key was already used with a different request body",
+                                       "idempotency_key_reused")])
+        response.headers["Location"] = f"/v1/designs/{row.id}"
+        response.headers["Idempotent-Replayed"] = "true"
+        return full(row)
+
+    if idempotency_key is not None:
+        existing = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        if existing is not None:
+            return replay(existing)
+    now = utcnow()
+    row = JobRow(id=new_id(), kind="design", status=QUEUED, method=req["method"], n_drop=req["n_drop"],
+                 request=req, request_hash=digest, idempotency_key=idempotency_key, attempts=0,
+                 cancel_requested=False, created_at=now, updated_at=now)
+    session.add(row)
+    try:
+        session.commit()
+    except IntegrityError:  # a concurrent request with the same key won the race
+        session.rollback()
+        existing = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        if existing is None:
+            raise
+        return replay(existing)
+    dispatcher = getattr(request.app.state, "dispatcher", None)
+    if dispatcher is not None:
+        dispatcher.notify()
+    response.headers["Location"] = f"/v1/designs/{row.id}"
+    return full(row)
+
+
+@router.get("", response_model=JobList, summary="List design jobs, newest first")
+def list_designs(
+    request: Request,
+    status: Annotated[Literal["queued", "running", "succeeded", "failed", "cancelled"] | None,
+                      Query(description="Only jobs with this status")] = None,
+    limit: Annotated[int, Query(ge=1, le=100)] = 20,
+    offset: Annotated[int, Query(ge=0)] = 0,
+    session: Session = Depends(get_session),
+) -> JobList:
+    q = select(JobRow)
+    count = select(func.count()).select_from(JobRow)
+    if status is not None:
+        q = q.where(JobRow.status == status)
+        count = count.where(JobRow.status == status)
+    rows = session.execute(q.order_by(JobRow.created_at.desc(), JobRow.id.desc()).limit(limit).offset(offset)).scalars().all()
+    total = session.execute(count).scalar_one()
+    nxt = None
+    if offset + len(rows) < total:
+        params = f"limit={limit}&offset={offset + limit}" + (f"&status={status}" if status else "")
+        nxt = f"/v1/designs?{params}"
+    return JobList(items=[summary(r) for r in rows], total=total, limit=limit, offset=offset, next=nxt)
+
+
+@router.get("/{job_id}", response_model=Job, summary="A design job with its result", responses={404: ERRORS[404]})
+def get_design(job_id: str, session: Session = Depends(get_session)) -> Job:
+    return full(_load(session, job_id))
+
+
+@router.post(
+    "/{job_id}/cancel", response_model=Job, status_code=202,
+    summary="Cancel a design job",
+    description="A queued job is cancelled at once (200) and never starts. A running job is asked to stop "
+                "(202): it ends `cancelled` within about a second. A succeeded or failed job: 409. "
+                "Cancelling a cancelled job again returns it (200).",
+    responses={200: {"description": "Cancelled"}, 404: ERRORS[404],
+               409: {"description": "The job already finished", "content": {"application/problem+json": {}}}},
+)
+def cancel_design(job_id: str, request: Request, response: Response,
+                  session: Session = Depends(get_write_session)) -> Job:
+    row = _load(session, job_id)
+    now = utcnow()
+    if row.status == QUEUED:
+        res = session.execute(update(JobRow).where(JobRow.id == job_id, JobRow.status == QUEUED).values(
+            status=CANCELLED, cancel_requested=True, finished_at=now, updated_at=now, error="cancelled by request"))
+        if res.rowcount == 1:
+            session.commit()
+            session.refresh(row)
+            response.status_code = 200
+            return full(row)
+        session.rollback()
+        session.refresh(row)
+    if row.status == RUNNING:
+        session.execute(update(JobRow).where(JobRow.id == job_id, JobRow.status == RUNNING)
+                        .values(cancel_requested=True, updated_at=now))
+        session.commit()
+        session.refresh(row)
+        dispatcher = getattr(request.app.state, "dispatcher", None)
+        if dispatcher is not None:
+            dispatcher.notify()
+        return full(row)
+    if row.status == CANCELLED:
+        response.status_code = 200
+        return full(row)
+    raise ProblemException(409, f"job {job_id} already finished with status {row.status!r}; it cannot be cancelled",
+                           title="Conflict")
+
+
+@router.get(
+    "/{job_id}/events", summary="Server-Sent Events: progress and the final state",
+    description="Events: `status` (on every status change, data = job summary), `progress` (data = "
+                "iteration, objective, trace_gap, theorem1, elapsed), and a last `end` event with the full "
+                "job once it is finished; then the stream closes.",
+    responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
+)
+async def design_events(job_id: str, request: Request, db=Depends(get_database)):
+    def load():
+        with db.read() as s:
+            row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
+            return None if row is None else full(row)
+
+    first = await run_in_threadpool(load)
+    if first is None:
+        raise _not_found(job_id)
+
+    async def stream():
+        job = first
+        last_status = last_progress = None
+        seq = 0
+        idle = 0.0
+        yield "retry: 1000\n\n"
+        while True:
+            if job.status != last_status:
+                seq += 1
+                last_status = job.status
+                yield f"id: {seq}\nevent: status\ndata: {summary_json(job)}\n\n"
+            prog = job.progress.model_dump() if job.progress else None
+            if prog is not None and prog != last_progress:
+                seq += 1
+                last_progress = prog
+                yield f"id: {seq}\nevent: progress\ndata: {json.dumps(prog)}\n\n"
+            if job.status in TERMINAL:
+                seq += 1
+                yield f"id: {seq}\nevent: end\ndata: {job.model_dump_json()}\n\n"
+                return
+            await asyncio.sleep(0.25)
+            idle += 0.25
+            if idle >= 15:
+                idle = 0.0
+                yield ": keep-alive\n\n"
+            if await request.is_disconnected():
+                return
+            job = await run_in_threadpool(load) or job
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+def summary_json(job: Job) -> str:
+    data = job.model_dump(mode="json", exclude={"request", "result"})
+    return json.dumps(data)
+
+
+def _parse_x0(raw: str | None, n: int) -> list[float]:
+    if raw is None:
+        return [1.0] * n
+    try:
+        vals = [float(v) for v in raw.split(",")]
+    except ValueError:
+        raise invalid([field_error(["query", "x0"], "x0 must be comma-separated numbers, e.g. x0=-3,2", "float_parsing")])
+    if not all(math.isfinite(v) for v in vals):
+        raise invalid([field_error(["query", "x0"], "x0 entries must be finite", "finite_number")])
+    if len(vals) != n:
+        raise invalid([field_error(["query", "x0"], f"x0 has {len(vals)} entries, the plant has n = {n} states",
+                                   "vector_mismatch")])
+    return vals
+
+
+@router.get(
+    "/{job_id}/trace",
+    summary="Seeded simulation of the designed loop (all plant modes)",
+    description="The top level is the run with the requested plant switching (like Fig. 3/4); `per_mode` holds "
+                "one run per fixed plant mode with the same losses. The same query always returns "
+                "byte-identical JSON (keys sorted, compact).",
+    responses={200: {"content": {"application/json": {}}}, 404: ERRORS[404],
+               409: {"description": "The design has no gains (not succeeded or not stabilized)",
+                     "content": {"application/problem+json": {}}}, 422: ERRORS[422]},
+)
+async def design_trace(
+    job_id: str,
+    request: Request,
+    seed: Annotated[int, Query(ge=0)] = 42,
+    steps: Annotated[int, Query(ge=1)] = 100,
+    x0: Annotated[str | None, Query(description="Initial state, comma-separated (default: all ones)",
+                                    examples=["-3,2"])] = None,
+    loss_model: Literal["paper", "bernoulli"] = "paper",
+    sensor_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+    control_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+    plant_switching: Literal["per_interval", "per_sample", "none"] = "per_interval",
+    mode: Annotated[int | None, Query(ge=0)] = None,
+    db=Depends(get_database),
+    settings: Settings = Depends(get_settings),
+):
+    def load():
+        with db.read() as s:
+            row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
+            return None if row is None else (row.status, row.request, row.result)
+
+    got = await run_in_threadpool(load)
+    if got is None:
+        raise _not_found(job_id)
+    status, req, result = got
+    if status != SUCCEEDED or not result or not result.get("gains"):
+        why = f"status is {status!r}" if status != SUCCEEDED else f"outcome is {result.get('outcome')!r}"
+        raise ProblemException(409, f"design {job_id} has no gains to simulate ({why})", title="Conflict")
+    n = len(result["F"][0])
+    r = len(result["F"])
+    errors: list = []
+    validation.check_steps(steps, settings, errors, ["query", "steps"])
+    if mode is not None and mode >= r:
+        errors.append(field_error(["query", "mode"], f"mode {mode} does not exist: the plant has {r} modes (0-based)",
+                                  "mode_out_of_range"))
+    if errors:
+        raise invalid(errors)
+    params = dict(seed=seed, steps=steps, x0=_parse_x0(x0, n), loss_model=loss_model, sensor_loss=sensor_loss,
+                  control_loss=control_loss, plant_switching=plant_switching, mode=mode)
+    cache = request.app.state.trace_cache
+    key = (job_id, canonical_json(params))
+    body = cache.get(key)
+    if body is None:
+        out = await request.app.state.sync_pool.run("trace", req["plant"], result["gains"], req["n_drop"], params)
+        body = canonical_json(unwrap(out, ["query"], set())).encode()
+        cache.put(key, body)
+    etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers={"ETag": etag})
+    return Response(content=body, media_type="application/json", headers={"ETag": etag})

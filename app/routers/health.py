@@ -1,0 +1,47 @@
+"""Liveness and readiness probes."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+
+from app.problems import PROBLEM_MEDIA_TYPE
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", summary="Liveness: the process answers")
+def healthz() -> dict:
+    return {"status": "ok"}
+
+
+@router.get("/readyz", summary="Readiness: database reachable and workers alive",
+            responses={503: {"content": {"application/problem+json": {}}}})
+async def readyz(request: Request):
+    state = request.app.state
+    checks: dict = {}
+    ok = True
+    try:
+        await run_in_threadpool(state.db.ping)
+        checks["database"] = "ok"
+    except Exception as exc:
+        ok = False
+        checks["database"] = f"unreachable: {type(exc).__name__}"
+    disp = getattr(state, "dispatcher", None)
+    if disp is None:
+        checks["workers"] = {"dispatcher": "disabled"}
+    else:
+        alive, ready = disp.alive_workers(), disp.ready_workers()
+        checks["workers"] = {"configured": len(disp.slots), "alive": alive, "ready": ready,
+                             "dispatcher": "running" if disp.thread_alive() else "stopped"}
+        if disp.error:
+            checks["workers"]["last_error"] = disp.error
+        if not disp.thread_alive() or ready == 0:
+            ok = False
+    if ok:
+        return {"status": "ready", **checks}
+    body = {"type": "about:blank", "title": "Service Unavailable", "status": 503,
+            "detail": "not ready: " + ", ".join(f"{k}={v}" for k, v in checks.items()),
+            "instance": request.url.path, "checks": checks}
+    return JSONResponse(body, status_code=503, media_type=PROBLEM_MEDIA_TYPE)

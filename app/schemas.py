@@ -1,0 +1,190 @@
+"""Pydantic request/response schemas (the HTTP contract).
+
+Matrices are JSON lists of rows; a plant family is a list of matrices, one
+per mode. Numbers must be finite JSON numbers: strings, booleans, NaN and
+Infinity are rejected with the offending element's location.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, Strict, field_serializer
+
+Number = Annotated[float, Strict(), AllowInfNan(False)]
+Int = Annotated[int, Strict()]
+Matrix = list[list[Number]]
+Vector = list[Number]
+
+try:  # the methods the solver library offers (e.g. "lmi", "ccl")
+    from solver import METHODS as _SOLVER_METHODS
+
+    METHODS = tuple(_SOLVER_METHODS)
+except Exception:  # pragma: no cover - solver not importable
+    METHODS = ("lmi", "ccl")
+MethodName = Literal[METHODS]  # type: ignore[valid-type]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ContinuousPlant(_Strict):
+    """Continuous-time family `dx/dt = A_l x + B_l u`, discretized by zero-order hold."""
+
+    kind: Literal["continuous"]
+    A: list[Matrix] = Field(description="One n x n matrix per plant mode.")
+    B: list[Matrix] = Field(description="One n x m matrix per plant mode.")
+    sampling_period: Number = Field(gt=0, description="Sampling period h in seconds (> 0).")
+
+
+class DiscretePlant(_Strict):
+    """Discrete-time family `x(k+1) = F_l x(k) + G_l u(k)`."""
+
+    kind: Literal["discrete"]
+    F: list[Matrix] = Field(description="One n x n matrix per plant mode.")
+    G: list[Matrix] = Field(description="One n x m matrix per plant mode.")
+    sampling_period: Number | None = Field(
+        None, gt=0, description="Optional sampling period (s), only used to label time axes."
+    )
+
+
+class DcMotorPlant(_Strict):
+    """The paper's DC motor (eq. 16/18) with switching inertia, built from physical parameters.
+
+    Note: this uses eq. 18 with the given parameters. The paper's printed eq. 19 matrices
+    differ from Table I; to reproduce the paper exactly, send eq. 19 as a `continuous` plant.
+    """
+
+    kind: Literal["dc_motor"]
+    inertias: list[Annotated[Number, Field(gt=0)]] = Field(
+        description="Moment of inertia J per plant mode (kg m^2).", min_length=1
+    )
+    sampling_period: Number = Field(gt=0, description="Sampling period h in seconds.")
+    resistance: Number = Field(2.0, gt=0, description="Armature resistance R (ohm).")
+    inductance: Number = Field(0.5, gt=0, description="Armature inductance L (H).")
+    torque_constant: Number = Field(0.15, description="Torque constant K_m.")
+    back_emf_constant: Number = Field(0.15, description="Back-EMF constant K_b.")
+    damping: Number = Field(0.2, ge=0, description="Viscous damping B.")
+
+
+Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(discriminator="kind")]
+
+
+class DesignOptions(_Strict):
+    solver: Literal["CLARABEL", "SCS"] = Field("CLARABEL", description="SDP solver used by cvxpy.")
+    margin: Number = Field(1e-6, gt=0, le=1, description="Strictness margin of the LMIs.")
+    max_iter: Int = Field(50, ge=1, le=1000, description="Iteration cap of iterative methods (ccl).")
+
+
+class DesignRequest(_Strict):
+    plant: Plant
+    n_drop: Int = Field(3, ge=1, description="N_drop: at most n_drop - 1 consecutive losses.")
+    method: MethodName = Field(
+        "lmi", description="`lmi`: exact convex design (one SDP); `ccl`: the paper's cone "
+        "complementarity linearization (iterative, reports progress)."
+    )
+    options: DesignOptions = Field(default_factory=DesignOptions)
+
+
+class Progress(BaseModel):
+    iteration: int | None = None
+    objective: float | None = None
+    trace_gap: float | None = None
+    theorem1: bool | None = None
+    elapsed: float | None = None
+
+
+class Links(BaseModel):
+    self: str
+    events: str
+    cancel: str
+    trace: str
+
+
+def _utc(dt: datetime | None) -> datetime | None:
+    if dt is None:
+        return None
+    if dt.tzinfo is None:
+        return dt.replace(tzinfo=timezone.utc)
+    return dt.astimezone(timezone.utc)
+
+
+class JobSummary(BaseModel):
+    id: str
+    status: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    method: str
+    n_drop: int
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    updated_at: datetime
+    attempts: int
+    cancel_requested: bool
+    progress: Progress | None = None
+    outcome: str | None = Field(None, description="The design's outcome once succeeded.")
+    error: str | None = Field(None, description="Why the job failed (or the last retry reason).")
+    links: Links
+
+    @field_serializer("created_at", "started_at", "finished_at", "updated_at")
+    def _ser_dt(self, dt: datetime | None):
+        dt = _utc(dt)
+        return None if dt is None else dt.isoformat().replace("+00:00", "Z")
+
+
+class Job(JobSummary):
+    request: dict[str, Any] = Field(description="The design request as accepted (defaults filled in).")
+    result: dict[str, Any] | None = Field(
+        None,
+        description="When succeeded: outcome, gains (n_drop matrices m x n, K_1 first), certificate, "
+        "spectral_radii, F, G (the discretized family), history, timings, solver details.",
+    )
+
+
+class JobList(BaseModel):
+    items: list[JobSummary]
+    total: int
+    limit: int
+    offset: int
+    next: str | None = Field(None, description="URL of the next page, if any.")
+
+
+class SimulationRequest(_Strict):
+    plant: Plant
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n.")
+    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
+    x0: Vector = Field(description="Initial state (length n).")
+    steps: Int = Field(100, ge=1)
+    seed: Int = Field(42, ge=0)
+    loss_model: Literal["paper", "bernoulli"] = "paper"
+    sensor_loss: Number = Field(0.2, ge=0, lt=1)
+    control_loss: Number = Field(0.2, ge=0, lt=1)
+    plant_switching: Literal["per_interval", "per_sample", "none"] = "per_interval"
+    mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
+
+
+class AnalysisRequest(_Strict):
+    plant: Plant
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n.")
+    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
+    max_product_length: Int | None = Field(
+        None, ge=1, le=8, description="Longest mode product searched for a destabilizing pattern "
+        "(default 4; the number of products per length is capped by NCS_MAX_ANALYSIS_PRODUCTS)."
+    )
+
+
+class ProblemError(BaseModel):
+    loc: list[str | int]
+    pointer: str
+    msg: str
+    type: str
+
+
+class Problem(BaseModel):
+    type: str = "about:blank"
+    title: str
+    status: int
+    detail: str | None = None
+    instance: str | None = None
+    errors: list[ProblemError] | None = None

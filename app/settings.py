@@ -1,0 +1,100 @@
+"""Service configuration, read from environment variables with the ``NCS_`` prefix.
+
+Every field can be set as ``NCS_<FIELD_NAME>`` (case-insensitive), e.g.
+``NCS_DATABASE_URL=postgresql+psycopg://user@host/db`` or ``NCS_WORKERS=4``.
+The README's settings table is generated from the descriptions below.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+def _default_workers() -> int:
+    return max(1, os.cpu_count() or 1)
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="NCS_", extra="ignore")
+
+    database_url: str = Field(
+        "sqlite:///./ncs.db",
+        description="SQLAlchemy URL of the job database. Default: an SQLite file `ncs.db` in the "
+        "working directory. PostgreSQL: `postgresql+psycopg://user@host:5432/db`.",
+    )
+    workers: int = Field(
+        default_factory=_default_workers, ge=1, le=256,
+        description="Number of design worker processes (default: CPU count).",
+    )
+    sync_workers: int = Field(
+        1, ge=1, le=64,
+        description="Worker processes that serve the synchronous endpoints "
+        "(`/v1/analyses`, `/v1/simulations`, traces).",
+    )
+    job_time_limit: float = Field(
+        300.0, gt=0, description="Wall-clock limit in seconds for one design attempt; a job "
+        "over it is stopped and ends `failed`.",
+    )
+    sync_time_limit: float = Field(
+        30.0, gt=0, description="Limit in seconds for one synchronous analysis/simulation.",
+    )
+    max_attempts: int = Field(
+        3, ge=1, le=100,
+        description="Attempts per job when its worker process dies or its service is killed; "
+        "after that the job ends `failed`.",
+    )
+    lease_seconds: float = Field(
+        15.0, gt=0, description="A running job's lease; the owning service renews it every "
+        "lease/3 s. A job whose lease expired (its service died) is queued again.",
+    )
+    poll_interval: float = Field(
+        0.25, gt=0, description="How often (s) the dispatcher looks for queued jobs and cancel requests.",
+    )
+    cancel_grace: float = Field(
+        1.0, ge=0, description="Seconds a running job gets to stop cooperatively after a "
+        "cancel before its worker process is killed.",
+    )
+    api_keys: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="Comma-separated API keys. When set, `/v1` requires `X-API-Key: <key>` "
+        "or `Authorization: Bearer <key>`. Empty: no authentication.",
+    )
+    max_body_bytes: int = Field(
+        1_000_000, ge=1024, description="Largest accepted request body in bytes (413 above).",
+    )
+    max_states: int = Field(20, ge=1, description="Largest number of states n.")
+    max_inputs: int = Field(20, ge=1, description="Largest number of inputs m.")
+    max_modes: int = Field(20, ge=1, description="Largest number of plant modes r.")
+    max_n_drop: int = Field(20, ge=1, description="Largest n_drop (bound on consecutive losses + 1).")
+    max_lmi_size: int = Field(
+        4000, ge=1, description="Largest total LMI size of a design (sum of the block sizes of "
+        "all matrix inequalities: `2 n r n_drop` for lmi, `2 n n_drop (r n_drop + 1)` for ccl, "
+        "`2 n (r n_drop)^2` for switched).",
+    )
+    max_simulation_steps: int = Field(10_000, ge=1, description="Largest `steps` of a simulation or trace.")
+    max_analysis_products: int = Field(
+        200_000, ge=1,
+        description="Budget of mode products per length that an analysis may enumerate.",
+    )
+    alembic_dir: Path | None = Field(
+        None, description="Directory of the Alembic migration environment (found automatically).",
+    )
+    run_dispatcher: bool = Field(
+        True, description="Run the job dispatcher and worker pool in this process.",
+    )
+    host: str = Field("127.0.0.1", description="`ncs-design serve` bind address.")
+    port: int = Field(8000, description="`ncs-design serve` port.")
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _split_keys(cls, value):
+        if value is None:
+            return []
+        if isinstance(value, str):
+            return [k.strip() for k in value.split(",") if k.strip()]
+        return value

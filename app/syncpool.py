@@ -1,0 +1,93 @@
+"""A small process pool for the synchronous endpoints (analyses, simulations,
+traces). The event loop awaits the result; a call over ``sync_time_limit``
+kills the pool's processes (a fresh pool replaces it) and answers 503.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import multiprocessing as mp
+import os
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+from app.problems import ProblemException
+
+log = logging.getLogger("app.syncpool")
+
+
+def _init_worker(parent_pid: int) -> None:
+    from app.worker import _die_with_parent
+    from app import tasks
+
+    _die_with_parent(parent_pid)
+    tasks.warm_up()
+
+
+class SyncPool:
+    def __init__(self, workers: int, time_limit: float):
+        self.workers = workers
+        self.time_limit = time_limit
+        self._executor: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def _get(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._executor is None:
+                self._executor = ProcessPoolExecutor(
+                    max_workers=self.workers, mp_context=mp.get_context("spawn"),
+                    initializer=_init_worker, initargs=(os.getpid(),))
+            return self._executor
+
+    def _discard(self, executor: ProcessPoolExecutor) -> None:
+        with self._lock:
+            if self._executor is executor:
+                self._executor = None
+        procs = list(getattr(executor, "_processes", {}).values())  # no public API to kill a pool
+        for p in procs:
+            try:
+                p.kill()
+            except Exception:  # pragma: no cover
+                pass
+        executor.shutdown(wait=False, cancel_futures=True)
+
+    async def run(self, task: str, *args: Any) -> tuple:
+        from app.tasks import call_sync
+
+        executor = self._get()
+        try:
+            fut = executor.submit(call_sync, task, *args)
+            return await asyncio.wait_for(asyncio.wrap_future(fut), self.time_limit)
+        except (asyncio.TimeoutError, TimeoutError):
+            self._discard(executor)
+            raise ProblemException(503, f"the {task} took longer than {self.time_limit:g} s "
+                                        "(NCS_SYNC_TIME_LIMIT) and was stopped", title="Time limit exceeded")
+        except BrokenProcessPool:
+            self._discard(executor)
+            raise ProblemException(503, f"the {task} worker process died; try again",
+                                   title="Worker process died")
+
+    def shutdown(self) -> None:
+        with self._lock:
+            ex, self._executor = self._executor, None
+        if ex is not None:
+            ex.shutdown(wait=True, cancel_futures=True)
+
+
+def unwrap(out: tuple, loc_base: list, plant_keys: set[str]) -> Any:
+    """Result of ``tasks.call_sync`` -> the value, or a problem (422 for invalid input, 500 for a crash)."""
+    from app.problems import field_error, invalid
+
+    if out[0] == "ok":
+        return out[1]
+    if out[0] == "invalid":
+        field, message = tuple(out[1]), out[2]
+        if field and field[0] in plant_keys:
+            loc = ["body", "plant", *field]
+        else:
+            loc = [*loc_base, *field]
+        raise invalid([field_error(loc, message, "solver_invalid_input")])
+    raise ProblemException(500, f"the solver failed: {out[1]}", title="Solver error")

@@ -1,0 +1,184 @@
+"""The solver work the service runs: pure functions of JSON-able dicts.
+
+These run in worker processes (design jobs, simulations, analyses), never
+in the event loop. This module imports no web framework so worker
+processes stay lean.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import numpy as np
+
+
+def jsonable(obj: Any) -> Any:
+    """Plain JSON types; numpy arrays/scalars converted, non-finite floats -> None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if obj is None or isinstance(obj, (str, int)):
+        return obj
+    if hasattr(obj, "to_dict"):
+        return jsonable(obj.to_dict())
+    return str(obj)
+
+
+def build_family(plant: dict[str, Any]):
+    from solver import PlantFamily
+
+    kind = plant["kind"]
+    if kind == "continuous":
+        return PlantFamily.from_continuous(
+            A=[np.asarray(a, dtype=float) for a in plant["A"]],
+            B=[np.asarray(b, dtype=float) for b in plant["B"]],
+            sampling_period=plant["sampling_period"],
+        )
+    if kind == "discrete":
+        return PlantFamily(
+            F=[np.asarray(f, dtype=float) for f in plant["F"]],
+            G=[np.asarray(g, dtype=float) for g in plant["G"]],
+            sampling_period=plant.get("sampling_period"),
+        )
+    if kind == "dc_motor":
+        return PlantFamily.dc_motor(
+            inertias=list(plant["inertias"]),
+            sampling_period=plant["sampling_period"],
+            resistance=plant["resistance"],
+            inductance=plant["inductance"],
+            torque_constant=plant["torque_constant"],
+            back_emf_constant=plant["back_emf_constant"],
+            damping=plant["damping"],
+        )
+    raise ValueError(f"unknown plant kind {kind!r}")
+
+
+def _family_matrices(fam) -> dict[str, Any]:
+    return {
+        "F": jsonable(np.asarray(fam.F)),
+        "G": jsonable(np.asarray(fam.G)),
+        "sampling_period": fam.sampling_period,
+    }
+
+
+def record_to_dict(record: Any) -> dict[str, Any]:
+    if isinstance(record, dict):
+        d = record
+    elif hasattr(record, "to_dict"):
+        d = record.to_dict()
+    else:
+        d = {k: getattr(record, k, None)
+             for k in ("iteration", "objective", "trace_gap", "theorem1", "elapsed")}
+    keep = ("iteration", "objective", "trace_gap", "theorem1", "elapsed")
+    return jsonable({k: d.get(k) for k in keep})
+
+
+def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
+    """Run one design job; returns the job's JSON result."""
+    from solver import design
+
+    fam = build_family(request["plant"])
+    opts = request.get("options") or {}
+    res = design(
+        fam,
+        n_drop=request["n_drop"],
+        method=request["method"],
+        solver=opts.get("solver", "CLARABEL"),
+        margin=opts.get("margin", 1e-6),
+        max_iter=opts.get("max_iter", 50),
+        callback=callback,
+    )
+    out = jsonable(res.to_dict())
+    out.update(_family_matrices(fam))
+    return out
+
+
+def _gains_array(gains: list) -> np.ndarray:
+    return np.asarray(gains, dtype=float)
+
+
+def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
+    from solver import simulate
+
+    fam = build_family(req["plant"])
+    gains = _gains_array(req["gains"])
+    n_drop = req.get("n_drop") or gains.shape[0]
+    tr = simulate(
+        fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
+        loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
+        control_loss=req["control_loss"], plant_switching=req["plant_switching"],
+        mode=req.get("mode"),
+    )
+    return jsonable(tr.to_dict())
+
+
+def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> dict[str, Any]:
+    """The designed loop's seeded simulation (switching plant) plus one run per fixed mode (Fig. 3/4)."""
+    from solver import simulate
+
+    fam = build_family(plant)
+    K = _gains_array(gains)
+    common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
+                  loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
+                  control_loss=params["control_loss"])
+    main = simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)
+    out = jsonable(main.to_dict())
+    out["per_mode"] = [
+        dict(mode=l, **jsonable(simulate(fam, K, plant_switching="none", mode=l, **common).to_dict()))
+        for l in range(fam.n_modes)
+    ]
+    out["query"] = jsonable(params)
+    return out
+
+
+def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
+    from solver import analyze
+
+    fam = build_family(req["plant"])
+    gains = _gains_array(req["gains"])
+    n_drop = req.get("n_drop") or gains.shape[0]
+    kwargs = {}
+    if req.get("max_products") is not None:
+        kwargs["max_products"] = req["max_products"]
+    if req.get("max_product_length") is not None:
+        kwargs["max_product_length"] = req["max_product_length"]
+    rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
+    return jsonable(rep.to_dict())
+
+
+def warm_up() -> None:
+    """Import the heavy libraries once so the first job does not pay for it."""
+    import solver  # noqa: F401
+    import cvxpy  # noqa: F401
+
+
+SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace"}
+
+
+def call_sync(task: str, *args: Any) -> tuple:
+    """Entry point of the synchronous pool: never raises for a solver error.
+
+    Returns ``("ok", result)``, ``("invalid", field_tuple, message)`` or
+    ``("error", message)``.
+    """
+    try:
+        from solver import InvalidInput
+    except ImportError:  # pragma: no cover - solver missing entirely
+        InvalidInput = ValueError  # type: ignore[assignment]
+    try:
+        return ("ok", globals()[SYNC_TASKS[task]](*args))
+    except InvalidInput as exc:
+        return ("invalid", tuple(getattr(exc, "field", ()) or ()), str(exc))
+    except Exception as exc:  # a genuine solver crash
+        return ("error", f"{type(exc).__name__}: {exc}")

@@ -1,0 +1,175 @@
+"""Checks beyond the JSON schema: matrix shapes, family consistency and the
+configured size limits. Each error names the field by pydantic ``loc`` and
+JSON pointer. Run before a job row is written, so bad input never leaves one.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from app.problems import field_error, invalid
+from app.settings import Settings
+
+
+class Shape:
+    def __init__(self, r: int, n: int, m: int):
+        self.r, self.n, self.m = r, n, m
+
+
+def _matrix_shape(mat: list[list[float]], loc: list, errors: list) -> tuple[int, int] | None:
+    if len(mat) == 0:
+        errors.append(field_error(loc, "matrix has no rows", "matrix_empty"))
+        return None
+    cols = len(mat[0])
+    if cols == 0:
+        errors.append(field_error(loc + [0], "matrix row is empty", "matrix_empty"))
+        return None
+    for i, row in enumerate(mat):
+        if len(row) != cols:
+            errors.append(field_error(loc + [i], f"row {i} has {len(row)} entries, row 0 has {cols}",
+                                      "matrix_ragged"))
+            return None
+    return len(mat), cols
+
+
+def _pair_family(plant: Any, names: tuple[str, str], base: list, errors: list) -> Shape | None:
+    a_name, b_name = names
+    As, Bs = getattr(plant, a_name), getattr(plant, b_name)
+    if len(As) == 0:
+        errors.append(field_error(base + [a_name], "the family is empty: give at least one mode", "family_empty"))
+    if len(Bs) == 0:
+        errors.append(field_error(base + [b_name], "the family is empty: give at least one mode", "family_empty"))
+    if errors:
+        return None
+    if len(As) != len(Bs):
+        errors.append(field_error(base + [b_name], f"{b_name} has {len(Bs)} modes but {a_name} has {len(As)}",
+                                  "family_mismatch"))
+        return None
+    n = m = None
+    for l, (a, b) in enumerate(zip(As, Bs)):
+        sa = _matrix_shape(a, base + [a_name, l], errors)
+        sb = _matrix_shape(b, base + [b_name, l], errors)
+        if sa is None or sb is None:
+            continue
+        if sa[0] != sa[1]:
+            errors.append(field_error(base + [a_name, l], f"{a_name}[{l}] must be square, got {sa[0]} x {sa[1]}",
+                                      "matrix_not_square"))
+            continue
+        if n is None:
+            n = sa[0]
+        elif sa[0] != n:
+            errors.append(field_error(base + [a_name, l], f"{a_name}[{l}] is {sa[0]} x {sa[0]} but mode 0 has "
+                                      f"n = {n} states: all modes need the same n", "family_mismatch"))
+            continue
+        if sb[0] != sa[0]:
+            errors.append(field_error(base + [b_name, l], f"{b_name}[{l}] has {sb[0]} rows, {a_name}[{l}] has "
+                                      f"{sa[0]}", "matrix_mismatch"))
+            continue
+        if m is None:
+            m = sb[1]
+        elif sb[1] != m:
+            errors.append(field_error(base + [b_name, l], f"{b_name}[{l}] has {sb[1]} columns but mode 0 has "
+                                      f"m = {m} inputs: all modes need the same m", "family_mismatch"))
+    if errors or n is None or m is None:
+        return None
+    return Shape(len(As), n, m)
+
+
+def plant_shape(plant: Any, settings: Settings, errors: list) -> Shape | None:
+    base = ["body", "plant"]
+    if plant.kind == "continuous":
+        shape = _pair_family(plant, ("A", "B"), base, errors)
+        fam_field = "A"
+    elif plant.kind == "discrete":
+        shape = _pair_family(plant, ("F", "G"), base, errors)
+        fam_field = "F"
+    else:
+        shape = Shape(len(plant.inertias), 2, 1)
+        fam_field = "inertias"
+    if shape is None:
+        return None
+    if shape.n > settings.max_states:
+        errors.append(field_error(base + [fam_field], f"n = {shape.n} states is over the limit of "
+                                  f"{settings.max_states} (NCS_MAX_STATES)", "limit_exceeded"))
+    if shape.m > settings.max_inputs:
+        errors.append(field_error(base + ["B" if fam_field == "A" else "G"], f"m = {shape.m} inputs is over the "
+                                  f"limit of {settings.max_inputs} (NCS_MAX_INPUTS)", "limit_exceeded"))
+    if shape.r > settings.max_modes:
+        errors.append(field_error(base + [fam_field], f"r = {shape.r} plant modes is over the limit of "
+                                  f"{settings.max_modes} (NCS_MAX_MODES)", "limit_exceeded"))
+    return shape
+
+
+def lmi_size(method: str, n: int, r: int, n_drop: int) -> int:
+    """Sum of the block sizes of all matrix inequalities of a design."""
+    if method == "ccl":
+        return 2 * n * n_drop * (r * n_drop + 1)
+    if method == "switched":
+        return 2 * n * (r * n_drop) ** 2
+    return 2 * n * r * n_drop
+
+
+def check_n_drop(n_drop: int, settings: Settings, errors: list) -> None:
+    if n_drop > settings.max_n_drop:
+        errors.append(field_error(["body", "n_drop"], f"n_drop = {n_drop} is over the limit of "
+                                  f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
+
+
+def check_design(req: Any, settings: Settings) -> Shape:
+    errors: list = []
+    shape = plant_shape(req.plant, settings, errors)
+    check_n_drop(req.n_drop, settings, errors)
+    if shape is not None and not errors:
+        size = lmi_size(req.method, shape.n, shape.r, req.n_drop)
+        if size > settings.max_lmi_size:
+            errors.append(field_error(["body", "n_drop"], f"the {req.method} design has total LMI size {size} "
+                                      f"(n = {shape.n}, r = {shape.r}, n_drop = {req.n_drop}), over the limit "
+                                      f"of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)", "limit_exceeded"))
+    if errors:
+        raise invalid(errors)
+    assert shape is not None
+    return shape
+
+
+def check_gains(gains: list, n_drop: int | None, shape: Shape, errors: list, loc: list | None = None) -> int:
+    loc = loc or ["body", "gains"]
+    if len(gains) == 0:
+        errors.append(field_error(loc, "give n_drop gain matrices K_1..K_N", "gains_empty"))
+        return 0
+    if n_drop is not None and len(gains) != n_drop:
+        errors.append(field_error(loc, f"{len(gains)} gain matrices given but n_drop = {n_drop}",
+                                  "gains_mismatch"))
+    for q, K in enumerate(gains):
+        s = _matrix_shape(K, loc + [q], errors)
+        if s is not None and s != (shape.m, shape.n):
+            errors.append(field_error(loc + [q], f"K_{q + 1} is {s[0]} x {s[1]}, expected m x n = "
+                                      f"{shape.m} x {shape.n}", "matrix_mismatch"))
+    return n_drop if n_drop is not None else len(gains)
+
+
+def check_x0(x0: list, shape: Shape, errors: list, loc: list) -> None:
+    if len(x0) != shape.n:
+        errors.append(field_error(loc, f"x0 has {len(x0)} entries, the plant has n = {shape.n} states",
+                                  "vector_mismatch"))
+
+
+def check_mode(mode: int | None, shape: Shape, errors: list, loc: list) -> None:
+    if mode is not None and mode >= shape.r:
+        errors.append(field_error(loc, f"mode {mode} does not exist: the plant has {shape.r} modes (0-based)",
+                                  "mode_out_of_range"))
+
+
+def check_steps(steps: int, settings: Settings, errors: list, loc: list) -> None:
+    if steps > settings.max_simulation_steps:
+        errors.append(field_error(loc, f"steps = {steps} is over the limit of {settings.max_simulation_steps} "
+                                  "(NCS_MAX_SIMULATION_STEPS)", "limit_exceeded"))
+
+
+def solver_field_error(field: tuple, message: str, plant_keys: set[str]) -> dict[str, Any]:
+    """Map a solver ``InvalidInput.field`` to a request location."""
+    field = tuple(field or ())
+    if field and field[0] in plant_keys:
+        loc = ["body", "plant", *field]
+    else:
+        loc = ["body", *field]
+    return field_error(loc, message, "solver_invalid_input")

@@ -1,0 +1,81 @@
+"""Design worker process.
+
+One long-lived process per pool slot, started with the ``spawn`` method.
+It receives ``("run", job_id, request)`` on its pipe, runs the design and
+sends back ``("progress", job_id, record)`` after every solver iteration
+and finally ``("done", job_id, result)``, ``("cancelled", job_id)`` or
+``("error", job_id, reason)``. A ``("cancel", job_id)`` message makes the
+solver callback return True, which stops the design at its next iteration;
+the dispatcher kills the process if that takes too long.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import traceback
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Linux: get SIGKILL when the service process dies, so no orphan keeps solving."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL("libc.so.6", use_errno=True)
+            PR_SET_PDEATHSIG = 1
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        except Exception:  # pragma: no cover - best effort
+            pass
+    if os.getppid() != parent_pid:  # parent already gone before prctl took effect
+        os._exit(1)
+
+
+def worker_main(conn, parent_pid: int) -> None:
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; it stops us.
+    from app import tasks
+
+    try:
+        from solver import InvalidInput
+    except ImportError:  # pragma: no cover
+        InvalidInput = ValueError  # type: ignore[assignment]
+    tasks.warm_up()
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg[0] == "stop":
+            return
+        if msg[0] != "run":
+            continue  # a late cancel for a finished job
+        _, job_id, request = msg
+        state = {"cancel": False}
+
+        def callback(record, job_id=job_id, state=state):
+            try:
+                while conn.poll():
+                    m = conn.recv()
+                    if m[0] == "stop" or (m[0] == "cancel" and m[1] == job_id):
+                        state["cancel"] = True
+                conn.send(("progress", job_id, tasks.record_to_dict(record)))
+            except (EOFError, OSError):
+                os._exit(0)  # the service is gone
+            return state["cancel"]
+
+        try:
+            result = tasks.run_design(request, callback)
+        except InvalidInput as exc:
+            reply = ("error", job_id, f"invalid input at {'/'.join(map(str, getattr(exc, 'field', ()) or ()))}: {exc}")
+        except Exception as exc:
+            tb = traceback.format_exc(limit=5)
+            reply = ("error", job_id, f"solver error: {type(exc).__name__}: {exc}\n{tb}")
+        else:
+            reply = ("cancelled", job_id) if state["cancel"] else ("done", job_id, result)
+        try:
+            conn.send(reply)
+        except (EOFError, OSError):
+            return
