@@ -2,11 +2,17 @@
 
 Three verdicts, each with its evidence:
 
-* ``stable=True``: a Theorem 1 certificate P (found by an LMI in P for the
-  fixed gains) that passed the float64 ``eigvalsh`` re-check;
+* ``stable=True``: a Lyapunov certificate (common quadratic, i.e. Theorem 1,
+  or mode-dependent) found by an LMI for the fixed gains and re-checked in
+  float64 with ``eigvalsh``;
 * ``stable=False``: a mode, or a finite product of modes (a concrete pattern
   of losses and plant jumps repeated forever), whose spectral radius is >= 1;
 * ``stable=None``: neither could be shown.
+
+Bounds on the joint spectral radius (JSR) of the interval maps under
+arbitrary switching are reported too: the lower bound from those products,
+the upper bounds from the best common quadratic and switched certificates
+(bisection), and the best certified per-sample decay rate.
 """
 
 from __future__ import annotations
@@ -18,9 +24,12 @@ import numpy as np
 
 from .compiled import check_solver
 from .errors import InvalidInput, SolverFailed
-from .lyapunov import Certificate, lift, recheck, theorem1_lmi
-from .network import IntervalData, check_gains, check_n_drop, closed_loop_matrices, mode_list, spectral_radii
+from .lyapunov import MAX_SWITCHED_MODES, Certificate, certified_rate, certify
+from .network import MAX_MODES, ModeSet, check_gains, spectral_radii
 from .plant import PlantFamily
+
+#: Hard cap on products examined per length (time and memory of the lower bound).
+MAX_PRODUCTS = 1_000_000
 
 
 @dataclass
@@ -30,21 +39,24 @@ class AnalysisReport:
     Attributes
     ----------
     stable : bool or None
-    spectral_radii : ndarray, shape (r, n_drop)
-        Spectral radius of ``A_{l,eta}(K)`` for every mode.
-    max_spectral_radius : float
+    spectral_radii : ndarray
+        Spectral radius of every interval closed loop: (r, n_drop) per
+        interval, (S,) per sample (labelled by ``mode_labels``).
     certificate : Certificate or None
-        Re-checked Theorem 1 certificate when ``stable`` is True.
-    margin : float or None
-        The certificate's relative margin ``min_s lambda_min(P - Phi_s^T P Phi_s) / lambda_max(P)``.
+        The re-checked certificate when ``stable`` is True.
     jsr_lower_bound : float
-        ``max rho(product)^(1/length)`` over all products of modes up to
-        ``product_length_checked``: a lower bound of the joint spectral radius
-        per interval.
-    worst_sequence : list of (l, eta)
+        ``max rho(product)^(1/length)`` over all products of interval maps up to
+        ``product_length_checked``.
+    jsr_upper_bound : float or None
+        Smallest certified bound (common quadratic or switched) on the JSR of
+        the interval maps; None when none below ``hi`` could be certified.
+    jsr_upper_bound_quadratic, jsr_upper_bound_switched : float or None
+    decay_rate : float or None
+        Best certified per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
+        in the certificate's norm).
+    worst_sequence : list of dict
         The product attaining ``jsr_lower_bound``, in the order applied; when
-        ``stable`` is False, repeating it forever makes the loop diverge (or
-        not decay).
+        ``stable`` is False, repeating it forever destabilizes the loop.
     product_length_checked : int
     reason : str
     timings : dict
@@ -57,6 +69,10 @@ class AnalysisReport:
     worst_sequence: list
     product_length_checked: int
     reason: str
+    jsr_upper_bound_quadratic: float | None = None
+    jsr_upper_bound_switched: float | None = None
+    decay_rate: float | None = None
+    mode_labels: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
 
     @property
@@ -67,6 +83,11 @@ class AnalysisReport:
     def margin(self) -> float | None:
         return None if self.certificate is None else self.certificate.margin
 
+    @property
+    def jsr_upper_bound(self) -> float | None:
+        bounds = [b for b in (self.jsr_upper_bound_quadratic, self.jsr_upper_bound_switched) if b is not None]
+        return min(bounds) if bounds else None
+
     def to_dict(self) -> dict:
         return {
             "stable": self.stable,
@@ -76,8 +97,13 @@ class AnalysisReport:
             "margin": self.margin,
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
             "jsr_lower_bound": self.jsr_lower_bound,
-            "worst_sequence": [{"plant": l, "eta": eta} for l, eta in self.worst_sequence],
+            "jsr_upper_bound": self.jsr_upper_bound,
+            "jsr_upper_bound_quadratic": self.jsr_upper_bound_quadratic,
+            "jsr_upper_bound_switched": self.jsr_upper_bound_switched,
+            "decay_rate": self.decay_rate,
+            "worst_sequence": self.worst_sequence,
             "product_length_checked": self.product_length_checked,
+            "modes": self.mode_labels,
             "timings": self.timings,
         }
 
@@ -101,7 +127,7 @@ def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int)
     length_checked : int
     """
     S = A_modes.shape[0]
-    rho = np.max(np.abs(np.linalg.eigvals(A_modes)), axis=-1)
+    rho = spectral_radii(A_modes)
     best = int(np.argmax(rho))
     bound, sequence = float(rho[best]), (best,)
     products = A_modes
@@ -113,7 +139,7 @@ def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int)
         # extend every sequence by one more mode applied last.
         products = np.einsum("jab,ibc->ijac", A_modes, products).reshape(-1, *A_modes.shape[1:])
         checked = k
-        rho_k = np.max(np.abs(np.linalg.eigvals(products)), axis=-1) ** (1.0 / k)
+        rho_k = spectral_radii(products) ** (1.0 / k)
         i = int(np.argmax(rho_k))
         if rho_k[i] > bound * (1 + 1e-12):
             bound = float(rho_k[i])
@@ -128,6 +154,12 @@ def analyze(
     *,
     max_product_length: int = 4,
     max_products: int = 100_000,
+    plant_switching: str = "per_interval",
+    scheme: str = "predictive",
+    certificates: tuple = ("common_quadratic", "switched"),
+    bounds: str = "quadratic",
+    rate_tol: float = 1e-3,
+    max_modes: int = MAX_MODES,
     solver: str = "CLARABEL",
 ) -> AnalysisReport:
     """Decide stability of the networked loop with given gains under arbitrary losses and jumps.
@@ -139,9 +171,22 @@ def analyze(
         ``gains[q-1] = K_q`` (for m = 1 also (n_drop, n)).
     n_drop : int
     max_product_length : int
-        Longest product of modes searched for a destabilizing pattern.
+        Longest product of modes searched for a destabilizing pattern (1..12).
     max_products : int
-        Budget of products per length (bounds time and memory).
+        Budget of products per length (bounds time and memory), at most 1e6.
+    plant_switching : {"per_interval", "per_sample"}
+    scheme : {"predictive", "hold", "zero"}
+        Only used to label the report; the gains are taken as given.
+    certificates : tuple of {"common_quadratic", "switched"}
+        Certificate kinds tried, in order.
+    bounds : {"quadratic", "all", "none"}
+        JSR upper bounds and best certified decay rate to compute, by
+        bisection: from common quadratic certificates (a few ms per SDP),
+        also from switched ones (``"all"``; S^2 pairwise LMIs per SDP, about a
+        second for the paper's example), or none.
+    rate_tol : float
+        Tolerance of those bisections.
+    max_modes : int
     solver : {"CLARABEL", "SCS"}
 
     Returns
@@ -151,26 +196,34 @@ def analyze(
     start = time.perf_counter()
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
-    n_drop = check_n_drop(n_drop)
-    K = check_gains(gains, n_drop, family.n_inputs, family.n_states)
+    modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
+                                max_modes=max_modes)
+    K = check_gains(gains, modes.n_drop, family.n_inputs, family.n_states)
     if isinstance(max_product_length, bool) or not isinstance(max_product_length, (int, np.integer)) or not (
         1 <= max_product_length <= 12
     ):
         raise InvalidInput("max_product_length must be an integer in 1..12", ("max_product_length",))
+    if isinstance(max_products, bool) or not isinstance(max_products, (int, np.integer)) or not (
+        1 <= max_products <= MAX_PRODUCTS
+    ):
+        raise InvalidInput(f"max_products must be an integer in 1..{MAX_PRODUCTS}", ("max_products",))
+    for kind in certificates:
+        if kind not in ("common_quadratic", "switched"):
+            raise InvalidInput("certificates must name 'common_quadratic' and/or 'switched'", ("certificates",))
+    if bounds not in ("quadratic", "all", "none"):
+        raise InvalidInput("bounds must be 'quadratic', 'all' or 'none'", ("bounds",))
     solver = check_solver(solver)
-    data = IntervalData.from_family(family, n_drop)
-    A = closed_loop_matrices(data, K)
+    A = modes.closed_loops(K)
     radii = spectral_radii(A)
-    modes = mode_list(family.n_modes, n_drop)
-    A_modes = A.reshape(-1, family.n_states, family.n_states)
-    bound, seq, checked = product_lower_bound(A_modes, max_product_length, max_products)
-    worst = [modes[s] for s in seq]
+    bound, seq, checked = product_lower_bound(A, max_product_length, max_products)
+    worst = [modes.label(s) for s in seq]
     certificate = None
-    solver_time = 0.0
+    upper_q = upper_s = rate = None
+    failure = ""
     if bound >= 1.0:
         stable = False
         if len(worst) == 1:
-            reason = f"mode (plant {worst[0][0]}, eta {worst[0][1]}) has spectral radius {bound:.6g} >= 1"
+            reason = f"mode {worst[0]} has spectral radius {bound:.6g} >= 1"
         else:
             reason = (
                 f"repeating the sequence of {len(worst)} intervals in worst_sequence gives "
@@ -178,33 +231,43 @@ def analyze(
             )
     else:
         try:
-            X, t, info = theorem1_lmi(A, solver=solver)
-            solver_time = info.solve_time
+            certificate = certify(A, modes.n_drop, kinds=tuple(certificates), solver=solver)
         except SolverFailed as err:
-            X, t = None, -np.inf
-            reason_fail = str(err)
-        else:
-            reason_fail = ""
-        if t > 0:
-            cert = recheck(lift(X, A), A, "theorem1_lmi", X=X)
-            if cert.verified:
-                certificate = cert
+            failure = f"; {err}"
         if certificate is not None:
             stable = True
-            reason = f"Theorem 1 certificate re-checked in float64 (relative margin {certificate.margin:.3g})"
+            reason = (f"{certificate.kind} certificate re-checked in float64 "
+                      f"(relative margin {certificate.margin:.3g})")
         else:
             stable = None
             reason = (
-                "no common quadratic certificate and no destabilizing product up to length "
-                f"{checked} (lower bound {bound:.6g} < 1)" + (f"; {reason_fail}" if reason_fail else "")
+                f"no certificate ({', '.join(certificates)}) and no destabilizing product up to length "
+                f"{checked} (lower bound {bound:.6g} < 1){failure}"
             )
+        kinds = {"none": (), "quadratic": ("common_quadratic",), "all": ("common_quadratic", "switched")}[bounds]
+        rates = []
+        for kind in kinds:
+            if kind == "switched" and modes.n_modes > MAX_SWITCHED_MODES:
+                continue
+            upper, _ = certified_rate(A, modes.eta, kind, per="interval", tol=rate_tol, solver=solver)
+            if kind == "switched":
+                upper_s = upper
+            else:
+                upper_q = upper
+            rates.append(certified_rate(A, modes.eta, kind, per="sample", tol=rate_tol, solver=solver)[0])
+        rates = [r for r in rates if r is not None]
+        rate = min(rates) if rates else None
     return AnalysisReport(
         stable=stable,
-        spectral_radii=radii,
+        spectral_radii=modes.reshape_per_mode(radii),
         certificate=certificate,
         jsr_lower_bound=bound,
         worst_sequence=worst,
         product_length_checked=checked,
         reason=reason,
-        timings={"total": time.perf_counter() - start, "solver": solver_time},
+        jsr_upper_bound_quadratic=upper_q,
+        jsr_upper_bound_switched=upper_s,
+        decay_rate=rate,
+        mode_labels=[modes.label(s) for s in range(modes.n_modes)],
+        timings={"total": time.perf_counter() - start},
     )

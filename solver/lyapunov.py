@@ -1,58 +1,75 @@
 """Lyapunov certificates for the interval closed loops, and their float64 re-check.
 
 Theorem 1 asks for ``P > 0`` of size n*n_drop with
-``Phi_s^T P Phi_s - P < 0`` for every mode s = (l, eta).  Because Phi_s is
-block lower triangular with diagonal blocks (A_s, 0, ..., 0), this holds iff
-an n x n ``X > 0`` has ``A_s^T X A_s - X < 0`` for all s (DESIGN.md section 3):
-from X one builds ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` with
+``Phi_s^T P Phi_s - P < 0`` for every mode s.  Because Phi_s is block lower
+triangular with diagonal blocks (A_s, 0, ..., 0), this holds iff an n x n
+``X > 0`` has ``A_s^T X A_s - X < 0`` for all s (DESIGN.md section 3): from X
+one builds ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` with
 ``a_j = mu (N - j) / N`` where ``mu = min_s lambda_min(X - A_s^T X A_s)``.
 
-Whatever produced a certificate, :func:`recheck` tests the *augmented* P
-against the original condition with ``numpy.linalg.eigvalsh``; a result is
-called certified only when that re-check passes.
+Mode-dependent ("switched") certificates are ``P_s > 0`` with
+``A_s^T P_t A_s - P_s < 0`` for all pairs (s, t): ``V = x^T P_s x`` where s is
+the mode of the interval about to start (Daafouz, Riedinger, Iung 2002).
+
+A decay claim with per-sample rate lambda replaces ``P_s`` on the right by
+``rho_s P_s`` with ``rho_s = lambda^(2 eta_s)``.
+
+Whatever produced a certificate, the ``recheck_*`` functions test it against
+the original condition with ``numpy.linalg.eigvalsh``; a result is called
+certified only when that re-check passes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import cvxpy as cp
 import numpy as np
 
 from .compiled import CompiledProblem, SolveInfo, block, problem_cache, schur_block
+from .errors import SolverFailed
 from .network import augmented_matrices
 
-#: Smallest relative decrease ``lambda_min(P - Phi^T P Phi) / lambda_max(P)``
-#: accepted by the float64 re-check.  Far above double rounding (~1e-16 times
-#: the norms involved) and far below what a solver tolerance of 1e-8 leaves.
+#: Smallest relative decrease ``lambda_min(decrease) / lambda_max(P)`` accepted by the
+#: float64 re-check: far above double rounding, far below what a solver tolerance leaves.
 RECHECK_TOL = 1e-9
+
+
+def _sym(M):
+    return 0.5 * (M + np.swapaxes(M, -1, -2))
 
 
 @dataclass
 class Certificate:
-    """A quadratic Lyapunov certificate ``V(Gamma) = Gamma^T P Gamma`` for the augmented loop.
+    """A Lyapunov certificate, re-checked in float64.
 
     Attributes
     ----------
-    P : ndarray, shape (n*n_drop, n*n_drop)
-        Certificate of Theorem 1 for the augmented state.
-    X : ndarray, shape (n, n) or None
-        The reduced certificate on x(i_m) when P was lifted from one.
+    kind : {"common_quadratic", "switched"}
+    P : ndarray
+        ``common_quadratic``: the augmented Theorem 1 matrix, shape (n*n_drop, n*n_drop).
+        ``switched``: one matrix per mode, shape (S, n, n).
+    X : ndarray, shape (n, n), or None
+        The reduced common certificate on x(i_m) (``common_quadratic``).
     min_eig_P : float
-        ``lambda_min(P)`` (must be > 0).
+        Smallest eigenvalue over all P (must be > 0).
     decrease : float
-        ``min_s lambda_min(P - Phi_s^T P Phi_s)``, absolute.
+        Smallest eigenvalue of the decrease matrices (absolute).
     margin : float
-        ``decrease / lambda_max(P)``: relative decrease per interval.
+        ``decrease / lambda_max(P)``.
     verified : bool
-        True iff the float64 re-check passed (``min_eig_P > 0`` and
-        ``margin > RECHECK_TOL``).
+        True iff the float64 re-check passed.
     source : str
-        What produced P: ``"lmi"``, ``"ccl_iterate"`` or ``"theorem1_lmi"``.
-    kind : str
-        ``"common_quadratic"``.
+        What produced P (``"lmi"``, ``"switched"``, ``"ccl_iterate"``, ``"theorem1_lmi"``, ``"switched_lmi"``).
+    decay_rate : float or None
+        Per-sample rate lambda the certificate also proves (``|x(i_m)|`` in its norm
+        shrinks by ``lambda^eta`` per interval), when one was asked for.
+    worst_mode : int or None
+        Index of the mode with the smallest decrease.
     """
 
+    kind: str
     P: np.ndarray
     X: np.ndarray | None
     min_eig_P: float
@@ -60,10 +77,11 @@ class Certificate:
     margin: float
     verified: bool
     source: str
-    kind: str = "common_quadratic"
-    worst_mode: tuple[int, int] | None = field(default=None)
+    decay_rate: float | None = None
+    worst_mode: int | None = field(default=None)
 
     def to_dict(self) -> dict:
+        mats = self.P if self.kind == "switched" else self.P[None]
         return {
             "kind": self.kind,
             "source": self.source,
@@ -71,85 +89,128 @@ class Certificate:
             "margin": self.margin,
             "decrease": self.decrease,
             "min_eig_P": self.min_eig_P,
-            "condition_number": float(np.linalg.cond(self.P)),
-            "worst_mode": list(self.worst_mode) if self.worst_mode else None,
+            "condition_number": float(max(np.linalg.cond(M) for M in mats)),
+            "decay_rate": self.decay_rate,
+            "worst_mode": self.worst_mode,
             "P": self.P.tolist(),
             "X": None if self.X is None else self.X.tolist(),
         }
 
 
-def recheck(P: np.ndarray, A: np.ndarray, source: str, X: np.ndarray | None = None) -> Certificate:
-    """Re-check an augmented certificate against Theorem 1 in float64.
+def _verdict(eig_P_min: float, eig_P_max: float, decrease: np.ndarray) -> tuple[float, float, bool, int]:
+    worst = int(np.argmin(decrease))
+    dec = float(decrease.flat[worst])
+    margin = dec / eig_P_max if eig_P_max > 0 else -np.inf
+    return dec, float(margin), bool(eig_P_min > 0 and margin > RECHECK_TOL), worst
+
+
+def recheck_common(P: np.ndarray, A: np.ndarray, n_drop: int, source: str, X: np.ndarray | None = None) -> Certificate:
+    """Re-check an augmented Theorem 1 certificate: ``P > 0``, ``Phi_s^T P Phi_s - P < 0`` for all s.
 
     Parameters
     ----------
     P : ndarray, shape (n*n_drop, n*n_drop)
-    A : ndarray, shape (r, n_drop, n, n)
+    A : ndarray, shape (S, n, n)
         Interval closed loops for the gains being certified.
-    source : str
-    X : ndarray, optional
-        Reduced certificate P was lifted from (reported only).
     """
-    P = 0.5 * (P + P.T)
-    Phi = augmented_matrices(A)
+    P = _sym(P)
+    Phi = augmented_matrices(A, n_drop)
     eig_P = np.linalg.eigvalsh(P)
-    diff = P - np.swapaxes(Phi, -1, -2) @ P @ Phi
-    diff = 0.5 * (diff + np.swapaxes(diff, -1, -2))
-    mins = np.linalg.eigvalsh(diff)[..., 0]  # (r, n_drop)
-    worst = np.unravel_index(np.argmin(mins), mins.shape)
-    decrease = float(mins[worst])
-    margin = decrease / float(eig_P[-1]) if eig_P[-1] > 0 else -np.inf
-    verified = bool(eig_P[0] > 0 and margin > RECHECK_TOL)
-    return Certificate(
-        P=P,
-        X=X,
-        min_eig_P=float(eig_P[0]),
-        decrease=decrease,
-        margin=float(margin),
-        verified=verified,
-        source=source,
-        worst_mode=(int(worst[0]), int(worst[1]) + 1),
-    )
+    decrease = np.linalg.eigvalsh(_sym(P - np.swapaxes(Phi, -1, -2) @ P @ Phi))[..., 0]
+    dec, margin, ok, worst = _verdict(eig_P[0], eig_P[-1], decrease)
+    return Certificate("common_quadratic", P, X, float(eig_P[0]), dec, margin, ok, source, worst_mode=worst)
 
 
-def lift(X: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """Augmented ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` from a reduced certificate X.
-
-    Returns a matrix even when X certifies nothing; :func:`recheck` decides.
-    """
-    r, N, n, _ = A.shape
-    X = 0.5 * (X + X.T)
-    decrease = X - np.swapaxes(A, -1, -2) @ X @ A
-    mu = float(np.min(np.linalg.eigvalsh(0.5 * (decrease + np.swapaxes(decrease, -1, -2)))[..., 0]))
-    P = np.zeros((n * N, n * N))
-    P[:n, :n] = X
-    for j in range(1, N):
-        P[j * n:(j + 1) * n, j * n:(j + 1) * n] = max(mu, 0.0) * (N - j) / N * np.eye(n)
-    return P
-
-
-def _build_theorem1(n: int, n_modes: int) -> CompiledProblem:
-    X = cp.Variable((n, n), symmetric=True)
-    t = cp.Variable()
-    A = cp.Parameter((n_modes * n, n))  # row block s: A_s
-    eye = np.eye(n)
-    cons = [X >> t * eye, cp.trace(X) == n]
-    for s in range(n_modes):
-        # Schur form of X - A^T X A >= t I: linear in X for a given A (DPP).
-        cons.append(schur_block(X - t * eye, X @ block(A, s, n), X) >> 0)
-    prob = cp.Problem(cp.Maximize(t), cons)
-    return CompiledProblem(prob, {"A": A}, {"X": X, "t": t})
-
-
-def theorem1_lmi(A: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None):
-    """Best-margin common quadratic certificate for fixed gains (Theorem 1 as an LMI).
-
-    Solves ``max t`` s.t. ``X - A_s^T X A_s >= t I``, ``X >= t I``, ``trace X = n``.
-    ``t > 0`` iff Theorem 1 holds for these gains.
+def recheck_switched(P: np.ndarray, A: np.ndarray, source: str, rho: np.ndarray | None = None) -> Certificate:
+    """Re-check a mode-dependent certificate: ``P_s > 0``, ``A_s^T P_t A_s - rho_s P_s < 0`` for all s, t.
 
     Parameters
     ----------
-    A : ndarray, shape (r, n_drop, n, n)
+    P : ndarray, shape (S, n, n)
+    A : ndarray, shape (S, n, n)
+    rho : ndarray, shape (S,), optional
+        Decay factors (1 for plain stability).
+    """
+    P = _sym(P)
+    S = A.shape[0]
+    rho = np.ones(S) if rho is None else rho
+    eig_P = np.linalg.eigvalsh(P)
+    At = np.swapaxes(A, -1, -2)
+    # pairs (s, t): rho_s P_s - A_s^T P_t A_s, shape (S, S, n, n)
+    diff = rho[:, None, None, None] * P[:, None] - At[:, None] @ P[None, :] @ A[:, None]
+    decrease = np.linalg.eigvalsh(_sym(diff))[..., 0].min(axis=1)
+    dec, margin, ok, worst = _verdict(eig_P[:, 0].min(), eig_P[:, -1].max(), decrease)
+    return Certificate("switched", P, None, float(eig_P[:, 0].min()), dec, margin, ok, source, worst_mode=worst)
+
+
+def recheck_common_reduced(X: np.ndarray, A: np.ndarray, rho: np.ndarray, source: str) -> Certificate:
+    """Re-check ``X > 0``, ``A_s^T X A_s - rho_s X < 0`` (the decay claim on x(i_m))."""
+    X = _sym(X)
+    eig_X = np.linalg.eigvalsh(X)
+    decrease = np.linalg.eigvalsh(_sym(rho[:, None, None] * X - np.swapaxes(A, -1, -2) @ X @ A))[..., 0]
+    dec, margin, ok, worst = _verdict(eig_X[0], eig_X[-1], decrease)
+    return Certificate("common_quadratic", X, X, float(eig_X[0]), dec, margin, ok, source, worst_mode=worst)
+
+
+def lift(X: np.ndarray, A: np.ndarray, n_drop: int) -> np.ndarray:
+    """Augmented ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` from a reduced certificate X.
+
+    Returns a matrix even when X certifies nothing; :func:`recheck_common` decides.
+    """
+    n = A.shape[-1]
+    X = _sym(X)
+    mu = float(np.min(np.linalg.eigvalsh(_sym(X - np.swapaxes(A, -1, -2) @ X @ A))[..., 0]))
+    P = np.zeros((n * n_drop, n * n_drop))
+    P[:n, :n] = X
+    for j in range(1, n_drop):
+        P[j * n:(j + 1) * n, j * n:(j + 1) * n] = max(mu, 0.0) * (n_drop - j) / n_drop * np.eye(n)
+    return P
+
+
+# ---------------------------------------------------------------------- LMIs for fixed gains
+def _build_common(n: int, S: int) -> CompiledProblem:
+    X = cp.Variable((n, n), symmetric=True)
+    t = cp.Variable()
+    A = cp.Parameter((S * n, n))  # row block s: A_s
+    rho = cp.Parameter(S, nonneg=True)
+    eye = np.eye(n)
+    cons = [X >> t * eye, cp.trace(X) == n]
+    for s in range(S):
+        # Schur form of rho_s X - A^T X A >= t I: linear in X for a given A (DPP).
+        cons.append(schur_block(rho[s] * X - t * eye, X @ block(A, s, n), X) >> 0)
+    return CompiledProblem(cp.Problem(cp.Maximize(t), cons), {"A": A, "rho": rho}, {"X": X, "t": t})
+
+
+def _build_switched(n: int, S: int) -> CompiledProblem:
+    P = [cp.Variable((n, n), symmetric=True) for _ in range(S)]
+    t = cp.Variable()
+    A = cp.Parameter((S * n, n))
+    rho = cp.Parameter(S, nonneg=True)
+    eye = np.eye(n)
+    cons = [sum(cp.trace(Ps) for Ps in P) == S * n]
+    cons += [Ps >> t * eye for Ps in P]
+    for s in range(S):
+        for u in range(S):
+            # rho_s P_s - A_s^T P_u A_s >= t I in Schur form
+            cons.append(schur_block(rho[s] * P[s] - t * eye, P[u] @ block(A, s, n), P[u]) >> 0)
+    return CompiledProblem(cp.Problem(cp.Maximize(t), cons), {"A": A, "rho": rho}, {"P": P, "t": t})
+
+
+#: Largest mode count for which the pairwise switched LMI (S^2 blocks) is attempted.
+MAX_SWITCHED_MODES = 64
+
+
+def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLARABEL", time_limit=None):
+    """Best-margin common quadratic certificate for fixed gains (Theorem 1 as an LMI).
+
+    Solves ``max t`` s.t. ``rho_s X - A_s^T X A_s >= t I``, ``X >= t I``, ``trace X = n``;
+    ``t > 0`` iff a certificate exists.
+
+    Parameters
+    ----------
+    A : ndarray, shape (S, n, n)
+    rho : ndarray, shape (S,), optional
+        Decay factors (default 1).
 
     Returns
     -------
@@ -157,7 +218,128 @@ def theorem1_lmi(A: np.ndarray, solver: str = "CLARABEL", time_limit: float | No
     t : float
     info : SolveInfo
     """
-    r, N, n, _ = A.shape
-    compiled, _ = problem_cache.get(("theorem1", n, r * N), lambda: _build_theorem1(n, r * N))
-    info: SolveInfo = compiled.solve({"A": A.reshape(r * N * n, n)}, solver=solver, time_limit=time_limit)
+    S, n, _ = A.shape
+    compiled, _ = problem_cache.get(("common_lmi", n, S), lambda: _build_common(n, S))
+    info: SolveInfo = compiled.solve(
+        {"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho}, solver=solver, time_limit=time_limit
+    )
     return compiled.value("X"), float(compiled.value("t")), info
+
+
+def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLARABEL", time_limit=None):
+    """Best-margin mode-dependent certificate for fixed gains.
+
+    Solves ``max t`` s.t. ``rho_s P_s - A_s^T P_u A_s >= t I`` for all pairs,
+    ``P_s >= t I``, ``sum_s trace P_s = S n``.
+
+    Returns
+    -------
+    P : ndarray, shape (S, n, n)
+    t : float
+    info : SolveInfo
+    """
+    S, n, _ = A.shape
+    compiled, _ = problem_cache.get(("switched_lmi", n, S), lambda: _build_switched(n, S))
+    info: SolveInfo = compiled.solve(
+        {"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho}, solver=solver, time_limit=time_limit
+    )
+    return np.stack(compiled.value("P")), float(compiled.value("t")), info
+
+
+def certify(A: np.ndarray, n_drop: int, kinds=("common_quadratic", "switched"), solver="CLARABEL",
+            time_limit=None, on_solve: Callable | None = None) -> Certificate | None:
+    """A verified stability certificate for fixed closed loops, trying the kinds in order.
+
+    The switched kind is skipped above :data:`MAX_SWITCHED_MODES` modes.
+    """
+    for kind in kinds:
+        if kind == "common_quadratic":
+            X, t, info = common_lmi(A, solver=solver, time_limit=time_limit)
+            if on_solve:
+                on_solve(info)
+            if t > 0:
+                cert = recheck_common(lift(X, A, n_drop), A, n_drop, "theorem1_lmi", X=X)
+                if cert.verified:
+                    return cert
+        elif kind == "switched" and A.shape[0] <= MAX_SWITCHED_MODES:
+            P, t, info = switched_lmi(A, solver=solver, time_limit=time_limit)
+            if on_solve:
+                on_solve(info)
+            if t > 0:
+                cert = recheck_switched(P, A, "switched_lmi")
+                if cert.verified:
+                    return cert
+    return None
+
+
+def bisect_rate(feasible: Callable[[float], object], lo: float, hi: float, tol: float):
+    """Smallest lambda in (lo, hi] with ``feasible(lambda)`` truthy, to tolerance ``tol``.
+
+    ``feasible`` returns a certificate-like object or None and is assumed
+    monotone (feasible at lambda implies feasible above).  Returns
+    ``(lambda, evidence, tried)`` with ``tried`` the list of (lambda, ok);
+    ``(None, None, tried)`` when even ``hi`` fails.
+    """
+    tried = []
+    best = feasible(hi)
+    tried.append((hi, best is not None))
+    if best is None:
+        return None, None, tried
+    best_rate = hi
+    while best_rate - lo > tol:
+        mid = 0.5 * (lo + best_rate)
+        evidence = feasible(mid)
+        tried.append((mid, evidence is not None))
+        if evidence is None:
+            lo = mid
+        else:
+            best_rate, best = mid, evidence
+    return best_rate, best, tried
+
+
+def certified_rate(A: np.ndarray, eta: np.ndarray, kind: str = "common_quadratic", per: str = "sample",
+                   hi: float = 1.0, tol: float = 1e-3, solver: str = "CLARABEL"):
+    """Smallest certified rate for fixed closed loops, by bisection.
+
+    Parameters
+    ----------
+    A : ndarray, shape (S, n, n)
+    eta : ndarray of int, shape (S,)
+    kind : {"common_quadratic", "switched"}
+    per : {"sample", "interval"}
+        ``"sample"``: ``A_s^T P A_s <= lambda^(2 eta_s) P`` (decay per sample);
+        ``"interval"``: ``<= lambda^2 P`` (an upper bound of the joint spectral
+        radius of the interval maps).
+    hi : float
+        Upper end of the search.
+
+    Returns
+    -------
+    rate : float or None
+    certificate : Certificate or None
+        Re-checked for the decay claim at ``rate``.
+    """
+    radii = np.max(np.abs(np.linalg.eigvals(A)), axis=-1)
+    powers = eta if per == "sample" else np.ones_like(eta)
+    lo = float(np.max(radii ** (1.0 / powers)))  # no certificate can beat a mode's own radius
+
+    def feasible(lam):
+        rho = lam ** (2.0 * powers)
+        try:
+            if kind == "common_quadratic":
+                X, t, _ = common_lmi(A, rho, solver=solver)
+                cert = recheck_common_reduced(X, A, rho, "rate_bisection") if t > 0 else None
+            else:
+                P, t, _ = switched_lmi(A, rho, solver=solver)
+                cert = recheck_switched(P, A, "rate_bisection", rho=rho) if t > 0 else None
+        except SolverFailed:
+            return None
+        if cert is None or not cert.verified:
+            return None
+        cert.decay_rate = float(lam)
+        return cert
+
+    if lo >= hi:
+        return None, None
+    rate, cert, _ = bisect_rate(feasible, lo, hi, tol)
+    return rate, cert

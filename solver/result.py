@@ -83,8 +83,17 @@ class DesignResult:
         ``solver`` (sum of the solver's own times), ``overhead`` (the rest), in s;
         ``cached`` whether the compiled problem was reused; ``solves`` count.
     message : str
-    spectral_radii : ndarray, shape (r, n_drop), or None
-        Spectral radius of every interval closed loop for ``gains``.
+    spectral_radii : ndarray or None
+        Spectral radius of every interval closed loop for ``gains``: shape
+        (r, n_drop) for per-interval plant switching, (S,) per sample (see ``mode_labels``).
+    scheme : {"predictive", "hold", "zero"}
+    plant_switching : {"per_interval", "per_sample"}
+    decay_rate : float or None
+        Per-sample decay rate lambda the certificate proves, when one was asked for.
+    mode_labels : list of dict
+        The closed-loop modes in the order of the flat arrays.
+    rate_search : list of dict
+        For ``decay_rate="max"``: every rate tried and its outcome.
     """
 
     outcome: str
@@ -98,6 +107,11 @@ class DesignResult:
     timings: dict = field(default_factory=dict)
     message: str = ""
     spectral_radii: np.ndarray | None = None
+    scheme: str = "predictive"
+    plant_switching: str = "per_interval"
+    decay_rate: float | None = None
+    mode_labels: list = field(default_factory=list)
+    rate_search: list = field(default_factory=list)
 
     @property
     def iterations(self) -> int:
@@ -129,4 +143,9 @@ class DesignResult:
             "solver_status": self.solver_status,
             "timings": {k: (_num(v) if isinstance(v, float) else v) for k, v in self.timings.items()},
             "message": self.message,
+            "scheme": self.scheme,
+            "plant_switching": self.plant_switching,
+            "decay_rate": self.decay_rate,
+            "rate_search": self.rate_search,
+            "modes": self.mode_labels,
         }

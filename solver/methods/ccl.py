@@ -1,6 +1,6 @@
 """The paper's design: cone complementarity linearization (Theorem 2, Sec. III.D).
 
-Find ``P, Q > 0`` (size n*n_drop) and gains K with, for every mode s = (l, eta)::
+Find ``P, Q > 0`` (size n*n_drop) and gains K with, for every mode s::
 
     [[P, Phi_s^T], [Phi_s, Q]] >= margin I     (13)  (the paper's form times -1)
     [[P, I], [I, Q]] >= 0                        (15)
@@ -18,19 +18,17 @@ prove that no design exists: where none does it ends ``not_converged``.
 
 from __future__ import annotations
 
-import time
-
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, problem_cache, schur_block
-from ..network import IntervalData, spectral_radii
-from ..plant import PlantFamily
+from ..compiled import CompiledProblem, block, schur_block
+from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
-from .common import DesignOptions, RunClock, certify_gains
+from .common import DesignOptions, RunClock, certify_gains, finish
+from .lmi import compiled_for, plant_values
 
 
-def build(n: int, m: int, r: int, n_drop: int) -> CompiledProblem:
+def build(n: int, m: int, S: int, J: int, active: np.ndarray, n_drop: int) -> CompiledProblem:
     """One DPP problem serving Step 1 and Step 2.
 
     The objective is ``trace(P Q_k + P_k Q) + start_weight * trace(P + Q)``:
@@ -41,65 +39,50 @@ def build(n: int, m: int, r: int, n_drop: int) -> CompiledProblem:
     size = n * N
     P = cp.Variable((size, size), symmetric=True)
     Q = cp.Variable((size, size), symmetric=True)
-    K = [cp.Variable((m, n)) for _ in range(N)]
+    theta = [cp.Variable((m, n)) for _ in range(J)]
     P_k = cp.Parameter((size, size), symmetric=True)
     Q_k = cp.Parameter((size, size), symmetric=True)
     start_weight = cp.Parameter(nonneg=True)
     margin = cp.Parameter(nonneg=True)
-    F_pow = cp.Parameter((r * N * n, n))  # row block l*N + eta-1: F_l^eta
-    FtG = cp.Parameter((r * N * n, m))  # row block l*N + t: F_l^t G_l
+    free = cp.Parameter((S * n, n))
+    coef = cp.Parameter((S * J * n, m))
     eye_n = np.eye(n)
     zero_n = np.zeros((n, n))
     eye_2 = np.eye(2 * size)
-    # Rows 2..N of Phi (eq. 10) do not depend on the gains: shift the stacked past states.
+    # Rows 2..N of Phi (eq. 10) do not depend on the gains: they shift the stacked past states.
     shift_rows = [[eye_n if col == row - 1 else zero_n for col in range(N)] for row in range(1, N)]
     cons = [schur_block(P, np.eye(size), Q) >> 0]  # (15)
-    for l in range(r):
-        for eta in range(1, N + 1):
-            A_s = block(F_pow, l * N + eta - 1, n) + sum(block(FtG, l * N + s, n) @ K[eta - s - 1] for s in range(eta))
-            Phi = cp.bmat([[A_s] + [zero_n] * (N - 1)] + shift_rows) if N > 1 else A_s
-            cons.append(schur_block(P, Phi, Q) - margin * eye_2 >> 0)  # (13)
+    for s in range(S):
+        A_s = block(free, s, n)
+        for j in range(J):
+            if active[s, j]:
+                A_s = A_s + block(coef, s * J + j, n) @ theta[j]
+        Phi = cp.bmat([[A_s] + [zero_n] * (N - 1)] + shift_rows) if N > 1 else A_s
+        cons.append(schur_block(P, Phi, Q) - margin * eye_2 >> 0)  # (13)
     objective = cp.sum(cp.multiply(P, Q_k)) + cp.sum(cp.multiply(P_k, Q)) + start_weight * (cp.trace(P) + cp.trace(Q))
-    prob = cp.Problem(cp.Minimize(objective), cons)
-    params = {
-        "P_k": P_k,
-        "Q_k": Q_k,
-        "start_weight": start_weight,
-        "margin": margin,
-        "F_pow": F_pow,
-        "FtG": FtG,
-    }
-    return CompiledProblem(prob, params, {"P": P, "Q": Q, "K": K})
+    params = {"P_k": P_k, "Q_k": Q_k, "start_weight": start_weight, "margin": margin, "free": free, "coef": coef}
+    return CompiledProblem(cp.Problem(cp.Minimize(objective), cons), params, {"P": P, "Q": Q, "theta": theta})
 
 
-def compiled_for(family: PlantFamily, n_drop: int) -> tuple[CompiledProblem, bool, float]:
-    r, n, m = family.n_modes, family.n_states, family.n_inputs
-    start = time.perf_counter()
-    compiled, cached = problem_cache.get(("ccl", n, m, r, n_drop), lambda: build(n, m, r, n_drop))
-    return compiled, cached, (0.0 if cached else time.perf_counter() - start)
-
-
-def run(family: PlantFamily, n_drop: int, options: DesignOptions) -> DesignResult:
+def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     clock = RunClock()
-    data = IntervalData.from_family(family, n_drop)
-    compiled, clock.cached, clock.setup = compiled_for(family, n_drop)
-    r, n, m = family.n_modes, family.n_states, family.n_inputs
-    size = n * n_drop
-    values = {
-        "F_pow": data.F_pow.reshape(r * n_drop * n, n),
-        "FtG": data.FtG.reshape(r * n_drop * n, m),
-        "margin": options.margin,
-        "P_k": np.zeros((size, size)),
-        "Q_k": np.zeros((size, size)),
-        "start_weight": 1.0 if options.ccl_start == "min_trace" else 0.0,
-    }
+    n_drop = modes.n_drop
+    compiled, clock.cached, clock.setup = compiled_for(
+        modes, ("ccl", n_drop), lambda n, m, S, J, active: build(n, m, S, J, active, n_drop)
+    )
+    size = modes.n_states * n_drop
+    values = plant_values(modes)
+    values.update(
+        margin=options.margin,
+        P_k=np.zeros((size, size)),
+        Q_k=np.zeros((size, size)),
+        start_weight=1.0 if options.ccl_start == "min_trace" else 0.0,
+    )
     history: list[IterationRecord] = []
-    gains = None
-    cert = None
-    A = None
+    gains = cert = A = None
     status = ""
-    message = ""
     outcome = "not_converged"
+    message = f"iteration cap of {options.max_iter} reached without a certified iterate"
     for k in range(options.max_iter + 1):
         remaining = clock.remaining(options.time_limit)
         if remaining is not None and remaining <= 0:
@@ -110,10 +93,9 @@ def run(family: PlantFamily, n_drop: int, options: DesignOptions) -> DesignResul
         status = info.status
         P = compiled.value("P")
         Q = compiled.value("Q")
-        gains = np.stack(compiled.value("K"))
-        cert, A = certify_gains(
-            data, gains, options, clock, candidate=P, candidate_source="ccl_iterate", candidate_is_reduced=False
-        )
+        gains = modes.expand(np.stack(compiled.value("theta")))
+        cert, A = certify_gains(modes, gains, options, clock, candidate=P, candidate_kind="augmented",
+                                candidate_source="ccl_iterate")
         record = IterationRecord(
             iteration=k,
             objective=info.objective,
@@ -135,20 +117,6 @@ def run(family: PlantFamily, n_drop: int, options: DesignOptions) -> DesignResul
             break
         values["P_k"], values["Q_k"] = 0.5 * (P + P.T), 0.5 * (Q + Q.T)
         values["start_weight"] = 0.0
-    else:
-        message = f"iteration cap of {options.max_iter} reached without a certified iterate"
     if outcome != "stabilized":
         cert = None
-    return DesignResult(
-        outcome=outcome,
-        gains=gains,
-        certificate=cert,
-        method="ccl",
-        n_drop=n_drop,
-        history=history,
-        solver=options.solver,
-        solver_status=status,
-        timings=clock.timings(),
-        message=message,
-        spectral_radii=None if A is None else spectral_radii(A),
-    )
+    return finish(modes, "ccl", outcome, gains, cert, A, clock, options.solver, status, message, history, options)

@@ -9,8 +9,9 @@ from typing import Callable
 import numpy as np
 
 from ..compiled import SolveInfo
-from ..lyapunov import Certificate, lift, recheck, theorem1_lmi
-from ..network import IntervalData, closed_loop_matrices, spectral_radii
+from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
+from ..network import ModeSet, spectral_radii
+from ..result import DesignResult
 
 
 @dataclass
@@ -23,6 +24,12 @@ class DesignOptions:
     time_limit: float | None = None
     callback: Callable | None = None
     ccl_start: str = "feasibility"
+    decay_rate: float | None = None
+
+    def rho(self, modes: ModeSet) -> np.ndarray:
+        """Decay factors ``lambda^(2 eta_s)`` per mode (ones without a rate)."""
+        lam = 1.0 if self.decay_rate is None else self.decay_rate
+        return lam ** (2.0 * modes.eta)
 
 
 @dataclass
@@ -59,35 +66,75 @@ class RunClock:
 
 
 def certify_gains(
-    data: IntervalData,
+    modes: ModeSet,
     gains: np.ndarray,
     options: DesignOptions,
     clock: RunClock,
     candidate: np.ndarray | None = None,
+    candidate_kind: str = "reduced",
     candidate_source: str = "",
-    candidate_is_reduced: bool = True,
 ) -> tuple[Certificate | None, np.ndarray]:
-    """Find a float64-verified Theorem 1 certificate for ``gains``.
+    """Find a float64-verified certificate for ``gains``.
 
-    The method's own candidate (a reduced X, or an augmented P) is tried first;
-    if it does not pass the re-check, Theorem 1 is solved as an LMI in P for
-    the fixed gains.  Returns ``(certificate or None, A)`` where A holds the
-    interval closed loops ``A_{l,eta}(gains)``.
+    The method's own candidate is tried first: a reduced common X
+    (``"reduced"``, lifted to the augmented P of Theorem 1), an augmented P
+    (``"augmented"``) or mode-dependent ``P_s`` (``"switched"``).  With a
+    decay rate the candidate must also prove it.  Without a rate, and if the
+    candidate fails, fixed-gain LMIs (common, then switched) are solved.
+
+    Returns ``(certificate or None, A)`` with ``A`` the closed loops (S, n, n).
     """
-    A = closed_loop_matrices(data, gains)
+    A = modes.closed_loops(gains)
+    rho = options.rho(modes)
+    n_drop = modes.n_drop
     if candidate is not None and np.all(np.isfinite(candidate)):
-        if candidate_is_reduced:
-            cert = recheck(lift(candidate, A), A, candidate_source, X=candidate)
+        if candidate_kind == "switched":
+            cert = recheck_switched(candidate, A, candidate_source, rho=rho)
+        elif candidate_kind == "augmented":
+            cert = recheck_common(candidate, A, n_drop, candidate_source)
         else:
-            cert = recheck(candidate, A, candidate_source)
+            cert = recheck_common(lift(candidate, A, n_drop), A, n_drop, candidate_source, X=candidate)
+            if cert.verified and options.decay_rate is not None:
+                cert.verified = recheck_common_reduced(candidate, A, rho, candidate_source).verified
         if cert.verified:
+            cert.decay_rate = options.decay_rate
             return cert, A
-    if np.max(spectral_radii(A)) >= 1.0:
-        return None, A  # no quadratic certificate can exist; skip the SDP
-    X, t, info = theorem1_lmi(A, solver=options.solver, time_limit=options.time_limit)
-    clock.add(info)
-    if t > 0:
-        cert = recheck(lift(X, A), A, "theorem1_lmi", X=X)
-        if cert.verified:
-            return cert, A
-    return None, A
+    if options.decay_rate is not None or np.max(spectral_radii(A)) >= 1.0:
+        return None, A  # a rate is the candidate's to prove; an unstable mode has no certificate
+    kinds = ("common_quadratic",) if modes.plant_switching == "per_interval" and candidate_kind != "switched" else (
+        "common_quadratic", "switched")
+    return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=options.time_limit, on_solve=clock.add), A
+
+
+def finish(
+    modes: ModeSet,
+    method: str,
+    outcome: str,
+    gains,
+    cert,
+    A,
+    clock: RunClock,
+    info_solver: str,
+    status: str,
+    message: str,
+    history: list,
+    options: DesignOptions,
+) -> DesignResult:
+    """Assemble a DesignResult with the fields every method reports."""
+    return DesignResult(
+        outcome=outcome,
+        gains=gains,
+        certificate=cert,
+        method=method,
+        n_drop=modes.n_drop,
+        history=history,
+        solver=info_solver,
+        solver_status=status,
+        timings=clock.timings(),
+        message=message,
+        spectral_radii=None if A is None else modes.reshape_per_mode(spectral_radii(A)),
+        scheme=modes.scheme,
+        plant_switching=modes.plant_switching,
+        decay_rate=options.decay_rate if outcome == "stabilized" else None,
+        mode_labels=[modes.label(s) for s in range(modes.n_modes)],
+    )

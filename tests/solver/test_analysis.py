@@ -27,7 +27,8 @@ def test_unstable_mode_is_reported_with_its_sequence():
     gains = 3 * EQ23_GAINS
     rep = analyze(fam, gains, n_drop=3)
     assert rep.stable is False and rep.certificate is None
-    (l, eta), = rep.worst_sequence
+    (worst,) = rep.worst_sequence
+    l, eta = worst["plant"], worst["eta"]
     A = interval_matrix_by_stepping(fam.F[l], fam.G[l], gains, eta)
     assert max(abs(np.linalg.eigvals(A))) >= 1
     assert rep.max_spectral_radius == pytest.approx(max(abs(np.linalg.eigvals(A))))
@@ -40,7 +41,7 @@ def test_destabilizing_product_of_stable_modes():
     rep = analyze(fam, np.zeros((1, 1, 2)), n_drop=1)
     assert rep.max_spectral_radius == 0.0
     assert rep.stable is False
-    assert len(rep.worst_sequence) == 2 and {p for p, _ in rep.worst_sequence} == {0, 1}
+    assert len(rep.worst_sequence) == 2 and {w["plant"] for w in rep.worst_sequence} == {0, 1}
     assert rep.jsr_lower_bound == pytest.approx(2.0)
 
 
