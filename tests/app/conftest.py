@@ -1,0 +1,171 @@
+"""Fixtures for the service tests.
+
+Every test database is fresh and migrated by Alembic (never create_all).
+SQLite by default; set NCS_TEST_DATABASE_URL to a PostgreSQL URL (e.g.
+``postgresql+psycopg://postgres@127.0.0.1:5432/test``) and each fixture
+creates its own throw-away database on that server instead.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+import warnings
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+
+warnings.filterwarnings("ignore", message=".*httpx2.*")
+
+from fastapi.testclient import TestClient  # noqa: E402
+
+from app import create_app  # noqa: E402
+from app.settings import Settings  # noqa: E402
+
+PG_URL = os.environ.get("NCS_TEST_DATABASE_URL") or None
+REPO = Path(__file__).resolve().parents[2]
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+
+def _pg_admin(url: str):
+    import psycopg
+    from sqlalchemy.engine import make_url
+
+    u = make_url(url)
+    return psycopg.connect(host=u.host or "127.0.0.1", port=u.port or 5432, user=u.username,
+                           password=u.password, dbname=u.database, autocommit=True), u
+
+
+@contextmanager
+def fresh_database_url(tmp_dir: Path):
+    """A URL of an empty database: an SQLite file, or a new PostgreSQL database."""
+    if not PG_URL:
+        yield f"sqlite:///{tmp_dir / ('ncs-' + uuid.uuid4().hex[:8] + '.db')}"
+        return
+    name = "ncs_test_" + uuid.uuid4().hex[:12]
+    conn, u = _pg_admin(PG_URL)
+    with conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield u.set(database=name).render_as_string(hide_password=False)
+    finally:
+        conn, _ = _pg_admin(PG_URL)
+        with conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+def make_settings(url: str, **overrides) -> Settings:
+    base = dict(database_url=url, workers=1, lease_seconds=3.0, poll_interval=0.05, job_time_limit=120.0)
+    base.update(overrides)
+    return Settings(**base)
+
+
+@contextmanager
+def running_client(url: str, **overrides):
+    app = create_app(make_settings(url, **overrides))
+    with TestClient(app, raise_server_exceptions=False) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def module_db(tmp_path_factory):
+    with fresh_database_url(tmp_path_factory.mktemp("db")) as url:
+        yield url
+
+
+@pytest.fixture
+def db_url(tmp_path):
+    with fresh_database_url(tmp_path) as url:
+        yield url
+
+
+def wait_for(client, job_id: str, statuses=TERMINAL, timeout: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        job = client.get(f"/v1/designs/{job_id}").json()
+        if job["status"] in statuses:
+            return job
+        if time.monotonic() > deadline:
+            raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
+        time.sleep(0.05)
+
+
+def assert_problem(resp, status: int, pointer: str | None = None) -> dict:
+    assert resp.status_code == status, resp.text
+    assert resp.headers["content-type"].startswith("application/problem+json"), resp.headers
+    body = resp.json()
+    for key in ("type", "title", "status", "detail", "instance"):
+        assert key in body, body
+    assert body["status"] == status
+    if pointer is not None:
+        pointers = [e["pointer"] for e in body.get("errors") or []]
+        assert any(p == pointer or p.startswith(pointer + "/") for p in pointers), (pointer, body)
+    return body
+
+
+# -- real server processes ------------------------------------------------------------
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    def __init__(self, url: str, log_path: Path, **env):
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        environ = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
+        environ.update({"NCS_DATABASE_URL": url, "NCS_PORT": str(self.port), "NCS_HOST": "127.0.0.1"})
+        environ.update({k: str(v) for k, v in env.items()})
+        self.log = open(log_path, "ab")
+        self.proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--log-level", "warning"],
+                                     env=environ, cwd=str(REPO), stdout=self.log, stderr=subprocess.STDOUT)
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"server exited with {self.proc.returncode}")
+            try:
+                if httpx.get(self.base + "/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise AssertionError("server not ready in time")
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.log.close()
+
+
+@pytest.fixture
+def start_server(tmp_path):
+    servers = []
+
+    def start(url: str, **env) -> Server:
+        s = Server(url, tmp_path / "server.log", **env)
+        servers.append(s)
+        s.wait_ready()
+        return s
+
+    yield start
+    for s in servers:
+        s.stop()
