@@ -80,7 +80,16 @@ def _clean_validation_errors(errors: Sequence[dict[str, Any]]) -> list[dict[str,
     out = []
     for e in errors:
         loc = list(e.get("loc", ()))
-        out.append(field_error(loc, e.get("msg", "invalid"), e.get("type", "value_error")))
+        msg = e.get("msg", "invalid")
+        if e.get("type") == "json_invalid":  # loc holds a character position, not a field
+            pos = loc[1] if len(loc) > 1 else None
+            reason = (e.get("ctx") or {}).get("error")
+            msg = f"{msg}: {reason}" if reason else msg
+            if pos is not None:
+                msg += f" at character {pos}"
+            out.append({"loc": ["body"], "pointer": "", "msg": msg, "type": "json_invalid"})
+            continue
+        out.append(field_error(loc, msg, e.get("type", "value_error")))
     return out
 
 

@@ -135,7 +135,7 @@ def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str,
     main = simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)
     out = jsonable(main.to_dict())
     out["per_mode"] = [
-        dict(mode=l, **jsonable(simulate(fam, K, plant_switching="none", mode=l, **common).to_dict()))
+        {"plant_mode": l, **jsonable(simulate(fam, K, plant_switching="none", mode=l, **common).to_dict())}
         for l in range(fam.n_modes)
     ]
     out["query"] = jsonable(params)
