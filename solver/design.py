@@ -11,9 +11,11 @@ from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
+from .lyapunov import recheck_common, recheck_switched
 from .network import MAX_MODES, ModeSet
 from .plant import PlantFamily
 from .result import DesignResult
+from .scaling import Scaling, balance
 
 #: Method name -> module with ``run(modes, options)``.
 METHODS = {"lmi": lmi, "ccl": ccl, "switched": switched}
@@ -57,6 +59,7 @@ def design(
     plant_switching: str = "per_interval",
     scheme: str = "predictive",
     max_modes: int = MAX_MODES,
+    scaling: str = "auto",
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -97,6 +100,10 @@ def design(
         (all K_q equal) or zero input on loss (K_q = 0 for q > 1).
     max_modes : int
         Refuse mode sets larger than this (per-sample switching has sum r^eta modes).
+    scaling : {"auto", "none"}
+        ``"auto"`` designs in balanced coordinates (diagonal powers of two) when
+        the family's entries spread over more than three decades, and maps
+        gains and certificates back (see :mod:`solver.scaling`).
 
     Returns
     -------
@@ -115,6 +122,8 @@ def design(
     if method not in METHODS:
         raise InvalidInput(f"method must be one of {sorted(METHODS)}, got {method!r}", ("method",))
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
+    if scaling not in ("auto", "none"):
+        raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     options = DesignOptions(
@@ -126,7 +135,15 @@ def design(
         ccl_start=ccl_start,
         decay_rate=None if decay_rate in (None, "max") else float(decay_rate),
     )
-    runner = METHODS[method].run
+    scale = balance(family) if scaling == "auto" else None
+    if scale is not None and not scale.is_identity:
+        scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
+                                           scheme=scheme, max_modes=max_modes)
+        return _unscale(_run(METHODS[method].run, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+    return _run(METHODS[method].run, modes, options, decay_rate, rate_tol)
+
+
+def _run(runner, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
     if decay_rate != "max":
         return runner(modes, options)
     return _smallest_rate(runner, modes, options, rate_tol)
@@ -151,3 +168,32 @@ def _smallest_rate(runner, modes: ModeSet, options: DesignOptions, tol: float) -
     best.rate_search = search
     best.message += f"; smallest certified decay rate {hi:.4g} (bisection to {tol:g}, {len(search)} designs)"
     return best
+
+
+def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
+    """Map a design made in scaled coordinates back, and re-check it in the original ones.
+
+    The powers-of-two similarity makes the scaled re-check exact; the original
+    coordinates are re-checked too and, when rounding there is too coarse to
+    confirm the margin, the certificate stays in scaled coordinates
+    (``res.scaling`` says which).
+    """
+    res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
+    if res.gains is None:
+        return res
+    res.gains = scale.gains_back(res.gains)
+    cert = res.certificate
+    if cert is None:
+        return res
+    A = modes.closed_loops(res.gains)
+    if cert.kind == "switched":
+        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source)
+    else:
+        X = None if cert.X is None else scale.quadratic_back(cert.X)
+        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
+    if original.verified:
+        original.decay_rate = cert.decay_rate
+        res.certificate = original
+    else:
+        res.scaling["certificate"] = "scaled"
+    return res

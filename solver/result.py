@@ -94,6 +94,9 @@ class DesignResult:
         The closed-loop modes in the order of the flat arrays.
     rate_search : list of dict
         For ``decay_rate="max"``: every rate tried and its outcome.
+    scaling : dict or None
+        The diagonal state/input scaling the design was made in (None when none was needed)
+        and in which coordinates ``certificate`` is expressed.
     """
 
     outcome: str
@@ -112,6 +115,7 @@ class DesignResult:
     decay_rate: float | None = None
     mode_labels: list = field(default_factory=list)
     rate_search: list = field(default_factory=list)
+    scaling: dict | None = None
 
     @property
     def iterations(self) -> int:
@@ -148,4 +152,5 @@ class DesignResult:
             "decay_rate": self.decay_rate,
             "rate_search": self.rate_search,
             "modes": self.mode_labels,
+            "scaling": self.scaling,
         }
