@@ -23,7 +23,7 @@ def test_trace_png_decodes_with_the_requested_size():
     img.load()
     assert img.format == "PNG" and img.size == (9 * 80, 5 * 80)
     # not a blank canvas: the curves put many distinct colours on it
-    assert len(set(np.asarray(img.convert("RGB")).reshape(-1, 3)[::97].tolist())) > 20
+    assert len({tuple(px) for px in np.asarray(img.convert("RGB")).reshape(-1, 3)[::97].tolist()}) > 20
 
 
 def test_trace_svg_is_deterministic_and_marks_losses():
