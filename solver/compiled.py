@@ -9,6 +9,7 @@ maps new parameter values to the conic data.
 
 from __future__ import annotations
 
+import os
 import threading
 import warnings
 import time
@@ -188,8 +189,9 @@ class ProblemCache:
             return list(self._items)
 
 
-#: The process-wide cache every method uses.
-problem_cache = ProblemCache()
+#: The process-wide cache every method uses (each worker process has its own);
+#: ``NCS_PROBLEM_CACHE_SIZE`` sets its bound.
+problem_cache = ProblemCache(maxsize=max(1, int(os.environ.get("NCS_PROBLEM_CACHE_SIZE", "32"))))
 
 
 def schur_block(top_left, lower_left, bottom_right) -> cp.Expression:

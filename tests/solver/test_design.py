@@ -156,3 +156,36 @@ def test_bad_design_arguments(kwargs, field):
     with pytest.raises(InvalidInput) as err:
         design(PlantFamily.paper_example(0.1), **kwargs)
     assert err.value.field == field
+
+
+@pytest.mark.parametrize("method", ["ccl", "switched"])
+def test_cached_and_fresh_problems_agree_for_iterative_and_switched_methods(method):
+    for seed in (0, 1):
+        fam = random_family(seed, n=2, m=1, r=2)
+        problem_cache.clear()
+        fresh = design(fam, n_drop=2, method=method, max_iter=10)
+        cached = design(fam, n_drop=2, method=method, max_iter=10)
+        assert cached.timings["cached"] and not fresh.timings["cached"]
+        assert fresh.outcome == cached.outcome
+        if fresh.gains is not None:
+            np.testing.assert_allclose(cached.gains, fresh.gains, rtol=1e-5, atol=1e-7)
+        if fresh.certificate is not None:
+            assert cached.certificate.verified and cached.certificate.kind == fresh.certificate.kind
+
+
+def test_problem_cache_is_a_bounded_lru():
+    from solver.compiled import ProblemCache
+
+    cache = ProblemCache(maxsize=2)
+    built = []
+
+    def builder(tag):
+        return lambda: built.append(tag) or tag
+
+    assert cache.get("a", builder("a")) == ("a", False)
+    assert cache.get("b", builder("b")) == ("b", False)
+    assert cache.get("a", builder("a")) == ("a", True)  # a is now the most recent
+    cache.get("c", builder("c"))  # evicts b, the least recently used
+    assert cache.keys() == ["a", "c"]
+    assert cache.get("b", builder("b")) == ("b", False)
+    assert built == ["a", "b", "c", "b"] and len(cache) == 2
