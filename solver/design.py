@@ -151,49 +151,27 @@ def _run(runner, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: f
 
 def _smallest_rate(runner, modes: ModeSet, options: DesignOptions, tol: float) -> DesignResult:
     """Bisection on lambda in (0, 1]: every design at a feasible lambda is certified for it."""
-    best = runner(modes, replace(options, decay_rate=1.0))
-    search = [{"decay_rate": 1.0, "outcome": best.outcome}]
-    if best.outcome != "stabilized":
-        best.rate_search = search
-        return best
-    lo, hi = 0.0, 1.0
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        res = runner(modes, replace(options, decay_rate=mid))
-        search.append({"decay_rate": mid, "outcome": res.outcome})
-        if res.outcome == "stabilized":
-            hi, best = mid, res
-        else:
-            lo = mid
+    totals = {"total": 0.0, "setup": 0.0, "solver": 0.0, "solves": 0}
+
+    def attempt(lam):
+        res = runner(modes, replace(options, decay_rate=lam))
+        for key in totals:
+            totals[key] += res.timings.get(key, 0)
+        search.append({"decay_rate": lam, "outcome": res.outcome})
+        return res
+
+    search: list = []
+    best = attempt(1.0)
+    if best.outcome == "stabilized":
+        lo, hi = 0.0, 1.0
+        while hi - lo > tol:
+            mid = 0.5 * (lo + hi)
+            res = attempt(mid)
+            if res.outcome == "stabilized":
+                hi, best = mid, res
+            else:
+                lo = mid
+        best.message += f"; smallest certified decay rate {hi:.4g} (bisection to {tol:g}, {len(search)} designs)"
     best.rate_search = search
-    best.message += f"; smallest certified decay rate {hi:.4g} (bisection to {tol:g}, {len(search)} designs)"
+    best.timings.update(totals, overhead=max(totals["total"] - totals["setup"] - totals["solver"], 0.0))
     return best
-
-
-def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
-    """Map a design made in scaled coordinates back, and re-check it in the original ones.
-
-    The powers-of-two similarity makes the scaled re-check exact; the original
-    coordinates are re-checked too and, when rounding there is too coarse to
-    confirm the margin, the certificate stays in scaled coordinates
-    (``res.scaling`` says which).
-    """
-    res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
-    if res.gains is None:
-        return res
-    res.gains = scale.gains_back(res.gains)
-    cert = res.certificate
-    if cert is None:
-        return res
-    A = modes.closed_loops(res.gains)
-    if cert.kind == "switched":
-        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source)
-    else:
-        X = None if cert.X is None else scale.quadratic_back(cert.X)
-        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
-    if original.verified:
-        original.decay_rate = cert.decay_rate
-        res.certificate = original
-    else:
-        res.scaling["certificate"] = "scaled"
-    return res
