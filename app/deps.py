@@ -31,16 +31,6 @@ def get_session(db: Database = Depends(get_database)) -> Iterator[Session]:
         session.close()
 
 
-def get_write_session(db: Database = Depends(get_database)) -> Iterator[Session]:
-    """Write session: on SQLite its transaction begins IMMEDIATE (takes the write lock first)."""
-    session = db.write_session()
-    try:
-        yield session
-    finally:
-        session.rollback()
-        session.close()
-
-
 def require_api_key(request: Request, settings: Settings = Depends(get_settings)) -> None:
     keys = settings.api_keys
     if not keys:

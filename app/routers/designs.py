@@ -11,12 +11,13 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from sqlalchemy import func, select, update
+from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app import tasks, validation
-from app.deps import get_database, get_session, get_settings, get_write_session, require_api_key
+from app.db import Database
+from app.deps import get_database, get_session, get_settings, require_api_key
 from app.examples import DESIGN_EXAMPLES
 from app.models import CANCELLED, QUEUED, RUNNING, STATUSES, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
 from app.problems import ProblemException, field_error, invalid
@@ -72,7 +73,8 @@ def submit_design(
     body: Annotated[DesignRequest, Body(openapi_examples=DESIGN_EXAMPLES)],
     idempotency_key: Annotated[str | None, Header(max_length=255, description="Same key and body -> same job")] = None,
     settings: Settings = Depends(get_settings),
-    session: Session = Depends(get_write_session),
+    session: Session = Depends(get_session),
+    db: Database = Depends(get_database),
 ) -> Job:
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
@@ -88,20 +90,27 @@ def submit_design(
         response.headers["Idempotent-Replayed"] = "true"
         return full(row)
 
+    def lookup() -> JobRow | None:
+        session.rollback()  # a fresh snapshot
+        found = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        if found is not None:
+            session.expunge(found)
+        session.rollback()  # never keep a transaction open past this point
+        return found
+
     if idempotency_key is not None:
-        existing = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        existing = lookup()
         if existing is not None:
             return replay(existing)
     now = utcnow()
     row = JobRow(id=new_id(), kind="design", status=QUEUED, method=req["method"], n_drop=req["n_drop"],
                  request=req, request_hash=digest, idempotency_key=idempotency_key, attempts=0,
                  cancel_requested=False, created_at=now, updated_at=now)
-    session.add(row)
     try:
-        session.commit()
+        with db.write() as ws:  # one short INSERT transaction
+            ws.add(row)
     except IntegrityError:  # a concurrent request with the same key won the race
-        session.rollback()
-        existing = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        existing = lookup() if idempotency_key is not None else None
         if existing is None:
             raise
         return replay(existing)
@@ -150,33 +159,32 @@ def get_design(job_id: str, session: Session = Depends(get_session)) -> Job:
                409: {"description": "The job already finished", "content": {"application/problem+json": {}}}},
 )
 def cancel_design(job_id: str, request: Request, response: Response,
-                  session: Session = Depends(get_write_session)) -> Job:
-    row = _load(session, job_id)
-    now = utcnow()
-    if row.status == QUEUED:
-        res = session.execute(update(JobRow).where(JobRow.id == job_id, JobRow.status == QUEUED).values(
-            status=CANCELLED, cancel_requested=True, finished_at=now, updated_at=now, error="cancelled by request"))
-        if res.rowcount == 1:
-            session.commit()
-            session.refresh(row)
+                  db: Database = Depends(get_database)) -> Job:
+    if len(job_id) > 36:
+        raise _not_found(job_id)
+    notify = False
+    with db.write() as ws:  # one short transaction, guarded by the current status
+        row = ws.get(JobRow, job_id)
+        if row is None:
+            raise _not_found(job_id)
+        now = utcnow()
+        if row.status == QUEUED:
+            row.status, row.cancel_requested, row.finished_at = CANCELLED, True, now
+            row.updated_at, row.error = now, "cancelled by request"
             response.status_code = 200
-            return full(row)
-        session.rollback()
-        session.refresh(row)
-    if row.status == RUNNING:
-        session.execute(update(JobRow).where(JobRow.id == job_id, JobRow.status == RUNNING)
-                        .values(cancel_requested=True, updated_at=now))
-        session.commit()
-        session.refresh(row)
-        dispatcher = getattr(request.app.state, "dispatcher", None)
-        if dispatcher is not None:
-            dispatcher.notify()
-        return full(row)
-    if row.status == CANCELLED:
-        response.status_code = 200
-        return full(row)
-    raise ProblemException(409, f"job {job_id} already finished with status {row.status!r}; it cannot be cancelled",
-                           title="Conflict")
+        elif row.status == RUNNING:
+            row.cancel_requested, row.updated_at = True, now
+            notify = True
+        elif row.status == CANCELLED:
+            response.status_code = 200
+        else:
+            raise ProblemException(409, f"job {job_id} already finished with status {row.status!r}; "
+                                        "it cannot be cancelled", title="Conflict")
+        ws.flush()
+        out = full(row)
+    if notify and getattr(request.app.state, "dispatcher", None) is not None:
+        request.app.state.dispatcher.notify()
+    return out
 
 
 @router.get(
