@@ -1,0 +1,99 @@
+"""``python -m bench``: print the solver benchmark tables.
+
+Options::
+
+    --quick            paper example only, few repeats (well under a minute)
+    --repeats N        warm repeats per cell (default 20; the paper-example lmi uses --paper-repeats)
+    --paper-repeats N  warm repeats of the paper-example lmi design (default 200, ~3 ms each)
+    --hand-repeats N   hand-written baseline runs per cell (default 10)
+    --cold-repeats N   cold designs per cell, each after problem_cache.clear() (default 5)
+    --ccl-limit S      per-case time budget of ccl, seconds (default 120)
+    --lmi-limit S      per-case time budget of lmi, seconds (default 120)
+    --cases a,b        subset of paper,n4,n8,n20
+    --grid             also run the growth grid (lmi over n, r, n_drop)
+    --grid-max-rows R  skip grid cells with more LMI rows than R (default 512)
+    --no-table         only the grid
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import time
+
+
+def _header() -> str:
+    import clarabel
+    import cvxpy
+    import numpy
+
+    import solver
+
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "solver"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        rev, dirty = "?", ""
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
+    return (f"solver benchmark: commit {rev}{' (solver/ modified)' if dirty else ''}, python {platform.python_version()}, "
+            f"cvxpy {cvxpy.__version__}, clarabel {clarabel.__version__}, numpy {numpy.__version__}, "
+            f"solver from {os.path.dirname(solver.__file__)}, {os.cpu_count()} cpus, load average {', '.join(f'{x:.2f}' for x in load)}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench", description="Solver benchmark tables.")
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--repeats", type=int, default=20)
+    p.add_argument("--paper-repeats", type=int, default=200)
+    p.add_argument("--hand-repeats", type=int, default=10)
+    p.add_argument("--cold-repeats", type=int, default=5)
+    p.add_argument("--ccl-limit", type=float, default=120.0)
+    p.add_argument("--lmi-limit", type=float, default=120.0)
+    p.add_argument("--cases", default="paper,n4,n8,n20")
+    p.add_argument("--grid", action="store_true")
+    p.add_argument("--grid-max-rows", type=int, default=512)
+    p.add_argument("--no-table", action="store_true")
+    a = p.parse_args(argv)
+
+    from . import solver_bench
+    from .cases import CASES
+
+    cases = [c.strip() for c in a.cases.split(",") if c.strip()]
+    for c in cases:
+        if c not in CASES:
+            p.error(f"unknown case {c!r}; choose from {', '.join(CASES)}")
+    if a.quick:
+        cases = ["paper"]
+        a.repeats, a.paper_repeats, a.hand_repeats, a.cold_repeats = 10, 100, 5, 3
+        a.ccl_limit = min(a.ccl_limit, 20.0)
+
+    print(_header(), flush=True)
+    t0 = time.perf_counter()
+    if not a.no_table:
+        sums = solver_bench.main_table(cases, a.repeats, a.hand_repeats, a.cold_repeats, a.ccl_limit,
+                                       a.lmi_limit, a.paper_repeats)
+        print()
+        print("Per method and shape (times are medians; Clarabel = sum of Clarabel's own solve times in one design;")
+        print("cold = first design after problem_cache.clear(), incl. building and canonicalizing the cvxpy problem;")
+        print("hand-written rebuild = plain cvxpy code that builds a new cp.Problem for every solve)")
+        print()
+        print(solver_bench.table(sums))
+        print()
+        for line in solver_bench.targets(sums):
+            print(line)
+    if a.grid:
+        from .grid import grid_table, run_grid
+
+        print()
+        print(f"Growth of lmi (random families, m=1; cells above {a.grid_max_rows} LMI rows skipped):")
+        print()
+        print(grid_table(run_grid(repeats=3 if a.quick else 5, max_rows=a.grid_max_rows)))
+    print(f"\n(total {time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
