@@ -52,6 +52,8 @@ class _Slot:
         self.progress: dict[str, Any] | None = None
         self.progress_written = 0.0
         self.progress_dirty = False
+        self.spawn_after = 0.0  # monotonic time before which no replacement is started
+        self.backoff = 0.0      # grows while workers die before they become ready
 
     def clear_job(self) -> None:
         self.job_id = None
@@ -74,7 +76,8 @@ class Dispatcher:
         self._last_heartbeat = 0.0
         self._last_recover = 0.0
         self._last_cancel_check = 0.0
-        self.error: str | None = None
+        self.tick_error: str | None = None   # last database/dispatcher error, cleared by a good tick
+        self.start_error: str | None = None  # a worker failed to start, cleared when one is ready
         self.started_workers = 0
 
     # -- public -----------------------------------------------------------
@@ -100,6 +103,10 @@ class Dispatcher:
             os.write(self._wake_w, b"x")
         except (BlockingIOError, OSError):
             pass
+
+    @property
+    def error(self) -> str | None:
+        return "; ".join(e for e in (self.tick_error, self.start_error) if e) or None
 
     def thread_alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
@@ -142,7 +149,15 @@ class Dispatcher:
         slot.ready = False
 
     def _respawn(self, slot: _Slot) -> None:
+        never_ready = slot.proc is not None and not slot.ready
         self._kill(slot)
+        if never_ready and slot.job_id is None:
+            # It died while starting (e.g. the solver cannot be imported): back off, don't spin.
+            slot.backoff = min(30.0, max(1.0, slot.backoff * 2))
+            slot.spawn_after = time.monotonic() + slot.backoff
+            self.start_error = f"worker process {slot.index} exited during start-up; retrying in {slot.backoff:g} s"
+            return
+        slot.backoff = 0.0
         if not self._stop.is_set():
             self._spawn(slot)
 
@@ -152,9 +167,9 @@ class Dispatcher:
             while not self._stop.is_set():
                 try:
                     self._tick()
-                    self.error = None
+                    self.tick_error = None
                 except Exception as exc:  # database hiccup: log, back off, go on
-                    self.error = f"{type(exc).__name__}: {exc}"
+                    self.tick_error = f"{type(exc).__name__}: {exc}"
                     log.exception("dispatcher tick failed")
                     self._stop.wait(1.0)
                     continue
@@ -212,7 +227,8 @@ class Dispatcher:
     def _handle(self, slot: _Slot, msg: tuple) -> None:
         kind = msg[0]
         if kind == "ready":
-            slot.ready, slot.pid = True, msg[1]
+            slot.ready, slot.pid, slot.backoff = True, msg[1], 0.0
+            self.start_error = None
             return
         job_id = msg[1]
         if job_id != slot.job_id:
@@ -233,7 +249,8 @@ class Dispatcher:
     def _check(self, slot: _Slot, now: float) -> None:
         st = self.settings
         if slot.proc is None:
-            self._spawn(slot)
+            if now >= slot.spawn_after and not self._stop.is_set():
+                self._spawn(slot)
             return
         if not slot.proc.is_alive():
             code = slot.proc.exitcode
