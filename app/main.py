@@ -16,7 +16,7 @@ from app import problems
 from app.db import Database, run_migrations
 from app.dispatcher import Dispatcher
 from app.middleware import BodySizeLimit
-from app.routers import compute, designs, health
+from app.routers import analyses, designs, health, simulations
 from app.settings import Settings
 from app.syncpool import SyncPool
 
@@ -97,7 +97,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
     app.include_router(designs.router)
-    app.include_router(compute.router)
+    app.include_router(simulations.router)
+    app.include_router(analyses.router)
     app.include_router(health.router)
 
     # Swagger UI and ReDoc from local files (no CDN): /docs works offline.

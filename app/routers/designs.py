@@ -19,7 +19,7 @@ from app import tasks, validation
 from app.db import Database
 from app.deps import get_database, get_session, get_settings, require_api_key
 from app.examples import DESIGN_EXAMPLES
-from app.models import CANCELLED, QUEUED, RUNNING, STATUSES, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
+from app.models import CANCELLED, QUEUED, RUNNING, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
 from app.problems import ProblemException, field_error, invalid
 from app.schemas import DesignRequest, Job, JobList
 from app.syncpool import unwrap
@@ -28,7 +28,6 @@ from app.views import full, summary
 
 router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)])
 
-PROBLEM = {"model": None, "content": {"application/problem+json": {}}}
 ERRORS = {
     404: {"description": "Unknown job id", "content": {"application/problem+json": {}}},
     422: {"description": "Invalid request (problem+json naming the field)", "content": {"application/problem+json": {}}},

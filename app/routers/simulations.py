@@ -1,0 +1,44 @@
+"""/v1/simulations: seeded simulation of given gains (synchronous, size-limited, on the sync process pool)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Depends, Request
+
+from app import validation
+from app.deps import get_settings, require_api_key
+from app.examples import SIMULATION_EXAMPLES
+from app.problems import invalid
+from app.schemas import SimulationRequest
+from app.settings import Settings
+from app.syncpool import unwrap
+
+router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)])
+PROBLEM = {"content": {"application/problem+json": {}}}
+
+
+@router.post(
+    "/simulations", tags=["simulations"], summary="Simulate given gains (seeded)",
+    description="Seeded simulation of the networked loop with the given gains: packet losses (sensor and "
+                "control), plant switching and the predictive buffer. Returns t, x, u, mode, sensor_arrived, "
+                "control_arrived, effective, eta, ...",
+    responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
+)
+async def simulate(request: Request,
+                   body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
+                   settings: Settings = Depends(get_settings)) -> dict:
+    errors: list = []
+    shape = validation.plant_shape(body.plant, settings, errors)
+    if body.n_drop is not None:
+        validation.check_n_drop(body.n_drop, settings, errors)
+    validation.check_steps(body.steps, settings, errors, ["body", "steps"])
+    if shape is not None:
+        validation.check_gains(body.gains, body.n_drop, shape, errors)
+        validation.check_x0(body.x0, shape, errors, ["body", "x0"])
+        validation.check_mode(body.mode, shape, errors, ["body", "mode"])
+    if errors:
+        raise invalid(errors)
+    req = body.model_dump(mode="json")
+    out = await request.app.state.sync_pool.run("simulation", req)
+    return unwrap(out, ["body"], set(req["plant"].keys()))
