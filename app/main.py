@@ -9,6 +9,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI, Request
+from fastapi.openapi.utils import get_openapi
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.staticfiles import StaticFiles
 
@@ -63,6 +64,27 @@ def _docs_static_dir() -> Path:
     return Path(fastapi_offline.__file__).parent / "static"
 
 
+def _problem_openapi(spec: dict) -> dict:
+    """Document every error response as the problem+json it really is (not FastAPI's default 422 schema)."""
+    from app.schemas import Problem
+
+    components = spec.setdefault("components", {}).setdefault("schemas", {})
+    problem_schema = Problem.model_json_schema(ref_template="#/components/schemas/{model}")
+    components.update(problem_schema.pop("$defs", {}))
+    components["Problem"] = problem_schema
+    ref = {"$ref": "#/components/schemas/Problem"}
+    for path in spec.get("paths", {}).values():
+        for op in path.values():
+            for code, resp in op.get("responses", {}).items():
+                if code[:1] in ("4", "5"):
+                    resp["content"] = {"application/problem+json": {"schema": ref}}
+                    if code == "422" and resp.get("description") == "Validation Error":
+                        resp["description"] = "Invalid request: problem+json whose errors[] name the fields"
+    components.pop("HTTPValidationError", None)
+    components.pop("ValidationError", None)
+    return spec
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
 
@@ -100,6 +122,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(simulations.router)
     app.include_router(analyses.router)
     app.include_router(health.router)
+
+    def openapi():
+        if app.openapi_schema is None:
+            app.openapi_schema = _problem_openapi(get_openapi(
+                title=app.title, version=app.version, description=app.description, routes=app.routes))
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
     # Swagger UI and ReDoc from local files (no CDN): /docs works offline.
     static = "/static/docs"
