@@ -10,8 +10,9 @@ Options::
     --ccl-limit S      per-case time budget of ccl, seconds (default 120)
     --lmi-limit S      per-case time budget of lmi, seconds (default 120)
     --cases a,b        subset of paper,n4,n8,n20
+    --mem-limit GB     address-space cap of each measuring process (default 6)
     --grid             also run the growth grid (lmi over n, r, n_drop)
-    --grid-max-rows R  skip grid cells with more LMI rows than R (default 512)
+    --grid-max-rows R  skip grid cells with more LMI rows than R (default 256)
     --no-table         only the grid
 """
 
@@ -52,9 +53,10 @@ def main(argv=None) -> int:
     p.add_argument("--cold-repeats", type=int, default=5)
     p.add_argument("--ccl-limit", type=float, default=120.0)
     p.add_argument("--lmi-limit", type=float, default=120.0)
+    p.add_argument("--mem-limit", type=float, default=6.0)
     p.add_argument("--cases", default="paper,n4,n8,n20")
     p.add_argument("--grid", action="store_true")
-    p.add_argument("--grid-max-rows", type=int, default=512)
+    p.add_argument("--grid-max-rows", type=int, default=256)
     p.add_argument("--no-table", action="store_true")
     a = p.parse_args(argv)
 
@@ -74,7 +76,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     if not a.no_table:
         sums = solver_bench.main_table(cases, a.repeats, a.hand_repeats, a.cold_repeats, a.ccl_limit,
-                                       a.lmi_limit, a.paper_repeats)
+                                       a.lmi_limit, a.paper_repeats, a.mem_limit)
         print()
         print("Per method and shape (times are medians; Clarabel = sum of Clarabel's own solve times in one design;")
         print("cold = first design after problem_cache.clear(), incl. building and canonicalizing the cvxpy problem;")

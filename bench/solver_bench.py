@@ -28,6 +28,22 @@ import time
 
 TARGET_LMI = 3.0  # warm lmi (paper example) / Clarabel
 TARGET_CCL = 1.5  # ccl per iteration / Clarabel per iteration
+MEM_LIMIT_GB = 6.0  # address-space cap of a child (the machine is shared: never wake the OOM killer)
+
+
+def clarabel_kkt_gb(n: int, r: int, n_drop: int, method: str) -> float:
+    """Rough size of the dense PSD blocks Clarabel puts in its KKT matrix (GB, one copy).
+
+    Clarabel stores, per PSD cone of side d, a dense block of t x t doubles with
+    t = d(d+1)/2.  ``lmi`` has r*n_drop cones of side 2n; ``ccl`` has r*n_drop + 1
+    cones of side 2*n*n_drop.  The factorization needs at least as much again.
+    """
+    if method == "ccl":
+        cones, d = r * n_drop + 1, 2 * n * n_drop
+    else:
+        cones, d = r * n_drop, 2 * n
+    t = d * (d + 1) // 2
+    return cones * t * t * 8 / 2**30
 
 
 # ----------------------------------------------------------------------------- child side
@@ -58,7 +74,12 @@ def _one_design(family, n_drop, method, budget):
     }
 
 
-def child(case: str, method: str, repeats: int, hand_repeats: int, cold_repeats: int, budget: float) -> dict:
+def child(case: str, method: str, repeats: int, hand_repeats: int, cold_repeats: int, budget: float,
+          mem_gb: float = MEM_LIMIT_GB) -> dict:
+    import resource
+
+    cap = int(mem_gb * 2**30)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     from solver.compiled import problem_cache
 
     from . import handwritten
@@ -67,6 +88,11 @@ def child(case: str, method: str, repeats: int, hand_repeats: int, cold_repeats:
     desc, build, n_drop, _ = CASES[case]
     family = build()
     out = {"case": case, "desc": desc, "shape": shape(family, n_drop), "method": method, "budget": budget}
+    kkt = clarabel_kkt_gb(family.n_states, family.n_modes, n_drop, method)
+    if 2 * kkt > mem_gb:
+        out["memory"] = (f"not run: Clarabel's KKT alone would hold ~{kkt:.0f} GB of dense PSD blocks "
+                         f"(> {mem_gb:g} GB cap)")
+        return out
     _tiny_warmup(method)
 
     colds = []
@@ -106,9 +132,10 @@ def child(case: str, method: str, repeats: int, hand_repeats: int, cold_repeats:
 
 
 # ----------------------------------------------------------------------------- parent side
-def run_cell(case, method, repeats, hand_repeats, cold_repeats, budget, python=sys.executable) -> dict:
+def run_cell(case, method, repeats, hand_repeats, cold_repeats, budget, mem_gb=MEM_LIMIT_GB,
+             python=sys.executable) -> dict:
     cmd = [python, "-m", "bench.solver_bench", "--child", case, method,
-           str(repeats), str(hand_repeats), str(cold_repeats), str(budget)]
+           str(repeats), str(hand_repeats), str(cold_repeats), str(budget), str(mem_gb)]
     deadline = 5 * budget + 120
     t0 = time.perf_counter()
     try:
@@ -117,8 +144,8 @@ def run_cell(case, method, repeats, hand_repeats, cold_repeats, budget, python=s
         return {"case": case, "method": method, "killed": f"killed after {time.perf_counter() - t0:.0f} s"}
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["?"]
-        return {"case": case, "method": method, "error": f"exit {proc.returncode}: {tail[0][:160]}"}
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+        return {"case": case, "method": method, "error": f"child exit {proc.returncode}: {tail[0][:160]}"}
     return json.loads(lines[-1])
 
 
@@ -139,8 +166,8 @@ def summarize(cell: dict) -> dict:
     """Numbers of one cell; every ratio is between numbers of the same child process."""
     s = {"case": cell.get("case"), "method": cell.get("method"), "shape": cell.get("shape", ""),
          "desc": cell.get("desc", cell.get("case"))}
-    if "killed" in cell or "error" in cell:
-        s["note"] = cell.get("killed") or cell.get("error")
+    if "killed" in cell or "error" in cell or "memory" in cell:
+        s["note"] = cell.get("killed") or cell.get("error") or cell.get("memory")
         return s
     colds = cell["cold"]
     s["cold"] = _med(colds, "wall")
@@ -215,7 +242,8 @@ def targets(summaries) -> list[str]:
     return out
 
 
-def main_table(cases, repeats, hand_repeats, cold_repeats, budget, lmi_budget, paper_repeats, echo=print):
+def main_table(cases, repeats, hand_repeats, cold_repeats, budget, lmi_budget, paper_repeats,
+               mem_gb=MEM_LIMIT_GB, echo=print):
     from .cases import CASES
 
     summaries = []
@@ -224,7 +252,7 @@ def main_table(cases, repeats, hand_repeats, cold_repeats, budget, lmi_budget, p
             reps = paper_repeats if (case == "paper" and method == "lmi") else repeats
             b = budget if method == "ccl" else lmi_budget
             t0 = time.perf_counter()
-            cell = run_cell(case, method, reps, hand_repeats, cold_repeats, b)
+            cell = run_cell(case, method, reps, hand_repeats, cold_repeats, b, mem_gb)
             s = summarize(cell)
             echo(f"  measured {case}/{method} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
             summaries.append(s)
@@ -232,9 +260,9 @@ def main_table(cases, repeats, hand_repeats, cold_repeats, budget, lmi_budget, p
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 8 and sys.argv[1] == "--child":
-        _, _, case, method, rep, hrep, crep, budget = sys.argv
-        result = child(case, method, int(rep), int(hrep), int(crep), float(budget))
+    if len(sys.argv) == 9 and sys.argv[1] == "--child":
+        _, _, case, method, rep, hrep, crep, budget, mem = sys.argv
+        result = child(case, method, int(rep), int(hrep), int(crep), float(budget), float(mem))
         print(json.dumps(result))
     else:
         print("run `python -m bench` instead", file=sys.stderr)
