@@ -236,3 +236,22 @@ def test_api_keys(db_url):
         assert c.get("/v1/designs", headers={"X-API-Key": "k2"}).status_code == 200
         assert c.get("/v1/designs", headers={"Authorization": "Bearer k1"}).status_code == 200
         assert c.get("/healthz").status_code == 200
+
+
+def test_every_solver_method_is_offered_and_runs(client):
+    from solver import METHODS
+
+    spec = client.get("/openapi.json").json()
+    offered = spec["components"]["schemas"]["DesignRequest"]["properties"]["method"]["enum"]
+    assert sorted(offered) == sorted(METHODS)
+    ids = {m: client.post("/v1/designs", json={**PAPER_LMI, "method": m}).json()["id"] for m in METHODS}
+    for method, job_id in ids.items():
+        job = wait_for(client, job_id)
+        assert job["status"] == "succeeded" and job["result"]["outcome"] == "stabilized", (method, job)
+
+
+def test_events_of_a_finished_job_end_at_once(client):
+    job = wait_for(client, client.post("/v1/designs", json=PAPER_LMI).json()["id"])
+    with client.stream("GET", f"/v1/designs/{job['id']}/events") as resp:
+        lines = [line for line in resp.iter_lines() if line.startswith("event: ")]
+    assert lines[0] == "event: status" and lines[-1] == "event: end" and len(lines) <= 3

@@ -127,3 +127,16 @@ def test_200_concurrent_submissions(db_url, start_server):
     with open(log, "rb") as f:
         text = f.read().decode(errors="replace")
     assert "database is locked" not in text and "Traceback" not in text, text[-3000:]
+
+
+def test_concurrent_requests_with_one_idempotency_key_make_one_job(db_url, start_server):
+    server = start_server(db_url, NCS_WORKERS=1)
+    with httpx.Client(base_url=server.base, timeout=60, limits=httpx.Limits(max_connections=40)) as c:
+        def submit(_):
+            return c.post("/v1/designs", json=PAPER_LMI, headers={"Idempotency-Key": "same-key"})
+
+        with ThreadPoolExecutor(max_workers=40) as pool:
+            responses = list(pool.map(submit, range(40)))
+        assert {r.status_code for r in responses} == {202}
+        assert len({r.json()["id"] for r in responses}) == 1
+        assert c.get("/v1/designs").json()["total"] == 1
