@@ -102,3 +102,16 @@ def test_graceful_shutdown_requeues_without_using_an_attempt(db_url):
         row = s.get(Job, job_id)
         assert row.status == "queued" and row.attempts == 0 and row.lease_owner is None
     db.dispose()
+
+
+def test_two_services_on_one_database_share_the_queue_without_double_claims(db_url):
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:
+        a = stack.enter_context(running_client(db_url, workers=1))
+        b = stack.enter_context(running_client(db_url, workers=1))
+        ids = [(a if i % 2 else b).post("/v1/designs", json=FAST).json()["id"] for i in range(12)]
+        jobs = [wait_for(a, i, timeout=60) for i in ids]
+        assert all(j["status"] == "succeeded" and j["attempts"] == 1 for j in jobs)
+        owners = {a.app.state.dispatcher.owner, b.app.state.dispatcher.owner}
+        assert len(owners) == 2
