@@ -34,7 +34,10 @@ def _die_with_parent(parent_pid: int) -> None:
 
 def worker_main(conn, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; it stops us.
+    # Ctrl-C or a SIGTERM sent to the whole process group is for the service: it shuts down
+    # gracefully, gives running jobs back to the queue and then stops (or kills) its workers.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from app import tasks
 
     try:
