@@ -38,7 +38,8 @@ def _pg_admin(url: str):
     from sqlalchemy.engine import make_url
 
     u = make_url(url)
-    return psycopg.connect(host=u.host or "127.0.0.1", port=u.port or 5432, user=u.username,
+    host = u.query.get("host") or u.host or "127.0.0.1"  # ?host=/var/run/postgresql: Unix socket
+    return psycopg.connect(host=host, port=u.port or 5432, user=u.username,
                            password=u.password, dbname=u.database, autocommit=True), u
 
 
