@@ -76,6 +76,18 @@ class DesignOptions(_Strict):
     solver: Literal["CLARABEL", "SCS"] = Field("CLARABEL", description="SDP solver used by cvxpy.")
     margin: Number = Field(1e-6, gt=0, le=1, description="Strictness margin of the LMIs.")
     max_iter: Int = Field(50, ge=1, le=1000, description="Iteration cap of iterative methods (ccl).")
+    decay_rate: Annotated[Number, Field(gt=0, le=1)] | Literal["max"] | None = Field(
+        None, description="Demand a per-sample decay rate lambda in (0, 1] (|x(i_{m+1})| <= lambda^eta |x(i_m)| in "
+        "the certificate's norm), or `\"max\"` to find the smallest by bisection. `lmi` and `switched` only."
+    )
+    plant_switching: Literal["per_interval", "per_sample"] = Field(
+        "per_interval", description="Plant mode constant over an interval between effective packets (the paper), "
+        "or free to jump at every sample (r + r^2 + ... + r^n_drop modes)."
+    )
+    scheme: Literal["predictive", "hold", "zero"] = Field(
+        "predictive", description="The paper's predictive buffer, or a baseline: hold the last input (all K_q "
+        "equal) or zero input on loss (K_q = 0 for q > 1)."
+    )
 
 
 class DesignRequest(_Strict):

@@ -73,8 +73,8 @@ class Settings(BaseSettings):
     max_n_drop: int = Field(20, ge=1, description="Largest n_drop (bound on consecutive losses + 1).")
     max_lmi_size: int = Field(
         4000, ge=1, description="Largest total LMI size of a design (sum of the block sizes of "
-        "all matrix inequalities: `2 n r n_drop` for lmi, `2 n n_drop (r n_drop + 1)` for ccl, "
-        "`2 n (r n_drop)^2` for switched).",
+        "all matrix inequalities with M interval modes, M = r n_drop (or r + r^2 + ... + r^n_drop "
+        "with per-sample plant switching): `2 n M` for lmi, `2 n n_drop (M + 1)` for ccl, `2 n M^2` for switched).",
     )
     max_simulation_steps: int = Field(10_000, ge=1, description="Largest `steps` of a simulation or trace.")
     max_analysis_products: int = Field(

@@ -98,6 +98,7 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
         margin=opts.get("margin", 1e-6),
         max_iter=opts.get("max_iter", 50),
         callback=callback,
+        **{k: opts[k] for k in ("decay_rate", "plant_switching", "scheme") if opts.get(k) is not None},
     )
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))

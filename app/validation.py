@@ -100,13 +100,21 @@ def plant_shape(plant: Any, settings: Settings, errors: list) -> Shape | None:
     return shape
 
 
-def lmi_size(method: str, n: int, r: int, n_drop: int) -> int:
+def mode_count(r: int, n_drop: int, plant_switching: str = "per_interval") -> int:
+    """Number of interval modes (l, eta): r n_drop, or r + r^2 + ... + r^n_drop when the plant jumps per sample."""
+    if plant_switching == "per_sample":
+        return sum(r ** eta for eta in range(1, n_drop + 1))
+    return r * n_drop
+
+
+def lmi_size(method: str, n: int, r: int, n_drop: int, plant_switching: str = "per_interval") -> int:
     """Sum of the block sizes of all matrix inequalities of a design."""
+    modes = mode_count(r, n_drop, plant_switching)
     if method == "ccl":
-        return 2 * n * n_drop * (r * n_drop + 1)
+        return 2 * n * n_drop * (modes + 1)
     if method == "switched":
-        return 2 * n * (r * n_drop) ** 2
-    return 2 * n * r * n_drop
+        return 2 * n * modes ** 2
+    return 2 * n * modes
 
 
 def check_n_drop(n_drop: int, settings: Settings, errors: list) -> None:
@@ -120,11 +128,16 @@ def check_design(req: Any, settings: Settings) -> Shape:
     shape = plant_shape(req.plant, settings, errors)
     check_n_drop(req.n_drop, settings, errors)
     if shape is not None and not errors:
-        size = lmi_size(req.method, shape.n, shape.r, req.n_drop)
+        switching = req.options.plant_switching
+        size = lmi_size(req.method, shape.n, shape.r, req.n_drop, switching)
         if size > settings.max_lmi_size:
             errors.append(field_error(["body", "n_drop"], f"the {req.method} design has total LMI size {size} "
-                                      f"(n = {shape.n}, r = {shape.r}, n_drop = {req.n_drop}), over the limit "
-                                      f"of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)", "limit_exceeded"))
+                                      f"(n = {shape.n}, r = {shape.r}, n_drop = {req.n_drop}, {switching} "
+                                      f"switching), over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
+                                      "limit_exceeded"))
+        if req.options.decay_rate is not None and req.method == "ccl":
+            errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
+                                      "and switched methods, not ccl", "unsupported_option"))
     if errors:
         raise invalid(errors)
     assert shape is not None

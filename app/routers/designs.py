@@ -276,7 +276,8 @@ async def design_trace(
     loss_model: Literal["paper", "bernoulli"] = "paper",
     sensor_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
     control_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
-    plant_switching: Literal["per_interval", "per_sample", "none"] = "per_interval",
+    plant_switching: Annotated[Literal["per_interval", "per_sample", "none"] | None,
+                               Query(description="Default: the design's own plant_switching option")] = None,
     mode: Annotated[int | None, Query(ge=0)] = None,
     db=Depends(get_database),
     settings: Settings = Depends(get_settings),
@@ -302,6 +303,8 @@ async def design_trace(
                                   "mode_out_of_range"))
     if errors:
         raise invalid(errors)
+    if plant_switching is None:
+        plant_switching = (req.get("options") or {}).get("plant_switching") or "per_interval"
     params = dict(seed=seed, steps=steps, x0=_parse_x0(x0, n), loss_model=loss_model, sensor_loss=sensor_loss,
                   control_loss=control_loss, plant_switching=plant_switching, mode=mode)
     cache = request.app.state.trace_cache

@@ -255,3 +255,14 @@ def test_events_of_a_finished_job_end_at_once(client):
     with client.stream("GET", f"/v1/designs/{job['id']}/events") as resp:
         lines = [line for line in resp.iter_lines() if line.startswith("event: ")]
     assert lines[0] == "event: status" and lines[-1] == "event: end" and len(lines) <= 3
+
+
+def test_design_options_reach_the_solver(client):
+    payload = {**PAPER_LMI, "options": {"decay_rate": "max", "scheme": "predictive", "plant_switching": "per_sample"}}
+    job = wait_for(client, client.post("/v1/designs", json=payload).json()["id"])
+    assert job["status"] == "succeeded", job
+    res = job["result"]
+    assert res["outcome"] == "stabilized" and 0 < res["decay_rate"] < 1
+    assert res["plant_switching"] == "per_sample"
+    trace = client.get(f"/v1/designs/{job['id']}/trace?x0=-3,2&steps=30").json()
+    assert trace["query"]["plant_switching"] == "per_sample"  # the design's own switching by default
