@@ -77,17 +77,13 @@ class SyncPool:
             ex.shutdown(wait=True, cancel_futures=True)
 
 
-def unwrap(out: tuple, loc_base: list, plant_keys: set[str]) -> Any:
+def unwrap(out: tuple, loc_base: list, plant: dict | None) -> Any:
     """Result of ``tasks.call_sync`` -> the value, or a problem (422 for invalid input, 500 for a crash)."""
-    from app.problems import field_error, invalid
+    from app.problems import invalid
+    from app.validation import solver_field_error
 
     if out[0] == "ok":
         return out[1]
     if out[0] == "invalid":
-        field, message = tuple(out[1]), out[2]
-        if field and field[0] in plant_keys:
-            loc = ["body", "plant", *field]
-        else:
-            loc = [*loc_base, *field]
-        raise invalid([field_error(loc, message, "solver_invalid_input")])
+        raise invalid([solver_field_error(tuple(out[1]), out[2], plant, loc_base)])
     raise ProblemException(500, f"the solver failed: {out[1]}", title="Solver error")

@@ -178,11 +178,20 @@ def check_steps(steps: int, settings: Settings, errors: list, loc: list) -> None
                                   "(NCS_MAX_SIMULATION_STEPS)", "limit_exceeded"))
 
 
-def solver_field_error(field: tuple, message: str, plant_keys: set[str]) -> dict[str, Any]:
-    """Map a solver ``InvalidInput.field`` to a request location."""
+PLANT_FIELDS = {"A", "B", "F", "G", "sampling_period", "inertias", "resistance", "inductance",
+                "torque_constant", "back_emf_constant", "damping", "kind", "family"}
+
+
+def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None = None,
+                       loc_base: list | None = None) -> dict[str, Any]:
+    """Map a solver ``InvalidInput.field`` to a request location.
+
+    Plant fields go under ``/plant``; for a ``dc_motor`` plant the solver's
+    per-mode matrices (``("A", l)``) are the ``l``-th inertia.
+    """
     field = tuple(field or ())
-    if field and field[0] in plant_keys:
-        loc = ["body", "plant", *field]
-    else:
-        loc = ["body", *field]
-    return field_error(loc, message, "solver_invalid_input")
+    if field and field[0] in PLANT_FIELDS:
+        if plant is not None and plant.get("kind") == "dc_motor" and field[0] in ("A", "B", "F", "G", "family"):
+            field = ("inertias", *field[1:2])
+        return field_error(["body", "plant", *field], message, "solver_invalid_input")
+    return field_error([*(loc_base or ["body"]), *field], message, "solver_invalid_input")

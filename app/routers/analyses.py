@@ -46,4 +46,4 @@ async def analyses(request: Request,
     if errors:
         raise invalid(errors)
     out = await request.app.state.sync_pool.run("analysis", req)
-    return unwrap(out, ["body"], set(req["plant"].keys()))
+    return unwrap(out, ["body"], req["plant"])

@@ -49,14 +49,14 @@ def _load(session: Session, job_id: str) -> JobRow:
     return row
 
 
-def validate_family(plant_dict: dict, plant_keys: set[str]) -> None:
+def validate_family(plant_dict: dict) -> None:
     """Build the family with the solver (cheap: ZOH of small matrices) to catch what it rejects."""
     from solver import InvalidInput
 
     try:
         tasks.build_family(plant_dict)
     except InvalidInput as exc:
-        raise invalid([validation.solver_field_error(getattr(exc, "field", ()), str(exc), plant_keys)])
+        raise invalid([validation.solver_field_error(getattr(exc, "field", ()), str(exc), plant_dict)])
 
 
 @router.post(
@@ -77,7 +77,7 @@ def submit_design(
 ) -> Job:
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
-    validate_family(req["plant"], set(req["plant"].keys()))
+    validate_family(req["plant"])
     digest = hashlib.sha256(canonical_json(req).encode()).hexdigest()
 
     def replay(row: JobRow) -> Job:
@@ -312,7 +312,7 @@ async def design_trace(
     body = cache.get(key)
     if body is None:
         out = await request.app.state.sync_pool.run("trace", req["plant"], result["gains"], req["n_drop"], params)
-        body = canonical_json(unwrap(out, ["query"], set())).encode()
+        body = canonical_json(unwrap(out, ["query"], req["plant"])).encode()
         cache.put(key, body)
     etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
     if request.headers.get("if-none-match") == etag:

@@ -41,4 +41,4 @@ async def simulate(request: Request,
         raise invalid(errors)
     req = body.model_dump(mode="json")
     out = await request.app.state.sync_pool.run("simulation", req)
-    return unwrap(out, ["body"], set(req["plant"].keys()))
+    return unwrap(out, ["body"], req["plant"])

@@ -61,6 +61,9 @@ BAD_DESIGNS = {
                                                 "/n_drop"),
     "dc motor negative inertia": ({"plant": {"kind": "dc_motor", "inertias": [0.03, -0.01], "sampling_period": 0.1},
                                    "n_drop": 3}, "/plant/inertias/1"),
+    "dc motor tiny inertia overflows": ({"plant": {"kind": "dc_motor", "inertias": [0.03, 1e-300],
+                                                   "sampling_period": 0.1}}, "/plant/inertias/1"),
+    "continuous plant overflows": (body(A=[[[50.0, 0.0], [0.0, 1.0]]] * 3, sampling_period=100.0), "/plant/A"),
     "dc motor no inertias": ({"plant": {"kind": "dc_motor", "inertias": [], "sampling_period": 0.1}}, "/plant/inertias"),
 }
 
