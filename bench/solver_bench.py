@@ -214,8 +214,11 @@ def table(summaries) -> str:
         per_w = fmt_t(s["warm"] / per) if per else "-"
         per_c = fmt_t(s["clarabel"] / per) if per else "-"
         hand_it = f"{s['hand_iters'] - 1:g}" if s["method"] == "ccl" else "-"
+        outcome = s["outcome"]
+        if s["hand_outcome"] != outcome:
+            outcome += f" (hand-written: {s['hand_outcome']})"
         lines.append(
-            f"| {s['case']} | {s['shape']} | {s['method']} | {s['outcome']} | {it_col} | {fmt_t(s['cold'])} "
+            f"| {s['case']} | {s['shape']} | {s['method']} | {outcome} | {it_col} | {fmt_t(s['cold'])} "
             f"| {fmt_t(s['warm'])} | {fmt_t(s['clarabel'])} | {s['ratio']:.2f}x | {per_w} | {per_c} "
             f"| {fmt_t(s['hand'])} | {fmt_t(s['hand_clarabel'])} | {hand_it} | {s['hand_ratio']:.1f}x "
             f"| {s['cold_n']}/{s['warm_n']}/{s['hand_n']} |"
