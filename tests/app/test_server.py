@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -142,3 +143,26 @@ def test_concurrent_requests_with_one_idempotency_key_make_one_job(db_url, start
         assert {r.status_code for r in responses} == {202}
         assert len({r.json()["id"] for r in responses}) == 1
         assert c.get("/v1/designs").json()["total"] == 1
+
+
+def test_sigterm_gives_running_jobs_back_without_using_an_attempt(db_url, start_server):
+    env = dict(NCS_WORKERS=1)
+    server = start_server(db_url, **env)
+    slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}
+    with httpx.Client(base_url=server.base, timeout=10) as c:
+        job_id = c.post("/v1/designs", json=slow).json()["id"]
+        deadline = time.monotonic() + 30
+        while c.get(f"/v1/designs/{job_id}").json()["status"] != "running":
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    server.proc.terminate()  # SIGTERM: graceful shutdown
+    # uvicorn shuts down gracefully, then re-raises the signal (exit status -15).
+    assert server.proc.wait(20) in (0, -signal.SIGTERM)
+    db = Database(db_url)
+    with db.read() as s:
+        row = s.get(Job, job_id)
+        assert row.status == "queued" and row.attempts == 0
+    db.dispose()
+    again = start_server(db_url, **env)
+    job = wait_all(again.base, [job_id], timeout=120)[job_id]
+    assert job["status"] == "succeeded" and job["attempts"] == 1
