@@ -175,3 +175,32 @@ def _smallest_rate(runner, modes: ModeSet, options: DesignOptions, tol: float) -
     best.rate_search = search
     best.timings.update(totals, overhead=max(totals["total"] - totals["setup"] - totals["solver"], 0.0))
     return best
+
+
+def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
+    """Map a design made in scaled coordinates back, and re-check it in the original ones.
+
+    The powers-of-two similarity makes the scaled re-check exact; the original
+    coordinates are re-checked too and, when rounding there is too coarse to
+    confirm the margin, the certificate stays in scaled coordinates
+    (``res.scaling`` says which).
+    """
+    res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
+    if res.gains is None:
+        return res
+    res.gains = scale.gains_back(res.gains)
+    cert = res.certificate
+    if cert is None:
+        return res
+    A = modes.closed_loops(res.gains)
+    if cert.kind == "switched":
+        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source)
+    else:
+        X = None if cert.X is None else scale.quadratic_back(cert.X)
+        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
+    if original.verified:
+        original.decay_rate = cert.decay_rate
+        res.certificate = original
+    else:
+        res.scaling["certificate"] = "scaled"
+    return res
