@@ -54,3 +54,26 @@ SIMULATION_EXAMPLES = {
                   "steps": 100, "seed": 42},
     },
 }
+
+
+MARGIN_EXAMPLES = {
+    "largest_n_drop": {
+        "summary": "Largest n_drop of the paper example with the hold-last-input baseline",
+        "value": {"plant": PAPER_PLANT, "search": "n_drop", "method": "lmi", "n_drop_max": 8,
+                  "options": {"scheme": "hold"}},
+    },
+    "largest_sampling_period": {
+        "summary": "Largest sampling period of a double integrator + oscillator at n_drop = 4",
+        "value": {"plant": {"kind": "continuous",
+                            "A": [[[0.0, 1.0], [0.0, 0.0]], [[0.0, 1.0], [-1.0, 0.0]]],
+                            "B": [[[0.0], [1.0]], [[0.0], [1.0]]], "sampling_period": 0.1},
+                  "search": "sampling_period", "n_drop": 4, "h_min": 0.05, "h_max": 3.0, "tol": 0.01,
+                  "options": {"scheme": "hold"}},
+    },
+    "grid": {
+        "summary": "Design grid over (h, n_drop) for the paper example",
+        "value": {"plant": PAPER_PLANT, "search": "grid",
+                  "points": [{"sampling_period": 0.1, "n_drop": 3}, {"sampling_period": 0.2, "n_drop": 3},
+                             {"sampling_period": 0.5, "n_drop": 6}]},
+    },
+}

@@ -17,7 +17,7 @@ from app import problems
 from app.db import Database, run_migrations
 from app.dispatcher import Dispatcher
 from app.middleware import BodySizeLimit
-from app.routers import analyses, designs, health, simulations
+from app.routers import analyses, designs, health, margins, simulations
 from app.settings import Settings
 from app.syncpool import SyncPool
 
@@ -121,6 +121,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(designs.router)
     app.include_router(simulations.router)
     app.include_router(analyses.router)
+    app.include_router(margins.router)
     app.include_router(health.router)
 
     def openapi():

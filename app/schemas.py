@@ -101,18 +101,22 @@ class DesignRequest(_Strict):
 
 
 class Progress(BaseModel):
-    iteration: int | None = None
+    iteration: int | None = Field(None, description="Design jobs: the solver iteration (CCL Step 2 count).")
     objective: float | None = None
     trace_gap: float | None = None
     theorem1: bool | None = None
     elapsed: float | None = None
+    step: int | None = Field(None, description="Margin jobs: designs done so far.")
+    total: int | None = Field(None, description="Margin jobs: designs planned (an upper bound).")
+    point: dict[str, Any] | None = Field(None, description="Margin jobs: the last point tried and its outcome.")
 
 
 class Links(BaseModel):
     self: str
     events: str
     cancel: str
-    trace: str
+    trace: str | None = Field(None, description="Design jobs: the seeded simulation (also .svg, .png).")
+    curve: str | None = Field(None, description="Margin jobs: the plot of every point tried (.svg or .png).")
 
 
 def _utc(dt: datetime | None) -> datetime | None:
@@ -218,6 +222,13 @@ class AnalysisRequest(_Strict):
         None, ge=1, le=8, description="Longest mode product searched for a destabilizing pattern "
         "(default 4; the number of products per length is capped by NCS_MAX_ANALYSIS_PRODUCTS)."
     )
+    plant_switching: Literal["per_interval", "per_sample"] = Field(
+        "per_interval", description="Plant mode constant over an interval (the paper), or free to jump per sample."
+    )
+    bounds: Literal["quadratic", "all", "none"] = Field(
+        "quadratic", description="Joint-spectral-radius upper bounds and best certified decay rate to compute: "
+        "from common quadratic certificates, also from switched ones (`all`, slower), or none."
+    )
 
 
 class ProblemError(BaseModel):
@@ -234,3 +245,27 @@ class Problem(BaseModel):
     detail: str | None = None
     instance: str | None = None
     errors: list[ProblemError] | None = None
+
+
+class GridPoint(_Strict):
+    sampling_period: Number = Field(gt=0, description="h in seconds.")
+    n_drop: Int = Field(ge=1)
+
+
+class MarginRequest(_Strict):
+    """A stability-margin job: many designs in the worker pool, with progress and cancel."""
+
+    plant: Plant
+    search: Literal["n_drop", "sampling_period", "grid"] = Field(
+        description="`n_drop`: the largest drop bound with a design (n_drop = 1, 2, ... up to `n_drop_max`); "
+        "`sampling_period`: the largest h for the given `n_drop`, by bisection on [h_min, h_max] (continuous "
+        "or dc_motor plants); `grid`: a design at every (h, n_drop) in `points`."
+    )
+    method: MethodName = Field("lmi", description="Design method used at every point.")
+    n_drop: Int | None = Field(None, ge=1, description="The drop bound of a `sampling_period` search.")
+    n_drop_max: Int = Field(12, ge=1, le=64, description="Largest n_drop an `n_drop` search tries.")
+    h_min: Number = Field(1e-3, gt=0, description="Smallest sampling period tried (s).")
+    h_max: Number = Field(2.0, gt=0, description="Largest sampling period tried (s).")
+    tol: Number = Field(1e-3, gt=0, description="Tolerance of the bisection on h (s).")
+    points: list[GridPoint] | None = Field(None, description="The (h, n_drop) pairs of a `grid`.")
+    options: DesignOptions = Field(default_factory=DesignOptions)

@@ -73,6 +73,7 @@ def _family_matrices(fam) -> dict[str, Any]:
 
 
 def record_to_dict(record: Any) -> dict[str, Any]:
+    """Progress of a job: a solver iteration record, or a margin search's step."""
     if isinstance(record, dict):
         d = record
     elif hasattr(record, "to_dict"):
@@ -80,6 +81,10 @@ def record_to_dict(record: Any) -> dict[str, Any]:
     else:
         d = {k: getattr(record, k, None)
              for k in ("iteration", "objective", "trace_gap", "theorem1", "elapsed")}
+    if "step" in d:  # solver.margins progress: {"step", "total", "last": point tried}
+        last = d.get("last") or {}
+        point = {k: last.get(k) for k in ("n_drop", "sampling_period", "outcome") if k in last}
+        return jsonable({"step": d["step"], "total": d.get("total"), "point": point})
     keep = ("iteration", "objective", "trace_gap", "theorem1", "elapsed")
     return jsonable({k: d.get(k) for k in keep})
 
@@ -89,20 +94,50 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     from solver import design
 
     fam = build_family(request["plant"])
-    opts = request.get("options") or {}
-    res = design(
-        fam,
-        n_drop=request["n_drop"],
-        method=request["method"],
-        solver=opts.get("solver", "CLARABEL"),
-        margin=opts.get("margin", 1e-6),
-        max_iter=opts.get("max_iter", 50),
-        callback=callback,
-        **{k: opts[k] for k in ("decay_rate", "plant_switching", "scheme") if opts.get(k) is not None},
-    )
+    res = design(fam, n_drop=request["n_drop"], method=request["method"], callback=callback,
+                 **design_options(request.get("options") or {}))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     return out
+
+
+def design_options(opts: dict[str, Any]) -> dict[str, Any]:
+    """Keyword arguments of solver.design from a request's options."""
+    kwargs = dict(
+        solver=opts.get("solver", "CLARABEL"),
+        margin=opts.get("margin", 1e-6),
+        max_iter=opts.get("max_iter", 50),
+    )
+    for key in ("decay_rate", "plant_switching", "scheme"):
+        if opts.get(key) is not None:
+            kwargs[key] = opts[key]
+    return kwargs
+
+
+def run_margin(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
+    """Run one margin job (largest n_drop, largest sampling period, or a design grid)."""
+    from solver.margins import design_grid, max_n_drop, max_sampling_period
+
+    fam = build_family(request["plant"])
+    kwargs = design_options(request.get("options") or {})
+    kwargs.pop("decay_rate", None)
+    search = request["search"]
+    if search == "n_drop":
+        res = max_n_drop(fam, request["method"], n_drop_max=request["n_drop_max"], callback=callback, **kwargs)
+    elif search == "sampling_period":
+        res = max_sampling_period(fam, request["n_drop"], request["method"], h_min=request["h_min"],
+                                  h_max=request["h_max"], tol=request["tol"], callback=callback, **kwargs)
+    else:
+        res = design_grid(fam, [(p["sampling_period"], p["n_drop"]) for p in request["points"]],
+                          request["method"], callback=callback, **kwargs)
+    return jsonable(res.to_dict())
+
+
+def run_job(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
+    """Entry point of the design worker pool: a margin job carries ``search``, a design job does not."""
+    if request.get("search"):
+        return run_margin(request, callback)
+    return run_design(request, callback)
 
 
 def _gains_array(gains: list) -> np.ndarray:
@@ -154,17 +189,49 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
         kwargs["max_products"] = req["max_products"]
     if req.get("max_product_length") is not None:
         kwargs["max_product_length"] = req["max_product_length"]
+    for key in ("plant_switching", "bounds"):
+        if req.get(key) is not None:
+            kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
     return jsonable(rep.to_dict())
+
+
+def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
+                   size: dict[str, Any]) -> bytes:
+    """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode."""
+    from solver import simulate
+    from solver.plotting import render, trace_figure
+
+    fam = build_family(plant)
+    K = _gains_array(gains)
+    common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
+                  loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
+                  control_loss=params["control_loss"])
+    runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
+    runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
+    titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
+    return render(trace_figure(runs, titles, **size), fmt)
+
+
+def run_margin_plot(result: dict[str, Any], fmt: str, size: dict[str, Any]) -> bytes:
+    """The curve of a finished margin job."""
+    from solver.margins import MarginResult
+    from solver.plotting import margin_figure, render
+
+    res = MarginResult(kind=result["kind"], margin=result["margin"], design=None, curve=result["curve"],
+                       method=result["method"])
+    return render(margin_figure(res, **size), fmt)
 
 
 def warm_up() -> None:
     """Import the heavy libraries once so the first job does not pay for it."""
     import solver  # noqa: F401
     import cvxpy  # noqa: F401
+    import solver.margins  # noqa: F401
 
 
-SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace"}
+SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
+              "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot"}
 
 
 def call_sync(task: str, *args: Any) -> tuple:

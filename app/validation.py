@@ -144,6 +144,62 @@ def check_design(req: Any, settings: Settings) -> Shape:
     return shape
 
 
+#: Largest number of points of a grid job.
+MAX_GRID_POINTS = 200
+
+
+def check_margin(req: Any, settings: Settings) -> int:
+    """Validate a margin job; returns the largest n_drop it will design for."""
+    errors: list = []
+    shape = plant_shape(req.plant, settings, errors)
+    if req.search in ("sampling_period", "grid") and req.plant.kind == "discrete":
+        errors.append(field_error(["body", "plant", "kind"], f"a {req.search} search rediscretizes the plant: "
+                                  "give a continuous or dc_motor plant", "needs_continuous_plant"))
+    if req.search == "n_drop":
+        largest = req.n_drop_max
+        if req.n_drop_max > settings.max_n_drop:
+            errors.append(field_error(["body", "n_drop_max"], f"n_drop_max = {req.n_drop_max} is over the limit "
+                                      f"of {settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
+    elif req.search == "sampling_period":
+        largest = req.n_drop or 0
+        if req.n_drop is None:
+            errors.append(field_error(["body", "n_drop"], "a sampling_period search needs n_drop", "missing"))
+        else:
+            check_n_drop(req.n_drop, settings, errors)
+        if not req.h_min < req.h_max:
+            errors.append(field_error(["body", "h_max"], "h_max must be larger than h_min", "range"))
+        elif not req.tol < req.h_max - req.h_min:
+            errors.append(field_error(["body", "tol"], "tol must be below h_max - h_min", "range"))
+        elif (req.h_max - req.h_min) / req.tol > 2**30:
+            errors.append(field_error(["body", "tol"], "tol is too small for this interval", "range"))
+    else:
+        points = req.points or []
+        largest = max((p.n_drop for p in points), default=0)
+        if not points:
+            errors.append(field_error(["body", "points"], "a grid needs at least one (sampling_period, n_drop) "
+                                      "point", "missing"))
+        elif len(points) > MAX_GRID_POINTS:
+            errors.append(field_error(["body", "points"], f"{len(points)} points, at most {MAX_GRID_POINTS}",
+                                      "limit_exceeded"))
+        elif largest > settings.max_n_drop:
+            errors.append(field_error(["body", "points"], f"n_drop = {largest} is over the limit of "
+                                      f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
+    if req.options.decay_rate is not None:
+        errors.append(field_error(["body", "options", "decay_rate"], "margin jobs search stability margins; "
+                                  "decay_rate is a design option", "unsupported_option"))
+    if shape is not None and not errors:
+        switching = req.options.plant_switching
+        size = lmi_size(req.method, shape.n, shape.r, largest, switching)
+        if size > settings.max_lmi_size:
+            loc = {"n_drop": "n_drop_max", "sampling_period": "n_drop", "grid": "points"}[req.search]
+            errors.append(field_error(["body", loc], f"at n_drop = {largest} the {req.method} design has total LMI "
+                                      f"size {size}, over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
+                                      "limit_exceeded"))
+    if errors:
+        raise invalid(errors)
+    return largest
+
+
 def check_gains(gains: list, n_drop: int | None, shape: Shape, errors: list, loc: list | None = None) -> int:
     loc = loc or ["body", "gains"]
     if len(gains) == 0:

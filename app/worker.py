@@ -70,7 +70,7 @@ def worker_main(conn, parent_pid: int) -> None:
             return state["cancel"]
 
         try:
-            result = tasks.run_design(request, callback)
+            result = tasks.run_job(request, callback)
         except InvalidInput as exc:
             reply = ("error", job_id, f"invalid input at {'/'.join(map(str, getattr(exc, 'field', ()) or ()))}: {exc}")
         except Exception as exc:

@@ -38,14 +38,14 @@ def canonical_json(obj) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
-def _not_found(job_id: str) -> ProblemException:
-    return ProblemException(404, f"no design job with id {job_id!r}", title="Not Found")
+def _not_found(job_id: str, kind: str = "design") -> ProblemException:
+    return ProblemException(404, f"no {kind} job with id {job_id!r}", title="Not Found")
 
 
-def _load(session: Session, job_id: str) -> JobRow:
+def _load(session: Session, job_id: str, kind: str = "design") -> JobRow:
     row = session.get(JobRow, job_id) if len(job_id) <= 36 else None
-    if row is None:
-        raise _not_found(job_id)
+    if row is None or row.kind != kind:
+        raise _not_found(job_id, kind)
     return row
 
 
@@ -78,14 +78,21 @@ def submit_design(
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validate_family(req["plant"])
+    return submit_job("design", req, req["n_drop"], idempotency_key, request, response, session, db)
+
+
+def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, request: Request,
+               response: Response, session: Session, db: Database) -> Job:
+    """Insert a validated job (or replay an idempotent one) and wake the dispatcher."""
     digest = hashlib.sha256(canonical_json(req).encode()).hexdigest()
+    location = f"/v1/{kind}s/"
 
     def replay(row: JobRow) -> Job:
         if row.request_hash != digest:
             raise invalid([field_error(["header", "Idempotency-Key"],
                                        "this Idempotency-Key was already used with a different request body",
                                        "idempotency_key_reused")])
-        response.headers["Location"] = f"/v1/designs/{row.id}"
+        response.headers["Location"] = location + row.id
         response.headers["Idempotent-Replayed"] = "true"
         return full(row)
 
@@ -102,7 +109,7 @@ def submit_design(
         if existing is not None:
             return replay(existing)
     now = utcnow()
-    row = JobRow(id=new_id(), kind="design", status=QUEUED, method=req["method"], n_drop=req["n_drop"],
+    row = JobRow(id=new_id(), kind=kind, status=QUEUED, method=req["method"], n_drop=n_drop,
                  request=req, request_hash=digest, idempotency_key=idempotency_key, attempts=0,
                  cancel_requested=False, created_at=now, updated_at=now)
     try:
@@ -116,7 +123,7 @@ def submit_design(
     dispatcher = getattr(request.app.state, "dispatcher", None)
     if dispatcher is not None:
         dispatcher.notify()
-    response.headers["Location"] = f"/v1/designs/{row.id}"
+    response.headers["Location"] = location + row.id
     return full(row)
 
 
@@ -129,8 +136,13 @@ def list_designs(
     offset: Annotated[int, Query(ge=0)] = 0,
     session: Session = Depends(get_session),
 ) -> JobList:
-    q = select(JobRow)
-    count = select(func.count()).select_from(JobRow)
+    return list_jobs("design", status, limit, offset, session)
+
+
+def list_jobs(kind: str, status: str | None, limit: int, offset: int, session: Session) -> JobList:
+    """One page of the jobs of a kind, newest first (shared by /v1/designs and /v1/margins)."""
+    q = select(JobRow).where(JobRow.kind == kind)
+    count = select(func.count()).select_from(JobRow).where(JobRow.kind == kind)
     if status is not None:
         q = q.where(JobRow.status == status)
         count = count.where(JobRow.status == status)
@@ -139,7 +151,7 @@ def list_designs(
     nxt = None
     if offset + len(rows) < total:
         params = f"limit={limit}&offset={offset + limit}" + (f"&status={status}" if status else "")
-        nxt = f"/v1/designs?{params}"
+        nxt = f"/v1/{kind}s?{params}"
     return JobList(items=[summary(r) for r in rows], total=total, limit=limit, offset=offset, next=nxt)
 
 
@@ -159,13 +171,18 @@ def get_design(job_id: str, session: Session = Depends(get_session)) -> Job:
 )
 def cancel_design(job_id: str, request: Request, response: Response,
                   db: Database = Depends(get_database)) -> Job:
+    return cancel_job("design", job_id, request, response, db)
+
+
+def cancel_job(kind: str, job_id: str, request: Request, response: Response, db: Database) -> Job:
+    """Cancel a job of a kind (shared by /v1/designs and /v1/margins)."""
     if len(job_id) > 36:
-        raise _not_found(job_id)
+        raise _not_found(job_id, kind)
     notify = False
     with db.write() as ws:  # one short transaction, guarded by the current status
         row = ws.get(JobRow, job_id)
-        if row is None:
-            raise _not_found(job_id)
+        if row is None or row.kind != kind:
+            raise _not_found(job_id, kind)
         now = utcnow()
         if row.status == QUEUED:
             row.status, row.cancel_requested, row.finished_at = CANCELLED, True, now
@@ -194,14 +211,19 @@ def cancel_design(job_id: str, request: Request, response: Response,
     responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
 )
 async def design_events(job_id: str, request: Request, db=Depends(get_database)):
+    return await job_events("design", job_id, request, db)
+
+
+async def job_events(kind: str, job_id: str, request: Request, db: Database):
+    """The SSE stream of a job of a kind (shared by /v1/designs and /v1/margins)."""
     def load():
         with db.read() as s:
             row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
-            return None if row is None else full(row)
+            return None if row is None or row.kind != kind else full(row)
 
     first = await run_in_threadpool(load)
     if first is None:
-        raise _not_found(job_id)
+        raise _not_found(job_id, kind)
 
     async def stream():
         job = first
@@ -256,6 +278,69 @@ def _parse_x0(raw: str | None, n: int) -> list[float]:
     return vals
 
 
+class TraceQuery:
+    """Query parameters of a trace (JSON or image); the same query gives the same run."""
+
+    def __init__(
+        self,
+        seed: Annotated[int, Query(ge=0)] = 42,
+        steps: Annotated[int, Query(ge=1)] = 100,
+        x0: Annotated[str | None, Query(description="Initial state, comma-separated (default: all ones)",
+                                        examples=["-3,2"])] = None,
+        loss_model: Literal["paper", "bernoulli"] = "paper",
+        sensor_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+        control_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+        plant_switching: Annotated[Literal["per_interval", "per_sample", "none"] | None,
+                                   Query(description="Default: the design's own plant_switching option")] = None,
+        mode: Annotated[int | None, Query(ge=0)] = None,
+    ):
+        self.seed, self.steps, self.x0, self.loss_model = seed, steps, x0, loss_model
+        self.sensor_loss, self.control_loss = sensor_loss, control_loss
+        self.plant_switching, self.mode = plant_switching, mode
+
+
+async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Settings):
+    """The succeeded design's request, result and the validated simulation parameters."""
+    def load():
+        with db.read() as s:
+            row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
+            return None if row is None or row.kind != "design" else (row.status, row.request, row.result)
+
+    got = await run_in_threadpool(load)
+    if got is None:
+        raise _not_found(job_id)
+    status, req, result = got
+    if status != SUCCEEDED or not result or not result.get("gains"):
+        why = f"status is {status!r}" if status != SUCCEEDED else f"outcome is {result.get('outcome')!r}"
+        raise ProblemException(409, f"design {job_id} has no gains to simulate ({why})", title="Conflict")
+    n = len(result["F"][0])
+    r = len(result["F"])
+    errors: list = []
+    validation.check_steps(q.steps, settings, errors, ["query", "steps"])
+    if q.mode is not None and q.mode >= r:
+        errors.append(field_error(["query", "mode"], f"mode {q.mode} does not exist: the plant has {r} modes "
+                                  "(0-based)", "mode_out_of_range"))
+    if errors:
+        raise invalid(errors)
+    plant_switching = q.plant_switching or (req.get("options") or {}).get("plant_switching") or "per_interval"
+    params = dict(seed=q.seed, steps=q.steps, x0=_parse_x0(q.x0, n), loss_model=q.loss_model,
+                  sensor_loss=q.sensor_loss, control_loss=q.control_loss, plant_switching=plant_switching,
+                  mode=q.mode)
+    return req, result, params
+
+
+# Not imported from solver.plotting: the web process never loads matplotlib, the sync workers draw.
+MEDIA_TYPES = {"svg": "image/svg+xml", "png": "image/png"}
+
+
+def etag_response(request: Request, media_type: str, body: bytes) -> Response:
+    """The body with a strong ETag; 304 when the client already has it."""
+    etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers={"ETag": etag})
+    return Response(content=body, media_type=media_type, headers={"ETag": etag})
+
+
 @router.get(
     "/{job_id}/trace",
     summary="Seeded simulation of the designed loop (all plant modes)",
@@ -269,44 +354,11 @@ def _parse_x0(raw: str | None, n: int) -> list[float]:
 async def design_trace(
     job_id: str,
     request: Request,
-    seed: Annotated[int, Query(ge=0)] = 42,
-    steps: Annotated[int, Query(ge=1)] = 100,
-    x0: Annotated[str | None, Query(description="Initial state, comma-separated (default: all ones)",
-                                    examples=["-3,2"])] = None,
-    loss_model: Literal["paper", "bernoulli"] = "paper",
-    sensor_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
-    control_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
-    plant_switching: Annotated[Literal["per_interval", "per_sample", "none"] | None,
-                               Query(description="Default: the design's own plant_switching option")] = None,
-    mode: Annotated[int | None, Query(ge=0)] = None,
+    q: TraceQuery = Depends(),
     db=Depends(get_database),
     settings: Settings = Depends(get_settings),
 ):
-    def load():
-        with db.read() as s:
-            row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
-            return None if row is None else (row.status, row.request, row.result)
-
-    got = await run_in_threadpool(load)
-    if got is None:
-        raise _not_found(job_id)
-    status, req, result = got
-    if status != SUCCEEDED or not result or not result.get("gains"):
-        why = f"status is {status!r}" if status != SUCCEEDED else f"outcome is {result.get('outcome')!r}"
-        raise ProblemException(409, f"design {job_id} has no gains to simulate ({why})", title="Conflict")
-    n = len(result["F"][0])
-    r = len(result["F"])
-    errors: list = []
-    validation.check_steps(steps, settings, errors, ["query", "steps"])
-    if mode is not None and mode >= r:
-        errors.append(field_error(["query", "mode"], f"mode {mode} does not exist: the plant has {r} modes (0-based)",
-                                  "mode_out_of_range"))
-    if errors:
-        raise invalid(errors)
-    if plant_switching is None:
-        plant_switching = (req.get("options") or {}).get("plant_switching") or "per_interval"
-    params = dict(seed=seed, steps=steps, x0=_parse_x0(x0, n), loss_model=loss_model, sensor_loss=sensor_loss,
-                  control_loss=control_loss, plant_switching=plant_switching, mode=mode)
+    req, result, params = await _trace_inputs(job_id, q, db, settings)
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params))
     body = cache.get(key)
@@ -314,7 +366,37 @@ async def design_trace(
         out = await request.app.state.sync_pool.run("trace", req["plant"], result["gains"], req["n_drop"], params)
         body = canonical_json(unwrap(out, ["query"], req["plant"])).encode()
         cache.put(key, body)
-    etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
-    if request.headers.get("if-none-match") == etag:
-        return Response(status_code=304, headers={"ETag": etag})
-    return Response(content=body, media_type="application/json", headers={"ETag": etag})
+    return etag_response(request, "application/json", body)
+
+
+@router.get(
+    "/{job_id}/trace.{fmt}",
+    summary="The trace as a picture (SVG or PNG), like the paper's Fig. 3/4",
+    description="States (top) and inputs (bottom) over time: first the run with the requested plant switching, "
+                "then one column per fixed plant mode; samples whose packet was lost are shaded and marked. "
+                "Same query parameters as `/trace`, plus the picture size in pixels.",
+    responses={200: {"content": {"image/svg+xml": {}, "image/png": {}}}, 404: ERRORS[404],
+               409: {"description": "The design has no gains", "content": {"application/problem+json": {}}},
+               422: ERRORS[422]},
+)
+async def design_trace_image(
+    job_id: str,
+    fmt: Literal["svg", "png"],
+    request: Request,
+    q: TraceQuery = Depends(),
+    width: Annotated[int, Query(ge=200, le=4000, description="Width in pixels")] = 1200,
+    height: Annotated[int, Query(ge=150, le=3000, description="Height in pixels")] = 600,
+    db=Depends(get_database),
+    settings: Settings = Depends(get_settings),
+):
+    req, result, params = await _trace_inputs(job_id, q, db, settings)
+    size = {"width": width / 100, "height": height / 100, "dpi": 100}
+    cache = request.app.state.trace_cache
+    key = (job_id, canonical_json(params), fmt, width, height)
+    body = cache.get(key)
+    if body is None:
+        out = await request.app.state.sync_pool.run("trace_plot", req["plant"], result["gains"], req["n_drop"],
+                                                    params, fmt, size)
+        body = unwrap(out, ["query"], req["plant"])
+        cache.put(key, body)
+    return etag_response(request, MEDIA_TYPES[fmt], body)
