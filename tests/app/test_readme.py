@@ -38,6 +38,8 @@ def test_readme_curl_examples_run(db_url, start_server, tmp_path):
     assert "stable: True" in text
     assert '"pointer":"/plant/sampling_period"' in text
     assert "x(100) =" in text
+    assert "PNG: True" in text
+    assert "largest n_drop with a stabilizing lmi design" in text or "up to the largest n_drop tried" in text
 
 
 def test_readme_settings_table_lists_every_setting():
