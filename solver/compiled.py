@@ -28,6 +28,24 @@ SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 
 
+#: Refuse SDPs whose interior-point KKT system would need more memory than this
+#: (bytes; ``NCS_SOLVER_MAX_MEMORY`` overrides).  Clarabel keeps a dense
+#: ``d x d`` block per PSD cone of side k, ``d = k (k + 1) / 2``: a CCL design with
+#: n = 8, n_drop = 8 and 32 modes would need about 17 GB.
+MAX_SOLVER_MEMORY = int(float(os.environ.get("NCS_SOLVER_MAX_MEMORY", 4 * 2**30)))
+
+
+def check_memory(cone_sides, what: str) -> None:
+    """Raise InvalidInput when PSD cones of these sides would not fit in :data:`MAX_SOLVER_MEMORY`."""
+    need = sum(8 * (k * (k + 1) // 2) ** 2 for k in cone_sides)
+    if need > MAX_SOLVER_MEMORY:
+        raise InvalidInput(
+            f"the {what} SDP would need about {need / 2**30:.1f} GiB of solver memory (limit "
+            f"{MAX_SOLVER_MEMORY / 2**30:.1f} GiB): use fewer modes, a smaller n_drop or the lmi method",
+            ("n_drop",),
+        )
+
+
 def check_solver(solver: str) -> str:
     name = str(solver).upper()
     if name not in SOLVERS:

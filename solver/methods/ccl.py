@@ -21,7 +21,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, schur_block
+from ..compiled import CompiledProblem, block, check_memory, schur_block
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
 from .common import DesignOptions, RunClock, certify_gains, finish
@@ -65,6 +65,7 @@ def build(n: int, m: int, S: int, J: int, active: np.ndarray, n_drop: int) -> Co
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
+    check_memory([2 * modes.n_states * modes.n_drop] * (modes.n_modes + 1), "ccl")
     clock = RunClock()
     n_drop = modes.n_drop
     compiled, clock.cached, clock.setup = compiled_for(

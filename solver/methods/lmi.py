@@ -22,7 +22,7 @@ import time
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, problem_cache, schur_block
+from ..compiled import CompiledProblem, block, check_memory, problem_cache, schur_block
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
 from .common import DesignOptions, RunClock, certify_gains, finish
@@ -69,6 +69,7 @@ def plant_values(modes: ModeSet) -> dict:
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
+    check_memory([2 * modes.n_states] * modes.n_modes, "lmi")
     clock = RunClock()
     compiled, clock.cached, clock.setup = compiled_for(modes, "lmi", build)
     values = plant_values(modes)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, schur_block
+from ..compiled import CompiledProblem, block, check_memory, schur_block
 from ..errors import InvalidInput
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
@@ -58,6 +58,7 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
             f"the switched design has {modes.n_modes}^2 pairwise LMIs; at most {MAX_MODES} modes are allowed",
             ("n_drop",),
         )
+    check_memory([2 * modes.n_states] * modes.n_modes**2, "switched")
     clock = RunClock()
     compiled, clock.cached, clock.setup = compiled_for(modes, "switched", build)
     values = plant_values(modes)

@@ -189,3 +189,14 @@ def test_problem_cache_is_a_bounded_lru():
     assert cache.keys() == ["a", "c"]
     assert cache.get("b", builder("b")) == ("b", False)
     assert built == ["a", "b", "c", "b"] and len(cache) == 2
+
+
+def test_designs_that_cannot_fit_in_memory_are_refused_before_solving():
+    # CCL at n = 8, n_drop = 8, 4 plants: 33 PSD cones of side 128 -> ~17 GiB of dense KKT blocks
+    rng = np.random.default_rng(0)
+    fam = PlantFamily(F=rng.normal(size=(4, 8, 8)) * 0.3, G=rng.normal(size=(4, 8, 2)))
+    with pytest.raises(InvalidInput) as err:
+        design(fam, n_drop=8, method="ccl")
+    assert err.value.field == ("n_drop",) and "GiB" in str(err.value)
+    n, N, S = 8, 8, 32
+    assert 8 * ((2 * n * N) * (2 * n * N + 1) // 2) ** 2 * (S + 1) > 16 * 2**30  # hand count of the same estimate
