@@ -11,7 +11,7 @@ import numpy as np
 from ..compiled import SolveInfo
 from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
 from ..network import ModeSet, spectral_radii
-from ..result import DesignResult
+from ..result import DesignResult, IterationRecord
 
 
 @dataclass
@@ -138,3 +138,43 @@ def finish(
         decay_rate=options.decay_rate if outcome == "stabilized" else None,
         mode_labels=[modes.label(s) for s in range(modes.n_modes)],
     )
+
+
+def conclude_one_shot(
+    modes: ModeSet,
+    method: str,
+    options: DesignOptions,
+    clock: RunClock,
+    info: SolveInfo,
+    t: float,
+    *,
+    infeasible: str | None = None,
+    gains=None,
+    cert: Certificate | None = None,
+    A=None,
+) -> DesignResult:
+    """The result of a one-SDP method (``lmi``, ``switched``) from its optimal margin t*.
+
+    ``infeasible`` is the reason when ``t* <= margin``; otherwise the gains
+    and the outcome of :func:`certify_gains` decide between stabilized and not_converged.
+    """
+    record = IterationRecord(
+        iteration=0, objective=t, trace_gap=None, theorem1=cert is not None,
+        certificate_margin=None if cert is None else cert.margin, solve_time=info.solve_time, elapsed=clock.elapsed,
+    )
+
+    def result(outcome, message):
+        return finish(modes, method, outcome, gains, cert, A, clock, info.solver, info.status, message, [record],
+                      options)
+
+    rate = "" if options.decay_rate is None else f" at decay rate {options.decay_rate:g}"
+    if infeasible is not None:
+        return result("infeasible", f"{infeasible}: the best normalized margin is t* = {t:.3g} <= margin "
+                                    f"{options.margin:g}{rate}")
+    if options.callback is not None:
+        options.callback(record)
+    if cert is None:
+        return result("not_converged",
+                      f"the SDP reported margin t* = {t:.3g} but no certificate passed the float64 re-check")
+    return result("stabilized", f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "
+                                f"(relative margin {cert.margin:.3g}){rate}")

@@ -24,8 +24,8 @@ import numpy as np
 
 from ..compiled import CompiledProblem, block, check_memory, problem_cache, schur_block
 from ..network import ModeSet
-from ..result import DesignResult, IterationRecord
-from .common import DesignOptions, RunClock, certify_gains, finish
+from ..result import DesignResult
+from .common import DesignOptions, RunClock, certify_gains, conclude_one_shot
 
 
 def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem:
@@ -80,30 +80,10 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     W = compiled.value("W")
     W = 0.5 * (W + W.T)
     Y = np.stack(compiled.value("Y"))
-    record = IterationRecord(
-        iteration=0, objective=t, trace_gap=None, theorem1=False, certificate_margin=None,
-        solve_time=info.solve_time, elapsed=clock.elapsed,
-    )
-
-    def result(outcome, gains, cert, A, message):
-        return finish(modes, "lmi", outcome, gains, cert, A, clock, info.solver, info.status, message, [record],
-                      options)
-
     if t <= options.margin:
-        return result("infeasible", None, None, None, (
-            f"no common quadratic Lyapunov design exists: the best normalized margin is "
-            f"t* = {t:.3g} <= margin {options.margin:g} (trace W = n)"
-            + ("" if options.decay_rate is None else f" at decay rate {options.decay_rate:g}")
-        ))
+        return conclude_one_shot(modes, "lmi", options, clock, info, t,
+                                 infeasible="no common quadratic Lyapunov design exists (trace W = n)")
     theta = np.linalg.solve(W, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j W^{-1}, W symmetric
     gains = modes.expand(theta)
     cert, A = certify_gains(modes, gains, options, clock, candidate=np.linalg.inv(W), candidate_source="lmi")
-    record.theorem1 = cert is not None
-    record.certificate_margin = None if cert is None else cert.margin
-    if options.callback is not None:
-        options.callback(record)
-    if cert is None:
-        return result("not_converged", gains, None, A,
-                      f"the SDP reported margin t* = {t:.3g} but no certificate passed the float64 re-check")
-    return result("stabilized", gains, cert, A,
-                  f"stabilized; SDP margin t* = {t:.3g}, certificate re-checked (relative margin {cert.margin:.3g})")
+    return conclude_one_shot(modes, "lmi", options, clock, info, t, gains=gains, cert=cert, A=A)

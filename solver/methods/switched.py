@@ -23,8 +23,8 @@ import numpy as np
 from ..compiled import CompiledProblem, block, check_memory, schur_block
 from ..errors import InvalidInput
 from ..network import ModeSet
-from ..result import DesignResult, IterationRecord
-from .common import DesignOptions, RunClock, certify_gains, finish
+from ..result import DesignResult
+from .common import DesignOptions, RunClock, certify_gains, conclude_one_shot
 from .lmi import compiled_for, plant_values
 
 #: Pairwise constraints grow as S^2; refuse beyond this many modes.
@@ -66,21 +66,9 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
     clock.add(info)
     t = float(compiled.value("t"))
-    record = IterationRecord(
-        iteration=0, objective=t, trace_gap=None, theorem1=False, certificate_margin=None,
-        solve_time=info.solve_time, elapsed=clock.elapsed,
-    )
-
-    def result(outcome, gains, cert, A, message):
-        return finish(modes, "switched", outcome, gains, cert, A, clock, info.solver, info.status, message,
-                      [record], options)
-
     if t <= options.margin:
-        return result("infeasible", None, None, None, (
-            f"no switched-Lyapunov design with a common slack exists: best normalized margin "
-            f"t* = {t:.3g} <= margin {options.margin:g}"
-            + ("" if options.decay_rate is None else f" at decay rate {options.decay_rate:g}")
-        ))
+        return conclude_one_shot(modes, "switched", options, clock, info, t,
+                                 infeasible="no switched-Lyapunov design with a common slack exists")
     Z = compiled.value("Z")
     Y = np.stack(compiled.value("Y"))
     theta = np.linalg.solve(Z.T, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
@@ -88,13 +76,4 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     P = np.linalg.inv(np.stack(compiled.value("S")))
     cert, A = certify_gains(modes, gains, options, clock, candidate=P, candidate_kind="switched",
                             candidate_source="switched")
-    record.theorem1 = cert is not None
-    record.certificate_margin = None if cert is None else cert.margin
-    if options.callback is not None:
-        options.callback(record)
-    if cert is None:
-        return result("not_converged", gains, None, A,
-                      f"the SDP reported margin t* = {t:.3g} but no certificate passed the float64 re-check")
-    return result("stabilized", gains, cert, A,
-                  f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "
-                  f"(relative margin {cert.margin:.3g})")
+    return conclude_one_shot(modes, "switched", options, clock, info, t, gains=gains, cert=cert, A=A)
