@@ -200,6 +200,16 @@ def _build_switched(n: int, S: int) -> CompiledProblem:
 MAX_SWITCHED_MODES = 64
 
 
+def _solve_fixed_gain(kind: str, A: np.ndarray, rho, solver: str, time_limit) -> tuple[CompiledProblem, SolveInfo]:
+    """Solve the cached fixed-gain LMI of a kind for closed loops A (S, n, n) and decay factors rho."""
+    S, n, _ = A.shape
+    builder = {"common_lmi": _build_common, "switched_lmi": _build_switched}[kind]
+    compiled, _ = problem_cache.get((kind, n, S), lambda: builder(n, S))
+    info = compiled.solve({"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho},
+                          solver=solver, time_limit=time_limit)
+    return compiled, info
+
+
 def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLARABEL", time_limit=None):
     """Best-margin common quadratic certificate for fixed gains (Theorem 1 as an LMI).
 
@@ -218,11 +228,7 @@ def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLAR
     t : float
     info : SolveInfo
     """
-    S, n, _ = A.shape
-    compiled, _ = problem_cache.get(("common_lmi", n, S), lambda: _build_common(n, S))
-    info: SolveInfo = compiled.solve(
-        {"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho}, solver=solver, time_limit=time_limit
-    )
+    compiled, info = _solve_fixed_gain("common_lmi", A, rho, solver, time_limit)
     return compiled.value("X"), float(compiled.value("t")), info
 
 
@@ -238,11 +244,7 @@ def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CL
     t : float
     info : SolveInfo
     """
-    S, n, _ = A.shape
-    compiled, _ = problem_cache.get(("switched_lmi", n, S), lambda: _build_switched(n, S))
-    info: SolveInfo = compiled.solve(
-        {"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho}, solver=solver, time_limit=time_limit
-    )
+    compiled, info = _solve_fixed_gain("switched_lmi", A, rho, solver, time_limit)
     return np.stack(compiled.value("P")), float(compiled.value("t")), info
 
 
