@@ -81,7 +81,10 @@ def design(
     max_iter : int
         Iteration cap of iterative methods.
     time_limit : float, optional
-        Wall-clock limit in seconds for the whole design.
+        Wall-clock limit in seconds for the whole design.  It is checked between
+        iterations and handed to the solver, which checks it between its own
+        iterations; problem construction is not interruptible, so it is a soft
+        limit (the service enforces a hard one by stopping the worker process).
     callback : callable, optional
         ``callback(record: IterationRecord) -> bool | None`` after every
         iteration; returning True stops the design (``not_converged``).
