@@ -36,6 +36,13 @@ def jsonable(obj: Any) -> Any:
 
 
 def build_family(plant: dict[str, Any]):
+    # A family that overflows when discretized is reported by the solver as InvalidInput;
+    # numpy's overflow warnings on the way there would only clutter the service log.
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _build_family(plant)
+
+
+def _build_family(plant: dict[str, Any]):
     from solver import PlantFamily
 
     kind = plant["kind"]
