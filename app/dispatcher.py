@@ -289,12 +289,29 @@ class Dispatcher:
         for slot in self.slots:
             if slot.job_id in wanted:
                 slot.cancel_sent = now
-                try:
-                    slot.conn.send(("cancel", slot.job_id))
-                except (OSError, ValueError):
-                    pass
+                self._send_cancel(slot)
                 if self.settings.cancel_grace == 0:
                     self._check(slot, now + 1)
+
+    # -- the executor: how a claimed job reaches a worker --------------------
+    # The local pool (this class) and the Dask backend (app.dask_backend.DaskDispatcher)
+    # differ only in these methods and in _drain/_check/_sleep/_shutdown; claiming,
+    # leases, progress, cancel requests and the job-table updates are shared.
+    def _idle_slots(self) -> list[_Slot]:
+        return [s for s in self.slots if s.job_id is None and s.ready and s.proc is not None and s.proc.is_alive()]
+
+    def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
+        try:
+            slot.conn.send(("run", claimed.id, claimed.request))
+        except (OSError, ValueError):
+            pass  # dead worker: the next _check retries the job
+        jobs.set_worker_pid(self.db, claimed.id, self.owner, slot.pid or 0)
+
+    def _send_cancel(self, slot: _Slot) -> None:
+        try:
+            slot.conn.send(("cancel", slot.job_id))
+        except (OSError, ValueError):
+            pass
 
     def _flush_progress(self, now: float) -> None:
         for slot in self.slots:
@@ -304,7 +321,7 @@ class Dispatcher:
                 slot.progress_written = now
 
     def _fill(self) -> None:
-        idle = [s for s in self.slots if s.job_id is None and s.ready and s.proc is not None and s.proc.is_alive()]
+        idle = self._idle_slots()
         if not idle or not jobs.has_queued(self.db):
             return
         for slot in idle:
@@ -313,11 +330,7 @@ class Dispatcher:
                 return
             slot.job_id, slot.attempt, slot.started = claimed.id, claimed.attempts, time.monotonic()
             slot.cancel_sent, slot.progress, slot.progress_dirty = None, None, False
-            try:
-                slot.conn.send(("run", claimed.id, claimed.request))
-            except (OSError, ValueError):
-                pass  # dead worker: the next _check retries the job
-            jobs.set_worker_pid(self.db, claimed.id, self.owner, slot.pid or 0)
+            self._submit(slot, claimed)
 
     def _shutdown(self) -> None:
         for slot in self.slots:
@@ -339,3 +352,12 @@ class Dispatcher:
             if slot.proc is not None:
                 slot.proc.join(max(0.0, deadline - time.monotonic()))
             self._kill(slot)
+
+
+def make_dispatcher(db: Database, settings: Settings) -> Dispatcher:
+    """The local process pool, or the Dask backend when ``NCS_DASK_SCHEDULER`` is set."""
+    if settings.dask_scheduler:
+        from app.dask_backend import DaskDispatcher
+
+        return DaskDispatcher(db, settings)
+    return Dispatcher(db, settings)

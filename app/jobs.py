@@ -99,6 +99,27 @@ def retry_or_fail(db: Database, job_id: str, owner: str, reason: str, max_attemp
         return values["status"]
 
 
+def note_retry(db: Database, job_id: str, owner: str, reason: str, max_attempts: int) -> str | None:
+    """The executor re-ran a running job by itself (Dask reschedules the task of a dead worker):
+    count the attempt; past ``max_attempts`` the job ends failed. Returns the job's new status."""
+    now = utcnow()
+    with db.write() as s:
+        job = s.execute(select(Job.attempts, Job.cancel_requested).where(_running_owned(job_id, owner))).first()
+        if job is None:
+            return None
+        if job.cancel_requested:
+            values = dict(status=CANCELLED, finished_at=now, error="cancelled by request",
+                          lease_owner=None, lease_expires_at=None)
+        elif job.attempts >= max_attempts:
+            values = dict(status=FAILED, finished_at=now, lease_owner=None, lease_expires_at=None,
+                          error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
+        else:
+            values = dict(status=RUNNING, attempts=job.attempts + 1, started_at=now,
+                          error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)")
+        s.execute(update(Job).where(_running_owned(job_id, owner)).values(worker_pid=None, updated_at=now, **values))
+        return values["status"]
+
+
 def release(db: Database, job_id: str, owner: str) -> None:
     """Graceful shutdown: give a running job back to the queue without using up an attempt."""
     with db.write() as s:

@@ -15,7 +15,7 @@ from fastapi.staticfiles import StaticFiles
 
 from app import problems
 from app.db import Database, run_migrations
-from app.dispatcher import Dispatcher
+from app.dispatcher import make_dispatcher
 from app.middleware import BodySizeLimit
 from app.routers import analyses, designs, health, margins, simulations
 from app.settings import Settings
@@ -96,7 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.sync_pool = SyncPool(settings.sync_workers, settings.sync_time_limit)
         app.state.dispatcher = None
         if settings.run_dispatcher:
-            app.state.dispatcher = Dispatcher(db, settings)
+            app.state.dispatcher = make_dispatcher(db, settings)
             app.state.dispatcher.start()
         try:
             yield

@@ -88,6 +88,11 @@ class Settings(BaseSettings):
     alembic_dir: Path | None = Field(
         None, description="Directory of the Alembic migration environment (found automatically).",
     )
+    dask_scheduler: str | None = Field(
+        None, description="Address of a Dask distributed scheduler (e.g. `tcp://10.0.0.5:8786`). When set, "
+        "design jobs run on that cluster's workers instead of local worker processes; the database stays "
+        "the queue. Empty: the local pool of `NCS_WORKERS` processes.",
+    )
     run_dispatcher: bool = Field(
         True, description="Run the job dispatcher and worker pool in this process.",
     )

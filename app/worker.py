@@ -32,6 +32,27 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
+def execute(job_id: str, request: dict, callback, cancelled) -> tuple:
+    """Run one design; the reply ``("done", id, result)``, ``("cancelled", id)`` or ``("error", id, reason)``.
+
+    Shared by the local worker processes and the Dask task (``app.dask_tasks``).
+    """
+    from app import tasks
+
+    try:
+        from solver import InvalidInput
+    except ImportError:  # pragma: no cover
+        InvalidInput = ValueError  # type: ignore[assignment]
+    try:
+        result = tasks.run_job(request, callback)
+    except InvalidInput as exc:
+        return ("error", job_id, f"invalid input at {'/'.join(map(str, getattr(exc, 'field', ()) or ()))}: {exc}")
+    except Exception as exc:
+        tb = traceback.format_exc(limit=5)
+        return ("error", job_id, f"solver error: {type(exc).__name__}: {exc}\n{tb}")
+    return ("cancelled", job_id) if cancelled() else ("done", job_id, result)
+
+
 def worker_main(conn, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
     # Ctrl-C or a SIGTERM sent to the whole process group is for the service: it shuts down
@@ -40,10 +61,6 @@ def worker_main(conn, parent_pid: int) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from app import tasks
 
-    try:
-        from solver import InvalidInput
-    except ImportError:  # pragma: no cover
-        InvalidInput = ValueError  # type: ignore[assignment]
     tasks.warm_up()
     conn.send(("ready", os.getpid()))
     while True:
@@ -69,15 +86,7 @@ def worker_main(conn, parent_pid: int) -> None:
                 os._exit(0)  # the service is gone
             return state["cancel"]
 
-        try:
-            result = tasks.run_job(request, callback)
-        except InvalidInput as exc:
-            reply = ("error", job_id, f"invalid input at {'/'.join(map(str, getattr(exc, 'field', ()) or ()))}: {exc}")
-        except Exception as exc:
-            tb = traceback.format_exc(limit=5)
-            reply = ("error", job_id, f"solver error: {type(exc).__name__}: {exc}\n{tb}")
-        else:
-            reply = ("cancelled", job_id) if state["cancel"] else ("done", job_id, result)
+        reply = execute(job_id, request, callback, lambda state=state: state["cancel"])
         try:
             conn.send(reply)
         except (EOFError, OSError):

@@ -1,0 +1,66 @@
+"""What runs inside a Dask worker process (see ``app.dask_backend`` for the service side).
+
+Kept lean on purpose: it imports no web framework and needs no database access;
+a Dask worker only needs this package installed (``pip install ncs-design``).
+
+* :func:`run_job` is the task. It reports ``start`` (worker address and pid) and
+  throttled ``progress`` through Dask's structured events (``Worker.log_event``:
+  fire-and-forget, batched, forwarded by the scheduler to the subscribed service),
+  and returns the same reply tuple as a local worker process (``app.worker.execute``)
+  with the last progress record appended.
+* :func:`request_cancel` is run on the worker by the service (``Client.run``) to
+  cancel a running job cooperatively: it sets a flag that the solver callback reads
+  at its next iteration, which costs nothing per iteration (no scheduler round trip).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from typing import Any
+
+START_TOPIC = "ncs-design-start"
+PROGRESS_TOPIC = "ncs-design-progress"
+PROGRESS_EVERY = 0.1  # seconds between progress events of one job
+
+_cancelled: set[str] = set()
+_lock = threading.Lock()
+
+
+def request_cancel(job_id: str) -> bool:
+    with _lock:
+        _cancelled.add(job_id)
+    return True
+
+
+def _is_cancelled(job_id: str) -> bool:
+    with _lock:
+        return job_id in _cancelled
+
+
+def run_job(job_id: str, key: str, request: dict[str, Any]) -> tuple:
+    from distributed import get_worker
+
+    from app import tasks
+    from app.worker import execute
+
+    worker = get_worker()
+    worker.log_event(START_TOPIC, {"key": key, "job": job_id, "pid": os.getpid(), "address": worker.address})
+    state: dict[str, Any] = {"last": None, "sent": 0.0}
+
+    def callback(record) -> bool:
+        progress = tasks.record_to_dict(record)
+        state["last"] = progress
+        now = time.monotonic()
+        if now - state["sent"] >= PROGRESS_EVERY:
+            state["sent"] = now
+            worker.log_event(PROGRESS_TOPIC, {"key": key, "job": job_id, "progress": progress})
+        return _is_cancelled(job_id)
+
+    try:
+        reply = execute(job_id, request, callback, lambda: _is_cancelled(job_id))
+    finally:
+        with _lock:
+            _cancelled.discard(job_id)
+    return (*reply, state["last"])

@@ -1,0 +1,129 @@
+"""The job lifecycle with the Dask backend (``NCS_DASK_SCHEDULER``).
+
+A real ``dask.distributed.LocalCluster`` with separate worker processes (each under a
+nanny, talking the scheduler's TCP protocol), and the service (ASGI app, real dispatcher
+thread) submitting to it; the database is SQLite or, with NCS_TEST_DATABASE_URL, PostgreSQL.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from app.examples import PAPER_PLANT
+
+from .conftest import REPO, running_client, wait_for
+
+distributed = pytest.importorskip("distributed")
+
+PAPER_LMI = {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}
+MEDIUM = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}  # ~2 s
+SLOW = {"plant": PAPER_PLANT, "n_drop": 6, "method": "ccl", "options": {"max_iter": 50}}  # many seconds
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    pythonpath = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  worker_dashboard_address=None, env={"PYTHONPATH": pythonpath}) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def client(cluster, module_db):
+    with running_client(module_db, dask_scheduler=cluster.scheduler_address, cancel_grace=1.0,
+                        job_time_limit=60.0) as c:
+        deadline = time.monotonic() + 60
+        while c.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline, c.get("/readyz").json()
+            time.sleep(0.1)
+        yield c
+
+
+def dask_pid_of(client, job_id: str, timeout: float = 60.0) -> int:
+    disp = client.app.state.dispatcher
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for slot in list(disp.slots):
+            if slot.job_id == job_id and slot.pid:
+                return slot.pid
+        time.sleep(0.02)
+    raise AssertionError(f"job {job_id} never started on a Dask worker")
+
+
+def test_readyz_reports_the_cluster(client):
+    body = client.get("/readyz").json()
+    assert body["workers"]["alive"] == 2 and body["workers"]["ready"] == 2, body
+
+
+@pytest.mark.parametrize("method", ["lmi", "ccl"])
+def test_paper_example_on_the_cluster_matches_the_solver(client, cluster, method):
+    from solver import PlantFamily, design
+
+    job_id = client.post("/v1/designs", json={**PAPER_LMI, "method": method}).json()["id"]
+    job = wait_for(client, job_id, timeout=90)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["outcome"] == "stabilized" and job["attempts"] == 1
+    fam = PlantFamily.from_continuous(A=PAPER_PLANT["A"], B=PAPER_PLANT["B"], sampling_period=0.1)
+    np.testing.assert_allclose(np.asarray(job["result"]["gains"]), design(fam, n_drop=3, method=method).gains,
+                               rtol=1e-6, atol=1e-8)
+    if method == "ccl":
+        assert job["progress"]["iteration"] is not None
+    # It ran in one of the cluster's worker processes.
+    from app.db import Database
+    from app.models import Job
+
+    db = Database(client.app.state.settings.database_url)
+    with db.read() as s:
+        pid = s.get(Job, job_id).worker_pid
+    db.dispose()
+    with distributed.Client(cluster.scheduler_address, set_as_default=False) as dc:
+        assert pid in set(dc.run(os.getpid).values())
+
+
+def test_many_jobs_fill_both_workers(client):
+    ids = [client.post("/v1/designs", json=PAPER_LMI).json()["id"] for _ in range(20)]
+    jobs = [wait_for(client, i, timeout=90) for i in ids]
+    assert {j["status"] for j in jobs} == {"succeeded"}
+    assert all(j["attempts"] == 1 for j in jobs)
+
+
+def test_cancel_a_running_job_cooperatively(client):
+    job_id = client.post("/v1/designs", json=SLOW).json()["id"]
+    dask_pid_of(client, job_id)
+    wait_for(client, job_id, statuses=("running",))
+    resp = client.post(f"/v1/designs/{job_id}/cancel")
+    assert resp.status_code in (200, 202), resp.text
+    job = wait_for(client, job_id, timeout=60)
+    assert job["status"] == "cancelled", job
+
+
+def test_killed_dask_worker_mid_job_is_retried_and_the_job_finishes(client):
+    job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
+    first = dask_pid_of(client, job_id)
+    os.kill(first, signal.SIGKILL)
+    job = wait_for(client, job_id, timeout=120)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["outcome"] == "stabilized"
+    assert job["attempts"] == 2, job  # the run on the killed worker counted as an attempt
+    # The nanny restarts the killed worker; the cluster serves the next job.
+    nxt = wait_for(client, client.post("/v1/designs", json=PAPER_LMI).json()["id"], timeout=90)
+    assert nxt["status"] == "succeeded"
+
+
+def test_time_limit_on_the_cluster(cluster, db_url):
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address, job_time_limit=1.5) as client:
+        deadline = time.monotonic() + 60
+        while client.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        job_id = client.post("/v1/designs", json=SLOW).json()["id"]
+        job = wait_for(client, job_id, timeout=60)
+        assert job["status"] == "failed" and "time limit" in job["error"] and "1.5 s" in job["error"], job
+        assert job["attempts"] == 1
+        nxt = wait_for(client, client.post("/v1/designs", json=PAPER_LMI).json()["id"], timeout=90)
+        assert nxt["status"] == "succeeded", nxt
