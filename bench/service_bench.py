@@ -1,0 +1,452 @@
+"""Service benchmark: the real server over HTTP on loopback, driven by a load generator.
+
+``python -m bench.service_bench`` (or ``python -m bench service``) starts
+``python -m app.cli serve`` (= ``ncs-design serve``) on a free loopback port with the
+default worker pool, once on a fresh SQLite file and once on a fresh PostgreSQL
+database (if ``--pg-url`` is reachable), and prints one table with a column per
+database. The workload is the paper example with ``lmi`` (``n_drop = 3``).
+
+Measured per database:
+
+* **latency, one client**: one job at a time, POST -> the job observed ``succeeded``;
+  p50 / p95 over ``--latency-jobs``;
+* **sustained**: ``--clients`` concurrent clients (asyncio + httpx), each submitting its
+  next job as soon as its previous one succeeded (closed loop), ``--jobs`` jobs in all,
+  bounded by ``--time-limit``; designs per second = jobs / wall time from the first POST
+  to the last observed success, plus the latency p50 / p95 under that load;
+* **open loop**: jobs submitted at a fixed rate (``--rate``, default the 50/s target)
+  for ``--open-seconds``; achieved designs/s and latency p50 / p95. This is the direct
+  check of "50 designs/s with p50 < 50 ms";
+* **server-side latency**: ``finished_at - created_at`` of the same jobs from the API
+  (no observation delay);
+* resident memory (RSS, /proc via psutil) of the service process and of the service
+  plus its worker processes: idle (after start) and peak under load (sampled every 0.1 s);
+* CPU seconds used during the sustained run by the service process and by its
+  workers, which says what bounds the throughput.
+
+Completion is observed without hammering the server: instead of every client polling
+its own job, one poller reads ``GET /v1/designs?limit=100`` (newest first) every
+``--poll`` seconds (default 5 ms) and wakes the clients whose jobs succeeded, so the
+observation adds at most one poll interval to each latency.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from datetime import datetime
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TERMINAL = ("succeeded", "failed", "cancelled")
+DEFAULT_PG = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+
+
+def _paper_lmi() -> dict:
+    sys.path.insert(0, str(REPO))
+    from app.examples import PAPER_PLANT
+
+    return {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def pct(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    v = sorted(values)
+    return v[min(len(v) - 1, max(0, round(q / 100 * (len(v) - 1))))]
+
+
+# -- databases -----------------------------------------------------------------------
+class PgDatabase:
+    """A throw-away database on the PostgreSQL server of ``url``."""
+
+    def __init__(self, url: str):
+        import psycopg
+        from sqlalchemy.engine import make_url
+
+        self.u = make_url(url)
+        self.name = "ncs_bench_" + uuid.uuid4().hex[:10]
+        self._connect = lambda: psycopg.connect(host=self.u.query.get("host") or self.u.host or "127.0.0.1",
+                                                port=self.u.port or 5432, user=self.u.username,
+                                                password=self.u.password, dbname=self.u.database, autocommit=True)
+        with self._connect() as conn:
+            conn.execute(f'CREATE DATABASE "{self.name}"')
+        self.url = self.u.set(database=self.name).render_as_string(hide_password=False)
+
+    def drop(self) -> None:
+        with self._connect() as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{self.name}" WITH (FORCE)')
+
+
+def pg_reachable(url: str) -> bool:
+    try:
+        import psycopg
+        from sqlalchemy.engine import make_url
+
+        u = make_url(url)
+        psycopg.connect(host=u.query.get("host") or u.host or "127.0.0.1", port=u.port or 5432, user=u.username,
+                        password=u.password, dbname=u.database, connect_timeout=3).close()
+        return True
+    except Exception:
+        return False
+
+
+# -- the server ----------------------------------------------------------------------
+class Server:
+    def __init__(self, db_url: str, workers: int | None, log_path: Path, extra_env: dict[str, str]):
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        env = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
+        env.update(NCS_DATABASE_URL=db_url, NCS_PORT=str(self.port), NCS_HOST="127.0.0.1")
+        pythonpath = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        env["PYTHONPATH"] = pythonpath
+        if workers:
+            env["NCS_WORKERS"] = str(workers)
+        env.update(extra_env)
+        self.log = open(log_path, "wb")
+        self.t0 = time.monotonic()
+        self.proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--log-level", "warning"],
+                                     cwd=str(REPO), env=env, stdout=self.log, stderr=subprocess.STDOUT)
+
+    def wait_ready(self, timeout: float = 120.0) -> tuple[float, dict]:
+        import httpx
+
+        while time.monotonic() - self.t0 < timeout:
+            if self.proc.poll() is not None:
+                raise SystemExit(f"server exited with {self.proc.returncode}; see {self.log.name}")
+            try:
+                r = httpx.get(self.base + "/readyz", timeout=2)
+                if r.status_code == 200:
+                    return time.monotonic() - self.t0, r.json()
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.05)
+        raise SystemExit("server not ready in time")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.log.close()
+
+
+class Memory:
+    """RSS of the service process and its process tree; peak sampling in a thread."""
+
+    def __init__(self, pid: int):
+        import psutil
+
+        self.proc = psutil.Process(pid)
+        self.peak = (0.0, 0.0)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def now(self) -> tuple[float, float, int]:
+        import psutil
+
+        main = self.proc.memory_info().rss / 2**20
+        total, n = main, 1
+        for c in self.proc.children(recursive=True):
+            try:
+                total += c.memory_info().rss / 2**20
+                n += 1
+            except psutil.Error:
+                pass
+        return main, total, n
+
+    def cpu(self) -> tuple[float, float]:
+        """CPU seconds (user + system) of the service process and of its children."""
+        import psutil
+
+        t = self.proc.cpu_times()
+        main = t.user + t.system
+        kids = 0.0
+        for c in self.proc.children(recursive=True):
+            try:
+                ct = c.cpu_times()
+                kids += ct.user + ct.system
+            except psutil.Error:
+                pass
+        return main, kids
+
+    def start_sampling(self) -> None:
+        def loop():
+            while not self._stop.is_set():
+                m, t, _ = self.now()
+                self.peak = (max(self.peak[0], m), max(self.peak[1], t))
+                time.sleep(0.1)
+
+        self._thread = threading.Thread(target=loop, daemon=True)
+        self._thread.start()
+
+    def stop_sampling(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+
+# -- the load generator ----------------------------------------------------------------
+class Watcher:
+    """One poller for all clients: GET /v1/designs?limit=100 (newest first) every ``poll`` s."""
+
+    def __init__(self, client, poll: float):
+        self.client = client
+        self.poll = poll
+        self.waiting: dict[str, asyncio.Future] = {}
+        self._task: asyncio.Task | None = None
+        self.polls = 0
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run())
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except asyncio.CancelledError:
+                pass
+
+    def wait(self, job_id: str) -> asyncio.Future:
+        fut = asyncio.get_running_loop().create_future()
+        self.waiting[job_id] = fut
+        return fut
+
+    def _resolve(self, item: dict, now: float) -> None:
+        fut = self.waiting.pop(item["id"], None)
+        if fut is not None and not fut.done():
+            fut.set_result((now, item))
+
+    async def _run(self) -> None:
+        while True:
+            if self.waiting:
+                r = await self.client.get("/v1/designs", params={"limit": 100})
+                self.polls += 1
+                now = time.perf_counter()
+                seen = set()
+                for item in r.json()["items"]:
+                    seen.add(item["id"])
+                    if item["status"] in TERMINAL:
+                        self._resolve(item, now)
+                # Jobs that fell out of the newest 100 (a backlog): look a few of them up directly.
+                older = [i for i in self.waiting if i not in seen][:5]
+                for job_id in older:
+                    item = (await self.client.get(f"/v1/designs/{job_id}")).json()
+                    if item["status"] in TERMINAL:
+                        self._resolve(item, time.perf_counter())
+            await asyncio.sleep(self.poll)
+
+
+async def _submit_and_wait(client, watcher: Watcher, body: dict, out: list) -> None:
+    t0 = time.perf_counter()
+    r = await client.post("/v1/designs", json=body)
+    if r.status_code != 202:
+        raise RuntimeError(f"POST returned {r.status_code}: {r.text[:300]}")
+    job_id = r.json()["id"]
+    fut = watcher.wait(job_id)
+    # A job can finish before the watcher knew about it: it stays in the newest 100 anyway.
+    t_done, item = await fut
+    out.append((t_done - t0, item))
+
+
+async def _with_client(base: str, poll: float, fn):
+    import httpx
+
+    limits = httpx.Limits(max_connections=200, max_keepalive_connections=200)
+    async with httpx.AsyncClient(base_url=base, timeout=60, limits=limits) as client:
+        watcher = Watcher(client, poll)
+        watcher.start()
+        try:
+            return await fn(client, watcher)
+        finally:
+            await watcher.stop()
+
+
+def sequential(base: str, body: dict, n: int, poll: float) -> list:
+    async def fn(client, watcher):
+        out: list = []
+        for _ in range(n):
+            await _submit_and_wait(client, watcher, body, out)
+        return out
+
+    return asyncio.run(_with_client(base, poll, fn))
+
+
+def closed_loop(base: str, body: dict, clients: int, jobs: int, time_limit: float, poll: float):
+    async def fn(client, watcher):
+        out: list = []
+        counter = iter(range(jobs))
+        deadline = time.perf_counter() + time_limit
+
+        async def one_client():
+            for _ in counter:
+                if time.perf_counter() > deadline:
+                    return
+                await _submit_and_wait(client, watcher, body, out)
+
+        t0 = time.perf_counter()
+        await asyncio.gather(*(one_client() for _ in range(clients)))
+        return out, time.perf_counter() - t0
+
+    return asyncio.run(_with_client(base, poll, fn))
+
+
+def open_loop(base: str, body: dict, rate: float, seconds: float, poll: float, time_limit: float):
+    async def fn(client, watcher):
+        out: list = []
+        tasks = []
+        t0 = time.perf_counter()
+        n = int(rate * seconds)
+        for i in range(n):
+            delay = t0 + i / rate - time.perf_counter()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            tasks.append(asyncio.create_task(_submit_and_wait(client, watcher, body, out)))
+        done, pending = await asyncio.wait(tasks, timeout=time_limit)
+        for t in pending:
+            t.cancel()
+        return out, time.perf_counter() - t0, n
+
+    return asyncio.run(_with_client(base, poll, fn))
+
+
+def _server_latency(items: list[dict]) -> list[float]:
+    out = []
+    for it in items:
+        if it.get("finished_at") and it.get("created_at"):
+            f = datetime.fromisoformat(it["finished_at"].replace("Z", "+00:00"))
+            c = datetime.fromisoformat(it["created_at"].replace("Z", "+00:00"))
+            out.append((f - c).total_seconds())
+    return out
+
+
+# -- one database ---------------------------------------------------------------------
+def measure(db_label: str, db_url: str, a) -> dict[str, str]:
+    body = _paper_lmi()
+    tmp = Path(tempfile.mkdtemp(prefix="ncs-service-bench-"))
+    server = Server(db_url, a.workers, tmp / "server.log", {})
+    rows: dict[str, str] = {}
+    try:
+        ready_s, ready = server.wait_ready()
+        rows["worker processes (default pool)"] = str(ready["workers"]["configured"])
+        rows["start -> ready"] = f"{ready_s:.1f} s"
+        mem = Memory(server.proc.pid)
+        sequential(server.base, body, 3, a.poll)  # warm: the workers compile the problem once
+        time.sleep(1.0)
+        m, t, n = mem.now()
+        rows["RSS idle: service process"] = f"{m:.0f} MiB"
+        rows["RSS idle: service + workers"] = f"{t:.0f} MiB ({n} processes)"
+
+        lat = sequential(server.base, body, a.latency_jobs, a.poll)
+        obs = [x for x, _ in lat]
+        srv = _server_latency([it for _, it in lat])
+        rows["latency, 1 client: p50 / p95 (observed)"] = f"{pct(obs, 50) * 1e3:.1f} / {pct(obs, 95) * 1e3:.1f} ms"
+        rows["latency, 1 client: p50 / p95 (server side)"] = f"{pct(srv, 50) * 1e3:.1f} / {pct(srv, 95) * 1e3:.1f} ms"
+
+        mem.start_sampling()
+        cpu0, wall0 = mem.cpu(), time.perf_counter()
+        out, wall = closed_loop(server.base, body, a.clients, a.jobs, a.time_limit, a.poll)
+        cpu1, wall1 = mem.cpu(), time.perf_counter()
+        ok = [x for x, it in out if it["status"] == "succeeded"]
+        rows[f"sustained, {a.clients} clients closed loop: designs/s"] = (
+            f"{len(ok) / wall:.1f} ({len(ok)} jobs in {wall:.1f} s)")
+        rows[f"  latency under that load: p50 / p95"] = f"{pct(ok, 50) * 1e3:.0f} / {pct(ok, 95) * 1e3:.0f} ms"
+        span = wall1 - wall0
+        rows["  CPU during it: service process / workers"] = (
+            f"{(cpu1[0] - cpu0[0]) / span * 100:.0f}% / {(cpu1[1] - cpu0[1]) / span * 100:.0f}% of one core")
+
+        out, wall, n = open_loop(server.base, body, a.rate, a.open_seconds, a.poll, a.time_limit)
+        ok = [x for x, it in out if it["status"] == "succeeded"]
+        srv = _server_latency([it for _, it in out])
+        rows[f"open loop, {a.rate:g}/s offered for {a.open_seconds:g} s: designs/s"] = (
+            f"{len(ok) / wall:.1f} ({len(ok)} of {n} in {wall:.1f} s)")
+        rows["  latency: p50 / p95 (observed)"] = f"{pct(ok, 50) * 1e3:.0f} / {pct(ok, 95) * 1e3:.0f} ms"
+        rows["  latency: p50 / p95 (server side)"] = f"{pct(srv, 50) * 1e3:.0f} / {pct(srv, 95) * 1e3:.0f} ms"
+        mem.stop_sampling()
+        rows["RSS peak under load: service process"] = f"{mem.peak[0]:.0f} MiB"
+        rows["RSS peak under load: service + workers"] = f"{mem.peak[1]:.0f} MiB"
+    finally:
+        server.stop()
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.service_bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--db", choices=["sqlite", "postgresql", "both"], default="both")
+    p.add_argument("--pg-url", default=os.environ.get("NCS_BENCH_PG_URL", DEFAULT_PG),
+                   help="PostgreSQL server to create a throw-away database on (default %(default)s)")
+    p.add_argument("--workers", type=int, default=None, help="NCS_WORKERS (default: the service default, CPU count)")
+    p.add_argument("--clients", type=int, default=20)
+    p.add_argument("--jobs", type=int, default=600, help="jobs of the sustained run (default %(default)s)")
+    p.add_argument("--latency-jobs", type=int, default=50)
+    p.add_argument("--rate", type=float, default=50.0, help="open-loop offered rate, jobs/s (default %(default)s)")
+    p.add_argument("--open-seconds", type=float, default=10.0)
+    p.add_argument("--time-limit", type=float, default=120.0, help="cap of each loaded run, seconds")
+    p.add_argument("--poll", type=float, default=0.005, help="watcher poll interval, seconds")
+    p.add_argument("--quick", action="store_true", help="fewer jobs (about 30 s per database)")
+    a = p.parse_args(argv)
+    if a.quick:
+        a.jobs, a.latency_jobs, a.open_seconds = 200, 20, 4.0
+
+    dbs: list[tuple[str, str, PgDatabase | None]] = []
+    if a.db in ("sqlite", "both"):
+        dbs.append(("SQLite", f"sqlite:///{tempfile.mkdtemp(prefix='ncs-bench-db-')}/ncs.db", None))
+    if a.db in ("postgresql", "both"):
+        if pg_reachable(a.pg_url):
+            pg = PgDatabase(a.pg_url)
+            dbs.append(("PostgreSQL", pg.url, pg))
+        elif a.db == "postgresql":
+            raise SystemExit(f"PostgreSQL at {a.pg_url} is not reachable")
+        else:
+            print(f"(PostgreSQL at {a.pg_url} not reachable: SQLite only)")
+
+    load = os.getloadavg()
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             cwd=REPO).stdout.strip()
+    except OSError:
+        rev = "?"
+    print(f"service benchmark: commit {rev}, python {sys.version.split()[0]}, {os.cpu_count()} cpus, "
+          f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; paper example, lmi, n_drop = 3", flush=True)
+    results: list[tuple[str, dict[str, str]]] = []
+    t0 = time.perf_counter()
+    try:
+        for label, url, _ in dbs:
+            results.append((label, measure(label, url, a)))
+    finally:
+        for _, _, pg in dbs:
+            if pg is not None:
+                pg.drop()
+    keys = list(results[0][1])
+    width = max(len(k) for k in keys)
+    cols = [max(len(label), *(len(r.get(k, "")) for k in keys)) for label, r in results]
+    print()
+    print("| " + "measure".ljust(width) + " | " + " | ".join(l.ljust(c) for (l, _), c in zip(results, cols)) + " |")
+    print("|-" + "-" * width + "-|-" + "-|-".join("-" * c for c in cols) + "-|")
+    for k in keys:
+        print("| " + k.ljust(width) + " | " + " | ".join(r.get(k, "").ljust(c) for (_, r), c in zip(results, cols)) + " |")
+    print(f"\n(targets: >= 50 designs/s sustained, p50 < 50 ms; total {time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
