@@ -16,6 +16,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("migrate", help="apply the database migrations and exit")
     args = parser.parse_args(argv)
 
+    from app.worker import limit_blas_threads
+
+    limit_blas_threads()  # before numpy is imported: the request threads build plant families too
     from app.settings import Settings
 
     settings = Settings()

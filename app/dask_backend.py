@@ -122,6 +122,9 @@ class DaskDispatcher(Dispatcher):
         free = [s for s in self.slots if s.job_id is None]
         return free[:max(0, capacity - busy)]
 
+    def _pid_for(self, slot: _Slot) -> int | None:
+        return None  # known once the task starts on a worker (its start event)
+
     def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
         from app.dask_tasks import run_job
 

@@ -300,12 +300,15 @@ class Dispatcher:
     def _idle_slots(self) -> list[_Slot]:
         return [s for s in self.slots if s.job_id is None and s.ready and s.proc is not None and s.proc.is_alive()]
 
+    def _pid_for(self, slot: _Slot) -> int | None:
+        """The worker pid recorded with the claim (None when the executor does not know it yet)."""
+        return slot.pid
+
     def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
         try:
             slot.conn.send(("run", claimed.id, claimed.request))
         except (OSError, ValueError):
             pass  # dead worker: the next _check retries the job
-        jobs.set_worker_pid(self.db, claimed.id, self.owner, slot.pid or 0)
 
     def _send_cancel(self, slot: _Slot) -> None:
         try:
@@ -324,13 +327,13 @@ class Dispatcher:
         idle = self._idle_slots()
         if not idle or not jobs.has_queued(self.db):
             return
-        for slot in idle:
-            claimed = jobs.claim_next(self.db, self.owner, self.settings.lease_seconds)
-            if claimed is None:
-                return
-            slot.job_id, slot.attempt, slot.started = claimed.id, claimed.attempts, time.monotonic()
+        # One transaction claims a job for every idle slot (and records the worker pids).
+        claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [self._pid_for(s) for s in idle])
+        now = time.monotonic()
+        for slot, job in zip(idle, claimed):
+            slot.job_id, slot.attempt, slot.started = job.id, job.attempts, now
             slot.cancel_sent, slot.progress, slot.progress_dirty = None, None, False
-            self._submit(slot, claimed)
+            self._submit(slot, job)
 
     def _shutdown(self) -> None:
         for slot in self.slots:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import and_, select, update
+from sqlalchemy import and_, case, select, update
 
 from app.db import Database
 from app.models import CANCELLED, FAILED, QUEUED, RUNNING, SUCCEEDED, Job, utcnow
@@ -52,6 +52,38 @@ def claim_next(db: Database, owner: str, lease_seconds: float) -> Claimed | None
             return None
         job = s.execute(select(Job.request, Job.attempts).where(Job.id == row.id)).one()
         return Claimed(row.id, job.request, job.attempts)
+
+
+def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
+    """Claim up to ``len(pids)`` of the oldest queued jobs in one transaction (two statements).
+
+    The i-th claimed job records ``pids[i]`` as its worker pid (``None``/0: not known yet).
+    On PostgreSQL ``FOR UPDATE SKIP LOCKED`` lets several dispatchers claim at once without
+    waiting for or double-claiming each other; SQLite serializes the write transactions.
+    """
+    with db.write() as s:
+        ids = [r.id for r in s.execute(
+            select(Job.id)
+            .where(Job.status == QUEUED)
+            .order_by(Job.created_at, Job.id)
+            .limit(len(pids))
+            .with_for_update(skip_locked=True)
+        ).all()]
+        if not ids:
+            return []
+        now = utcnow()
+        known = {i: p for i, p in zip(ids, pids) if p}
+        rows = s.execute(
+            update(Job)
+            .where(Job.id.in_(ids), Job.status == QUEUED)
+            .values(status=RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
+                    attempts=Job.attempts + 1, started_at=now, updated_at=now,
+                    worker_pid=case(known, value=Job.id, else_=None) if known else None)
+            .returning(Job.id, Job.request, Job.attempts)
+            .execution_options(synchronize_session=False)
+        ).all()
+    by_id = {r.id: r for r in rows}
+    return [Claimed(i, by_id[i].request, by_id[i].attempts) for i in ids if i in by_id]
 
 
 def _running_owned(job_id: str, owner: str):

@@ -20,7 +20,9 @@ log = logging.getLogger("app.syncpool")
 
 
 def _init_worker(parent_pid: int) -> None:
-    from app.worker import _die_with_parent
+    from app.worker import _die_with_parent, limit_blas_threads
+
+    limit_blas_threads()
     from app import tasks
 
     _die_with_parent(parent_pid)

@@ -25,9 +25,10 @@ Measured per database:
   workers, which says what bounds the throughput.
 
 Completion is observed without hammering the server: instead of every client polling
-its own job, one poller reads ``GET /v1/designs?limit=100`` (newest first) every
-``--poll`` seconds (default 5 ms) and wakes the clients whose jobs succeeded, so the
-observation adds at most one poll interval to each latency.
+its own job, one poller reads the newest jobs (``GET /v1/designs?limit=k``, k = jobs
+still waiting + 10, at most 100) every ``--poll`` seconds (default 5 ms) and wakes the
+clients whose jobs succeeded, so the observation adds at most one poll interval to each
+latency; waiting jobs that a backlog pushed out of that page are looked up one by one.
 """
 
 from __future__ import annotations
@@ -239,7 +240,12 @@ class Watcher:
     async def _run(self) -> None:
         while True:
             if self.waiting:
-                r = await self.client.get("/v1/designs", params={"limit": 100})
+                # Newest first: the jobs still waiting are (almost always) the newest ones.
+                try:
+                    r = await self.client.get("/v1/designs", params={"limit": min(100, len(self.waiting) + 10)})
+                except Exception:  # a dropped keep-alive connection: poll again
+                    await asyncio.sleep(self.poll)
+                    continue
                 self.polls += 1
                 now = time.perf_counter()
                 seen = set()
@@ -250,15 +256,27 @@ class Watcher:
                 # Jobs that fell out of the newest 100 (a backlog): look a few of them up directly.
                 older = [i for i in self.waiting if i not in seen][:5]
                 for job_id in older:
-                    item = (await self.client.get(f"/v1/designs/{job_id}")).json()
+                    try:
+                        item = (await self.client.get(f"/v1/designs/{job_id}")).json()
+                    except Exception:
+                        continue
                     if item["status"] in TERMINAL:
                         self._resolve(item, time.perf_counter())
             await asyncio.sleep(self.poll)
 
 
 async def _submit_and_wait(client, watcher: Watcher, body: dict, out: list) -> None:
+    import httpx
+
     t0 = time.perf_counter()
-    r = await client.post("/v1/designs", json=body)
+    key = uuid.uuid4().hex  # makes a retry after a dropped keep-alive connection safe
+    for attempt in range(3):
+        try:
+            r = await client.post("/v1/designs", json=body, headers={"Idempotency-Key": key})
+            break
+        except (httpx.ReadError, httpx.RemoteProtocolError, httpx.ConnectError):
+            if attempt == 2:
+                raise
     if r.status_code != 202:
         raise RuntimeError(f"POST returned {r.status_code}: {r.text[:300]}")
     job_id = r.json()["id"]
@@ -339,7 +357,63 @@ def _server_latency(items: list[dict]) -> list[float]:
     return out
 
 
+# -- profile ---------------------------------------------------------------------------
+IDLE_LEAVES = ("Condition.wait", "select (selectors", "Queue.get", "_recv (multiprocessing", "_poll (multiprocessing",
+               "wait (multiprocessing", "Event.wait", "sleep")
+ROLES = (("worker processes: design (run_job)", "worker_main"),
+         ("service: dispatcher thread", "Dispatcher._run"),
+         ("service: request handlers (threadpool)", "_run_sync_endpoint"),
+         ("service: event loop (uvicorn, routing, JSON)", "run_forever"))
+
+
+def start_profile(pid: int, seconds: float, out: Path) -> subprocess.Popen | None:
+    import shutil
+
+    exe = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(exe).exists():
+        print("(py-spy not installed: no profile; pip install py-spy)")
+        return None
+    return subprocess.Popen([exe, "record", "--pid", str(pid), "--subprocesses", "--nonblocking", "--format", "raw",
+                             "--rate", "250", "--duration", str(int(seconds)), "--output", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def summarize_profile(path: Path, top: int = 12) -> list[str]:
+    """Busy samples by role, and the functions with most busy samples (inclusive) in the service."""
+    from collections import Counter
+
+    roles: Counter = Counter()
+    funcs: Counter = Counter()
+    busy = 0
+    for line in path.read_text().splitlines():
+        stack, _, n = line.rpartition(" ")
+        if not n.isdigit():
+            continue
+        frames = stack.split(";")
+        if any(frames[-1].startswith(p) or p in frames[-1] for p in IDLE_LEAVES):
+            continue
+        n = int(n)
+        busy += n
+        role = next((name for name, marker in ROLES if any(marker in f for f in frames)), "other")
+        roles[role] += n
+        if role != ROLES[0][0]:
+            for f in set(frames[1:]):
+                if "app/" in f or "sqlalchemy/engine/default.py" in f or "solver/" in f or "pydantic" in f \
+                        or "json/" in f or "expm" in f:
+                    funcs[f.split(" (")[0] + " (" + f.split(" (")[-1]] += n
+    if not busy:
+        return ["(no busy samples)"]
+    out = [f"busy samples: {busy} (idle waits excluded)"]
+    out += [f"  {n / busy * 100:5.1f}%  {r}" for r, n in roles.most_common()]
+    out.append("service process, inclusive share of all busy samples:")
+    out += [f"  {n / busy * 100:5.1f}%  {f}" for f, n in funcs.most_common(top)]
+    return out
+
+
 # -- one database ---------------------------------------------------------------------
+profiles: list[tuple[str, list[str]]] = []
+
+
 def measure(db_label: str, db_url: str, a) -> dict[str, str]:
     body = _paper_lmi()
     tmp = Path(tempfile.mkdtemp(prefix="ncs-service-bench-"))
@@ -363,9 +437,16 @@ def measure(db_label: str, db_url: str, a) -> dict[str, str]:
         rows["latency, 1 client: p50 / p95 (server side)"] = f"{pct(srv, 50) * 1e3:.1f} / {pct(srv, 95) * 1e3:.1f} ms"
 
         mem.start_sampling()
+        spy = None
+        if a.profile:
+            prof_path = Path(a.profile).with_suffix(f".{db_label.lower()}.txt")
+            spy = start_profile(server.proc.pid, a.profile_seconds, prof_path)
         cpu0, wall0 = mem.cpu(), time.perf_counter()
         out, wall = closed_loop(server.base, body, a.clients, a.jobs, a.time_limit, a.poll)
         cpu1, wall1 = mem.cpu(), time.perf_counter()
+        if spy is not None:
+            spy.wait()
+            profiles.append((db_label, summarize_profile(prof_path)))
         ok = [x for x, it in out if it["status"] == "succeeded"]
         rows[f"sustained, {a.clients} clients closed loop: designs/s"] = (
             f"{len(ok) / wall:.1f} ({len(ok)} jobs in {wall:.1f} s)")
@@ -403,6 +484,10 @@ def main(argv=None) -> int:
     p.add_argument("--time-limit", type=float, default=120.0, help="cap of each loaded run, seconds")
     p.add_argument("--poll", type=float, default=0.005, help="watcher poll interval, seconds")
     p.add_argument("--quick", action="store_true", help="fewer jobs (about 30 s per database)")
+    p.add_argument("--profile", metavar="FILE", default=None,
+                   help="record the service and its workers with py-spy during the sustained run (raw stacks to "
+                        "FILE.<db>.txt) and print where the busy time goes")
+    p.add_argument("--profile-seconds", type=float, default=8.0)
     a = p.parse_args(argv)
     if a.quick:
         a.jobs, a.latency_jobs, a.open_seconds = 200, 20, 4.0
@@ -445,6 +530,10 @@ def main(argv=None) -> int:
     for k in keys:
         print("| " + k.ljust(width) + " | " + " | ".join(r.get(k, "").ljust(c) for (_, r), c in zip(results, cols)) + " |")
     print(f"\n(targets: >= 50 designs/s sustained, p50 < 50 ms; total {time.perf_counter() - t0:.0f} s)")
+    for label, lines in profiles:
+        print(f"\nProfile ({label}, py-spy, {a.profile_seconds:g} s of the sustained run):")
+        for line in lines:
+            print(line)
     return 0
 
 
