@@ -1,5 +1,9 @@
 """``python -m bench``: print the solver benchmark tables.
 
+``python -m bench service [options]`` runs the service benchmark instead
+(``bench/service_bench.py``: the real server over HTTP, SQLite and PostgreSQL;
+``python -m bench service --help``).
+
 Options::
 
     --quick            paper example only, few repeats (well under a minute)
@@ -45,6 +49,11 @@ def _header() -> str:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "service":
+        from . import service_bench
+
+        return service_bench.main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m bench", description="Solver benchmark tables.")
     p.add_argument("--quick", action="store_true")
     p.add_argument("--repeats", type=int, default=20)
