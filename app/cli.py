@@ -6,6 +6,21 @@ import argparse
 import sys
 
 
+LOOPBACK = ("127.0.0.1", "::1", "localhost")
+
+
+def access_notice(api_keys: list[str], host: str) -> str:
+    """The line ``serve`` prints at start: who can reach the service (never the keys themselves)."""
+    if api_keys:
+        return (f"ncs-design: API keys configured ({len(api_keys)}): /v1 requires X-API-Key or "
+                f"Authorization: Bearer; binding to {host}")
+    if host in LOOPBACK or host.startswith("127."):
+        return (f"ncs-design: no API keys configured (NCS_API_KEYS): authentication is off, so the service "
+                f"binds to loopback only ({host}); set NCS_API_KEYS before binding to another address")
+    return (f"ncs-design: WARNING: no API keys configured (NCS_API_KEYS) and binding to {host}: anyone who "
+            f"can reach this address can submit jobs and read every job")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="ncs-design", description="Networked predictive controller design service")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -35,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
 
     host = args.host or settings.host
     port = args.port if args.port is not None else settings.port
+    print(access_notice(settings.api_keys, host), file=sys.stderr, flush=True)
     uvicorn.run(create_app(settings), host=host, port=port, log_level=args.log_level,
                 timeout_graceful_shutdown=10)
     return 0

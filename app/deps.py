@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 from collections.abc import Iterator
 
 from fastapi import Depends, Request
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from app.db import Database
 from app.problems import ProblemException
 from app.settings import Settings
+
+_api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
+                               description="One of the keys in NCS_API_KEYS (when keys are configured)")
+_bearer = HTTPBearer(auto_error=False, description="`Authorization: Bearer <key>`, same keys as X-API-Key")
+
+
+# Documented on every /v1 operation (problem+json; the 401 is only answered when keys are configured).
+AUTH_RESPONSES = {401: {"description": "Missing or unknown API key (only when NCS_API_KEYS is set)",
+                        "content": {"application/problem+json": {}}}}
 
 
 def get_settings(request: Request) -> Settings:
@@ -31,14 +42,37 @@ def get_session(db: Database = Depends(get_database)) -> Iterator[Session]:
         session.close()
 
 
-def require_api_key(request: Request, settings: Settings = Depends(get_settings)) -> None:
+def key_digest(key: str) -> bytes:
+    return hashlib.sha256(b"ncs-design api key\0" + key.encode("utf-8", "surrogatepass")).digest()
+
+
+def owner_of(key: str) -> str:
+    """What the jobs table stores as a job's owner: a hash of the key, never the key."""
+    return key_digest(key).hex()
+
+
+def match_key(given: str, keys: list[str]) -> bool:
+    """Constant-time membership: every configured key is compared (hmac.compare_digest of equal-length
+    digests), so neither the timing nor an early exit tells how much of a key matched or which one."""
+    given_digest = key_digest(given)
+    found = False
+    for k in keys:
+        found |= hmac.compare_digest(given_digest, key_digest(k))
+    return found
+
+
+def require_api_key(
+    request: Request,
+    settings: Settings = Depends(get_settings),
+    x_api_key: str | None = Depends(_api_key_header),
+    bearer: HTTPAuthorizationCredentials | None = Depends(_bearer),
+) -> str | None:
+    """The caller's owner id (hash of its key), or None when no keys are configured (open service)."""
     keys = settings.api_keys
     if not keys:
-        return
-    given = request.headers.get("x-api-key")
-    auth = request.headers.get("authorization", "")
-    if given is None and auth.lower().startswith("bearer "):
-        given = auth[7:].strip()
-    if given is None or not any(hmac.compare_digest(given.encode(), k.encode()) for k in keys):
+        return None
+    given = x_api_key if x_api_key is not None else (bearer.credentials if bearer is not None else None)
+    if given is None or not match_key(given, keys):
         raise ProblemException(401, "a valid API key is required: send X-API-Key or Authorization: Bearer",
                                title="Unauthorized", headers={"WWW-Authenticate": "Bearer"})
+    return owner_of(given)

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 
 from app import tasks, validation
 from app.db import Database
-from app.deps import get_database, get_session, get_settings, require_api_key
+from app.deps import AUTH_RESPONSES, get_database, get_session, get_settings, require_api_key
 from app.examples import DESIGN_EXAMPLES
 from app.models import CANCELLED, QUEUED, RUNNING, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
 from app.problems import ProblemException, field_error, invalid
@@ -27,7 +27,8 @@ from app.syncpool import unwrap
 from app.settings import Settings
 from app.views import full, summary
 
-router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)])
+router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)],
+                   responses=AUTH_RESPONSES)
 
 ERRORS = {
     404: {"description": "Unknown job id", "content": {"application/problem+json": {}}},
@@ -43,9 +44,15 @@ def _not_found(job_id: str, kind: str = "design") -> ProblemException:
     return ProblemException(404, f"no {kind} job with id {job_id!r}", title="Not Found")
 
 
-def _load(session: Session, job_id: str, kind: str = "design") -> JobRow:
+def visible(row: JobRow | None, kind: str, owner: str | None) -> bool:
+    """A job of this kind, visible only to the key that created it (when keys are configured). Others get
+    the same 404 as for an id that does not exist, so ids do not leak."""
+    return row is not None and row.kind == kind and (owner is None or row.owner == owner)
+
+
+def _load(session: Session, job_id: str, kind: str = "design", owner: str | None = None) -> JobRow:
     row = session.get(JobRow, job_id) if len(job_id) <= 36 else None
-    if row is None or row.kind != kind:
+    if not visible(row, kind, owner):
         raise _not_found(job_id, kind)
     return row
 
@@ -54,6 +61,13 @@ def _load(session: Session, job_id: str, kind: str = "design") -> JobRow:
 def _build_family_ok(plant_json: str) -> bool:
     tasks.build_family(json.loads(plant_json))
     return True
+
+
+def scoped_idempotency_key(key: str | None, owner: str | None) -> str | None:
+    """Idempotency keys are per API key: two callers using the same key get two jobs (stored hashed)."""
+    if key is None or owner is None:
+        return key
+    return "o:" + hashlib.sha256(f"{owner}:{key}".encode("utf-8", "surrogatepass")).hexdigest()
 
 
 def validate_family(plant_dict: dict) -> None:
@@ -87,15 +101,16 @@ def submit_design(
     settings: Settings = Depends(get_settings),
     session: Session = Depends(get_session),
     db: Database = Depends(get_database),
+    owner: str | None = Depends(require_api_key),
 ) -> Job:
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validate_family(req["plant"])
-    return submit_job("design", req, req["n_drop"], idempotency_key, request, response, session, db)
+    return submit_job("design", req, req["n_drop"], idempotency_key, request, response, session, db, owner)
 
 
 def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, request: Request,
-               response: Response, session: Session, db: Database) -> Job:
+               response: Response, session: Session, db: Database, owner: str | None = None) -> Job:
     """Insert a validated job (or replay an idempotent one) and wake the dispatcher."""
     digest = hashlib.sha256(canonical_json(req).encode()).hexdigest()
     location = f"/v1/{kind}s/"
@@ -111,20 +126,21 @@ def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, r
 
     def lookup() -> JobRow | None:
         session.rollback()  # a fresh snapshot
-        found = session.execute(select(JobRow).where(JobRow.idempotency_key == idempotency_key)).scalar_one_or_none()
+        found = session.execute(select(JobRow).where(JobRow.idempotency_key == stored_key)).scalar_one_or_none()
         if found is not None:
             session.expunge(found)
         session.rollback()  # never keep a transaction open past this point
         return found
 
+    stored_key = scoped_idempotency_key(idempotency_key, owner)
     if idempotency_key is not None:
         existing = lookup()
         if existing is not None:
             return replay(existing)
     now = utcnow()
     row = JobRow(id=new_id(), kind=kind, status=QUEUED, method=req["method"], n_drop=n_drop,
-                 request=req, request_hash=digest, idempotency_key=idempotency_key, attempts=0,
-                 cancel_requested=False, created_at=now, updated_at=now)
+                 request=req, request_hash=digest, idempotency_key=stored_key, attempts=0,
+                 cancel_requested=False, created_at=now, updated_at=now, owner=owner)
     try:
         with db.write() as ws:  # one short INSERT transaction
             ws.add(row)
@@ -148,14 +164,19 @@ def list_designs(
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     offset: Annotated[int, Query(ge=0)] = 0,
     session: Session = Depends(get_session),
+    owner: str | None = Depends(require_api_key),
 ) -> JobList:
-    return list_jobs("design", status, limit, offset, session)
+    return list_jobs("design", status, limit, offset, session, owner)
 
 
-def list_jobs(kind: str, status: str | None, limit: int, offset: int, session: Session) -> JobList:
-    """One page of the jobs of a kind, newest first (shared by /v1/designs and /v1/margins)."""
+def list_jobs(kind: str, status: str | None, limit: int, offset: int, session: Session,
+              owner: str | None = None) -> JobList:
+    """One page of the caller's jobs of a kind, newest first (shared by /v1/designs and /v1/margins)."""
     q = select(JobRow).where(JobRow.kind == kind)
     count = select(func.count()).select_from(JobRow).where(JobRow.kind == kind)
+    if owner is not None:
+        q = q.where(JobRow.owner == owner)
+        count = count.where(JobRow.owner == owner)
     if status is not None:
         q = q.where(JobRow.status == status)
         count = count.where(JobRow.status == status)
@@ -169,8 +190,9 @@ def list_jobs(kind: str, status: str | None, limit: int, offset: int, session: S
 
 
 @router.get("/{job_id}", response_model=Job, summary="A design job with its result", responses={404: ERRORS[404]})
-def get_design(job_id: str, session: Session = Depends(get_session)) -> Job:
-    return full(_load(session, job_id))
+def get_design(job_id: str, session: Session = Depends(get_session),
+               owner: str | None = Depends(require_api_key)) -> Job:
+    return full(_load(session, job_id, owner=owner))
 
 
 @router.post(
@@ -183,18 +205,19 @@ def get_design(job_id: str, session: Session = Depends(get_session)) -> Job:
                409: {"description": "The job already finished", "content": {"application/problem+json": {}}}},
 )
 def cancel_design(job_id: str, request: Request, response: Response,
-                  db: Database = Depends(get_database)) -> Job:
-    return cancel_job("design", job_id, request, response, db)
+                  db: Database = Depends(get_database), owner: str | None = Depends(require_api_key)) -> Job:
+    return cancel_job("design", job_id, request, response, db, owner)
 
 
-def cancel_job(kind: str, job_id: str, request: Request, response: Response, db: Database) -> Job:
+def cancel_job(kind: str, job_id: str, request: Request, response: Response, db: Database,
+               owner: str | None = None) -> Job:
     """Cancel a job of a kind (shared by /v1/designs and /v1/margins)."""
     if len(job_id) > 36:
         raise _not_found(job_id, kind)
     notify = False
     with db.write() as ws:  # one short transaction, guarded by the current status
         row = ws.get(JobRow, job_id)
-        if row is None or row.kind != kind:
+        if not visible(row, kind, owner):
             raise _not_found(job_id, kind)
         now = utcnow()
         if row.status == QUEUED:
@@ -223,16 +246,17 @@ def cancel_job(kind: str, job_id: str, request: Request, response: Response, db:
                 "job once it is finished; then the stream closes.",
     responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
 )
-async def design_events(job_id: str, request: Request, db=Depends(get_database)):
-    return await job_events("design", job_id, request, db)
+async def design_events(job_id: str, request: Request, db=Depends(get_database),
+                        owner: str | None = Depends(require_api_key)):
+    return await job_events("design", job_id, request, db, owner)
 
 
-async def job_events(kind: str, job_id: str, request: Request, db: Database):
+async def job_events(kind: str, job_id: str, request: Request, db: Database, owner: str | None = None):
     """The SSE stream of a job of a kind (shared by /v1/designs and /v1/margins)."""
     def load():
         with db.read() as s:
             row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
-            return None if row is None or row.kind != kind else full(row)
+            return full(row) if visible(row, kind, owner) else None
 
     first = await run_in_threadpool(load)
     if first is None:
@@ -312,12 +336,12 @@ class TraceQuery:
         self.plant_switching, self.mode = plant_switching, mode
 
 
-async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Settings):
+async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Settings, owner: str | None):
     """The succeeded design's request, result and the validated simulation parameters."""
     def load():
         with db.read() as s:
             row = s.get(JobRow, job_id) if len(job_id) <= 36 else None
-            return None if row is None or row.kind != "design" else (row.status, row.request, row.result)
+            return (row.status, row.request, row.result) if visible(row, "design", owner) else None
 
     got = await run_in_threadpool(load)
     if got is None:
@@ -370,8 +394,9 @@ async def design_trace(
     q: TraceQuery = Depends(),
     db=Depends(get_database),
     settings: Settings = Depends(get_settings),
+    owner: str | None = Depends(require_api_key),
 ):
-    req, result, params = await _trace_inputs(job_id, q, db, settings)
+    req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params))
     body = cache.get(key)
@@ -401,8 +426,9 @@ async def design_trace_image(
     height: Annotated[int, Query(ge=150, le=3000, description="Height in pixels")] = 600,
     db=Depends(get_database),
     settings: Settings = Depends(get_settings),
+    owner: str | None = Depends(require_api_key),
 ):
-    req, result, params = await _trace_inputs(job_id, q, db, settings)
+    req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
     size = {"width": width / 100, "height": height / 100, "dpi": 100}
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params), fmt, width, height)

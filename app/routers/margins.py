@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 
 from app import validation
 from app.db import Database
-from app.deps import get_database, get_session, get_settings, require_api_key
+from app.deps import AUTH_RESPONSES, get_database, get_session, get_settings, require_api_key
 from app.examples import MARGIN_EXAMPLES
 from app.models import SUCCEEDED
 from app.problems import ProblemException
@@ -24,7 +24,8 @@ from app.settings import Settings
 from app.syncpool import unwrap
 from app.views import full
 
-router = APIRouter(prefix="/v1/margins", tags=["margins"], dependencies=[Depends(require_api_key)])
+router = APIRouter(prefix="/v1/margins", tags=["margins"], dependencies=[Depends(require_api_key)],
+                   responses=AUTH_RESPONSES)
 KIND = "margin"
 
 
@@ -47,11 +48,12 @@ def submit_margin(
     settings: Settings = Depends(get_settings),
     session: Session = Depends(get_session),
     db: Database = Depends(get_database),
+    owner: str | None = Depends(require_api_key),
 ) -> Job:
     largest = validation.check_margin(body, settings)
     req = body.model_dump(mode="json")
     validate_family(req["plant"])
-    return submit_job(KIND, req, largest, idempotency_key, request, response, session, db)
+    return submit_job(KIND, req, largest, idempotency_key, request, response, session, db, owner)
 
 
 @router.get("", response_model=JobList, summary="List margin jobs, newest first")
@@ -61,13 +63,15 @@ def list_margins(
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     offset: Annotated[int, Query(ge=0)] = 0,
     session: Session = Depends(get_session),
+    owner: str | None = Depends(require_api_key),
 ) -> JobList:
-    return list_jobs(KIND, status, limit, offset, session)
+    return list_jobs(KIND, status, limit, offset, session, owner)
 
 
 @router.get("/{job_id}", response_model=Job, summary="A margin job with its result", responses={404: ERRORS[404]})
-def get_margin(job_id: str, session: Session = Depends(get_session)) -> Job:
-    return full(_load(session, job_id, KIND))
+def get_margin(job_id: str, session: Session = Depends(get_session),
+               owner: str | None = Depends(require_api_key)) -> Job:
+    return full(_load(session, job_id, KIND, owner))
 
 
 @router.post(
@@ -77,16 +81,18 @@ def get_margin(job_id: str, session: Session = Depends(get_session)) -> Job:
     responses={200: {"description": "Cancelled"}, 404: ERRORS[404],
                409: {"description": "The job already finished", "content": {"application/problem+json": {}}}},
 )
-def cancel_margin(job_id: str, request: Request, response: Response, db: Database = Depends(get_database)) -> Job:
-    return cancel_job(KIND, job_id, request, response, db)
+def cancel_margin(job_id: str, request: Request, response: Response, db: Database = Depends(get_database),
+                  owner: str | None = Depends(require_api_key)) -> Job:
+    return cancel_job(KIND, job_id, request, response, db, owner)
 
 
 @router.get(
     "/{job_id}/events", summary="Server-Sent Events: progress and the final state",
     responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
 )
-async def margin_events(job_id: str, request: Request, db=Depends(get_database)):
-    return await job_events(KIND, job_id, request, db)
+async def margin_events(job_id: str, request: Request, db=Depends(get_database),
+                        owner: str | None = Depends(require_api_key)):
+    return await job_events(KIND, job_id, request, db, owner)
 
 
 @router.get(
@@ -102,8 +108,9 @@ async def margin_curve(
     width: Annotated[int, Query(ge=200, le=4000, description="Width in pixels")] = 800,
     height: Annotated[int, Query(ge=150, le=3000, description="Height in pixels")] = 450,
     session: Session = Depends(get_session),
+    owner: str | None = Depends(require_api_key),
 ):
-    row = _load(session, job_id, KIND)
+    row = _load(session, job_id, KIND, owner)
     status, result = row.status, row.result
     session.rollback()  # release the read snapshot before the slow part
     if status != SUCCEEDED or not result:
