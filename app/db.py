@@ -15,6 +15,7 @@ from pathlib import Path
 
 from sqlalchemy import create_engine, event, text
 from sqlalchemy.engine import Engine
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
@@ -86,9 +87,33 @@ class Database:
 
     @contextmanager
     def read(self) -> Iterator[Session]:
-        with self._read() as session:
+        session = self._read()
+        try:
             yield session
+        finally:
+            self.end_read(session)
+
+    @staticmethod
+    def end_read(session: Session) -> None:
+        """End a read-only session. Its answer is already computed, so a connection that died meanwhile
+        (e.g. the PostgreSQL backend was terminated) must not turn it into an error: the broken connection
+        is discarded and the pool opens a new one."""
+        try:
             session.rollback()
+        except DBAPIError:
+            session.invalidate()
+        finally:
+            session.close()
+
+    def retry_on_disconnect(self, fn, attempts: int = 2):
+        """Run ``fn()`` again (once) when its connection turned out to be dead: a database restart or a
+        terminated backend costs a retry, not an error. Other errors propagate at once."""
+        for i in range(attempts):
+            try:
+                return fn()
+            except DBAPIError as exc:
+                if not exc.connection_invalidated or i == attempts - 1:
+                    raise
 
     def ping(self) -> None:
         with self.engine.connect() as conn:

@@ -20,8 +20,13 @@ _bearer = HTTPBearer(auto_error=False, description="`Authorization: Bearer <key>
 
 
 # Documented on every /v1 operation (problem+json; the 401 is only answered when keys are configured).
-AUTH_RESPONSES = {401: {"description": "Missing or unknown API key (only when NCS_API_KEYS is set)",
-                        "content": {"application/problem+json": {}}}}
+V1_RESPONSES = {
+    401: {"description": "Missing or unknown API key (only when NCS_API_KEYS is set)",
+          "content": {"application/problem+json": {}}},
+    503: {"description": "Database unavailable (full, read-only or unreachable): nothing was changed; retry after "
+                         "`Retry-After` seconds", "content": {"application/problem+json": {}},
+          "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}},
+}
 
 
 def get_settings(request: Request) -> Settings:
@@ -38,8 +43,7 @@ def get_session(db: Database = Depends(get_database)) -> Iterator[Session]:
     try:
         yield session
     finally:
-        session.rollback()
-        session.close()
+        db.end_read(session)
 
 
 def key_digest(key: str) -> bytes:

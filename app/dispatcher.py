@@ -29,9 +29,12 @@ import uuid
 from multiprocessing.connection import wait as mp_wait
 from typing import Any
 
+from sqlalchemy.exc import DBAPIError
+
 from app import jobs
 from app.db import Database
 from app.models import CANCELLED, FAILED, SUCCEEDED
+from app.problems import database_reason
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
@@ -54,6 +57,9 @@ class _Slot:
         self.progress_dirty = False
         self.spawn_after = 0.0  # monotonic time before which no replacement is started
         self.backoff = 0.0      # grows while workers die before they become ready
+        # A finished job whose final write failed (database full, read-only or unreachable): kept here and
+        # written again every tick until it succeeds, so the result is never lost and never half-written.
+        self.pending: tuple[str, str, dict[str, Any]] | None = None
 
     def clear_job(self) -> None:
         self.job_id = None
@@ -168,7 +174,12 @@ class Dispatcher:
                 try:
                     self._tick()
                     self.tick_error = None
-                except Exception as exc:  # database hiccup: log, back off, go on
+                except DBAPIError as exc:  # database full, read-only or unreachable: back off, go on
+                    self.tick_error = f"database unavailable: {database_reason(exc)}"
+                    log.warning("dispatcher: %s (%s); retrying in 1 s", self.tick_error, type(exc).__name__)
+                    self._stop.wait(1.0)
+                    continue
+                except Exception as exc:  # anything else: log it whole, back off, go on
                     self.tick_error = f"{type(exc).__name__}: {exc}"
                     log.exception("dispatcher tick failed")
                     self._stop.wait(1.0)
@@ -195,16 +206,32 @@ class Dispatcher:
             except (BlockingIOError, OSError):
                 pass
 
+    def _finish(self, slot: _Slot, job_id: str, status: str, **values: Any) -> None:
+        """Record a job's end; if the write fails, keep it pending on the slot and retry next tick."""
+        slot.clear_job()
+        slot.pending = (job_id, status, values)
+        self._flush_pending(slot)
+
+    def _flush_pending(self, slot: _Slot) -> None:
+        if slot.pending is None:
+            return
+        job_id, status, values = slot.pending
+        jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
+        slot.pending = None
+
     def _tick(self) -> None:
         st = self.settings
         now = time.monotonic()
+        for slot in self.slots:
+            self._flush_pending(slot)
         for slot in self.slots:
             self._drain(slot)
         for slot in self.slots:
             self._check(slot, now)
         self._flush_progress(now)
         if now - self._last_heartbeat >= st.lease_seconds / 3:
-            jobs.heartbeat(self.db, self.owner, [s.job_id for s in self.slots if s.job_id], st.lease_seconds)
+            held = [s.job_id or s.pending[0] for s in self.slots if s.job_id or s.pending]
+            jobs.heartbeat(self.db, self.owner, held, st.lease_seconds)
             self._last_heartbeat = now
         if now - self._last_recover >= min(2.0, st.lease_seconds / 2):
             if jobs.recover_expired(self.db, st.max_attempts):
@@ -236,15 +263,11 @@ class Dispatcher:
         if kind == "progress":
             slot.progress, slot.progress_dirty = msg[2], True
         elif kind == "done":
-            jobs.finish(self.db, job_id, self.owner, SUCCEEDED, result=msg[2], progress=slot.progress)
-            slot.clear_job()
+            self._finish(slot, job_id, SUCCEEDED, result=msg[2], progress=slot.progress)
         elif kind == "cancelled":
-            jobs.finish(self.db, job_id, self.owner, CANCELLED, error="cancelled by request",
-                        progress=slot.progress)
-            slot.clear_job()
+            self._finish(slot, job_id, CANCELLED, error="cancelled by request", progress=slot.progress)
         elif kind == "error":
-            jobs.finish(self.db, job_id, self.owner, FAILED, error=msg[2], progress=slot.progress)
-            slot.clear_job()
+            self._finish(slot, job_id, FAILED, error=msg[2], progress=slot.progress)
 
     def _check(self, slot: _Slot, now: float) -> None:
         st = self.settings
@@ -268,18 +291,15 @@ class Dispatcher:
             return
         if now - slot.started > st.job_time_limit:
             job_id = slot.job_id
-            slot.clear_job()
             self._respawn(slot)
-            jobs.finish(self.db, job_id, self.owner, FAILED,
-                        error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
-                              f"(NCS_JOB_TIME_LIMIT) and was stopped")
+            self._finish(slot, job_id, FAILED,
+                         error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
+                               f"(NCS_JOB_TIME_LIMIT) and was stopped")
             return
         if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
             job_id = slot.job_id
-            slot.clear_job()
             self._respawn(slot)
-            jobs.finish(self.db, job_id, self.owner, CANCELLED,
-                        error="cancelled by request (worker stopped)")
+            self._finish(slot, job_id, CANCELLED, error="cancelled by request (worker stopped)")
 
     def _check_cancels(self, now: float) -> None:
         running = [s.job_id for s in self.slots if s.job_id and s.cancel_sent is None]
@@ -298,7 +318,8 @@ class Dispatcher:
     # differ only in these methods and in _drain/_check/_sleep/_shutdown; claiming,
     # leases, progress, cancel requests and the job-table updates are shared.
     def _idle_slots(self) -> list[_Slot]:
-        return [s for s in self.slots if s.job_id is None and s.ready and s.proc is not None and s.proc.is_alive()]
+        return [s for s in self.slots if s.job_id is None and s.pending is None and s.ready
+                and s.proc is not None and s.proc.is_alive()]
 
     def _pid_for(self, slot: _Slot) -> int | None:
         """The worker pid recorded with the claim (None when the executor does not know it yet)."""
@@ -337,6 +358,10 @@ class Dispatcher:
 
     def _shutdown(self) -> None:
         for slot in self.slots:
+            try:
+                self._flush_pending(slot)
+            except Exception:  # pragma: no cover - the lease expires and the job runs again
+                log.exception("could not record the end of job %s", slot.pending and slot.pending[0])
             job_id = slot.job_id
             if job_id is not None:
                 self._kill(slot)

@@ -93,6 +93,31 @@ def _clean_validation_errors(errors: Sequence[dict[str, Any]]) -> list[dict[str,
     return out
 
 
+def database_reason(exc: BaseException) -> str:
+    """A short, safe reason for a database failure (no SQL, no parameters, no credentials)."""
+    text = str(getattr(exc, "orig", None) or exc).splitlines()[0] if str(exc) else type(exc).__name__
+    low = text.lower()
+    if "full" in low or "no space" in low or "quota" in low:
+        return "the database is full (no space left for writes)"
+    if "readonly" in low or "read-only" in low or "read only" in low or "permission" in low:
+        return "the database is read-only"
+    if "locked" in low or "timeout" in low or "timed out" in low:
+        return "the database is busy"
+    return "the database connection failed"
+
+
+def database_unavailable(request: Request | None, exc: BaseException) -> JSONResponse:
+    """503 for a database outage: the request changed nothing (its transaction was rolled back)."""
+    reason = database_reason(exc)
+    log.warning("database unavailable on %s %s: %s (%s)", request.method if request else "-",
+                request.url.path if request else "-", reason, type(exc).__name__)
+    settings = getattr(getattr(request, "app", None), "state", None)
+    retry = getattr(getattr(settings, "settings", None), "retry_after", 5)
+    return problem_response(request, 503, "Database unavailable",
+                            f"{reason}; nothing was changed, retry after {retry} s",
+                            TYPE_BASE + "database-unavailable", headers={"Retry-After": str(retry)})
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ProblemException)
     async def _problem(request: Request, exc: ProblemException):
@@ -119,6 +144,18 @@ def install(app: FastAPI) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else title
         return problem_response(request, exc.status_code, title, detail,
                                 headers=getattr(exc, "headers", None))
+
+    from sqlalchemy.exc import DBAPIError, IntegrityError, TimeoutError as PoolTimeout
+
+    @app.exception_handler(DBAPIError)
+    async def _database(request: Request, exc: DBAPIError):
+        if isinstance(exc, IntegrityError):  # a bug, not an outage
+            return await _unhandled(request, exc)
+        return database_unavailable(request, exc)
+
+    @app.exception_handler(PoolTimeout)
+    async def _pool_timeout(request: Request, exc: PoolTimeout):
+        return database_unavailable(request, exc)
 
     @app.exception_handler(Exception)
     async def _unhandled(request: Request, exc: Exception):

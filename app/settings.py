@@ -85,6 +85,18 @@ class Settings(BaseSettings):
         200_000, ge=1,
         description="Budget of mode products per length that an analysis may enumerate.",
     )
+    max_queue_depth: int = Field(
+        10_000, ge=1, description="Back-pressure: a design submitted while this many jobs are queued is "
+        "refused with 429 and `Retry-After` instead of growing the queue without bound.",
+    )
+    retry_after: int = Field(
+        5, ge=1, description="Seconds sent in `Retry-After` with a 429 (queue full) or a 503 (database "
+        "unavailable).",
+    )
+    worker_memory_mb: int = Field(
+        4096, ge=0, description="Address-space cap (MB, `RLIMIT_AS`) of every worker process (design "
+        "and synchronous); a job over it ends `failed` with a clear reason. 0: no cap.",
+    )
     alembic_dir: Path | None = Field(
         None, description="Directory of the Alembic migration environment (found automatically).",
     )

@@ -14,21 +14,25 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, make_transient
 
 from app import tasks, validation
 from app.db import Database
-from app.deps import AUTH_RESPONSES, get_database, get_session, get_settings, require_api_key
+from app.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key
 from app.examples import DESIGN_EXAMPLES
 from app.models import CANCELLED, QUEUED, RUNNING, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
-from app.problems import ProblemException, field_error, invalid
+from app.problems import TYPE_BASE, ProblemException, field_error, invalid
 from app.schemas import DesignRequest, Job, JobList
 from app.syncpool import unwrap
 from app.settings import Settings
 from app.views import full, summary
 
 router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)],
-                   responses=AUTH_RESPONSES)
+                   responses=V1_RESPONSES)
+
+QUEUE_FULL = {"description": "The queue is full (NCS_MAX_QUEUE_DEPTH); retry after `Retry-After` seconds",
+              "content": {"application/problem+json": {}},
+              "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}}
 
 ERRORS = {
     404: {"description": "Unknown job id", "content": {"application/problem+json": {}}},
@@ -50,8 +54,25 @@ def visible(row: JobRow | None, kind: str, owner: str | None) -> bool:
     return row is not None and row.kind == kind and (owner is None or row.owner == owner)
 
 
+def _read_retrying(session: Session, fn):
+    """A read, once more on a fresh connection if the first one was dead (terminated backend, restart)."""
+    from sqlalchemy.exc import DBAPIError
+
+    try:
+        return fn()
+    except DBAPIError as exc:
+        if not exc.connection_invalidated:
+            raise
+        session.rollback()
+        return fn()
+
+
+def _get_retrying(session: Session, job_id: str) -> JobRow | None:
+    return _read_retrying(session, lambda: session.get(JobRow, job_id))
+
+
 def _load(session: Session, job_id: str, kind: str = "design", owner: str | None = None) -> JobRow:
-    row = session.get(JobRow, job_id) if len(job_id) <= 36 else None
+    row = _get_retrying(session, job_id) if len(job_id) <= 36 else None
     if not visible(row, kind, owner):
         raise _not_found(job_id, kind)
     return row
@@ -91,7 +112,7 @@ def validate_family(plant_dict: dict) -> None:
     summary="Submit a design job",
     responses={202: {"description": "Accepted; poll the Location or stream /events"},
                413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
-               422: ERRORS[422]},
+               422: ERRORS[422], 429: QUEUE_FULL},
 )
 def submit_design(
     request: Request,
@@ -106,11 +127,13 @@ def submit_design(
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validate_family(req["plant"])
-    return submit_job("design", req, req["n_drop"], idempotency_key, request, response, session, db, owner)
+    return submit_job("design", req, req["n_drop"], idempotency_key, request, response, session, db, owner,
+                      settings)
 
 
 def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, request: Request,
-               response: Response, session: Session, db: Database, owner: str | None = None) -> Job:
+               response: Response, session: Session, db: Database, owner: str | None = None,
+               settings: Settings | None = None) -> Job:
     """Insert a validated job (or replay an idempotent one) and wake the dispatcher."""
     digest = hashlib.sha256(canonical_json(req).encode()).hexdigest()
     location = f"/v1/{kind}s/"
@@ -137,18 +160,41 @@ def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, r
         existing = lookup()
         if existing is not None:
             return replay(existing)
+    if settings is not None:  # back-pressure: refuse new work while the queue is over its depth
+        queued = _read_retrying(session, lambda: session.execute(
+            select(func.count()).select_from(JobRow).where(JobRow.status == QUEUED)).scalar_one())
+        session.rollback()
+        if queued >= settings.max_queue_depth:
+            raise ProblemException(
+                429, f"the queue holds {queued} jobs, the limit is {settings.max_queue_depth} "
+                     f"(NCS_MAX_QUEUE_DEPTH); retry after {settings.retry_after} s", title="Too Many Requests",
+                type_=TYPE_BASE + "queue-full", headers={"Retry-After": str(settings.retry_after)})
     now = utcnow()
     row = JobRow(id=new_id(), kind=kind, status=QUEUED, method=req["method"], n_drop=n_drop,
                  request=req, request_hash=digest, idempotency_key=stored_key, attempts=0,
                  cancel_requested=False, created_at=now, updated_at=now, owner=owner)
-    try:
+    def insert():
+        make_transient(row)  # a retry after a lost connection inserts the row again
         with db.write() as ws:  # one short INSERT transaction
             ws.add(row)
-    except IntegrityError:  # a concurrent request with the same key won the race
+            ws.flush()
+            ws.expunge(row)
+
+    try:
+        db.retry_on_disconnect(insert)
+    except IntegrityError:
+        if _get_retrying(session, row.id) is not None:  # the lost connection had committed it after all
+            session.rollback()
+            return _accepted(request, response, row, location)
+        # a concurrent request with the same key won the race
         existing = lookup() if idempotency_key is not None else None
         if existing is None:
             raise
         return replay(existing)
+    return _accepted(request, response, row, location)
+
+
+def _accepted(request: Request, response: Response, row: JobRow, location: str) -> Job:
     dispatcher = getattr(request.app.state, "dispatcher", None)
     if dispatcher is not None:
         dispatcher.notify()

@@ -13,11 +13,11 @@ from sqlalchemy.orm import Session
 
 from app import validation
 from app.db import Database
-from app.deps import AUTH_RESPONSES, get_database, get_session, get_settings, require_api_key
+from app.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key
 from app.examples import MARGIN_EXAMPLES
 from app.models import SUCCEEDED
 from app.problems import ProblemException
-from app.routers.designs import (ERRORS, MEDIA_TYPES, _load, cancel_job, etag_response, job_events, list_jobs,
+from app.routers.designs import (ERRORS, MEDIA_TYPES, QUEUE_FULL, _load, cancel_job, etag_response, job_events, list_jobs,
                                  submit_job, validate_family)
 from app.schemas import Job, JobList, MarginRequest
 from app.settings import Settings
@@ -25,7 +25,7 @@ from app.syncpool import unwrap
 from app.views import full
 
 router = APIRouter(prefix="/v1/margins", tags=["margins"], dependencies=[Depends(require_api_key)],
-                   responses=AUTH_RESPONSES)
+                   responses=V1_RESPONSES)
 KIND = "margin"
 
 
@@ -38,7 +38,7 @@ KIND = "margin"
                 "in order, with its outcome, max spectral radius and gains). Cancel it like a design job.",
     responses={202: {"description": "Accepted; poll the Location or stream /events"},
                413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
-               422: ERRORS[422]},
+               422: ERRORS[422], 429: QUEUE_FULL},
 )
 def submit_margin(
     request: Request,
@@ -53,7 +53,7 @@ def submit_margin(
     largest = validation.check_margin(body, settings)
     req = body.model_dump(mode="json")
     validate_family(req["plant"])
-    return submit_job(KIND, req, largest, idempotency_key, request, response, session, db, owner)
+    return submit_job(KIND, req, largest, idempotency_key, request, response, session, db, owner, settings)
 
 
 @router.get("", response_model=JobList, summary="List margin jobs, newest first")

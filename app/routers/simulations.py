@@ -7,14 +7,14 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Depends, Request
 
 from app import validation
-from app.deps import AUTH_RESPONSES, get_settings, require_api_key
+from app.deps import V1_RESPONSES, get_settings, require_api_key
 from app.examples import SIMULATION_EXAMPLES
 from app.problems import invalid
 from app.schemas import SimulationRequest
 from app.settings import Settings
 from app.syncpool import unwrap
 
-router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=AUTH_RESPONSES)
+router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
 PROBLEM = {"content": {"application/problem+json": {}}}
 
 
