@@ -131,7 +131,7 @@ class Dispatcher:
         from app.worker import worker_main
 
         parent_conn, child_conn = _CTX.Pipe(duplex=True)
-        proc = _CTX.Process(target=worker_main, args=(child_conn, os.getpid()),
+        proc = _CTX.Process(target=worker_main, args=(child_conn, os.getpid(), self.settings.worker_memory_mb),
                             name=f"ncs-worker-{slot.index}", daemon=True)
         proc.start()
         child_conn.close()
@@ -280,8 +280,17 @@ class Dispatcher:
             if slot.job_id is not None:
                 job_id = slot.job_id
                 slot.clear_job()
-                outcome = jobs.retry_or_fail(self.db, job_id, self.owner,
-                                             f"worker process died (exit code {code})", st.max_attempts)
+                if code == -6 and st.worker_memory_mb > 0:
+                    # SIGABRT under a memory cap: a native allocation failed (e.g. the solver's KKT system).
+                    # It would fail the same way again, so the job ends now, saying why.
+                    self._respawn(slot)
+                    self._finish(slot, job_id, FAILED, error=f"memory limit exceeded: the worker process "
+                                 f"aborted (exit code {code}) when an allocation over the {st.worker_memory_mb} MB "
+                                 f"a job may use (NCS_WORKER_MEMORY_MB) failed")
+                    log.warning("worker %s aborted running job %s (memory limit)", slot.pid, job_id)
+                    return
+                reason = f"worker process died (exit code {code})"
+                outcome = jobs.retry_or_fail(self.db, job_id, self.owner, reason, st.max_attempts)
                 log.warning("worker %s died (exit %s) running job %s -> %s", slot.pid, code, job_id, outcome)
             else:
                 log.warning("idle worker %s died (exit %s); replacing it", slot.pid, code)

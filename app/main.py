@@ -93,7 +93,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         run_migrations(settings.database_url, settings.alembic_dir)
         db = Database(settings.database_url)
         app.state.db = db
-        app.state.sync_pool = SyncPool(settings.sync_workers, settings.sync_time_limit)
+        app.state.sync_pool = SyncPool(settings.sync_workers, settings.sync_time_limit,
+                                       settings.worker_memory_mb)
         app.state.dispatcher = None
         if settings.run_dispatcher:
             app.state.dispatcher = make_dispatcher(db, settings)

@@ -94,8 +94,9 @@ class Settings(BaseSettings):
         "unavailable).",
     )
     worker_memory_mb: int = Field(
-        4096, ge=0, description="Address-space cap (MB, `RLIMIT_AS`) of every worker process (design "
-        "and synchronous); a job over it ends `failed` with a clear reason. 0: no cap.",
+        4096, ge=0, description="Memory (MB of address space) one job may allocate in a worker process "
+        "on top of the warmed-up worker (`RLIMIT_AS`, design and synchronous workers); a design over it ends "
+        "`failed` saying so, an analysis or simulation gets a 422. 0: no cap.",
     )
     alembic_dir: Path | None = Field(
         None, description="Directory of the Alembic migration environment (found automatically).",

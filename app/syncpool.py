@@ -19,19 +19,22 @@ from app.problems import ProblemException
 log = logging.getLogger("app.syncpool")
 
 
-def _init_worker(parent_pid: int) -> None:
-    from app.worker import _die_with_parent, limit_blas_threads
+def _init_worker(parent_pid: int, memory_mb: int = 0) -> None:
+    from app.worker import _die_with_parent, apply_memory_limit, limit_blas_threads
 
     limit_blas_threads()
     from app import tasks
 
     _die_with_parent(parent_pid)
     tasks.warm_up()
+    apply_memory_limit(memory_mb)
+    tasks._MEMORY_MB = memory_mb
 
 
 class SyncPool:
-    def __init__(self, workers: int, time_limit: float):
+    def __init__(self, workers: int, time_limit: float, memory_mb: int = 0):
         self.workers = workers
+        self.memory_mb = memory_mb
         self.time_limit = time_limit
         self._executor: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
@@ -41,7 +44,7 @@ class SyncPool:
             if self._executor is None:
                 self._executor = ProcessPoolExecutor(
                     max_workers=self.workers, mp_context=mp.get_context("spawn"),
-                    initializer=_init_worker, initargs=(os.getpid(),))
+                    initializer=_init_worker, initargs=(os.getpid(), self.memory_mb))
             return self._executor
 
     def _discard(self, executor: ProcessPoolExecutor) -> None:
@@ -88,4 +91,10 @@ def unwrap(out: tuple, loc_base: list, plant: dict | None) -> Any:
         return out[1]
     if out[0] == "invalid":
         raise invalid([solver_field_error(tuple(out[1]), out[2], plant, loc_base)])
+    if out[0] == "memory":
+        from app.problems import TYPE_BASE
+        from app.worker import memory_message
+
+        raise ProblemException(422, memory_message(out[1], "request"), title="Resource limit exceeded",
+                               type_=TYPE_BASE + "limit-exceeded")
     raise ProblemException(500, f"the solver failed: {out[1]}", title="Solver error")

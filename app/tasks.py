@@ -241,6 +241,9 @@ SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace
               "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot"}
 
 
+_MEMORY_MB = 0  # this process's cap, set by app.syncpool's initializer
+
+
 def call_sync(task: str, *args: Any) -> tuple:
     """Entry point of the synchronous pool: never raises for a solver error.
 
@@ -255,5 +258,7 @@ def call_sync(task: str, *args: Any) -> tuple:
         return ("ok", globals()[SYNC_TASKS[task]](*args))
     except InvalidInput as exc:
         return ("invalid", tuple(getattr(exc, "field", ()) or ()), str(exc))
+    except MemoryError:  # over the worker's address-space cap (NCS_WORKER_MEMORY_MB)
+        return ("memory", _MEMORY_MB)
     except Exception as exc:  # a genuine solver crash
         return ("error", f"{type(exc).__name__}: {exc}")

@@ -47,7 +47,42 @@ def limit_blas_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
-def execute(job_id: str, request: dict, callback, cancelled) -> tuple:
+def _address_space() -> int:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    return 0
+
+
+def apply_memory_limit(memory_mb: int) -> int | None:
+    """Cap this process's address space (RLIMIT_AS) at its current size plus ``memory_mb`` MB: a job may
+    allocate that much beyond the warmed-up worker (numpy, cvxpy and the solvers already mapped). An
+    allocation over the cap raises MemoryError in the job (or aborts a native solver) instead of waking the
+    OOM killer for the whole machine. Returns the limit in bytes (None when no cap)."""
+    if memory_mb <= 0:
+        return None
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    limit = _address_space() + memory_mb * 2**20
+    _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+    return limit
+
+
+def memory_message(memory_mb: int, what: str = "job") -> str:
+    cap = f"the {memory_mb} MB a worker process may allocate" if memory_mb else "the memory available"
+    return f"memory limit exceeded: the {what} needed more than {cap} (NCS_WORKER_MEMORY_MB) and was stopped"
+
+
+def execute(job_id: str, request: dict, callback, cancelled, memory_mb: int = 0) -> tuple:
     """Run one design; the reply ``("done", id, result)``, ``("cancelled", id)`` or ``("error", id, reason)``.
 
     Shared by the local worker processes and the Dask task (``app.dask_tasks``).
@@ -62,13 +97,15 @@ def execute(job_id: str, request: dict, callback, cancelled) -> tuple:
         result = tasks.run_job(request, callback)
     except InvalidInput as exc:
         return ("error", job_id, f"invalid input at {'/'.join(map(str, getattr(exc, 'field', ()) or ()))}: {exc}")
+    except MemoryError:
+        return ("error", job_id, memory_message(memory_mb))
     except Exception as exc:
         tb = traceback.format_exc(limit=5)
         return ("error", job_id, f"solver error: {type(exc).__name__}: {exc}\n{tb}")
     return ("cancelled", job_id) if cancelled() else ("done", job_id, result)
 
 
-def worker_main(conn, parent_pid: int) -> None:
+def worker_main(conn, parent_pid: int, memory_mb: int = 0) -> None:
     _die_with_parent(parent_pid)
     # Ctrl-C or a SIGTERM sent to the whole process group is for the service: it shuts down
     # gracefully, gives running jobs back to the queue and then stops (or kills) its workers.
@@ -78,6 +115,7 @@ def worker_main(conn, parent_pid: int) -> None:
     from app import tasks
 
     tasks.warm_up()
+    apply_memory_limit(memory_mb)
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -102,7 +140,7 @@ def worker_main(conn, parent_pid: int) -> None:
                 os._exit(0)  # the service is gone
             return state["cancel"]
 
-        reply = execute(job_id, request, callback, lambda state=state: state["cancel"])
+        reply = execute(job_id, request, callback, lambda state=state: state["cancel"], memory_mb)
         try:
             conn.send(reply)
         except (EOFError, OSError):

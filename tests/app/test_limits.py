@@ -1,0 +1,61 @@
+"""Resource limits: no single request can take the service down. A design over the worker memory cap ends
+`failed` saying so; an analysis over it is a 422; simulation steps and analysis products are capped.
+(The per-job time limit: tests/app/test_queue.py::test_time_limit_fails_the_job_with_a_clear_reason; the
+synchronous time limit: test_config_and_migrations.py::test_synchronous_time_limit_is_a_503_problem...)"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.examples import PAPER_GAINS_H01, PAPER_PLANT
+
+from .conftest import assert_problem, running_client, wait_for
+
+# n = 12, r = 6, n_drop = 8 (LMI size 1152, inside the size limits): its SDP needs a few hundred MB.
+_F = (np.eye(12) * 0.9 + 0.01 * np.ones((12, 12))).tolist()
+BIG = {"plant": {"kind": "discrete", "F": [_F] * 6, "G": [np.ones((12, 3)).tolist()] * 6},
+       "n_drop": 8, "method": "lmi"}
+ANALYSIS = {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01}
+
+
+def test_design_over_the_worker_memory_cap_fails_with_a_clear_reason(db_url):
+    with running_client(db_url, workers=1, worker_memory_mb=60, max_attempts=3) as c:
+        job = wait_for(c, c.post("/v1/designs", json=BIG).json()["id"], timeout=120)
+        assert job["status"] == "failed", job
+        assert "memory limit exceeded" in job["error"] and "NCS_WORKER_MEMORY_MB" in job["error"], job["error"]
+        assert job["attempts"] == 1  # not retried: it would fail the same way
+        assert c.app.state.dispatcher.alive_workers() == 1 or c.get("/healthz").status_code == 200
+
+
+def test_analysis_over_the_memory_cap_is_a_422_and_the_pool_goes_on(db_url):
+    # n = 20, r = 20 modes, n_drop = 4: the product enumeration would hold ~200k 20x20 matrices (640 MB).
+    n, r = 20, 20
+    F = [(np.eye(n) * 0.5).tolist()] * r
+    G = [np.ones((n, 1)).tolist()] * r
+    body = {"plant": {"kind": "discrete", "F": F, "G": G}, "n_drop": 4, "gains": [np.zeros((1, n)).tolist()] * 4,
+            "max_product_length": 8}
+    with running_client(db_url, run_dispatcher=False, worker_memory_mb=150, max_lmi_size=100_000) as c:
+        problem = assert_problem(c.post("/v1/analyses", json=body), 422)  # without the cap: 30 s, then 503
+        assert "memory limit exceeded" in problem["detail"] and "NCS_WORKER_MEMORY_MB" in problem["detail"]
+        assert c.post("/v1/analyses", json=ANALYSIS).json()["stable"] is True
+
+
+def test_analysis_products_are_capped(db_url):
+    with running_client(db_url, run_dispatcher=False, max_analysis_products=10) as c:
+        rep = c.post("/v1/analyses", json={**ANALYSIS, "max_product_length": 8}).json()
+        # 9 interval modes: length 2 already needs 81 products > 10, so only single modes are enumerated.
+        assert rep["product_length_checked"] == 1, rep
+        assert_problem(c.post("/v1/analyses", json={**ANALYSIS, "max_product_length": 9}), 422,
+                       "/max_product_length")
+
+
+def test_simulation_and_trace_steps_are_capped(db_url):
+    with running_client(db_url, workers=1, max_simulation_steps=300) as c:
+        sim = {**ANALYSIS, "x0": [-3.0, 2.0]}
+        assert c.post("/v1/simulations", json={**sim, "steps": 300}).status_code == 200
+        body = assert_problem(c.post("/v1/simulations", json={**sim, "steps": 301}), 422, "/steps")
+        assert "NCS_MAX_SIMULATION_STEPS" in body["detail"]
+        job = wait_for(c, c.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 3}).json()["id"])
+        assert c.get(f"/v1/designs/{job['id']}/trace?steps=300").status_code == 200
+        assert_problem(c.get(f"/v1/designs/{job['id']}/trace?steps=301"), 422, "/steps")
+        assert_problem(c.get(f"/v1/designs/{job['id']}/trace?steps=10000000000000000000000"), 422, "/steps")
