@@ -118,6 +118,29 @@ def database_unavailable(request: Request | None, exc: BaseException) -> JSONRes
                             TYPE_BASE + "database-unavailable", headers={"Retry-After": str(retry)})
 
 
+def _allowed_methods(request: Request) -> str:
+    """Every method the API documents at this path (Starlette's 405 names only the first matching route's)."""
+    import re
+
+    app = request.app
+    patterns = getattr(app.state, "allow_patterns", None)
+    if patterns is None:
+        patterns = []
+        for template, ops in app.openapi().get("paths", {}).items():
+            regex = "".join("[^/]+" if part.startswith("{") else re.escape(part)
+                            for part in re.split(r"(\{[^}]+\})", template))
+            methods = {m.upper() for m in ops if m in ("get", "put", "post", "delete", "patch", "options")}
+            if "GET" in methods:
+                methods.add("HEAD")
+            patterns.append((re.compile(regex + "$"), methods))
+        app.state.allow_patterns = patterns
+    methods: set[str] = set()
+    for regex, ms in patterns:
+        if regex.match(request.url.path):
+            methods |= ms
+    return ", ".join(sorted(methods))
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ProblemException)
     async def _problem(request: Request, exc: ProblemException):
@@ -137,13 +160,20 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
+        if exc.status_code == 400 and exc.detail == "There was an error parsing the body":
+            # FastAPI's answer to a body that is not even text (e.g. invalid UTF-8): malformed JSON like any other.
+            return problem_response(request, 422, "Malformed JSON", "The request body is not valid JSON: it "
+                                    "could not be decoded as UTF-8 text", TYPE_BASE + "malformed-json",
+                                    [{"loc": ["body"], "pointer": "", "msg": "not UTF-8 text", "type": "json_invalid"}])
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:
+            headers = {**(headers or {}), "Allow": _allowed_methods(request)}
         try:
             title = HTTPStatus(exc.status_code).phrase
         except ValueError:
             title = "Error"
         detail = exc.detail if isinstance(exc.detail, str) else title
-        return problem_response(request, exc.status_code, title, detail,
-                                headers=getattr(exc, "headers", None))
+        return problem_response(request, exc.status_code, title, detail, headers=headers)
 
     from sqlalchemy.exc import DBAPIError, IntegrityError, TimeoutError as PoolTimeout
 

@@ -152,7 +152,8 @@ class Server:
         self.log.close()
 
     def log_text(self) -> str:
-        self.log.flush()
+        if not self.log.closed:
+            self.log.flush()
         return self.log_path.read_bytes().decode(errors="replace")
 
 
