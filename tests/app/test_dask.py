@@ -127,3 +127,17 @@ def test_time_limit_on_the_cluster(cluster, db_url):
         assert job["attempts"] == 1
         nxt = wait_for(client, client.post("/v1/designs", json=PAPER_LMI).json()["id"], timeout=90)
         assert nxt["status"] == "succeeded", nxt
+
+
+def test_killed_dask_worker_with_no_attempts_left_fails_the_job_with_the_reason(cluster, db_url):
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address, max_attempts=1) as client:
+        deadline = time.monotonic() + 60
+        while client.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
+        os.kill(dask_pid_of(client, job_id), signal.SIGKILL)
+        job = wait_for(client, job_id, timeout=60)
+        assert job["status"] == "failed", job
+        assert "died" in job["error"] and "1 of 1 attempts" in job["error"], job["error"]
+        assert job["attempts"] == 1
