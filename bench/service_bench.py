@@ -24,6 +24,10 @@ Measured per database:
 * CPU seconds used during the sustained run by the service process and by its
   workers, which says what bounds the throughput.
 
+``--dask`` adds a column for the Dask backend (``NCS_DASK_SCHEDULER``) against a
+``LocalCluster`` started by the benchmark (its worker processes are not children of the
+service, so the RSS and CPU rows of that column cover the service process only).
+
 Completion is observed without hammering the server: instead of every client polling
 its own job, one poller reads the newest jobs (``GET /v1/designs?limit=k``, k = jobs
 still waiting + 10, at most 100) every ``--poll`` seconds (default 5 ms) and wakes the
@@ -414,10 +418,10 @@ def summarize_profile(path: Path, top: int = 12) -> list[str]:
 profiles: list[tuple[str, list[str]]] = []
 
 
-def measure(db_label: str, db_url: str, a) -> dict[str, str]:
+def measure(db_label: str, db_url: str, a, extra_env: dict[str, str] | None = None) -> dict[str, str]:
     body = _paper_lmi()
     tmp = Path(tempfile.mkdtemp(prefix="ncs-service-bench-"))
-    server = Server(db_url, a.workers, tmp / "server.log", {})
+    server = Server(db_url, a.workers, tmp / "server.log", extra_env or {})
     rows: dict[str, str] = {}
     try:
         ready_s, ready = server.wait_ready()
@@ -484,6 +488,9 @@ def main(argv=None) -> int:
     p.add_argument("--time-limit", type=float, default=120.0, help="cap of each loaded run, seconds")
     p.add_argument("--poll", type=float, default=0.005, help="watcher poll interval, seconds")
     p.add_argument("--quick", action="store_true", help="fewer jobs (about 30 s per database)")
+    p.add_argument("--dask", action="store_true",
+                   help="also measure the Dask backend: a LocalCluster (worker processes, as many as the "
+                        "default pool, 1 thread each) and the server with NCS_DASK_SCHEDULER, on SQLite")
     p.add_argument("--profile", metavar="FILE", default=None,
                    help="record the service and its workers with py-spy during the sustained run (raw stacks to "
                         "FILE.<db>.txt) and print where the busy time goes")
@@ -517,6 +524,17 @@ def main(argv=None) -> int:
     try:
         for label, url, _ in dbs:
             results.append((label, measure(label, url, a)))
+        if a.dask:
+            from distributed import LocalCluster
+
+            from app.settings import _default_workers
+
+            pythonpath = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+            with LocalCluster(n_workers=a.workers or _default_workers(), threads_per_worker=1, processes=True,
+                              dashboard_address=None, env={"PYTHONPATH": pythonpath}) as cluster:
+                url = f"sqlite:///{tempfile.mkdtemp(prefix='ncs-bench-db-')}/ncs.db"
+                results.append(("SQLite + Dask", measure("dask", url, a,
+                                                         {"NCS_DASK_SCHEDULER": cluster.scheduler_address})))
     finally:
         for _, _, pg in dbs:
             if pg is not None:
