@@ -64,16 +64,16 @@ class MemorySampler(threading.Thread):
         super().__init__(daemon=True)
         self.pid, self.every = pid, every
         self.peak_service = self.peak_total = 0.0
-        self._stop = threading.Event()
+        self._halt = threading.Event()
 
     def run(self):
-        while not self._stop.is_set():
+        while not self._halt.is_set():
             svc, total = memory_mib(self.pid)
             self.peak_service, self.peak_total = max(self.peak_service, svc), max(self.peak_total, total)
-            self._stop.wait(self.every)
+            self._halt.wait(self.every)
 
     def stop(self):
-        self._stop.set()
+        self._halt.set()
         self.join(5)
 
 
