@@ -109,7 +109,11 @@ class DaskDispatcher(Dispatcher):
                 raise
         now = time.monotonic()
         if now - self._last_info >= 1.0:
-            self._refresh_workers(now)
+            try:
+                self._refresh_workers(now)
+            except Exception as exc:  # scheduler unreachable: claim nothing, but keep leases and results going
+                self._nthreads, self._last_info = {}, now
+                self.start_error = f"lost the Dask scheduler at {self.address}: {type(exc).__name__}: {exc}"
         self._process_events()
         super()._tick()
 
@@ -119,7 +123,7 @@ class DaskDispatcher(Dispatcher):
     def _idle_slots(self) -> list[_Slot]:
         capacity = sum(self._nthreads.values())
         busy = sum(1 for s in self.slots if s.job_id is not None)
-        free = [s for s in self.slots if s.job_id is None]
+        free = [s for s in self.slots if s.job_id is None and s.pending is None]
         return free[:max(0, capacity - busy)]
 
     def _pid_for(self, slot: _Slot) -> int | None:
@@ -195,12 +199,13 @@ class DaskDispatcher(Dispatcher):
             err = fut.exception(timeout=30)
         else:
             err = None
+        progress = slot.progress
         self._drop(slot)
-        slot.clear_job()
         if err is not None and type(err).__name__ != "KilledWorker":
-            jobs.finish(self.db, job_id, self.owner, FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
-                        progress=slot.progress)
+            self._finish(slot, job_id, FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
+                         progress=progress)
             return
+        slot.clear_job()
         reason = (f"Dask gave up on the task: {err}" if err is not None
                   else f"the Dask scheduler lost the task ({status})")
         outcome = jobs.retry_or_fail(self.db, job_id, self.owner, reason, self.settings.max_attempts)
@@ -244,22 +249,22 @@ class DaskDispatcher(Dispatcher):
         job_id = slot.job_id
         if slot.pid is not None and now - slot.started > st.job_time_limit:
             self._forget(slot, restart=True)
-            jobs.finish(self.db, job_id, self.owner, FAILED,
-                        error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
-                              f"(NCS_JOB_TIME_LIMIT) and was stopped")
+            self._finish(slot, job_id, FAILED,
+                         error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
+                               f"(NCS_JOB_TIME_LIMIT) and was stopped")
             return
         if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
             started = slot.pid is not None
             self._forget(slot, restart=started)
-            jobs.finish(self.db, job_id, self.owner, CANCELLED,
-                        error="cancelled by request (worker stopped)" if started else "cancelled by request")
+            self._finish(slot, job_id, CANCELLED,
+                         error="cancelled by request (worker stopped)" if started else "cancelled by request")
 
     def _send_cancel(self, slot: _Slot) -> None:
         address = getattr(slot, "address", None)
         if slot.pid is None or address is None:  # still waiting on the cluster: just drop it
             job_id = slot.job_id
             self._forget(slot)
-            jobs.finish(self.db, job_id, self.owner, CANCELLED, error="cancelled by request")
+            self._finish(slot, job_id, CANCELLED, error="cancelled by request")
             return
         from app.dask_tasks import request_cancel
 
@@ -270,6 +275,10 @@ class DaskDispatcher(Dispatcher):
 
     def _shutdown(self) -> None:
         for slot in self.slots:
+            try:
+                self._flush_pending(slot)
+            except Exception:  # pragma: no cover - the lease expires and the job runs again
+                log.exception("could not record the end of job %s", slot.pending and slot.pending[0])
             job_id = slot.job_id
             if job_id is not None:
                 self._forget(slot)
