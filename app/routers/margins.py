@@ -61,7 +61,7 @@ def list_margins(
     status: Annotated[Literal["queued", "running", "succeeded", "failed", "cancelled"] | None,
                       Query(description="Only jobs with this status")] = None,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=2**31 - 1, description="Jobs to skip (at most 2^31 - 1)")] = 0,
     session: Session = Depends(get_session),
     owner: str | None = Depends(require_api_key),
 ) -> JobList:

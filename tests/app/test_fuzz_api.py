@@ -114,3 +114,15 @@ def test_found_405_lists_every_method_of_the_path_in_allow(db_url):
             assert_problem(resp, 405)
             assert set(resp.headers["allow"].split(", ")) >= {"GET", "POST"}, resp.headers
         assert c.delete("/v1/designs/00000000-0000-4000-8000-000000000000").headers["allow"] == "GET, HEAD"
+
+
+def test_found_huge_list_offset_is_a_422_not_a_500(db_url):
+    """A random schemathesis run (500 examples) sent offset=167830852003322807713792: an integer overflow in the
+    database (SQLite and PostgreSQL) and a 500. Offsets are now bounded by the schema."""
+    from .conftest import assert_problem, running_client
+
+    with running_client(db_url, run_dispatcher=False) as c:
+        for path in ("/v1/designs", "/v1/margins"):
+            assert_problem(c.get(path, params={"offset": 167830852003322807713792}), 422, "/offset")
+            assert_problem(c.get(path, params={"offset": 2**31}), 422, "/offset")
+            assert c.get(path, params={"offset": 2**31 - 1}).json()["items"] == []
