@@ -321,7 +321,9 @@ def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.
         out.update(terminations=terminations, backends_terminated=kills, status_codes=codes,
                    errors_5xx=errors, non_problem_errors=non_problem,
                    recover_s_max=round(max(recover), 3) if recover else None, readyz_after=ready,
-                   log_tracebacks=server.log_text().count("Traceback"))
+                   log_tracebacks=server.log_text().count("Traceback"),
+                   log_unhandled=sum(server.log_text().count(m) for m in ("unhandled error",
+                                                                           "Exception in ASGI application")))
         return out
     finally:
         server.stop()
