@@ -112,6 +112,25 @@ def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[s
         return s.execute(update(Job).where(_running_owned(job_id, owner)).values(**values)).rowcount == 1
 
 
+#: A lost attempt with attempts left: back to the queue, lease dropped.
+_REQUEUE = dict(status=QUEUED, lease_owner=None, lease_expires_at=None)
+
+
+def _after_lost_attempt(job, reason: str, max_attempts: int, now, retry: dict) -> dict:
+    """Column values for a job whose attempt was lost (worker died, service died, task re-run).
+
+    Cancelled if a cancel was asked for, failed when its attempts are used up (both drop the
+    lease), otherwise ``retry`` with the reason recorded.
+    """
+    if job.cancel_requested:
+        return dict(status=CANCELLED, finished_at=now, error="cancelled by request",
+                    lease_owner=None, lease_expires_at=None)
+    if job.attempts >= max_attempts:
+        return dict(status=FAILED, finished_at=now, lease_owner=None, lease_expires_at=None,
+                    error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
+    return {**retry, "error": f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)"}
+
+
 def retry_or_fail(db: Database, job_id: str, owner: str, reason: str, max_attempts: int) -> str | None:
     """After a worker died: queue the job again, or fail it when its attempts are used up."""
     now = utcnow()
@@ -119,15 +138,8 @@ def retry_or_fail(db: Database, job_id: str, owner: str, reason: str, max_attemp
         job = s.execute(select(Job.attempts, Job.cancel_requested).where(_running_owned(job_id, owner))).first()
         if job is None:
             return None
-        if job.cancel_requested:
-            values = dict(status=CANCELLED, finished_at=now, error="cancelled by request")
-        elif job.attempts >= max_attempts:
-            values = dict(status=FAILED, finished_at=now,
-                          error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
-        else:
-            values = dict(status=QUEUED, error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)")
-        s.execute(update(Job).where(_running_owned(job_id, owner))
-                  .values(lease_owner=None, lease_expires_at=None, worker_pid=None, updated_at=now, **values))
+        values = _after_lost_attempt(job, reason, max_attempts, now, _REQUEUE)
+        s.execute(update(Job).where(_running_owned(job_id, owner)).values(worker_pid=None, updated_at=now, **values))
         return values["status"]
 
 
@@ -139,15 +151,8 @@ def note_retry(db: Database, job_id: str, owner: str, reason: str, max_attempts:
         job = s.execute(select(Job.attempts, Job.cancel_requested).where(_running_owned(job_id, owner))).first()
         if job is None:
             return None
-        if job.cancel_requested:
-            values = dict(status=CANCELLED, finished_at=now, error="cancelled by request",
-                          lease_owner=None, lease_expires_at=None)
-        elif job.attempts >= max_attempts:
-            values = dict(status=FAILED, finished_at=now, lease_owner=None, lease_expires_at=None,
-                          error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
-        else:
-            values = dict(status=RUNNING, attempts=job.attempts + 1, started_at=now,
-                          error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)")
+        values = _after_lost_attempt(job, reason, max_attempts, now,
+                                     dict(status=RUNNING, attempts=job.attempts + 1, started_at=now))
         s.execute(update(Job).where(_running_owned(job_id, owner)).values(worker_pid=None, updated_at=now, **values))
         return values["status"]
 
@@ -181,16 +186,10 @@ def recover_expired(db: Database, max_attempts: int) -> list[str]:
                             .where(Job.id == job_id, Job.status == RUNNING, Job.lease_expires_at < now)).first()
             if job is None:
                 continue
-            reason = "the service running this job stopped (lease expired)"
-            if job.cancel_requested:
-                values = dict(status=CANCELLED, finished_at=now, error="cancelled by request")
-            elif job.attempts >= max_attempts:
-                values = dict(status=FAILED, finished_at=now,
-                              error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
-            else:
-                values = dict(status=QUEUED, error=f"{reason}; retrying (attempt {job.attempts} of {max_attempts})")
+            values = _after_lost_attempt(job, "the service running this job stopped (lease expired)", max_attempts,
+                                         now, _REQUEUE)
             s.execute(update(Job).where(Job.id == job_id, Job.status == RUNNING, Job.lease_owner == job.lease_owner)
-                      .values(lease_owner=None, lease_expires_at=None, worker_pid=None, updated_at=now, **values))
+                      .values(worker_pid=None, updated_at=now, **values))
             recovered.append(job_id)
     return recovered
 
