@@ -107,12 +107,18 @@ def validate_family(plant_dict: dict) -> None:
         raise invalid([validation.solver_field_error(getattr(exc, "field", ()), str(exc), plant_dict)])
 
 
+#: OpenAPI responses of every job submission (designs and margins).
+SUBMIT_RESPONSES = {
+    202: {"description": "Accepted; poll the Location or stream /events"},
+    413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
+    422: ERRORS[422], 429: QUEUE_FULL,
+}
+
+
 @router.post(
     "", status_code=202, response_model=Job,
     summary="Submit a design job",
-    responses={202: {"description": "Accepted; poll the Location or stream /events"},
-               413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
-               422: ERRORS[422], 429: QUEUE_FULL},
+    responses=SUBMIT_RESPONSES,
 )
 def submit_design(
     request: Request,

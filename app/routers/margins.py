@@ -17,8 +17,8 @@ from app.deps import V1_RESPONSES, get_database, get_session, get_settings, requ
 from app.examples import MARGIN_EXAMPLES
 from app.models import SUCCEEDED
 from app.problems import ProblemException
-from app.routers.designs import (ERRORS, MEDIA_TYPES, QUEUE_FULL, _load, cancel_job, etag_response, job_events, list_jobs,
-                                 submit_job, validate_family)
+from app.routers.designs import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, _load, cancel_job, etag_response, job_events,
+                                 list_jobs, submit_job, validate_family)
 from app.schemas import Job, JobList, MarginRequest
 from app.settings import Settings
 from app.syncpool import unwrap
@@ -36,9 +36,7 @@ KIND = "margin"
                 "tried. When succeeded, `result` holds `margin` (the largest n_drop or sampling period with a "
                 "stabilizing design), `design` (that design: gains, certificate), and `curve` (every point tried, "
                 "in order, with its outcome, max spectral radius and gains). Cancel it like a design job.",
-    responses={202: {"description": "Accepted; poll the Location or stream /events"},
-               413: {"description": "Body over NCS_MAX_BODY_BYTES", "content": {"application/problem+json": {}}},
-               422: ERRORS[422], 429: QUEUE_FULL},
+    responses=SUBMIT_RESPONSES,
 )
 def submit_margin(
     request: Request,
