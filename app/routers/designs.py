@@ -167,9 +167,14 @@ def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, r
         if existing is not None:
             return replay(existing)
     if settings is not None:  # back-pressure: refuse new work while the queue is over its depth
-        queued = _read_retrying(session, lambda: session.execute(
-            select(func.count()).select_from(JobRow).where(JobRow.status == QUEUED)).scalar_one())
-        session.rollback()
+        def count_queued() -> int:
+            # The rollback is part of the retried read: a connection that dies between the count and
+            # the end of its transaction is a lost connection too, not an unavailable database.
+            n = session.execute(select(func.count()).select_from(JobRow).where(JobRow.status == QUEUED)).scalar_one()
+            session.rollback()
+            return n
+
+        queued = _read_retrying(session, count_queued)
         if queued >= settings.max_queue_depth:
             raise ProblemException(
                 429, f"the queue holds {queued} jobs, the limit is {settings.max_queue_depth} "
