@@ -160,11 +160,16 @@ def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate
                      margin: float = 0.0):
     """A solver-independent proof that no design of ``method`` exists at ``rate``, or ``(None, reason)``.
 
-    Tries the Farkas multipliers (re-checked by :mod:`solver.certificates` on
-    interval data rebuilt from the plant with rounding bounds), then an unstable
-    uncontrollable plant mode.  Returns ``(certificate or None, reason)``.
+    Tries an unstable uncontrollable plant mode, then the Farkas multipliers
+    (re-checked by :mod:`solver.certificates` on interval data rebuilt from the
+    plant with rounding bounds).  Returns ``(certificate or None, reason)``.
     """
     reason = "no multipliers"
+    if modes.F is not None:  # the structural proof first: it excludes every gain, of any method
+        unc = uncontrollable_mode(modes.F, modes.G, 1.0 if rate is None else rate)
+        if unc is not None:
+            unc.decay_rate = rate
+            return unc, ""
     if duals is not None and modes.F is not None:
         free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map,
                                                  scale=congruent_scale(modes, rate))
@@ -177,11 +182,6 @@ def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate
         if cert.verified:
             return cert, ""
         reason = f"the dual multipliers do not pass the Farkas re-check (delta = {cert.delta:.3g})"
-    if modes.F is not None:
-        unc = uncontrollable_mode(modes.F, modes.G, 1.0 if rate is None else rate)
-        if unc is not None:
-            unc.decay_rate = rate
-            return unc, ""
     return None, reason
 
 

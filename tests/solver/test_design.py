@@ -84,7 +84,13 @@ def test_lmi_and_ccl_agree_on_random_families():
 def test_no_design_exists_for_uncontrollable_unstable_mode():
     fam = uncontrollable_unstable()
     a = design(fam, n_drop=2, method="lmi")
-    assert a.outcome == "infeasible" and a.gains is None and a.certificate is None
+    assert a.outcome == "infeasible" and a.gains is None
+    # the verdict carries its proof: the unstable mode no input reaches, re-checked by residuals
+    cert = a.certificate
+    assert cert.kind == "uncontrollable" and cert.verified and abs(cert.eigenvalue) >= 1.2 - 1e-12
+    w = cert.left_vector
+    F, G = fam.F[cert.plant], fam.G[cert.plant]
+    assert np.linalg.norm(w.conj() @ F - cert.eigenvalue * w.conj()) < 1e-12 and np.linalg.norm(w.conj() @ G) < 1e-12
     assert "t*" in a.message
     b = design(fam, n_drop=2, method="ccl", max_iter=5)
     assert b.outcome == "not_converged" and b.certificate is None
