@@ -30,6 +30,7 @@ from .errors import InvalidInput, SolverFailed
 from .lyapunov import MAX_SWITCHED_MODES, Certificate, certified_rate, certify
 from .network import MAX_MODES, ModeSet, check_gains, spectral_radii
 from .plant import PlantFamily
+from .scaling import balance
 
 #: Hard cap on products examined per length (time and memory of the lower bound).
 MAX_PRODUCTS = 1_000_000
@@ -54,6 +55,9 @@ class AnalysisReport:
         nothing positive could be proven (``reason`` says why).
     jsr_lower_estimate : float
         The float64 estimate ``max rho(product)^(1/length)`` (not a proof).
+    scaling : list of float or None
+        When the certificate was found for the balanced loops ``T^-1 A_s T``
+        (``T = diag(scaling)``, powers of two, exact): the state scaling.
     jsr_upper_bound : float or None
         Smallest certified bound (common quadratic or switched) on the JSR of
         the interval maps, also when >= 1; None when none could be certified.
@@ -82,6 +86,7 @@ class AnalysisReport:
     mode_labels: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     jsr_lower_estimate: float | None = None
+    scaling: list | None = None
 
     @property
     def max_spectral_radius(self) -> float:
@@ -106,6 +111,7 @@ class AnalysisReport:
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
             "jsr_lower_bound": self.jsr_lower_bound,
             "jsr_lower_estimate": self.jsr_lower_estimate,
+            "scaling": self.scaling,
             "jsr_upper_bound": self.jsr_upper_bound,
             "jsr_upper_bound_quadratic": self.jsr_upper_bound_quadratic,
             "jsr_upper_bound_switched": self.jsr_upper_bound_switched,
@@ -261,6 +267,7 @@ def analyze(
     worst = [modes.label(s) for s in seq]
     proven, unstable, proof_note = _prove_product(family, K, modes, seq, estimate)
     certificate = None
+    scaling = None
     upper_q = upper_s = rate = None
     failure = ""
     if unstable:
@@ -275,11 +282,20 @@ def analyze(
     else:
         try:
             certificate = certify(A, modes.n_drop, kinds=tuple(certificates), solver=solver)
+            scale = balance(family)
+            if certificate is None and not scale.is_identity:
+                # T^-1 A_s T is exact (powers of two): a certificate for it proves the same loop
+                T = scale.state
+                certificate = certify(A / T[None, :, None] * T[None, None, :], modes.n_drop,
+                                      kinds=tuple(certificates), solver=solver)
+                if certificate is not None:
+                    scaling = T.tolist()
         except SolverFailed as err:
             failure = f"; {err}"
         if certificate is not None:
             stable = True
-            reason = (f"{certificate.kind} certificate re-checked in float64 "
+            where = "" if scaling is None else " for T^-1 A_s T (state scaling T in `scaling`, exact)"
+            reason = (f"{certificate.kind} certificate re-checked in float64{where} "
                       f"(relative margin {certificate.margin:.3g})")
         else:
             stable = None
@@ -308,6 +324,7 @@ def analyze(
         certificate=certificate,
         jsr_lower_bound=proven,
         jsr_lower_estimate=estimate,
+        scaling=scaling,
         worst_sequence=worst,
         product_length_checked=checked,
         reason=reason,

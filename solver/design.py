@@ -231,7 +231,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
     best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven),
                          "loop_spectral_rate": loop, "relative_tolerance": tol}
-    proven = "proven by a certificate" if lo_proven else "not proven (a step ended without a verdict)"
+    proven = ("proven: no design with the relative margin, Farkas" if lo_proven
+              else "not proven: a step ended without a verdict")
     best.message += (f"; smallest certified decay rate {hi:.6g}, bracket [{lo:.6g}, {hi:.6g}] (lower end {proven}; "
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
