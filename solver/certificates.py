@@ -178,7 +178,8 @@ class FarkasCertificate:
             "kind": self.kind,
             "method": self.method,
             "verified": self.verified,
-            "gain_bound": float(self.gain_bound),
+            "gain_bound": float(self.gain_bound),  # JSON: null when unbounded (see gain_bound_unbounded)
+            "gain_bound_unbounded": bool(np.isinf(self.gain_bound)),
             "delta": self.delta,
             "margin": self.margin,
             "e_norm": self.e_norm,

@@ -152,10 +152,13 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
     if decay_rate == "max" and method == "switched":
         start = time.perf_counter()
         first = _smallest_rate("lmi", modes, options, rate_tol)
+        if first is not None and "time limit reached" in first.message:
+            first.method = "switched"
+            return first
         if first is not None and first.outcome == "stabilized":
             rest = options if options.time_limit is None else replace(
                 options, time_limit=max(options.time_limit - (time.perf_counter() - start), 1e-9))
-            return _smallest_rate("switched", modes, rest, rate_tol, upper=first)
+            return _smallest_rate("switched", modes, rest, rate_tol, upper=first, user_limit=options.time_limit)
     return _run(method, modes, options, decay_rate, rate_tol)
 
 
@@ -170,7 +173,7 @@ MIN_RATE = 1e-4
 
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
-                   upper: DesignResult | None = None) -> DesignResult:
+                   upper: DesignResult | None = None, user_limit: float | None = None) -> DesignResult:
     """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
 
     A rate is accepted only when the float64 re-check of that step's gains and
@@ -241,7 +244,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     best.timings.update(totals, total=total, overhead=max(total - totals["setup"] - totals["solver"], 0.0))
     if timed_out:
         best.outcome = "not_converged"
-        best.message = f"time limit reached ({limit:g} s) during the decay-rate bisection; best iterate: " + best.message
+        shown = limit if user_limit is None else user_limit
+        best.message = f"time limit reached ({shown:g} s) during the decay-rate bisection; best iterate: " + best.message
     return best
 
 

@@ -224,8 +224,9 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     )
 
     def result(outcome, message, certificate=cert):
-        return finish(modes, method, outcome, gains, certificate, A, clock, info.solver, info.status, message,
-                      [record], options)
+        keep = outcome != "infeasible"  # a proven-infeasible design has no gains to report
+        return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
+                      info.solver, info.status, message, [record], options)
 
     if options.callback is not None:
         options.callback(record)

@@ -276,3 +276,17 @@ def test_jsr_bounds_enclose_closed_forms(case):
     assert rep.jsr_upper_bound >= true * (1 - 1e-12)
     assert rep.jsr_upper_bound <= true * (1 + 2e-3) or case == "single"
     assert rep.stable is (true < 1)
+
+
+def test_http_serialization_carries_the_proof_fields():
+    from app.tasks import jsonable
+
+    res = design(CONFLICT, 1, method="lmi")
+    out = jsonable(res.to_dict())
+    cert = out["certificate"]
+    assert cert["kind"] == "farkas" and cert["verified"] is True
+    assert np.array(cert["multipliers"]).shape == (2, 4, 4)
+    assert cert["gain_bound"] == pytest.approx(res.certificate.gain_bound) and cert["gain_bound_unbounded"] is False
+    assert "gain norm <" in out["message"]
+    rate = jsonable(design(PAPER, 3, method="lmi", decay_rate="max").to_dict())
+    assert rate["rate_bracket"]["upper"] == rate["decay_rate"]
