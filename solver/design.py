@@ -93,10 +93,15 @@ def design(
         CCL Step 1: the paper's pure feasibility problem, or ``min trace(P + Q)``.
     decay_rate : float in (0, 1], "max" or None
         Demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
-        in the certificate's norm), or find the smallest one by bisection
-        (to ``rate_tol``).  ``lmi`` and ``switched`` only.
+        in the certificate's norm), or find the smallest one (``"max"``) by bisection on the
+        congruent SDP (data of mode s times ``lambda^(-eta_s)``; docs/design.md).  A rate is
+        accepted only by the float64 re-check at that rate and rejected only with a
+        certificate; ``res.rate_bracket`` gives the bracket.  ``switched`` starts from
+        ``lmi``'s certified rate and is never worse.  Gains grow as the rate nears the
+        optimum (the LMI's margin vanishes there): a slightly larger rate gives far
+        smaller gains.  ``lmi`` and ``switched`` only.
     rate_tol : float
-        Bisection tolerance on lambda for ``decay_rate="max"``.
+        Relative bisection tolerance on lambda for ``decay_rate="max"``.
     plant_switching : {"per_interval", "per_sample"}
         Plant mode constant over an interval (the paper), or free to jump at every sample.
     scheme : {"predictive", "hold", "zero"}
@@ -112,14 +117,18 @@ def design(
     Returns
     -------
     DesignResult
-        ``outcome`` is "stabilized" only with a float64-verified certificate.
+        ``outcome`` is "stabilized" only with a float64-verified Lyapunov certificate,
+        "infeasible" only with a re-checked proof in ``res.certificate`` (``kind="farkas"``:
+        multipliers, ``gain_bound``; ``kind="uncontrollable"``: an unstable mode no input
+        reaches), and "not_converged" otherwise (the reason in ``message``; also when
+        ``time_limit`` runs out, with the best iterate).
 
     Raises
     ------
     InvalidInput
         Bad arguments (the field is named in ``err.field``).
     SolverFailed
-        The conic solver failed; never reported as "infeasible".
+        The conic solver failed (not by the time limit); never reported as "infeasible".
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
