@@ -337,12 +337,13 @@ class UncontrollableCertificate:
     left_vector : ndarray, shape (n,), complex
         ``w`` with ``w^H F_l = lambda w^H`` and ``w^H G_l = 0`` up to the residuals.
     residual_eig, residual_input : float
-        ``||w^H F_l - lambda w^H||_2`` and ``||w^H G_l||_2`` (with ``||w||_2 = 1``), computed
-        with their rounding bound added.
+        ``||w^H F_l - lambda w^H||_2`` and ``||w^H G_l||_2`` (with ``||w||_2 = 1``) in float64.
     verified : bool
-        True iff the residuals prove an eigenvalue of a nearby uncontrollable pair on or outside the
-        unit circle: ``|lambda| - residual_eig >= 1`` and ``residual_input`` at rounding level
-        (``w^T G_l = 0`` is then exact up to the float64 data, see docs/design.md).
+        True iff exact rational arithmetic proved that the uncontrollable part of ``(F_l, G_l)``
+        has an eigenvalue with ``|lambda| >= 1`` (or the rate); ``eigenvalue``, ``left_vector`` and
+        the residuals are its float64 description.
+    dimension : int
+        Dimension of the uncontrollable subspace's quotient (exact).
     """
 
     plant: int
@@ -351,15 +352,17 @@ class UncontrollableCertificate:
     residual_eig: float
     residual_input: float
     verified: bool
+    dimension: int = 1
     kind: str = "uncontrollable"
     margin: float | None = None
     source: str = "left_eigenvector"
     decay_rate: float | None = None
 
     def statement(self) -> str:
+        bound = "1" if self.decay_rate is None else f"the rate {self.decay_rate:.6g}"
         return (f"plant mode {self.plant} has eigenvalue {self.eigenvalue:.6g} (|lambda| = {abs(self.eigenvalue):.6g} "
-                f">= 1) with a left eigenvector that no input reaches (residuals {self.residual_eig:.2g}, "
-                f"{self.residual_input:.2g}): no gains stabilize the loop")
+                f">= {bound}, proven exactly) with a left eigenvector that no input reaches (residuals "
+                f"{self.residual_eig:.2g}, {self.residual_input:.2g}): no gains achieve it")
 
     def to_dict(self) -> dict:
         return {
@@ -370,47 +373,47 @@ class UncontrollableCertificate:
             "left_vector": {"real": np.real(self.left_vector).tolist(), "imag": np.imag(self.left_vector).tolist()},
             "residual_eig": self.residual_eig,
             "residual_input": self.residual_input,
+            "dimension": self.dimension,
             "statement": self.statement(),
         }
 
 
 def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> UncontrollableCertificate | None:
-    """A verified unstable uncontrollable mode of some plant, or None.
+    """A proven unstable uncontrollable mode of some plant, or None.
 
     An eigenvalue ``lambda`` of ``F_l`` with left eigenvector ``w`` and ``w^H G_l = 0``
     is untouched by every input: ``w^H x(k)`` evolves as ``lambda^k w^H x(0)`` whatever the
-    gains, so ``|lambda| >= rate`` excludes every design with that per-sample rate.
+    gains (the adversary may keep plant l forever), so ``|lambda| >= rate`` excludes every
+    design with that per-sample rate, of every method.
 
-    Verification (docs/design.md): with ``r = w^H F_l - lambda w^H`` and ``||w|| = 1``,
-    ``F_l`` has an eigenvalue within ``||r||`` of ``lambda`` only for normal F; in general
-    we require ``w^H G_l`` to vanish *exactly* in float64 arithmetic on exact zeros
-    (a structural zero: the entries of G that w touches are exactly zero) and ``w``
-    to be an exact left eigenvector of a rational-checkable kind: we recompute
-    ``w^H F_l`` and accept when ``|lambda| - ||r|| - rounding >= rate`` where ``||r||``
-    bounds the backward error of ``F_l^T + dF`` having ``lambda`` exactly with
-    ``||dF||_2 <= ||r||``; the perturbed pair still has ``w^H G_l = 0``.
+    The proof is exact (docs/design.md): the controllable subspace of the float64 pair
+    ``(F_l, G_l)`` and the map F induces on the quotient are computed in rational
+    arithmetic, and a Schur-Cohn test on its characteristic polynomial proves that it has an
+    eigenvalue with ``|lambda| >= rate``.  The float64 eigenvalue and left eigenvector
+    ``w`` are reported with their residuals for the user to see.
     """
+    from fractions import Fraction
+
+    from . import exact
+
     F = np.asarray(F, dtype=np.float64)
     G = np.asarray(G, dtype=np.float64)
+    n = F.shape[1]
+    if n > 24:
+        return None
     for l in range(F.shape[0]):
+        part = exact.uncontrollable_part(F[l], G[l])
+        if not part:
+            continue
+        poly = exact.charpoly_rational(part)
+        if not exact.rational_radius_at_least(poly, Fraction(float(rate))):
+            continue
+        sub = np.array([[float(x) for x in row] for row in part])
+        target = complex(max(np.linalg.eigvals(sub), key=abs))
         vals, vecs = np.linalg.eig(F[l].T)
-        for i in np.argsort(-np.abs(vals)):
-            lam = vals[i]
-            if abs(lam) < rate * (1 - 1e-9):
-                break
-            w = vecs[:, i]
-            # Snap entries to exact zero where G's rows would otherwise leak: keep w as computed.
-            w = w / np.linalg.norm(w)
-            wG = w.conj() @ G[l]
-            wF = w.conj() @ F[l]
-            n = F.shape[1]
-            r = float(np.linalg.norm(wF - lam * w.conj()))
-            r += gamma(2 * n + 4) * float(np.linalg.norm(np.abs(w) @ np.abs(F[l]) + abs(lam) * np.abs(w)))
-            ri = float(np.linalg.norm(wG)) + gamma(2 * n + 2) * float(np.linalg.norm(np.abs(w) @ np.abs(G[l])))
-            # Backward error: w is an exact left eigenvector of F + dF with dF = -w r^H ... (||dF|| = r) and
-            # of G + dG with ||dG|| = ri; we accept ri only at the level of rounding of G's entries.
-            scaleG = float(np.linalg.norm(G[l])) or 1.0
-            ok = bool(abs(lam) >= rate and ri <= 64 * U * scaleG and r <= 64 * U * max(1.0, float(np.linalg.norm(F[l]))))
-            if ok:
-                return UncontrollableCertificate(l, complex(lam), w, r, ri, True)
+        i = int(np.argmin(np.abs(vals - target)))
+        w = vecs[:, i] / np.linalg.norm(vecs[:, i])
+        r = float(np.linalg.norm(w.conj() @ F[l] - vals[i] * w.conj()))
+        ri = float(np.linalg.norm(w.conj() @ G[l]))
+        return UncontrollableCertificate(l, complex(vals[i]), w, r, ri, True, dimension=len(part))
     return None

@@ -153,3 +153,90 @@ def proven_radius_lower_bound(M: tuple, estimate: float, steps: int = 40) -> flo
         else:
             hi = mid
     return float(lo) * (1 - 2.0**-52)
+
+
+# ------------------------------------------------------------------ rational matrices
+def fractions(a) -> list[list[Fraction]]:
+    """A float64 matrix as exact Fractions."""
+    return [[Fraction(float(x)) for x in row] for row in np.asarray(a, dtype=np.float64)]
+
+
+def charpoly_rational(M: list[list[Fraction]]) -> list[Fraction]:
+    """Coefficients ``[c_0, ..., c_n]`` of ``det(z I - M)`` for a rational matrix (Faddeev-LeVerrier)."""
+    n = len(M)
+    c = [Fraction(0)] * (n + 1)
+    c[n] = Fraction(1)
+    Mk = [[Fraction(int(i == j)) for j in range(n)] for i in range(n)]
+    for k in range(1, n + 1):
+        AM = [[sum(M[i][l] * Mk[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
+        c[n - k] = -sum(AM[i][i] for i in range(n)) / k
+        Mk = [[AM[i][j] + (c[n - k] if i == j else 0) for j in range(n)] for i in range(n)]
+    return c
+
+
+def rational_radius_at_least(coeffs: list[Fraction], r: Fraction) -> bool:
+    """True iff the polynomial ``sum_k coeffs[k] z^k`` (leading coefficient nonzero) has a root with ``|z| >= r``."""
+    n = len(coeffs) - 1
+    if n == 0:
+        return False
+    scaled = [Fraction(a) * Fraction(r) ** k for k, a in enumerate(coeffs)]
+    den = 1
+    for v in scaled:
+        den = den * v.denominator // gcd(den, v.denominator)
+    return not schur_stable([int(v * den) for v in scaled])
+
+
+def uncontrollable_part(F, G) -> list[list[Fraction]]:
+    """The map induced by F on ``R^n / (controllable subspace of (F, G))``, exactly (may be 0 x 0).
+
+    The controllable subspace ``V = span[G, F G, ..., F^(n-1) G]`` is F-invariant; with a basis
+    ``T = [V, E]`` (E unit vectors completing it) ``T^-1 F T`` is block upper triangular and its
+    lower-right block is the uncontrollable part: its eigenvalues are exactly the eigenvalues
+    of F that no input reaches.
+    """
+    Fq = fractions(F)
+    Gq = fractions(G)
+    n = len(Fq)
+    basis: list[list[Fraction]] = []  # reduced rows (echelon) spanning V, stored as vectors
+    pivots: list[int] = []
+
+    def reduce(v):
+        v = v[:]
+        for b, p in zip(basis, pivots):
+            if v[p] != 0:
+                f = v[p] / b[p]
+                v = [x - f * y for x, y in zip(v, b)]
+        return v
+
+    vectors = [[Gq[i][j] for i in range(n)] for j in range(len(Gq[0]))]
+    queue = list(vectors)
+    V = []
+    while queue and len(V) < n:
+        v = queue.pop(0)
+        r = reduce(v)
+        p = next((i for i, x in enumerate(r) if x != 0), None)
+        if p is None:
+            continue
+        basis.append(r)
+        pivots.append(p)
+        V.append(v)
+        queue.append([sum(Fq[i][k] * v[k] for k in range(n)) for i in range(n)])  # F v
+    k = len(V)
+    if k == n:
+        return []
+    cols = V + [[Fraction(int(i == j)) for i in range(n)] for j in range(n) if j not in pivots]
+    T = [[cols[j][i] for j in range(n)] for i in range(n)]
+    # solve T X = F T exactly (Gauss-Jordan on [T | F T])
+    FT = [[sum(Fq[i][l] * T[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
+    aug = [T[i][:] + FT[i][:] for i in range(n)]
+    for col in range(n):
+        piv = next(r for r in range(col, n) if aug[r][col] != 0)
+        aug[col], aug[piv] = aug[piv], aug[col]
+        pv = aug[col][col]
+        aug[col] = [x / pv for x in aug[col]]
+        for r in range(n):
+            if r != col and aug[r][col] != 0:
+                f = aug[r][col]
+                aug[r] = [x - f * y for x, y in zip(aug[r], aug[col])]
+    X = [row[n:] for row in aug]
+    return [row[k:] for row in X[k:]]
