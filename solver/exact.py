@@ -240,3 +240,29 @@ def uncontrollable_part(F, G) -> list[list[Fraction]]:
                 aug[r] = [x - f * y for x, y in zip(aug[r], aug[col])]
     X = [row[n:] for row in aug]
     return [row[k:] for row in X[k:]]
+
+
+def positive_definite_shifted(M, shift: float) -> bool:
+    """Exactly decide whether ``M + shift I`` is positive definite, for a symmetric float64 matrix M.
+
+    Sylvester's criterion on the integer matrix ``2^s (M + shift I)`` (all float64 numbers are
+    dyadic): fraction-free (Bareiss) elimination, every leading principal minor must be > 0.
+    """
+    A = np.asarray(M, dtype=np.float64)
+    n = A.shape[0]
+    A = A + 0.0  # copy
+    Mi, s = exact(A)
+    sh, t = exact(np.array([shift]))
+    if t > s:
+        Mi, s = Mi * (1 << (t - s)), t
+    shv = int(sh[0]) << (s - t)
+    B = [[int(Mi[i, j]) + (shv if i == j else 0) for j in range(n)] for i in range(n)]
+    prev = 1
+    for k in range(n):
+        if B[k][k] <= 0:
+            return False
+        for i in range(k + 1, n):
+            for j in range(k + 1, n):
+                B[i][j] = (B[i][j] * B[k][k] - B[i][k] * B[k][j]) // prev
+        prev = B[k][k]
+    return True
