@@ -12,7 +12,7 @@ from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
-from .lyapunov import recheck_common, recheck_switched
+from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
 from .network import MAX_MODES, ModeSet
 from .plant import PlantFamily
 from .result import DesignResult
@@ -314,11 +314,16 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     if cert is None or cert.kind in ("farkas", "uncontrollable"):
         return res
     A = modes.closed_loops(res.gains)
+    rho = None if cert.decay_rate is None else cert.decay_rate ** (2.0 * modes.eta)
     if cert.kind == "switched":
-        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source)
+        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source, rho=rho)
     else:
         X = None if cert.X is None else scale.quadratic_back(cert.X)
         original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
+        if not original.verified and X is not None:  # lift X afresh in the user's coordinates
+            original = recheck_common(lift(X, A, modes.n_drop), A, modes.n_drop, cert.source, X=X)
+        if original.verified and rho is not None:  # the rate, too, in the user's coordinates
+            original.verified = recheck_common_reduced(X, A, rho, cert.source).verified
     if original.verified:
         original.decay_rate = cert.decay_rate
         res.certificate = original

@@ -290,3 +290,20 @@ def test_http_serialization_carries_the_proof_fields():
     assert "gain norm <" in out["message"]
     rate = jsonable(design(PAPER, 3, method="lmi", decay_rate="max").to_dict())
     assert rate["rate_bracket"]["upper"] == rate["decay_rate"]
+
+
+def test_no_certificate_means_not_converged_never_a_guess(monkeypatch):
+    from solver.compiled import DesignSdpSolution, SolveInfo
+    from solver.methods import lmi
+
+    def no_proof(modes, scale, solver="CLARABEL", time_limit=None, clock=None):
+        # a solver claiming t* < 0 but returning useless multipliers
+        n, S = modes.n_states, modes.n_modes
+        info = SolveInfo("optimal", "CLARABEL", 0.0, 0.0, -1e-3, 1)
+        return DesignSdpSolution(t=-1e-3, W=np.eye(n), Y=np.zeros((modes.n_free_gains, modes.n_inputs, n)), S=None,
+                                 duals=np.stack([np.eye(2 * n) / (2 * n * S)] * S), info=info)
+
+    monkeypatch.setattr(lmi, "solve_sdp", no_proof)
+    res = design(PAPER, 3, method="lmi")
+    assert res.outcome == "not_converged" and res.certificate is None
+    assert "Farkas re-check" in res.message and "no verdict is proven" in res.message
