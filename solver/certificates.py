@@ -4,14 +4,15 @@
 for every verdict"):
 
 * :class:`FarkasCertificate` (``kind="farkas"``): PSD multipliers of the design
-  LMIs whose weighted sum contradicts every candidate design with gain norm
-  below ``gain_bound``.  :func:`check_farkas` (``lmi``) and
+  LMIs whose weighted sum contradicts every candidate design with relative margin
+  ``margin`` and gain norm below ``gain_bound``.  :func:`check_farkas` (``lmi``) and
   :func:`check_farkas_switched` (``switched``) recompute everything from the
-  multipliers and the interval data in float64 and account for rounding.
+  multipliers and interval data rebuilt from the plant, account for rounding, and
+  prove the eigenvalue bounds in exact arithmetic.
 * :class:`UncontrollableCertificate` (``kind="uncontrollable"``): a plant mode
   with an eigenvalue ``|lambda| >= 1`` that no input reaches (left eigenvector
-  ``w``, ``w^T F = lambda w^T``, ``w^T G = 0``), the case where the best margin is
-  exactly 0 and no strict Farkas multiplier exists.
+  ``w``, ``w^H F = lambda w^H``, ``w^H G = 0``), proven in rational arithmetic; the
+  case where the best margin is exactly 0 and no strict Farkas multiplier exists.
 
 Conventions (the contract a conic backend must meet): the design SDP is solved
 in the *congruent* form with data ``free_s``, ``coef_s`` already multiplied by
@@ -24,7 +25,7 @@ blocks ``[[Z11, Z21^T], [Z21, Z22]]``) of the constraints ``L_s - t I >= 0`` of
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -254,7 +254,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     if timed_out:
         best.outcome = "not_converged"
         shown = limit if user_limit is None else user_limit
-        best.message = f"time limit reached ({shown:g} s) during the decay-rate bisection; best iterate: " + best.message
+        best.message = (f"time limit reached ({shown:g} s) during the decay-rate bisection; best iterate: "
+                        + best.message)
     return best
 
 

@@ -22,9 +22,9 @@ import cvxpy as cp
 import numpy as np
 
 from ..compiled import CompiledProblem, block, check_memory, schur_block
+from ..errors import SolverFailed
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
-from ..errors import SolverFailed
 from .common import DesignOptions, RunClock, certify_gains, finish, is_time_limit
 from .lmi import compiled_for, plant_values
 

@@ -307,3 +307,21 @@ def test_no_certificate_means_not_converged_never_a_guess(monkeypatch):
     res = design(PAPER, 3, method="lmi")
     assert res.outcome == "not_converged" and res.certificate is None
     assert "Farkas re-check" in res.message and "no verdict is proven" in res.message
+
+
+@pytest.mark.parametrize("scheme", ["predictive", "hold", "zero"])
+@pytest.mark.parametrize("switching", ["per_interval", "per_sample"])
+def test_rebuilt_interval_data_match_the_mode_set_within_their_error_bounds(scheme, switching):
+    modes = ModeSet.from_family(PAPER, 3, plant_switching=switching, scheme=scheme)
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map)
+    ref_coef, _ = modes.scheme_coef()
+    # the exact interval matrices (fractions) lie within the claimed bounds of the float64 ones
+    for s in range(0, modes.n_modes, 3):
+        seq = modes.plants[s]
+        P = [[Fraction(int(i == j)) for j in range(2)] for i in range(2)]
+        for l in seq:
+            P = fmul(fr(PAPER.F[l]), P)
+        for i in range(2):
+            for j in range(2):
+                assert abs(Fraction(free[s, i, j]) - P[i][j]) <= Fraction(dfree[s, i, j])
+    assert np.allclose(free, modes.free, rtol=1e-14, atol=0) and np.allclose(coef, ref_coef, rtol=1e-13, atol=1e-300)
