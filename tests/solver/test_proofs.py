@@ -6,6 +6,7 @@ closed-form joint spectral radii from the literature, and an own bisection for t
 
 from __future__ import annotations
 
+import warnings
 from fractions import Fraction
 
 import cvxpy as cp
@@ -172,7 +173,7 @@ def test_weakly_actuated_family_is_stabilized_and_certificate_checks_in_user_coo
 def own_bisection(fam, n_drop, lo=0.3, hi=0.4, tol=2e-4):
     """Independent: a plain cvxpy LMI with W >= I (no trace normalization), accepted by eigenvalues."""
     modes = ModeSet.from_family(fam, n_drop)
-    n, m = 2, 1
+    n, m = fam.n_states, fam.n_inputs
 
     def ok(lam):
         W = cp.Variable((n, n), symmetric=True)
@@ -182,7 +183,9 @@ def own_bisection(fam, n_drop, lo=0.3, hi=0.4, tol=2e-4):
             c = lam ** (-float(modes.eta[s]))
             AW = modes.free[s] @ W + sum(modes.coef[s, q] @ Y[q] for q in range(n_drop))
             cons.append(cp.bmat([[W, c * AW.T], [c * AW, W]]) >> 1e-7 * np.eye(2 * n))
-        cp.Problem(cp.Minimize(cp.trace(W)), cons).solve(solver=cp.CLARABEL)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # inaccurate solves are judged by eigenvalues below
+            cp.Problem(cp.Minimize(cp.trace(W)), cons).solve(solver=cp.CLARABEL)
         if W.value is None:
             return False
         Wv = 0.5 * (W.value + W.value.T)
@@ -325,3 +328,17 @@ def test_rebuilt_interval_data_match_the_mode_set_within_their_error_bounds(sche
             for j in range(2):
                 assert abs(Fraction(free[s, i, j]) - P[i][j]) <= Fraction(dfree[s, i, j])
     assert np.allclose(free, modes.free, rtol=1e-14, atol=0) and np.allclose(coef, ref_coef, rtol=1e-13, atol=1e-300)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_best_decay_rate_of_random_families_matches_an_independent_bisection(seed):
+    rng = np.random.default_rng(seed)
+    F = rng.normal(size=(2, 2, 2))
+    F *= 0.9 / np.max(np.abs(np.linalg.eigvals(F)))
+    fam = PlantFamily(F=F, G=rng.normal(size=(2, 2, 1)))
+    res = design(fam, 2, method="lmi", decay_rate="max")
+    assert res.outcome == "stabilized"
+    lam = res.decay_rate
+    ref = own_bisection(fam, 2, lo=lam * 0.98, hi=min(1.0, lam * 1.02), tol=2e-4 * lam)
+    assert abs(lam - ref) <= 5e-3 * ref
+    assert design(fam, 2, method="switched", decay_rate="max").decay_rate <= lam
