@@ -105,7 +105,15 @@ def certify_gains(
         return None, A  # a rate is the candidate's to prove; an unstable mode has no certificate
     kinds = ("common_quadratic",) if modes.plant_switching == "per_interval" and candidate_kind != "switched" else (
         "common_quadratic", "switched")
-    return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=options.time_limit, on_solve=clock.add), A
+    remaining = clock.remaining(options.time_limit)
+    if remaining is not None and remaining <= 0:
+        return None, A
+    try:
+        return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=remaining, on_solve=clock.add), A
+    except SolverFailed as err:
+        if is_time_limit(err, options, clock):
+            return None, A
+        raise
 
 
 def finish(
