@@ -306,7 +306,10 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
     cert = res.certificate
     if cert is not None and cert.kind in ("farkas", "uncontrollable"):
+        before = cert.statement()
         res.certificate = _proof_back(cert, scale, modes)
+        if res.message.startswith(before):  # say what the returned (user-coordinate) certificate proves
+            res.message = res.certificate.statement() + res.message[len(before):]
         if getattr(res.certificate, "scaled", False):
             res.scaling["certificate"] = "scaled"
     if res.gains is None:

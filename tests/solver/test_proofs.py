@@ -342,3 +342,20 @@ def test_best_decay_rate_of_random_families_matches_an_independent_bisection(see
     ref = own_bisection(fam, 2, lo=lam * 0.98, hi=min(1.0, lam * 1.02), tol=2e-4 * lam)
     assert abs(lam - ref) <= 5e-3 * ref
     assert design(fam, 2, method="switched", decay_rate="max").decay_rate <= lam
+
+
+def test_farkas_proof_of_a_badly_scaled_family_holds_in_the_user_coordinates():
+    d = np.array([1e-4, 1.0])
+    F = np.asarray(CONFLICT.F) / d[None, :, None] * d[None, None, :]
+    G = np.asarray(CONFLICT.G) / d[None, :, None]
+    fam = PlantFamily(F=F, G=G)
+    res = design(fam, 2, method="lmi")
+    cert = res.certificate
+    assert res.outcome == "infeasible" and cert.kind == "farkas" and not cert.scaled
+    assert res.scaling is not None and res.scaling["certificate"] == "original"
+    # re-run the checker on the user's data: the same statement comes out
+    modes = ModeSet.from_family(fam, 2)
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map)
+    again = check_farkas(cert.multipliers, free, coef, dfree, dcoef, margin=cert.margin)
+    assert again.verified and again.gain_bound == pytest.approx(cert.gain_bound, rel=1e-9)
+    assert f"{cert.gain_bound:.3g}" in res.message
