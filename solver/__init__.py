@@ -9,6 +9,7 @@ See ``design`` for the methods, ``analyze`` for certificates and verdicts and
 """
 
 from .analysis import AnalysisReport, analyze
+from .certificates import FarkasCertificate, UncontrollableCertificate
 from .design import METHODS, design
 from .errors import InvalidInput, SolverFailed
 from .lyapunov import Certificate
@@ -27,6 +28,8 @@ __all__ = [
     "AnalysisReport",
     "SimulationResult",
     "Certificate",
+    "FarkasCertificate",
+    "UncontrollableCertificate",
     "InvalidInput",
     "SolverFailed",
 ]

@@ -6,13 +6,16 @@ Three verdicts, each with its evidence:
   or mode-dependent) found by an LMI for the fixed gains and re-checked in
   float64 with ``eigvalsh``;
 * ``stable=False``: a mode, or a finite product of modes (a concrete pattern
-  of losses and plant jumps repeated forever), whose spectral radius is >= 1;
+  of losses and plant jumps repeated forever), whose spectral radius is
+  *proven* >= 1: the product of the float64 data is computed exactly (integers)
+  and its characteristic polynomial put through the Schur-Cohn-Jury test
+  (:mod:`solver.exact`); float64 eigenvalues of a product are only a guide;
 * ``stable=None``: neither could be shown.
 
 Bounds on the joint spectral radius (JSR) of the interval maps under
-arbitrary switching are reported too: the lower bound from those products,
-the upper bounds from the best common quadratic and switched certificates
-(bisection), and the best certified per-sample decay rate.
+arbitrary switching are reported too: the proven lower bound from the best
+product, the upper bounds from the best common quadratic and switched
+certificates (bisection; above 1 too), and the best certified per-sample decay rate.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from .errors import InvalidInput, SolverFailed
 from .lyapunov import MAX_SWITCHED_MODES, Certificate, certified_rate, certify
 from .network import MAX_MODES, ModeSet, check_gains, spectral_radii
 from .plant import PlantFamily
+from .scaling import balance
 
 #: Hard cap on products examined per length (time and memory of the lower bound).
 MAX_PRODUCTS = 1_000_000
@@ -44,12 +48,19 @@ class AnalysisReport:
         interval, (S,) per sample (labelled by ``mode_labels``).
     certificate : Certificate or None
         The re-checked certificate when ``stable`` is True.
-    jsr_lower_bound : float
-        ``max rho(product)^(1/length)`` over all products of interval maps up to
-        ``product_length_checked``.
+    jsr_lower_bound : float or None
+        A proven lower bound of the JSR: ``rho(product)^(1/length)`` of the product
+        of interval maps (up to ``product_length_checked``) with the largest
+        float64 estimate, established exactly (docs/design.md); None when
+        nothing positive could be proven (``reason`` says why).
+    jsr_lower_estimate : float
+        The float64 estimate ``max rho(product)^(1/length)`` (not a proof).
+    scaling : list of float or None
+        When the certificate was found for the balanced loops ``T^-1 A_s T``
+        (``T = diag(scaling)``, powers of two, exact): the state scaling.
     jsr_upper_bound : float or None
         Smallest certified bound (common quadratic or switched) on the JSR of
-        the interval maps; None when none below ``hi`` could be certified.
+        the interval maps, also when >= 1; None when none could be certified.
     jsr_upper_bound_quadratic, jsr_upper_bound_switched : float or None
     decay_rate : float or None
         Best certified per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
@@ -65,7 +76,7 @@ class AnalysisReport:
     stable: bool | None
     spectral_radii: np.ndarray
     certificate: Certificate | None
-    jsr_lower_bound: float
+    jsr_lower_bound: float | None
     worst_sequence: list
     product_length_checked: int
     reason: str
@@ -74,6 +85,8 @@ class AnalysisReport:
     decay_rate: float | None = None
     mode_labels: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    jsr_lower_estimate: float | None = None
+    scaling: list | None = None
 
     @property
     def max_spectral_radius(self) -> float:
@@ -97,6 +110,8 @@ class AnalysisReport:
             "margin": self.margin,
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
             "jsr_lower_bound": self.jsr_lower_bound,
+            "jsr_lower_estimate": self.jsr_lower_estimate,
+            "scaling": self.scaling,
             "jsr_upper_bound": self.jsr_upper_bound,
             "jsr_upper_bound_quadratic": self.jsr_upper_bound_quadratic,
             "jsr_upper_bound_switched": self.jsr_upper_bound_switched,
@@ -145,6 +160,39 @@ def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int)
             bound = float(rho_k[i])
             sequence = tuple(int(d) for d in np.unravel_index(i, (S,) * k))
     return bound, sequence, checked
+
+
+#: Exact proofs are attempted up to this state dimension (integer characteristic polynomials).
+MAX_EXACT_STATES = 24
+
+
+def _prove_product(family: PlantFamily, K: np.ndarray, modes: ModeSet, seq: tuple, estimate: float):
+    """Exact proof on the product ``A_seq[-1] ... A_seq[0]`` of the float64 data.
+
+    Returns ``(proven lower bound of the JSR or None, proven rho >= 1, note)``.
+    """
+    from fractions import Fraction
+
+    from . import exact
+
+    if family.n_states > MAX_EXACT_STATES:
+        return None, False, f"no exact proof above {MAX_EXACT_STATES} states"
+    try:
+        maps = [exact.closed_loop(family.F, family.G, K, modes.plants[s]) for s in seq]
+    except ValueError as err:
+        return None, False, str(err)
+    M = exact.product(maps)
+    k = len(seq)
+    unstable = exact.radius_at_least(M, Fraction(1))
+    lb = exact.proven_radius_lower_bound(M, estimate**k, steps=30)
+    if lb <= 0:
+        return None, unstable, "no positive lower bound could be proven for the product"
+    bound = lb ** (1.0 / k) * (1 - 8 * 2.0**-53)
+    if unstable:
+        bound = max(bound, 1.0)
+    note = "the best product's radius is proven" if abs(bound - estimate) <= 1e-6 * max(estimate, 1e-300) else (
+        f"exact arithmetic proves only rho^(1/{k}) >= {bound:.6g}")
+    return bound, unstable, note
 
 
 def analyze(
@@ -215,53 +263,68 @@ def analyze(
     solver = check_solver(solver)
     A = modes.closed_loops(K)
     radii = spectral_radii(A)
-    bound, seq, checked = product_lower_bound(A, max_product_length, max_products)
+    estimate, seq, checked = product_lower_bound(A, max_product_length, max_products)
     worst = [modes.label(s) for s in seq]
+    proven, unstable, proof_note = _prove_product(family, K, modes, seq, estimate)
     certificate = None
+    scaling = None
     upper_q = upper_s = rate = None
     failure = ""
-    if bound >= 1.0:
+    if unstable:
         stable = False
         if len(worst) == 1:
-            reason = f"mode {worst[0]} has spectral radius {bound:.6g} >= 1"
+            reason = f"mode {worst[0]} has spectral radius >= 1 (proven exactly; float64 estimate {estimate:.6g})"
         else:
             reason = (
-                f"repeating the sequence of {len(worst)} intervals in worst_sequence gives "
-                f"rho^(1/{len(worst)}) = {bound:.6g} >= 1"
+                f"repeating the sequence of {len(worst)} intervals in worst_sequence gives a product with "
+                f"spectral radius >= 1 (proven exactly; float64 rho^(1/{len(worst)}) = {estimate:.6g})"
             )
     else:
         try:
             certificate = certify(A, modes.n_drop, kinds=tuple(certificates), solver=solver)
+            scale = balance(family)
+            if certificate is None and not scale.is_identity:
+                # T^-1 A_s T is exact (powers of two): a certificate for it proves the same loop
+                T = scale.state
+                certificate = certify(A / T[None, :, None] * T[None, None, :], modes.n_drop,
+                                      kinds=tuple(certificates), solver=solver)
+                if certificate is not None:
+                    scaling = T.tolist()
         except SolverFailed as err:
             failure = f"; {err}"
         if certificate is not None:
             stable = True
-            reason = (f"{certificate.kind} certificate re-checked in float64 "
+            where = "" if scaling is None else " for T^-1 A_s T (state scaling T in `scaling`, exact)"
+            reason = (f"{certificate.kind} certificate re-checked in float64{where} "
                       f"(relative margin {certificate.margin:.3g})")
         else:
             stable = None
             reason = (
-                f"no certificate ({', '.join(certificates)}) and no destabilizing product up to length "
-                f"{checked} (lower bound {bound:.6g} < 1){failure}"
+                f"no certificate ({', '.join(certificates)}) and no product up to length {checked} proven to have "
+                f"spectral radius >= 1 (float64 estimate {estimate:.6g}; {proof_note}){failure}"
             )
-        kinds = {"none": (), "quadratic": ("common_quadratic",), "all": ("common_quadratic", "switched")}[bounds]
-        rates = []
-        for kind in kinds:
-            if kind == "switched" and modes.n_modes > MAX_SWITCHED_MODES:
-                continue
-            upper, _ = certified_rate(A, modes.eta, kind, per="interval", tol=rate_tol, solver=solver)
-            if kind == "switched":
-                upper_s = upper
-            else:
-                upper_q = upper
-            rates.append(certified_rate(A, modes.eta, kind, per="sample", tol=rate_tol, solver=solver)[0])
-        rates = [r for r in rates if r is not None]
-        rate = min(rates) if rates else None
+    kinds = {"none": (), "quadratic": ("common_quadratic",), "all": ("common_quadratic", "switched")}[bounds]
+    rates = []
+    for kind in kinds:
+        if kind == "switched" and modes.n_modes > MAX_SWITCHED_MODES:
+            continue
+        # the interval maps' JSR is at most max_s ||A_s||_2 (X = I): search up to there, above 1 too
+        top = max(1.0, 1.01 * float(np.max(np.linalg.norm(A, ord=2, axis=(1, 2)))))
+        upper, _ = certified_rate(A, modes.eta, kind, per="interval", hi=top, tol=rate_tol * top, solver=solver)
+        if kind == "switched":
+            upper_s = upper
+        else:
+            upper_q = upper
+        rates.append(certified_rate(A, modes.eta, kind, per="sample", tol=rate_tol, solver=solver)[0])
+    rates = [r for r in rates if r is not None]
+    rate = min(rates) if rates else None
     return AnalysisReport(
         stable=stable,
         spectral_radii=modes.reshape_per_mode(radii),
         certificate=certificate,
-        jsr_lower_bound=bound,
+        jsr_lower_bound=proven,
+        jsr_lower_estimate=estimate,
+        scaling=scaling,
         worst_sequence=worst,
         product_length_checked=checked,
         reason=reason,

@@ -156,6 +156,10 @@ class CompiledProblem:
             raise SolverFailed(f"{name} ended with status {status!r}", status=status)
         return info
 
+    def duals(self, name: str) -> np.ndarray:
+        """Dual values of a list of PSD constraints stored under ``name`` in ``variables``, stacked."""
+        return np.stack([np.array(c.dual_value, dtype=np.float64) for c in self.variables[name]])
+
     def value(self, name: str):
         var = self.variables[name]
         if isinstance(var, list):
@@ -210,6 +214,41 @@ class ProblemCache:
 #: The process-wide cache every method uses (each worker process has its own);
 #: ``NCS_PROBLEM_CACHE_SIZE`` sets its bound.
 problem_cache = ProblemCache(maxsize=max(1, int(os.environ.get("NCS_PROBLEM_CACHE_SIZE", "32"))))
+
+
+@dataclass
+class DesignSdpSolution:
+    """One solve of a design SDP in the congruent form (the interface every conic backend meets).
+
+    The SDP is ``max t`` subject to the normalization (``trace W = n`` for ``lmi``,
+    ``trace(Z + Z^T) = 2 n`` for ``switched``) and one block constraint
+    ``block_b - t I >= 0`` (side 2n) per mode (``lmi``, b = s) or per pair of modes
+    (``switched``, b = s * S + u).  The data of mode s are ``free_s`` and ``coef_s``
+    already multiplied by ``c_s = lambda^(-eta_s)``, so no block carries a decay factor.
+
+    Attributes
+    ----------
+    t : float
+        Optimal margin t*.
+    W : ndarray, shape (n, n)
+        ``lmi``: W (symmetric); ``switched``: the common slack Z (not symmetric).
+    Y : ndarray, shape (J, m, n)
+        ``Y_j = Theta_j W`` (``Theta_j Z``), the scheme's free gains times W (Z).
+    S : ndarray, shape (S, n, n), or None
+        ``switched``: the mode matrices ``S_s`` (certificate ``P_s = S_s^{-1}``).
+    duals : ndarray, shape (B, 2n, 2n)
+        PSD dual matrix of each block constraint, in block order, as cvxpy returns
+        them: for ``max t`` with the ``t I`` term, ``sum_b trace(duals_b) = 1``, and
+        ``sum_b <duals_b, block_b(W, Y)> = t* `` at the optimum.
+    info : SolveInfo
+    """
+
+    t: float
+    W: np.ndarray
+    Y: np.ndarray
+    S: np.ndarray | None
+    duals: np.ndarray
+    info: SolveInfo
 
 
 def schur_block(top_left, lower_left, bottom_right) -> cp.Expression:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import Callable
 
@@ -11,7 +12,7 @@ from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
-from .lyapunov import recheck_common, recheck_switched
+from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
 from .network import MAX_MODES, ModeSet
 from .plant import PlantFamily
 from .result import DesignResult
@@ -92,10 +93,15 @@ def design(
         CCL Step 1: the paper's pure feasibility problem, or ``min trace(P + Q)``.
     decay_rate : float in (0, 1], "max" or None
         Demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
-        in the certificate's norm), or find the smallest one by bisection
-        (to ``rate_tol``).  ``lmi`` and ``switched`` only.
+        in the certificate's norm), or find the smallest one (``"max"``) by bisection on the
+        congruent SDP (data of mode s times ``lambda^(-eta_s)``; docs/design.md).  A rate is
+        accepted only by the float64 re-check at that rate and rejected only with a
+        certificate; ``res.rate_bracket`` gives the bracket.  ``switched`` starts from
+        ``lmi``'s certified rate and is never worse.  Gains grow as the rate nears the
+        optimum (the LMI's margin vanishes there): a slightly larger rate gives far
+        smaller gains.  ``lmi`` and ``switched`` only.
     rate_tol : float
-        Bisection tolerance on lambda for ``decay_rate="max"``.
+        Relative bisection tolerance on lambda for ``decay_rate="max"``.
     plant_switching : {"per_interval", "per_sample"}
         Plant mode constant over an interval (the paper), or free to jump at every sample.
     scheme : {"predictive", "hold", "zero"}
@@ -111,14 +117,18 @@ def design(
     Returns
     -------
     DesignResult
-        ``outcome`` is "stabilized" only with a float64-verified certificate.
+        ``outcome`` is "stabilized" only with a float64-verified Lyapunov certificate,
+        "infeasible" only with a re-checked proof in ``res.certificate`` (``kind="farkas"``:
+        multipliers, ``gain_bound``; ``kind="uncontrollable"``: an unstable mode no input
+        reaches), and "not_converged" otherwise (the reason in ``message``; also when
+        ``time_limit`` runs out, with the best iterate).
 
     Raises
     ------
     InvalidInput
         Bad arguments (the field is named in ``err.field``).
     SolverFailed
-        The conic solver failed; never reported as "infeasible".
+        The conic solver failed (not by the time limit); never reported as "infeasible".
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
@@ -142,42 +152,147 @@ def design(
     if scale is not None and not scale.is_identity:
         scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
                                            scheme=scheme, max_modes=max_modes)
-        return _unscale(_run(METHODS[method].run, scaled_modes, options, decay_rate, rate_tol), scale, modes)
-    return _run(METHODS[method].run, modes, options, decay_rate, rate_tol)
+        return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+    return _best(method, modes, options, decay_rate, rate_tol)
 
 
-def _run(runner, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
+def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
+    """``switched`` with ``decay_rate="max"`` starts from lmi's certified rate: never worse than lmi."""
+    if decay_rate == "max" and method == "switched":
+        start = time.perf_counter()
+        first = _smallest_rate("lmi", modes, options, rate_tol)
+        if first is not None and "time limit reached" in first.message:
+            first.method = "switched"
+            return first
+        if first is not None and first.outcome == "stabilized":
+            rest = options if options.time_limit is None else replace(
+                options, time_limit=max(options.time_limit - (time.perf_counter() - start), 1e-9))
+            return _smallest_rate("switched", modes, rest, rate_tol, upper=first, user_limit=options.time_limit)
+    return _run(method, modes, options, decay_rate, rate_tol)
+
+
+def _run(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
     if decay_rate != "max":
-        return runner(modes, options)
-    return _smallest_rate(runner, modes, options, rate_tol)
+        return METHODS[method].run(modes, options)
+    return _smallest_rate(method, modes, options, rate_tol)
 
 
-def _smallest_rate(runner, modes: ModeSet, options: DesignOptions, tol: float) -> DesignResult:
-    """Bisection on lambda in (0, 1]: every design at a feasible lambda is certified for it."""
-    totals = {"total": 0.0, "setup": 0.0, "solver": 0.0, "solves": 0}
+#: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
+MIN_RATE = 1e-4
+
+
+def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
+                   upper: DesignResult | None = None, user_limit: float | None = None) -> DesignResult:
+    """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
+
+    A rate is accepted only when the float64 re-check of that step's gains and
+    certificate passes at the rate; a step is "infeasible" only with a re-checked
+    Farkas (or uncontrollable-mode) certificate.  ``res.rate_bracket`` reports
+    ``[lower, upper]``: ``upper`` the returned certified rate, ``lower`` the largest rate
+    tried below it, and whether that lower end is proven (every design of the
+    method at rates <= lower is excluded by a certificate).  ``upper`` (switched): a
+    result of another method whose certified rate starts the search (its certificate
+    also proves the rate for this method's loop).
+    """
+    start = time.perf_counter()
+    totals = {"setup": 0.0, "solver": 0.0, "solves": 0}
+    search: list = []
+    runner = METHODS[method].run
+    limit = options.time_limit
+    timed_out = False
 
     def attempt(lam):
-        res = runner(modes, replace(options, decay_rate=lam))
+        nonlocal timed_out
+        remaining = None if limit is None else limit - (time.perf_counter() - start)
+        if remaining is not None and remaining <= 0:
+            timed_out = True
+            return None
+        res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
         for key in totals:
             totals[key] += res.timings.get(key, 0)
-        search.append({"decay_rate": lam, "outcome": res.outcome})
+        search.append({"decay_rate": lam, "outcome": res.outcome,
+                       "proof": None if res.certificate is None else res.certificate.kind})
+        if res.outcome == "not_converged" and "time limit" in res.message:
+            timed_out = True
         return res
 
-    search: list = []
-    best = attempt(1.0)
-    if best.outcome == "stabilized":
-        lo, hi = 0.0, 1.0
-        while hi - lo > tol:
-            mid = 0.5 * (lo + hi)
-            res = attempt(mid)
-            if res.outcome == "stabilized":
-                hi, best = mid, res
-            else:
-                lo = mid
-        best.message += f"; smallest certified decay rate {hi:.4g} (bisection to {tol:g}, {len(search)} designs)"
+    lo, lo_proven = 0.0, True
+    if upper is not None and upper.outcome == "stabilized" and upper.decay_rate is not None:
+        best, hi = upper, float(upper.decay_rate)
+        best.method = method
+        search.extend({**entry, "decay_rate": entry["decay_rate"], "method": upper.method}
+                      for entry in upper.rate_search)
+        # lo stays 0: another method's infeasible rates say nothing about this one
+    else:
+        best = attempt(1.0)
+        hi = 1.0
+        if best is None or best.outcome != "stabilized":
+            if best is not None:
+                best.rate_search = search
+            return best if best is not None else _time_out(modes, method, options, search)
+    while hi - lo > tol * hi and hi > MIN_RATE and not timed_out:
+        mid = 0.5 * (lo + hi)
+        res = attempt(mid)
+        if res is None:
+            break
+        if res.outcome == "stabilized":
+            hi, best = mid, res
+        else:
+            lo, lo_proven = mid, res.outcome == "infeasible"
+    A = modes.closed_loops(best.gains)
+    loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
+    best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven),
+                         "loop_spectral_rate": loop, "relative_tolerance": tol}
+    proven = ("proven: no design with the relative margin, Farkas" if lo_proven
+              else "not proven: a step ended without a verdict")
+    best.message += (f"; smallest certified decay rate {hi:.6g}, bracket [{lo:.6g}, {hi:.6g}] (lower end {proven}; "
+                     f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
-    best.timings.update(totals, overhead=max(totals["total"] - totals["setup"] - totals["solver"], 0.0))
+    best.decay_rate = hi
+    total = time.perf_counter() - start
+    best.timings.update(totals, total=total, overhead=max(total - totals["setup"] - totals["solver"], 0.0))
+    if timed_out:
+        best.outcome = "not_converged"
+        shown = limit if user_limit is None else user_limit
+        best.message = (f"time limit reached ({shown:g} s) during the decay-rate bisection; best iterate: "
+                        + best.message)
     return best
+
+
+def _time_out(modes, method, options, search) -> DesignResult:
+    return DesignResult(outcome="not_converged", gains=None, certificate=None, method=method, n_drop=modes.n_drop,
+                        message=f"time limit reached ({options.time_limit:g} s) before the first design",
+                        scheme=modes.scheme, plant_switching=modes.plant_switching,
+                        mode_labels=[modes.label(s) for s in range(modes.n_modes)], rate_search=search)
+
+
+def _proof_back(cert, scale: Scaling, modes: ModeSet):
+    """An infeasibility proof made in scaled coordinates, re-checked on the user's data.
+
+    Farkas multipliers map by the congruence ``Z = D^-T Z~ D^-1``, ``D = blkdiag(T, T)``
+    (exact: powers of two) and are re-checked on interval data rebuilt from the
+    user's F, G; when that re-check fails the scaled one stands (``scaled=True``).
+    """
+    from .certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
+    from .methods.common import congruent_scale
+
+    if cert.kind == "uncontrollable":
+        mine = uncontrollable_mode(modes.F, modes.G, 1.0 if cert.decay_rate is None else cert.decay_rate)
+        if mine is not None:
+            mine.decay_rate = cert.decay_rate
+            return mine
+        cert.left_vector = cert.left_vector / scale.state  # w = T^-1 w~ (the residuals are those of the scaled data)
+        return cert
+    inv = np.tile(1.0 / scale.state, 2)
+    Z = cert.multipliers * inv[:, None] * inv[None, :]
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map,
+                                             scale=congruent_scale(modes, cert.decay_rate))
+    check = check_farkas_switched if cert.method == "switched" else check_farkas
+    mine = check(Z, free, coef, dfree, dcoef, cert.decay_rate, margin=cert.margin)
+    if mine.verified:
+        return mine
+    cert.scaled = True
+    return cert
 
 
 def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
@@ -189,18 +304,30 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     (``res.scaling`` says which).
     """
     res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
+    cert = res.certificate
+    if cert is not None and cert.kind in ("farkas", "uncontrollable"):
+        before = cert.statement()
+        res.certificate = _proof_back(cert, scale, modes)
+        if res.message.startswith(before):  # say what the returned (user-coordinate) certificate proves
+            res.message = res.certificate.statement() + res.message[len(before):]
+        if getattr(res.certificate, "scaled", False):
+            res.scaling["certificate"] = "scaled"
     if res.gains is None:
         return res
     res.gains = scale.gains_back(res.gains)
-    cert = res.certificate
-    if cert is None:
+    if cert is None or cert.kind in ("farkas", "uncontrollable"):
         return res
     A = modes.closed_loops(res.gains)
+    rho = None if cert.decay_rate is None else cert.decay_rate ** (2.0 * modes.eta)
     if cert.kind == "switched":
-        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source)
+        original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source, rho=rho)
     else:
         X = None if cert.X is None else scale.quadratic_back(cert.X)
         original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
+        if not original.verified and X is not None:  # lift X afresh in the user's coordinates
+            original = recheck_common(lift(X, A, modes.n_drop), A, modes.n_drop, cert.source, X=X)
+        if original.verified and rho is not None:  # the rate, too, in the user's coordinates
+            original.verified = recheck_common_reduced(X, A, rho, cert.source).verified
     if original.verified:
         original.decay_rate = cert.decay_rate
         res.certificate = original

@@ -96,6 +96,9 @@ class ModeSet:
     plant_switching: str
     scheme: str
     gain_map: np.ndarray
+    #: The plant data the modes were built from (r, n, n) and (r, n, m), for solver-independent re-checks.
+    F: np.ndarray | None = None
+    G: np.ndarray | None = None
 
     @classmethod
     def from_family(
@@ -144,6 +147,8 @@ class ModeSet:
             plant_switching=plant_switching,
             scheme=scheme,
             gain_map=M,
+            F=np.array(family.F, dtype=np.float64),
+            G=np.array(family.G, dtype=np.float64),
         )
 
     # ------------------------------------------------------------------ sizes

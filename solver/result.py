@@ -93,7 +93,12 @@ class DesignResult:
     mode_labels : list of dict
         The closed-loop modes in the order of the flat arrays.
     rate_search : list of dict
-        For ``decay_rate="max"``: every rate tried and its outcome.
+        For ``decay_rate="max"``: every rate tried, its outcome and the kind of proof.
+    rate_bracket : dict or None
+        For ``decay_rate="max"``: ``lower`` and ``upper`` ends of the bisection (``upper`` is the
+        returned certified rate), ``lower_proven`` (every design of the method at rate ``lower`` is
+        excluded by a Farkas/uncontrollable certificate), ``loop_spectral_rate`` (the returned
+        loop's ``max_s rho(A_s)^(1/eta_s)``, below which no certificate for these gains can go).
     scaling : dict or None
         The diagonal state/input scaling the design was made in (None when none was needed)
         and in which coordinates ``certificate`` is expressed.
@@ -116,6 +121,7 @@ class DesignResult:
     mode_labels: list = field(default_factory=list)
     rate_search: list = field(default_factory=list)
     scaling: dict | None = None
+    rate_bracket: dict | None = None
 
     @property
     def iterations(self) -> int:
@@ -131,8 +137,8 @@ class DesignResult:
         if self.certificate is not None:
             cert = self.certificate.to_dict()
             if not include_certificate_matrix:
-                cert.pop("P")
-                cert.pop("X")
+                for key in ("P", "X", "multipliers", "left_vector"):
+                    cert.pop(key, None)
         return {
             "outcome": self.outcome,
             "method": self.method,
@@ -153,4 +159,5 @@ class DesignResult:
             "rate_search": self.rate_search,
             "modes": self.mode_labels,
             "scaling": self.scaling,
+            "rate_bracket": self.rate_bracket,
         }

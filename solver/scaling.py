@@ -56,13 +56,35 @@ def _power_of_two(v: np.ndarray) -> np.ndarray:
     return np.exp2(np.round(np.log2(v)))
 
 
-def balance(family: PlantFamily, threshold: float = 1e3) -> Scaling:
-    """Scaling that balances the family, or the identity when it is already well scaled.
+def _reach_rows(F: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """Row norms of the controllability matrices ``[G, F G, ..., F^(n-1) G]`` of every mode.
 
-    T balances ``sum_l |F_l|`` (row and column norms made comparable,
-    LAPACK's ``gebal`` without permutation); U then gives every column of the
-    scaled input matrices a norm near one.  Applied only when the entries'
-    magnitudes spread over more than ``threshold``.
+    F is divided by ``max(1, ||F||)`` so that unstable modes do not let the highest
+    power dominate: row i measures how strongly the inputs reach state i.
+    """
+    r, n, m = G.shape
+    total = np.zeros(n)
+    for l in range(r):
+        Fl = F[l] / max(1.0, float(np.linalg.norm(F[l], 2)))
+        block = G[l]
+        for _ in range(n):
+            total += np.sum(block**2, axis=1)
+            block = Fl @ block
+    return np.sqrt(total)
+
+
+def balance(family: PlantFamily, threshold: float = 1e3) -> Scaling:
+    """Scaling that balances states *and* inputs, or the identity when the family is well scaled.
+
+    T first balances ``sum_l |F_l|`` (row and column norms made comparable,
+    LAPACK's ``gebal`` without permutation).  When the inputs then reach the
+    states with strengths spread over more than ``threshold`` (a weakly actuated
+    state next to a strongly actuated one: the gains must be large in one
+    direction only), T also scales every state by the row norm of the
+    controllability matrix ``[G, F G, ..., F^(n-1) G]`` (over all modes), so each
+    state is measured in units the inputs move it by.  U then gives every column
+    of the scaled input matrices a norm near one.  All factors are powers of two;
+    applied only when the entries' magnitudes spread over more than ``threshold``.
     """
     n, m = family.n_states, family.n_inputs
     mags = np.abs(np.concatenate([family.F.ravel(), family.G.ravel()]))
@@ -72,7 +94,14 @@ def balance(family: PlantFamily, threshold: float = 1e3) -> Scaling:
     summed = np.sum(np.abs(family.F), axis=0) + 1e-300
     _, (scale, _perm) = scipy.linalg.matrix_balance(summed, permute=False, separate=True)
     t = _power_of_two(scale)
+    Fs = family.F / t[None, :, None] * t[None, None, :]
     Gs = family.G / t[None, :, None]
+    reach = _reach_rows(Fs, Gs)
+    live = reach > 0
+    if np.count_nonzero(live) >= 2 and reach[live].max() / reach[live].min() > threshold:
+        extra = np.where(live, reach / reach[live].max(), 1.0)
+        t = t * _power_of_two(extra)
+        Gs = family.G / t[None, :, None]
     col = np.sqrt(np.sum(Gs**2, axis=(0, 1)))
     u = _power_of_two(np.where(col > 0, 1.0 / np.where(col > 0, col, 1.0), 1.0))
     return Scaling(t, u)

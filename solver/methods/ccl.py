@@ -22,9 +22,10 @@ import cvxpy as cp
 import numpy as np
 
 from ..compiled import CompiledProblem, block, check_memory, schur_block
+from ..errors import SolverFailed
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
-from .common import DesignOptions, RunClock, certify_gains, finish
+from .common import DesignOptions, RunClock, certify_gains, finish, is_time_limit
 from .lmi import compiled_for, plant_values
 
 
@@ -87,9 +88,16 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     for k in range(options.max_iter + 1):
         remaining = clock.remaining(options.time_limit)
         if remaining is not None and remaining <= 0:
-            message = f"time limit of {options.time_limit:g} s reached after {k - 1} iterations"
+            message = f"time limit reached ({options.time_limit:g} s) after {len(history)} solved iterations"
             break
-        info = compiled.solve(values, solver=options.solver, time_limit=remaining)
+        try:
+            info = compiled.solve(values, solver=options.solver, time_limit=remaining)
+        except SolverFailed as err:
+            if not is_time_limit(err, options, clock):
+                raise
+            message = (f"time limit reached ({options.time_limit:g} s) inside the solver after {len(history)} "
+                       "solved iterations; the last iterate is returned")
+            break
         clock.add(info)
         status = info.status
         P = compiled.value("P")

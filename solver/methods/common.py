@@ -8,7 +8,9 @@ from typing import Callable
 
 import numpy as np
 
+from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
 from ..compiled import SolveInfo
+from ..errors import SolverFailed
 from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
 from ..network import ModeSet, spectral_radii
 from ..result import DesignResult, IterationRecord
@@ -103,7 +105,15 @@ def certify_gains(
         return None, A  # a rate is the candidate's to prove; an unstable mode has no certificate
     kinds = ("common_quadratic",) if modes.plant_switching == "per_interval" and candidate_kind != "switched" else (
         "common_quadratic", "switched")
-    return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=options.time_limit, on_solve=clock.add), A
+    remaining = clock.remaining(options.time_limit)
+    if remaining is not None and remaining <= 0:
+        return None, A
+    try:
+        return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=remaining, on_solve=clock.add), A
+    except SolverFailed as err:
+        if is_time_limit(err, options, clock):
+            return None, A
+        raise
 
 
 def finish(
@@ -140,41 +150,102 @@ def finish(
     )
 
 
-def conclude_one_shot(
-    modes: ModeSet,
-    method: str,
-    options: DesignOptions,
-    clock: RunClock,
-    info: SolveInfo,
-    t: float,
-    *,
-    infeasible: str | None = None,
-    gains=None,
-    cert: Certificate | None = None,
-    A=None,
-) -> DesignResult:
-    """The result of a one-SDP method (``lmi``, ``switched``) from its optimal margin t*.
+def congruent_scale(modes: ModeSet, rate: float | None) -> np.ndarray:
+    """``c_s = lambda^(-eta_s)`` per mode (ones without a rate): multiplies the data of mode s."""
+    if rate is None:
+        return np.ones(modes.n_modes)
+    return float(rate) ** (-modes.eta.astype(float))
 
-    ``infeasible`` is the reason when ``t* <= margin``; otherwise the gains
-    and the outcome of :func:`certify_gains` decide between stabilized and not_converged.
+
+def is_time_limit(err: SolverFailed, options: DesignOptions, clock: RunClock) -> bool:
+    """Whether a solver failure is the time limit running out (status or clock)."""
+    if options.time_limit is None:
+        return False
+    return "limit" in str(err.status or "").lower() or clock.elapsed >= options.time_limit
+
+
+def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate: float | None,
+                     margin: float = 0.0):
+    """A solver-independent proof that no design of ``method`` exists at ``rate``, or ``(None, reason)``.
+
+    Tries an unstable uncontrollable plant mode, then the Farkas multipliers
+    (re-checked by :mod:`solver.certificates` on interval data rebuilt from the
+    plant with rounding bounds).  Returns ``(certificate or None, reason)``.
     """
+    reason = "no multipliers"
+    if modes.F is not None:  # the structural proof first: it excludes every gain, of any method
+        unc = uncontrollable_mode(modes.F, modes.G, 1.0 if rate is None else rate)
+        if unc is not None:
+            unc.decay_rate = rate
+            return unc, ""
+    if duals is not None and modes.F is not None:
+        free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map,
+                                                 scale=congruent_scale(modes, rate))
+        if method == "switched":
+            S, n2 = modes.n_modes, duals.shape[-1]
+            cert = check_farkas_switched(duals.reshape(S, S, n2, n2), free, coef, dfree, dcoef, rate,
+                                         margin=margin / modes.n_states)
+        else:
+            cert = check_farkas(duals, free, coef, dfree, dcoef, rate, margin=margin / modes.n_states)
+        if cert.verified:
+            return cert, ""
+        reason = f"the dual multipliers do not pass the Farkas re-check (delta = {cert.delta:.3g})"
+    return None, reason
+
+
+def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp) -> DesignResult:
+    """The result of a one-SDP method (``lmi``, ``switched``).
+
+    ``solve_sdp(modes, scale, solver, time_limit, clock) -> DesignSdpSolution`` solves the congruent
+    SDP.  Stabilized needs gains whose certificate passes the float64 re-check
+    at the rate; infeasible needs a certificate from :func:`prove_infeasible`;
+    anything else is ``not_converged`` with the reason.
+    """
+    clock = RunClock()
+    rate = options.decay_rate
+    rate_txt = "" if rate is None else f" at decay rate {rate:.6g}"
+    try:
+        sol = solve_sdp(modes, congruent_scale(modes, rate), options.solver, options.time_limit, clock)
+    except SolverFailed as err:
+        if not is_time_limit(err, options, clock):
+            raise
+        record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
+        return finish(modes, method, "not_converged", None, None, None, clock, options.solver,
+                      str(err.status), f"time limit reached ({options.time_limit:g} s) inside the solver"
+                                       f"{rate_txt}; no iterate", [record], options)
+    clock.add(sol.info)
+    info, t = sol.info, sol.t
+    gains = cert = A = None
+    if np.isfinite(t) and t > 0:
+        if method == "switched":
+            theta = np.linalg.solve(sol.W.T, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
+            candidate, kind = np.linalg.inv(sol.S), "switched"
+        else:
+            theta = np.linalg.solve(sol.W, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j W^{-1}
+            candidate, kind = np.linalg.inv(sol.W), "reduced"
+        gains = modes.expand(theta)
+        cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_kind=kind,
+                                candidate_source=method)
     record = IterationRecord(
         iteration=0, objective=t, trace_gap=None, theorem1=cert is not None,
         certificate_margin=None if cert is None else cert.margin, solve_time=info.solve_time, elapsed=clock.elapsed,
     )
 
-    def result(outcome, message):
-        return finish(modes, method, outcome, gains, cert, A, clock, info.solver, info.status, message, [record],
-                      options)
+    def result(outcome, message, certificate=cert):
+        keep = outcome != "infeasible"  # a proven-infeasible design has no gains to report
+        return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
+                      info.solver, info.status, message, [record], options)
 
-    rate = "" if options.decay_rate is None else f" at decay rate {options.decay_rate:g}"
-    if infeasible is not None:
-        return result("infeasible", f"{infeasible}: the best normalized margin is t* = {t:.3g} <= margin "
-                                    f"{options.margin:g}{rate}")
     if options.callback is not None:
         options.callback(record)
-    if cert is None:
-        return result("not_converged",
-                      f"the SDP reported margin t* = {t:.3g} but no certificate passed the float64 re-check")
-    return result("stabilized", f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "
-                                f"(relative margin {cert.margin:.3g}){rate}")
+    if cert is not None:
+        return result("stabilized", f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "
+                                    f"(relative margin {cert.margin:.3g}){rate_txt}")
+    proof, reason = prove_infeasible(modes, method, sol.duals, rate, options.margin)
+    if proof is not None:
+        return result("infeasible", f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
+    if np.isfinite(t) and t > 0:
+        return result("not_converged", f"the SDP reported margin t* = {t:.3g} but no certificate passed the "
+                                       f"float64 re-check{rate_txt}, and {reason}")
+    return result("not_converged", f"the SDP's best margin is t* = {t:.3g}{rate_txt}, but {reason} and no "
+                                   "uncontrollable unstable mode was found: no verdict is proven")

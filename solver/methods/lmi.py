@@ -1,18 +1,19 @@
-"""Exact convex design (DESIGN.md section 3): one SDP, no iteration.
+"""Exact convex design (docs/design.md): one SDP, no iteration.
 
 Theorem 1 for the augmented loop holds iff some ``X > 0`` has
-``A_s^T X A_s - X < 0`` for every mode s.  With ``W = X^{-1}`` and the
-scheme's free gains ``Theta_j = Y_j W^{-1}`` the condition is linear::
+``A_s^T X A_s - rho_s X < 0`` for every mode s (``rho_s = lambda^(2 eta_s)`` for a
+guaranteed per-sample decay rate lambda, 1 for plain stability).  In the
+congruent form (multiply ``A_s`` by ``c_s = lambda^(-eta_s)``) every rate has the
+same well-conditioned LMI; with ``W = X^{-1}`` and the scheme's free gains
+``Theta_j = Y_j W^{-1}``::
 
-    [[rho_s W, (free_s W + sum_j coef_{s,j} Y_j)^T],
-     [free_s W + sum_j coef_{s,j} Y_j,          W]] >= t I
+    [[W, c_s (free_s W + sum_j coef_{s,j} Y_j)^T],
+     [c_s (free_s W + sum_j coef_{s,j} Y_j),  W]] >= t I
 
-with ``rho_s = 1`` (``lambda^(2 eta_s)`` for a guaranteed per-sample decay
-rate lambda).  We solve ``max t`` subject to ``trace W = n``: the problem is
-always feasible and bounded (t <= 1), so the solver never has to detect
-infeasibility; a design with the requested margin exists iff ``t* > margin``.
-The certificate ``X = W^{-1}`` is lifted to the augmented P and re-checked
-in float64.
+We solve ``max t`` subject to ``trace W = n``: always feasible and bounded
+(t <= 1).  A positive t* yields gains, accepted only when the float64 re-check
+of ``X = W^{-1}`` passes at the rate; t* <= 0 is called infeasible only when
+the dual multipliers pass :func:`solver.certificates.check_farkas`.
 """
 
 from __future__ import annotations
@@ -22,14 +23,14 @@ import time
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, check_memory, problem_cache, schur_block
+from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, schur_block
 from ..network import ModeSet
 from ..result import DesignResult
-from .common import DesignOptions, RunClock, certify_gains, conclude_one_shot
+from .common import DesignOptions, run_one_shot
 
 
 def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem:
-    """The DPP problem for one shape; plant data and decay factors are Parameters.
+    """The DPP problem for one shape; the (congruently scaled) plant data are Parameters.
 
     Parameters are stacked (few of them): cvxpy validates every Parameter on
     assignment, which costs more than the whole solve when there is one per mode.
@@ -37,19 +38,19 @@ def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem
     W = cp.Variable((n, n), symmetric=True)
     Y = [cp.Variable((m, n)) for _ in range(J)]
     t = cp.Variable()
-    free = cp.Parameter((S * n, n))  # row block s: free_s
-    coef = cp.Parameter((S * J * n, m))  # row block s*J + j: coef_{s,j}
-    rho = cp.Parameter(S, nonneg=True)
+    free = cp.Parameter((S * n, n))  # row block s: c_s free_s
+    coef = cp.Parameter((S * J * n, m))  # row block s*J + j: c_s coef_{s,j}
     eye2 = np.eye(2 * n)
     cons = [cp.trace(W) == n]
+    blocks = []
     for s in range(S):
         AW = block(free, s, n) @ W
         for j in range(J):
             if active[s, j]:
                 AW = AW + block(coef, s * J + j, n) @ Y[j]
-        cons.append(schur_block(rho[s] * W, AW, W) - t * eye2 >> 0)
-    prob = cp.Problem(cp.Maximize(t), cons)
-    return CompiledProblem(prob, {"free": free, "coef": coef, "rho": rho}, {"W": W, "Y": Y, "t": t})
+        blocks.append(schur_block(W, AW, W) - t * eye2 >> 0)
+    prob = cp.Problem(cp.Maximize(t), cons + blocks)
+    return CompiledProblem(prob, {"free": free, "coef": coef}, {"W": W, "Y": Y, "t": t, "blocks": blocks})
 
 
 def compiled_for(modes: ModeSet, kind: str, builder) -> tuple[CompiledProblem, bool, float]:
@@ -61,29 +62,38 @@ def compiled_for(modes: ModeSet, kind: str, builder) -> tuple[CompiledProblem, b
     return compiled, cached, (0.0 if cached else time.perf_counter() - start)
 
 
-def plant_values(modes: ModeSet) -> dict:
-    """Parameter values shared by the methods: stacked free parts and scheme coefficients."""
+def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
+    """Stacked free parts and scheme coefficients, mode s multiplied by ``scale[s]`` (the congruent ``c_s``)."""
     coef, _ = modes.scheme_coef()
     S, n, m = modes.n_modes, modes.n_states, modes.n_inputs
-    return {"free": modes.free.reshape(S * n, n), "coef": coef.reshape(S * modes.n_free_gains * n, m)}
+    free = modes.free
+    if scale is not None:
+        free = free * scale[:, None, None]
+        coef = coef * scale[:, None, None, None]
+    return {"free": free.reshape(S * n, n), "coef": coef.reshape(S * modes.n_free_gains * n, m)}
+
+
+def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
+              clock=None) -> DesignSdpSolution:
+    """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
+
+    Parameters
+    ----------
+    modes : ModeSet
+    scale : ndarray, shape (S,)
+        ``c_s = lambda^(-eta_s)`` (ones for plain stability).
+    """
+    compiled, cached, setup = compiled_for(modes, "lmi", build)
+    if clock is not None:
+        clock.cached, clock.setup = clock.cached and cached, clock.setup + setup
+    info = compiled.solve(plant_values(modes, scale), solver=solver, time_limit=time_limit)
+    W = compiled.value("W")
+    return DesignSdpSolution(
+        t=float(compiled.value("t")), W=0.5 * (W + W.T), Y=np.stack(compiled.value("Y")), S=None,
+        duals=compiled.duals("blocks"), info=info,
+    )
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     check_memory([2 * modes.n_states] * modes.n_modes, "lmi")
-    clock = RunClock()
-    compiled, clock.cached, clock.setup = compiled_for(modes, "lmi", build)
-    values = plant_values(modes)
-    values["rho"] = options.rho(modes)
-    info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
-    clock.add(info)
-    t = float(compiled.value("t"))
-    W = compiled.value("W")
-    W = 0.5 * (W + W.T)
-    Y = np.stack(compiled.value("Y"))
-    if t <= options.margin:
-        return conclude_one_shot(modes, "lmi", options, clock, info, t,
-                                 infeasible="no common quadratic Lyapunov design exists (trace W = n)")
-    theta = np.linalg.solve(W, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j W^{-1}, W symmetric
-    gains = modes.expand(theta)
-    cert, A = certify_gains(modes, gains, options, clock, candidate=np.linalg.inv(W), candidate_source="lmi")
-    return conclude_one_shot(modes, "lmi", options, clock, info, t, gains=gains, cert=cert, A=A)
+    return run_one_shot(modes, "lmi", options, solve_sdp)

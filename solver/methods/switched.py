@@ -1,18 +1,19 @@
-"""Switched-Lyapunov design (DESIGN.md section 3; Daafouz, Riedinger, Iung 2002).
+"""Switched-Lyapunov design (docs/design.md; Daafouz, Riedinger, Iung 2002).
 
 One common slack ``Z`` (the gains are common to all modes) and one ``S_s``
-per mode s; for every pair of modes (s, t)::
+per mode s; in the congruent form (data of mode s multiplied by
+``c_s = lambda^(-eta_s)``), for every pair of modes (s, u)::
 
-    [[rho_s (Z + Z^T - S_s), (A_s Z)^T], [A_s Z, S_t]] >= t I
+    [[Z + Z^T - S_s, c_s (A_s Z)^T], [c_s A_s Z, S_u]] >= t I
     A_s Z = free_s Z + sum_j coef_{s,j} Y_j,     Theta_j = Y_j Z^{-1}
 
-Then ``P_s = S_s^{-1}`` satisfies ``A_s^T P_t A_s - rho_s P_s < 0`` for all
-pairs: ``V = x^T P_s x`` (s the mode of the interval about to start) decreases
-whatever the losses and jumps do.  With ``Z = S_s = W`` this contains the
-``lmi`` design, so it stabilizes every family ``lmi`` does, and more.
-Normalized by ``trace(Z + Z^T) = 2n`` (so t <= 1); a design with the margin
-exists iff ``t* > margin``.  The certificate is re-checked in float64 for all
-S^2 pairs.
+Then ``P_s = S_s^{-1}`` satisfies ``A_s^T P_u A_s - rho_s P_s < 0`` for all
+pairs (``rho_s = lambda^(2 eta_s)``): ``V = x^T P_s x`` (s the mode of the
+interval about to start) decreases whatever the losses and jumps do.  With
+``Z = S_s = W`` this contains the ``lmi`` design.  Normalized by
+``trace(Z + Z^T) = 2n`` (so t <= 1).  Gains are accepted by the float64
+re-check for all S^2 pairs; t* <= 0 is called infeasible only with the
+multipliers re-checked by :func:`solver.certificates.check_farkas_switched`.
 """
 
 from __future__ import annotations
@@ -20,11 +21,11 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, block, check_memory, schur_block
+from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory
 from ..errors import InvalidInput
 from ..network import ModeSet
 from ..result import DesignResult
-from .common import DesignOptions, RunClock, certify_gains, conclude_one_shot
+from .common import DesignOptions, run_one_shot
 from .lmi import compiled_for, plant_values
 
 #: Pairwise constraints grow as S^2; refuse beyond this many modes.
@@ -38,18 +39,32 @@ def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem
     t = cp.Variable()
     free = cp.Parameter((S * n, n))
     coef = cp.Parameter((S * J * n, m))
-    rho = cp.Parameter(S, nonneg=True)
     eye2 = np.eye(2 * n)
     cons = [cp.trace(Z + Z.T) == 2 * n]
+    blocks = []
     for s in range(S):
         AZ = block(free, s, n) @ Z
         for j in range(J):
             if active[s, j]:
                 AZ = AZ + block(coef, s * J + j, n) @ Y[j]
         for u in range(S):
-            cons.append(schur_block(rho[s] * (Z + Z.T - Sm[s]), AZ, Sm[u]) - t * eye2 >> 0)
-    prob = cp.Problem(cp.Maximize(t), cons)
-    return CompiledProblem(prob, {"free": free, "coef": coef, "rho": rho}, {"Z": Z, "S": Sm, "Y": Y, "t": t})
+            blocks.append(cp.bmat([[Z + Z.T - Sm[s], AZ.T], [AZ, Sm[u]]]) - t * eye2 >> 0)
+    prob = cp.Problem(cp.Maximize(t), cons + blocks)
+    return CompiledProblem(prob, {"free": free, "coef": coef},
+                           {"Z": Z, "S": Sm, "Y": Y, "t": t, "blocks": blocks})
+
+
+def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
+              clock=None) -> DesignSdpSolution:
+    """Solve the congruent switched SDP once; ``duals`` has S^2 blocks, pair (s, u) at ``s * S + u``."""
+    compiled, cached, setup = compiled_for(modes, "switched", build)
+    if clock is not None:
+        clock.cached, clock.setup = clock.cached and cached, clock.setup + setup
+    info = compiled.solve(plant_values(modes, scale), solver=solver, time_limit=time_limit)
+    return DesignSdpSolution(
+        t=float(compiled.value("t")), W=compiled.value("Z"), Y=np.stack(compiled.value("Y")),
+        S=np.stack(compiled.value("S")), duals=compiled.duals("blocks"), info=info,
+    )
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
@@ -59,21 +74,4 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
             ("n_drop",),
         )
     check_memory([2 * modes.n_states] * modes.n_modes**2, "switched")
-    clock = RunClock()
-    compiled, clock.cached, clock.setup = compiled_for(modes, "switched", build)
-    values = plant_values(modes)
-    values["rho"] = options.rho(modes)
-    info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
-    clock.add(info)
-    t = float(compiled.value("t"))
-    if t <= options.margin:
-        return conclude_one_shot(modes, "switched", options, clock, info, t,
-                                 infeasible="no switched-Lyapunov design with a common slack exists")
-    Z = compiled.value("Z")
-    Y = np.stack(compiled.value("Y"))
-    theta = np.linalg.solve(Z.T, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
-    gains = modes.expand(theta)
-    P = np.linalg.inv(np.stack(compiled.value("S")))
-    cert, A = certify_gains(modes, gains, options, clock, candidate=P, candidate_kind="switched",
-                            candidate_source="switched")
-    return conclude_one_shot(modes, "switched", options, clock, info, t, gains=gains, cert=cert, A=A)
+    return run_one_shot(modes, "switched", options, solve_sdp)

@@ -83,10 +83,11 @@ def test_best_decay_rate_by_bisection(method):
     assert res.outcome == "stabilized"
     lam = res.decay_rate
     tried = res.rate_search
-    assert tried[0] == {"decay_rate": 1.0, "outcome": "stabilized"}
-    # the bisection bracket: something within 2 tol below lam failed
+    assert tried[0]["decay_rate"] == 1.0 and tried[0]["outcome"] == "stabilized"
+    # the bisection bracket: something within the relative tolerance below lam failed
     failed = [t["decay_rate"] for t in tried if t["outcome"] != "stabilized"]
-    assert failed and lam - max(failed) <= 2e-3
+    assert failed and lam - max(failed) <= 1e-3 * lam
+    assert res.rate_bracket["upper"] == lam and lam - res.rate_bracket["lower"] <= 1e-3 * lam
     maps = interval_maps(PAPER, res.gains)
     per_sample_radius = max(max(abs(np.linalg.eigvals(A))) ** (1 / eta) for A, eta in zip(maps, [1, 2, 3] * 3))
     assert per_sample_radius <= lam

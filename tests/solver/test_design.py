@@ -84,7 +84,13 @@ def test_lmi_and_ccl_agree_on_random_families():
 def test_no_design_exists_for_uncontrollable_unstable_mode():
     fam = uncontrollable_unstable()
     a = design(fam, n_drop=2, method="lmi")
-    assert a.outcome == "infeasible" and a.gains is None and a.certificate is None
+    assert a.outcome == "infeasible" and a.gains is None
+    # the verdict carries its proof: the unstable mode no input reaches, re-checked by residuals
+    cert = a.certificate
+    assert cert.kind == "uncontrollable" and cert.verified and abs(cert.eigenvalue) >= 1.2 - 1e-12
+    w = cert.left_vector
+    F, G = fam.F[cert.plant], fam.G[cert.plant]
+    assert np.linalg.norm(w.conj() @ F - cert.eigenvalue * w.conj()) < 1e-12 and np.linalg.norm(w.conj() @ G) < 1e-12
     assert "t*" in a.message
     b = design(fam, n_drop=2, method="ccl", max_iter=5)
     assert b.outcome == "not_converged" and b.certificate is None
@@ -101,10 +107,22 @@ def test_scs_fallback_gives_the_same_verdict():
     assert design(uncontrollable_unstable(), n_drop=2, method="lmi", solver="scs").outcome == "infeasible"
 
 
-def test_solver_failure_is_an_error_not_infeasible():
-    fam = PlantFamily.paper_example(0.1)
+def test_solver_failure_is_an_error_not_infeasible(monkeypatch):
+    from solver.compiled import CompiledProblem
+
+    def broken(self, values, solver="CLARABEL", time_limit=None):
+        raise SolverFailed("CLARABEL ended with status 'numerical_error'", status="numerical_error")
+
+    monkeypatch.setattr(CompiledProblem, "solve", broken)
     with pytest.raises(SolverFailed):
-        design(fam, n_drop=3, method="lmi", time_limit=1e-9)
+        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi")
+
+
+@pytest.mark.parametrize("method", ["lmi", "switched", "ccl"])
+def test_time_limit_ends_in_not_converged_not_an_exception(method):
+    res = design(PlantFamily.paper_example(0.1), n_drop=3, method=method, time_limit=1e-9)
+    assert res.outcome == "not_converged" and "time limit reached" in res.message
+    assert "-1" not in res.message
 
 
 def test_callback_sees_every_iteration_and_can_stop():

@@ -1,0 +1,446 @@
+"""Certificates for the negative verdicts, re-checked by code that does not trust the solver.
+
+``design`` says "infeasible" only with one of these (docs/design.md, "Certificates
+for every verdict"):
+
+* :class:`FarkasCertificate` (``kind="farkas"``): PSD multipliers of the design
+  LMIs whose weighted sum contradicts every candidate design with relative margin
+  ``margin`` and gain norm below ``gain_bound``.  :func:`check_farkas` (``lmi``) and
+  :func:`check_farkas_switched` (``switched``) recompute everything from the
+  multipliers and interval data rebuilt from the plant, account for rounding, and
+  prove the eigenvalue bounds in exact arithmetic.
+* :class:`UncontrollableCertificate` (``kind="uncontrollable"``): a plant mode
+  with an eigenvalue ``|lambda| >= 1`` that no input reaches (left eigenvector
+  ``w``, ``w^H F = lambda w^H``, ``w^H G = 0``), proven in rational arithmetic; the
+  case where the best margin is exactly 0 and no strict Farkas multiplier exists.
+
+Conventions (the contract a conic backend must meet): the design SDP is solved
+in the *congruent* form with data ``free_s``, ``coef_s`` already multiplied by
+``c_s = lambda^(-eta_s)`` (``c_s = 1`` without a decay rate), so every block
+reads ``L_s = [[W, (A_s W)^T], [A_s W, W]]`` with ``A_s W = free_s W + sum_j
+coef_{s,j} Y_j``.  The multipliers are the PSD dual matrices ``Z_s`` (2n x 2n,
+blocks ``[[Z11, Z21^T], [Z21, Z22]]``) of the constraints ``L_s - t I >= 0`` of
+``max t s.t. trace W = n``, normalized so that ``sum_s trace Z_s = 1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Unit roundoff of float64.
+U = 2.0**-53
+
+#: Eigenvalues from LAPACK's symmetric solvers are exact for a matrix within
+#: ``EIG_FACTOR * k * U * ||A||_F`` (2-norm) of the input, k its side (backward
+#: stability of Householder tridiagonalization + QR; the constant is generous).
+EIG_FACTOR = 16.0
+
+
+def gamma(k: int) -> float:
+    """``k u / (1 - k u)``: relative error bound of a k-term float64 dot product."""
+    return k * U / (1.0 - k * U)
+
+
+#: Largest side for which eigenvalue bounds are proven in exact arithmetic (Bareiss on the
+#: dyadic entries, about 0.2 s at side 40); larger matrices use the backward-error allowance.
+EXACT_MAX_SIDE = 40
+
+
+def _eig_err(M: np.ndarray) -> float:
+    return EIG_FACTOR * M.shape[-1] * U * float(np.linalg.norm(M))
+
+
+def _proven_shift(M: np.ndarray, start: float) -> float:
+    """A ``c >= start`` with ``M + c I`` proven positive definite (exactly when small enough)."""
+    from .exact import positive_definite_shifted
+
+    if M.shape[-1] > EXACT_MAX_SIDE:
+        return start + _eig_err(M)
+    add = max(1e-15 * float(np.linalg.norm(M)), 1e-300)
+    for _ in range(200):
+        c = start + add
+        if positive_definite_shifted(M, c):
+            return c
+        add *= 4.0
+    return np.inf
+
+
+def lambda_max_upper(M: np.ndarray, err: float = 0.0) -> float:
+    """A rigorous upper bound of ``lambda_max`` of a symmetric matrix known to within ``err`` (2-norm).
+
+    ``c I - M`` is proven positive definite in exact arithmetic (``c`` just above the float64
+    estimate); ``err`` is added (Weyl).
+    """
+    M = 0.5 * (M + M.T)
+    return _proven_shift(-M, float(np.linalg.eigvalsh(M)[-1])) + err
+
+
+def lambda_min_lower(M: np.ndarray, err: float = 0.0) -> float:
+    """A rigorous lower bound of ``lambda_min`` of a symmetric matrix known to within ``err`` (2-norm)."""
+    M = 0.5 * (M + M.T)
+    return -_proven_shift(M, -float(np.linalg.eigvalsh(M)[0])) - err
+
+
+# ------------------------------------------------------------------ interval data with error bounds
+def interval_data(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndarray, scale=None):
+    """Interval matrices ``free_s, coef_{s,j}`` rebuilt from the plant data, with elementwise error bounds.
+
+    Parameters
+    ----------
+    F : ndarray, shape (r, n, n)
+    G : ndarray, shape (r, n, m)
+    plants : tuple of tuple of int
+        Plant index of every sample of each mode's interval (``ModeSet.plants``).
+    gain_map : ndarray, shape (n_drop, J)
+        ``K_q = sum_j gain_map[q, j] Theta_j``.
+    scale : ndarray, shape (S,), optional
+        The congruent factors ``c_s`` (the data of mode s is multiplied by ``c_s``).
+
+    Returns
+    -------
+    free, dfree : ndarray, shape (S, n, n)
+        Computed ``c_s F^eta`` (product over the interval) and a bound of
+        ``|computed - exact|`` elementwise (exact: the product of the float64
+        plant data in real arithmetic).
+    coef, dcoef : ndarray, shape (S, J, n, m)
+    """
+    F = np.asarray(F, dtype=np.float64)
+    G = np.asarray(G, dtype=np.float64)
+    n, m = F.shape[1], G.shape[2]
+    N, J = gain_map.shape
+    S = len(plants)
+    free = np.empty((S, n, n))
+    dfree = np.empty((S, n, n))
+    coef = np.zeros((S, J, n, m))
+    dcoef = np.zeros((S, J, n, m))
+    g = gamma(n + 2)
+    for s, seq in enumerate(plants):
+        tail, dtail = np.eye(n), np.zeros((n, n))
+        cq = np.zeros((N, n, m))
+        dq = np.zeros((N, n, m))
+        for k in range(len(seq) - 1, -1, -1):
+            Gk, Fk = G[seq[k]], F[seq[k]]
+            cq[k] = tail @ Gk
+            dq[k] = dtail @ np.abs(Gk) + g * (np.abs(tail) @ np.abs(Gk))
+            new = tail @ Fk
+            dtail = dtail @ np.abs(Fk) + g * (np.abs(tail) @ np.abs(Fk))
+            tail = new
+        c = 1.0 if scale is None else float(scale[s])
+        free[s] = c * tail
+        dfree[s] = abs(c) * dtail * (1 + 4 * U) + 8 * U * np.abs(free[s])
+        for j in range(J):
+            acc = np.zeros((n, m))
+            dacc = np.zeros((n, m))
+            for q in range(N):
+                w = gain_map[q, j]
+                if w != 0:
+                    acc = acc + w * cq[q]
+                    dacc = dacc + abs(w) * (dq[q] + 2 * U * np.abs(cq[q]))
+            coef[s, j] = c * acc
+            dacc = dacc + gamma(N + 1) * sum(abs(gain_map[q, j]) * np.abs(cq[q]) for q in range(N))
+            dcoef[s, j] = abs(c) * dacc * (1 + 4 * U) + 8 * U * np.abs(coef[s, j])
+    # The bounds themselves were rounded: a factor 2 covers that with a wide margin.
+    return free, 2 * dfree, coef, 2 * dcoef
+
+
+# ------------------------------------------------------------------ Farkas certificates
+@dataclass
+class FarkasCertificate:
+    """Multipliers proving that no design of a method exists (with gain norm below ``gain_bound``).
+
+    Attributes
+    ----------
+    kind : str
+        ``"farkas"``.
+    method : {"lmi", "switched"}
+        Which design family is excluded.
+    multipliers : ndarray
+        ``lmi``: shape (S, 2n, 2n), ``Z_s`` in the order of the result's ``mode_labels``.
+        ``switched``: shape (S, S, 2n, 2n), ``Z_{s,u}`` for the pair (s, u).
+    gain_bound : float
+        No design with ``sqrt(sum_j ||Theta_j||_2^2) < gain_bound`` exists (``Theta_j``
+        the scheme's free gains; ``K_q`` for the predictive scheme); ``inf`` when
+        ``E`` vanishes exactly.
+    delta : float
+        Proven lower bound of ``-lambda_max(Q)`` less the PSD shifts.
+    e_norm : float
+        Proven upper bound of ``||E||_F``.
+    margin : float
+        Relative strictness ``tau`` the excluded designs would have (``L_s >= tau tr(W) I``).
+    skew_norm : float
+        ``switched`` only: upper bound of the norm of the skew part of the slack coefficient.
+    decay_rate : float or None
+        The rate whose (congruent) LMIs are excluded; None for plain stability.
+    verified : bool
+        True iff ``delta > 0`` (the check passed).
+    scaled : bool
+        True when the check holds only in the design's balanced coordinates (``res.scaling``).
+    """
+
+    multipliers: np.ndarray
+    gain_bound: float
+    delta: float
+    e_norm: float
+    verified: bool
+    method: str = "lmi"
+    skew_norm: float = 0.0
+    decay_rate: float | None = None
+    scaled: bool = False
+    kind: str = "farkas"
+    margin: float = 0.0
+    source: str = "sdp_dual"
+
+    def statement(self) -> str:
+        what = ("common quadratic Lyapunov design" if self.method == "lmi"
+                else "switched-Lyapunov design with a common slack (||Z||_F <= trace(Z + Z^T)/2)")
+        rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
+        bound = "of any gain norm" if np.isinf(self.gain_bound) else f"with gain norm < {self.gain_bound:.3g}"
+        strict = "" if not self.margin else f", relative margin >= {self.margin:.3g}"
+        return f"no {what} {bound}{strict}{rate} (Farkas certificate re-checked in float64)"
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "method": self.method,
+            "verified": self.verified,
+            "gain_bound": float(self.gain_bound),  # JSON: null when unbounded (see gain_bound_unbounded)
+            "gain_bound_unbounded": bool(np.isinf(self.gain_bound)),
+            "delta": self.delta,
+            "margin": self.margin,
+            "e_norm": self.e_norm,
+            "skew_norm": self.skew_norm,
+            "decay_rate": self.decay_rate,
+            "scaled": self.scaled,
+            "statement": self.statement(),
+            "multipliers": self.multipliers.tolist(),
+        }
+
+
+def _sym(M):
+    return 0.5 * (M + np.swapaxes(M, -1, -2))
+
+
+def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, dfree=None, dcoef=None,
+                 decay_rate: float | None = None, margin: float = 0.0) -> FarkasCertificate:
+    """Re-check ``lmi`` Farkas multipliers against interval data; solver-independent.
+
+    For every ``W > 0`` and ``Y`` with all ``L_s(W, Y) >= 0``::
+
+        0 <= sum_s <Z_s + mu_s I, L_s> = <Q, W> + sum_j <E_j, Y_j> + 2 sum_s mu_s tr W
+        Q   = sum_s (Z11_s + Z22_s + Z21_s^T free_s + free_s^T Z21_s)
+        E_j = 2 sum_s coef_{s,j}^T Z21_s
+
+    and with ``Y_j = Theta_j W``: ``||Y||_F <= kappa tr W``.  A design with relative margin
+    ``margin`` (``L_s >= margin tr(W) I``) has ``sum_s <Z_s + mu_s I, L_s> >= margin T tr W`` with
+    ``T <= sum_s tr(Z_s + mu_s I)``, so ``margin T + delta <= ||E||_F kappa`` with
+    ``delta = -lambda_max(Q) - 2 sum_s mu_s``: no design with ``kappa < (margin T + delta) / ||E||_F``.
+
+    Parameters
+    ----------
+    multipliers : ndarray, shape (S, 2n, 2n)
+        Symmetrized before use (the returned certificate holds the symmetric ones).
+    free : ndarray, shape (S, n, n)
+    coef : ndarray, shape (S, J, n, m)
+    dfree, dcoef : ndarray, optional
+        Elementwise bounds of the error of ``free``, ``coef`` (see :func:`interval_data`);
+        zero when the data are taken as exact.
+    """
+    Z = _sym(np.asarray(multipliers, dtype=np.float64))
+    S, n2, _ = Z.shape
+    n = n2 // 2
+    J = coef.shape[1]
+    dfree = np.zeros_like(free) if dfree is None else dfree
+    dcoef = np.zeros_like(coef) if dcoef is None else dcoef
+    if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
+        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, decay_rate=decay_rate)
+    Z11, Z21, Z22 = Z[:, :n, :n], Z[:, n:, :n], Z[:, n:, n:]
+    FtZ = np.swapaxes(free, 1, 2) @ Z21  # (S, n, n): free_s^T Z21_s
+    Q = np.sum(Z11 + Z22 + FtZ + np.swapaxes(FtZ, 1, 2), axis=0)
+    Q = _sym(Q)
+    absZ21 = np.abs(Z21)
+    # rounding of the products (n terms) and of the sum over 4 S terms, plus the data error
+    term = np.abs(Z11) + np.abs(Z22) + 2 * (np.swapaxes(np.abs(free), 1, 2) @ absZ21)
+    errQ = gamma(n + 4 * S + 4) * np.sum(term, axis=0)
+    errQ = errQ + 2 * np.sum(np.swapaxes(dfree, 1, 2) @ absZ21, axis=0)
+    errQ = errQ + errQ.T
+    E = 2 * np.einsum("sjab,sac->jbc", coef, Z21)  # (J, m, n)
+    errE = 2 * gamma(n + S + 2) * np.einsum("sjab,sac->jbc", np.abs(coef), absZ21)
+    errE = errE + 2 * np.einsum("sjab,sac->jbc", dcoef, absZ21)
+    mu = np.array([max(0.0, -lambda_min_lower(Z[s])) for s in range(S)])
+    lam_q = lambda_max_upper(Q, float(np.linalg.norm(errQ)))
+    delta = -lam_q - 2.0 * float(np.sum(mu)) * (1 + 4 * U)
+    delta = delta * (1 - 8 * U) if delta > 0 else delta * (1 + 8 * U)
+    trace = float(np.sum(np.trace(Z, axis1=1, axis2=2)))
+    T = max(0.0, trace * (1 - gamma(2 * n * S + 2)) - abs(trace) * 4 * U)
+    room = (margin * T * (1 - 4 * U) + delta)
+    exact_zero = not np.any(E) and not np.any(errE)
+    e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
+    if room <= 0:
+        bound = 0.0
+    elif exact_zero:
+        bound = np.inf
+    else:
+        bound = room / e_norm * (1 - 4 * U)
+    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), decay_rate=decay_rate,
+                             margin=margin)
+
+
+def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, dfree=None, dcoef=None,
+                          decay_rate: float | None = None, margin: float = 0.0) -> FarkasCertificate:
+    """Re-check ``switched`` Farkas multipliers ``Z_{s,u}`` (S, S, 2n, 2n); solver-independent.
+
+    The switched LMIs are ``M_{s,u} = [[Z + Z^T - S_s, (A_s Z)^T], [A_s Z, S_u]] >= 0``.
+    With ``H = (Z + Z^T)/2`` and the multipliers' blocks::
+
+        sum <Z_su, M_su> = <G, Z> + sum_s <C_s, S_s> + sum_j <E_j, Y_j>
+        G   = 2 sum_su (Z11_su + free_s^T Z21_su)
+        C_s = sum_u Z22_us - sum_u Z11_su
+        E_j = 2 sum_su coef_{s,j}^T Z21_su
+
+    Any feasible point has ``0 <= S_s <= 2 H``, so ``tr S_s <= 2 tr H`` and ``tr M_su <= 4 tr H``;
+    hence ``delta tr H <= ||skew G||_F ||Z - H||_F + ||E||_F kappa ||Z||_F`` with
+    ``delta = -lambda_max(sym G) - 2 sum_s max(lambda_max C_s, 0) - 4 sum mu_su``.
+    A design with relative margin ``margin`` (``M_su >= margin tr(H) I``) adds ``margin T tr H`` on the
+    left (``T`` a lower bound of the multipliers' total trace).
+    ``gain_bound`` is stated for slacks with ``||Z||_F <= tr H`` (every symmetric PSD Z).
+    """
+    Z = _sym(np.asarray(multipliers, dtype=np.float64))
+    S = Z.shape[0]
+    n = Z.shape[-1] // 2
+    dfree = np.zeros_like(free) if dfree is None else dfree
+    dcoef = np.zeros_like(coef) if dcoef is None else dcoef
+    if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
+        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, method="switched", decay_rate=decay_rate)
+    Z11, Z21, Z22 = Z[..., :n, :n], Z[..., n:, :n], Z[..., n:, n:]
+    FtZ = np.einsum("sba,subc->ac", free, Z21)  # sum_su free_s^T Z21_su
+    Gm = 2 * (np.sum(Z11, axis=(0, 1)) + FtZ)
+    absZ21 = np.abs(Z21)
+    errG = 2 * gamma(n + 2 * S * S + 4) * (np.sum(np.abs(Z11), axis=(0, 1))
+                                           + np.einsum("sba,subc->ac", np.abs(free), absZ21))
+    errG = errG + 2 * np.einsum("sba,subc->ac", dfree, absZ21)
+    symG, skewG = 0.5 * (Gm + Gm.T), 0.5 * (Gm - Gm.T)
+    errG_norm = float(np.linalg.norm(errG))
+    C = np.sum(np.swapaxes(Z22, 0, 1), axis=1) - np.sum(Z11, axis=1)  # C_s = sum_u Z22_us - sum_u Z11_su
+    errC = gamma(2 * S + 2) * (np.sum(np.abs(Z22), axis=0) + np.sum(np.abs(Z11), axis=1))
+    c_pos = sum(max(0.0, lambda_max_upper(_sym(C[s]), float(np.linalg.norm(errC[s])))) for s in range(S))
+    mu = sum(max(0.0, -lambda_min_lower(Z[s, u])) for s in range(S) for u in range(S))
+    delta = -lambda_max_upper(symG, errG_norm) - 2 * c_pos * (1 + 4 * U) - 4 * mu * (1 + 4 * U)
+    delta = delta * (1 - 16 * U) if delta > 0 else delta * (1 + 16 * U)
+    trace = float(np.sum(np.trace(Z, axis1=-2, axis2=-1)))
+    T = max(0.0, trace * (1 - gamma(2 * n * S * S + 2)) - abs(trace) * 4 * U)
+    skew = (float(np.linalg.norm(skewG)) + errG_norm) * (1 + 8 * U)
+    E = 2 * np.einsum("sjab,suac->jbc", coef, Z21)
+    errE = 2 * gamma(n + S * S + 2) * np.einsum("sjab,suac->jbc", np.abs(coef), absZ21)
+    errE = errE + 2 * np.einsum("sjab,suac->jbc", dcoef, absZ21)
+    exact_zero = not np.any(E) and not np.any(errE)
+    e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
+    # ||Z||_F <= tr H and ||Z - H||_F <= ||Z||_F: delta > skew + e_norm kappa excludes the design.
+    room = margin * T * (1 - 4 * U) + delta - skew
+    if room <= 0:
+        bound = 0.0
+    elif exact_zero:
+        bound = np.inf
+    else:
+        bound = room / e_norm * (1 - 4 * U)
+    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), method="switched",
+                             skew_norm=skew, decay_rate=decay_rate, margin=margin)
+
+
+# ------------------------------------------------------------------ uncontrollable unstable modes
+@dataclass
+class UncontrollableCertificate:
+    """An unstable plant mode no input reaches: no gains can stabilize the loop.
+
+    Attributes
+    ----------
+    kind : str
+        ``"uncontrollable"``.
+    plant : int
+        Plant mode l.
+    eigenvalue : complex
+        ``lambda`` with ``|lambda| >= 1`` (proven with the residuals).
+    left_vector : ndarray, shape (n,), complex
+        ``w`` with ``w^H F_l = lambda w^H`` and ``w^H G_l = 0`` up to the residuals.
+    residual_eig, residual_input : float
+        ``||w^H F_l - lambda w^H||_2`` and ``||w^H G_l||_2`` (with ``||w||_2 = 1``) in float64.
+    verified : bool
+        True iff exact rational arithmetic proved that the uncontrollable part of ``(F_l, G_l)``
+        has an eigenvalue with ``|lambda| >= 1`` (or the rate); ``eigenvalue``, ``left_vector`` and
+        the residuals are its float64 description.
+    dimension : int
+        Dimension of the uncontrollable subspace's quotient (exact).
+    """
+
+    plant: int
+    eigenvalue: complex
+    left_vector: np.ndarray
+    residual_eig: float
+    residual_input: float
+    verified: bool
+    dimension: int = 1
+    kind: str = "uncontrollable"
+    margin: float | None = None
+    source: str = "left_eigenvector"
+    decay_rate: float | None = None
+
+    def statement(self) -> str:
+        bound = "1" if self.decay_rate is None else f"the rate {self.decay_rate:.6g}"
+        return (f"plant mode {self.plant} has eigenvalue {self.eigenvalue:.6g} (|lambda| = {abs(self.eigenvalue):.6g} "
+                f">= {bound}, proven exactly) with a left eigenvector that no input reaches (residuals "
+                f"{self.residual_eig:.2g}, {self.residual_input:.2g}): no gains achieve it")
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "verified": self.verified,
+            "plant": self.plant,
+            "eigenvalue": [float(np.real(self.eigenvalue)), float(np.imag(self.eigenvalue))],
+            "left_vector": {"real": np.real(self.left_vector).tolist(), "imag": np.imag(self.left_vector).tolist()},
+            "residual_eig": self.residual_eig,
+            "residual_input": self.residual_input,
+            "dimension": self.dimension,
+            "statement": self.statement(),
+        }
+
+
+def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> UncontrollableCertificate | None:
+    """A proven unstable uncontrollable mode of some plant, or None.
+
+    An eigenvalue ``lambda`` of ``F_l`` with left eigenvector ``w`` and ``w^H G_l = 0``
+    is untouched by every input: ``w^H x(k)`` evolves as ``lambda^k w^H x(0)`` whatever the
+    gains (the adversary may keep plant l forever), so ``|lambda| >= rate`` excludes every
+    design with that per-sample rate, of every method.
+
+    The proof is exact (docs/design.md): the controllable subspace of the float64 pair
+    ``(F_l, G_l)`` and the map F induces on the quotient are computed in rational
+    arithmetic, and a Schur-Cohn test on its characteristic polynomial proves that it has an
+    eigenvalue with ``|lambda| >= rate``.  The float64 eigenvalue and left eigenvector
+    ``w`` are reported with their residuals for the user to see.
+    """
+    from fractions import Fraction
+
+    from . import exact
+
+    F = np.asarray(F, dtype=np.float64)
+    G = np.asarray(G, dtype=np.float64)
+    n = F.shape[1]
+    if n > 24:
+        return None
+    for l in range(F.shape[0]):
+        part = exact.uncontrollable_part(F[l], G[l])
+        if not part:
+            continue
+        poly = exact.charpoly_rational(part)
+        if not exact.rational_radius_at_least(poly, Fraction(float(rate))):
+            continue
+        sub = np.array([[float(x) for x in row] for row in part])
+        target = complex(max(np.linalg.eigvals(sub), key=abs))
+        vals, vecs = np.linalg.eig(F[l].T)
+        i = int(np.argmin(np.abs(vals - target)))
+        w = vecs[:, i] / np.linalg.norm(vecs[:, i])
+        r = float(np.linalg.norm(w.conj() @ F[l] - vals[i] * w.conj()))
+        ri = float(np.linalg.norm(w.conj() @ G[l]))
+        return UncontrollableCertificate(l, complex(vals[i]), w, r, ri, True, dimension=len(part))
+    return None

@@ -1,0 +1,268 @@
+"""Exact arithmetic on float64 data: proofs that a spectral radius is at least a bound.
+
+Every float64 number is a dyadic rational ``m / 2^e``, so products and sums of
+the user's matrices can be computed exactly with Python integers.  A matrix
+is held as ``(M, s)``: an object array of ints and an exponent, value ``M / 2^s``.
+
+``rho(A) >= r`` is decided exactly (docs/design.md, "Rigorous instability"):
+the characteristic polynomial of the integer matrix is computed by
+Faddeev-LeVerrier (all divisions exact for integer matrices), rescaled to
+``p(r z)``, and the Schur-Cohn-Jury recursion decides whether all its roots lie
+in the open unit disk.  If not, some eigenvalue has ``|lambda| >= r``: a proof,
+without eigenvalue approximations.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from math import gcd
+
+import numpy as np
+
+
+def exact(a) -> tuple[np.ndarray, int]:
+    """``(M, s)`` with ``a == M / 2^s`` exactly, for a float64 array (any shape)."""
+    a = np.asarray(a, dtype=np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("exact arithmetic needs finite data")
+    ratios = [float(x).as_integer_ratio() for x in a.ravel()]
+    s = max((d.bit_length() - 1 for _, d in ratios), default=0)
+    M = np.array([num << (s - (d.bit_length() - 1)) for num, d in ratios], dtype=object).reshape(a.shape)
+    return M, s
+
+
+def _align(a: tuple, b: tuple) -> tuple:
+    (A, s), (B, t) = a, b
+    if s < t:
+        A, s = A * (1 << (t - s)), t
+    elif t < s:
+        B = B * (1 << (s - t))
+    return A, B, s
+
+
+def add(a: tuple, b: tuple) -> tuple:
+    A, B, s = _align(a, b)
+    return A + B, s
+
+
+def matmul(a: tuple, b: tuple) -> tuple:
+    return np.dot(a[0], b[0]), a[1] + b[1]
+
+
+def identity(n: int) -> tuple:
+    M = np.zeros((n, n), dtype=object)
+    for i in range(n):
+        M[i, i] = 1
+    return M * 1, 0
+
+
+def closed_loop(F: np.ndarray, G: np.ndarray, K: np.ndarray, seq) -> tuple:
+    """Exact interval map ``A = F^eta + sum_t F^t G K_{eta-t}`` for plant sequence ``seq`` (eta = len(seq)).
+
+    Sample k of the interval applies ``x <- F_{l_k} x + G_{l_k} K_{k+1} x(i_m)``.
+    """
+    n = F.shape[1]
+    Fe = [exact(F[l]) for l in range(F.shape[0])]
+    Ge = [exact(G[l]) for l in range(G.shape[0])]
+    Ke = [exact(K[q]) for q in range(K.shape[0])]
+    x = identity(n)  # the map x(i_m) -> x(i_m + k)
+    for k, l in enumerate(seq):
+        x = add(matmul(Fe[l], x), matmul(Ge[l], Ke[k]))
+    return x
+
+
+def charpoly(M: np.ndarray) -> list[int]:
+    """Integer coefficients ``[c_0, ..., c_n]`` (``c_n = 1``) of ``det(z I - M)`` for an integer matrix."""
+    n = M.shape[0]
+    c = [0] * (n + 1)
+    c[n] = 1
+    eye = identity(n)[0]
+    Mk = eye * 1  # M_1 = I
+    for k in range(1, n + 1):
+        AM = np.dot(M, Mk)
+        tr = sum(AM[i, i] for i in range(n))
+        assert tr % k == 0
+        c[n - k] = -tr // k
+        Mk = AM + c[n - k] * eye
+    return [int(v) for v in c]
+
+
+def schur_stable(a: list[int]) -> bool:
+    """Whether every root of ``sum_k a[k] z^k`` (integers, a[-1] != 0) lies in the open unit disk.
+
+    Schur-Cohn-Jury: ``p`` is Schur stable iff ``|a_0| < |a_n|`` and
+    ``(a_n p(z) - a_0 z^n p(1/z)) / z`` is Schur stable; exact over the integers.
+    """
+    a = list(a)
+    while len(a) > 1:
+        n = len(a) - 1
+        if abs(a[0]) >= abs(a[n]):
+            return False
+        b = [a[n] * a[k] - a[0] * a[n - k] for k in range(1, n + 1)]
+        g = 0
+        for v in b:
+            g = gcd(g, v)
+        a = [v // g for v in b] if g > 1 else b
+    return True
+
+
+def radius_at_least(M: tuple, r: Fraction) -> bool:
+    """True iff ``rho(M / 2^s) >= r`` is proven (exactly decided: False means ``rho < r``).
+
+    Parameters
+    ----------
+    M : tuple (object ndarray of int, int)
+        The exact matrix ``M / 2^s``.
+    r : Fraction
+        Radius > 0.
+    """
+    Mi, s = M
+    c = charpoly(Mi)
+    n = len(c) - 1
+    r = Fraction(r)
+    # roots of p_M in the disk of radius r  <=>  p_i(2^s r z) Schur stable; 2^s r = num / den
+    num, den = r.numerator << s, r.denominator
+    coeffs = [c[k] * num**k * den ** (n - k) for k in range(n + 1)]
+    return not schur_stable(coeffs)
+
+
+def product(mats: list[tuple]) -> tuple:
+    """Exact ``mats[-1] @ ... @ mats[0]`` (the first applied first)."""
+    out = mats[0]
+    for m in mats[1:]:
+        out = matmul(m, out)
+    return out
+
+
+def proven_radius_lower_bound(M: tuple, estimate: float, steps: int = 40) -> float:
+    """The largest ``r`` (a float) with ``rho(M) >= r`` proven, searched near ``estimate``; 0.0 if none.
+
+    Tries ``estimate (1 - 1e-9)`` first, then bisects on ``[0, estimate]``.
+    """
+    if not np.isfinite(estimate) or estimate <= 0:
+        return 0.0
+    first = Fraction(estimate * (1 - 1e-9))
+    if radius_at_least(M, first):
+        return float(first) * (1 - 2.0**-52)  # float(first) may round up by half an ulp
+    lo, hi = Fraction(0), first
+    for _ in range(steps):
+        mid = (lo + hi) / 2
+        mid = Fraction(float(mid))  # keep the numbers short
+        if radius_at_least(M, mid):
+            lo = mid
+        else:
+            hi = mid
+    return float(lo) * (1 - 2.0**-52)
+
+
+# ------------------------------------------------------------------ rational matrices
+def fractions(a) -> list[list[Fraction]]:
+    """A float64 matrix as exact Fractions."""
+    return [[Fraction(float(x)) for x in row] for row in np.asarray(a, dtype=np.float64)]
+
+
+def charpoly_rational(M: list[list[Fraction]]) -> list[Fraction]:
+    """Coefficients ``[c_0, ..., c_n]`` of ``det(z I - M)`` for a rational matrix (Faddeev-LeVerrier)."""
+    n = len(M)
+    c = [Fraction(0)] * (n + 1)
+    c[n] = Fraction(1)
+    Mk = [[Fraction(int(i == j)) for j in range(n)] for i in range(n)]
+    for k in range(1, n + 1):
+        AM = [[sum(M[i][l] * Mk[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
+        c[n - k] = -sum(AM[i][i] for i in range(n)) / k
+        Mk = [[AM[i][j] + (c[n - k] if i == j else 0) for j in range(n)] for i in range(n)]
+    return c
+
+
+def rational_radius_at_least(coeffs: list[Fraction], r: Fraction) -> bool:
+    """True iff the polynomial ``sum_k coeffs[k] z^k`` (leading coefficient nonzero) has a root with ``|z| >= r``."""
+    n = len(coeffs) - 1
+    if n == 0:
+        return False
+    scaled = [Fraction(a) * Fraction(r) ** k for k, a in enumerate(coeffs)]
+    den = 1
+    for v in scaled:
+        den = den * v.denominator // gcd(den, v.denominator)
+    return not schur_stable([int(v * den) for v in scaled])
+
+
+def uncontrollable_part(F, G) -> list[list[Fraction]]:
+    """The map induced by F on ``R^n / (controllable subspace of (F, G))``, exactly (may be 0 x 0).
+
+    The controllable subspace ``V = span[G, F G, ..., F^(n-1) G]`` is F-invariant; with a basis
+    ``T = [V, E]`` (E unit vectors completing it) ``T^-1 F T`` is block upper triangular and its
+    lower-right block is the uncontrollable part: its eigenvalues are exactly the eigenvalues
+    of F that no input reaches.
+    """
+    Fq = fractions(F)
+    Gq = fractions(G)
+    n = len(Fq)
+    basis: list[list[Fraction]] = []  # reduced rows (echelon) spanning V, stored as vectors
+    pivots: list[int] = []
+
+    def reduce(v):
+        v = v[:]
+        for b, p in zip(basis, pivots):
+            if v[p] != 0:
+                f = v[p] / b[p]
+                v = [x - f * y for x, y in zip(v, b)]
+        return v
+
+    vectors = [[Gq[i][j] for i in range(n)] for j in range(len(Gq[0]))]
+    queue = list(vectors)
+    V = []
+    while queue and len(V) < n:
+        v = queue.pop(0)
+        r = reduce(v)
+        p = next((i for i, x in enumerate(r) if x != 0), None)
+        if p is None:
+            continue
+        basis.append(r)
+        pivots.append(p)
+        V.append(v)
+        queue.append([sum(Fq[i][k] * v[k] for k in range(n)) for i in range(n)])  # F v
+    k = len(V)
+    if k == n:
+        return []
+    cols = V + [[Fraction(int(i == j)) for i in range(n)] for j in range(n) if j not in pivots]
+    T = [[cols[j][i] for j in range(n)] for i in range(n)]
+    # solve T X = F T exactly (Gauss-Jordan on [T | F T])
+    FT = [[sum(Fq[i][l] * T[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
+    aug = [T[i][:] + FT[i][:] for i in range(n)]
+    for col in range(n):
+        piv = next(r for r in range(col, n) if aug[r][col] != 0)
+        aug[col], aug[piv] = aug[piv], aug[col]
+        pv = aug[col][col]
+        aug[col] = [x / pv for x in aug[col]]
+        for r in range(n):
+            if r != col and aug[r][col] != 0:
+                f = aug[r][col]
+                aug[r] = [x - f * y for x, y in zip(aug[r], aug[col])]
+    X = [row[n:] for row in aug]
+    return [row[k:] for row in X[k:]]
+
+
+def positive_definite_shifted(M, shift: float) -> bool:
+    """Exactly decide whether ``M + shift I`` is positive definite, for a symmetric float64 matrix M.
+
+    Sylvester's criterion on the integer matrix ``2^s (M + shift I)`` (all float64 numbers are
+    dyadic): fraction-free (Bareiss) elimination, every leading principal minor must be > 0.
+    """
+    A = np.asarray(M, dtype=np.float64)
+    n = A.shape[0]
+    A = A + 0.0  # copy
+    Mi, s = exact(A)
+    sh, t = exact(np.array([shift]))
+    if t > s:
+        Mi, s = Mi * (1 << (t - s)), t
+    shv = int(sh[0]) << (s - t)
+    B = [[int(Mi[i, j]) + (shv if i == j else 0) for j in range(n)] for i in range(n)]
+    prev = 1
+    for k in range(n):
+        if B[k][k] <= 0:
+            return False
+        for i in range(k + 1, n):
+            for j in range(k + 1, n):
+                B[i][j] = (B[i][j] * B[k][k] - B[i][k] * B[k][j]) // prev
+        prev = B[k][k]
+    return True
