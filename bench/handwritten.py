@@ -12,7 +12,7 @@ solve is recorded too, to show that the two solve the same SDPs.
   then Step 2 ``min trace(P Q_k + P_k Q)`` subject to (13) and (15) for all
   plants and all eta; stop at the first Step 2 iterate whose gains satisfy
   Theorem 1, checked by the eigenvalues of the iterate's own P.
-* :func:`lmi_rebuild` - the exact convex design of DESIGN.md section 3 built
+* :func:`lmi_rebuild` - the exact convex design of docs/design.md §3.1 built
   once and solved once (``max t`` s.t. the LMIs, ``trace W = n``).
 """
 

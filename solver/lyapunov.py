@@ -3,7 +3,7 @@
 Theorem 1 asks for ``P > 0`` of size n*n_drop with
 ``Phi_s^T P Phi_s - P < 0`` for every mode s.  Because Phi_s is block lower
 triangular with diagonal blocks (A_s, 0, ..., 0), this holds iff an n x n
-``X > 0`` has ``A_s^T X A_s - X < 0`` for all s (DESIGN.md section 3): from X
+``X > 0`` has ``A_s^T X A_s - X < 0`` for all s (docs/design.md §3.1): from X
 one builds ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` with
 ``a_j = mu (N - j) / N`` where ``mu = min_s lambda_min(X - A_s^T X A_s)``.
 

@@ -7,7 +7,7 @@ Find ``P, Q > 0`` (size n*n_drop) and gains K with, for every mode s::
 
 Step 1 finds a feasible start; Step 2 solves ``min trace(P Q_k + P_k Q)``
 and repeats.  The paper's Step 3 test ``|trace(P Q_k + P_k Q)| < delta``
-cannot fire (the objective tends to ``2 n n_drop``, DESIGN.md section 3), so we
+cannot fire (the objective tends to ``2 n n_drop``, docs/design.md §3.4), so we
 stop at the first Step 2 iterate whose gains satisfy Theorem 1: the iterate's
 own P is re-checked in float64, and if it fails, Theorem 1 is solved as an
 LMI with the gains fixed.  The iteration cap bounds the loop.
