@@ -9,6 +9,7 @@ import asyncio
 import logging
 import multiprocessing as mp
 import os
+import signal
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -59,6 +60,15 @@ class SyncPool:
                 pass
         executor.shutdown(wait=False, cancel_futures=True)
 
+    @staticmethod
+    def _aborted(executor: ProcessPoolExecutor) -> bool:
+        """Whether a process of a broken pool died of SIGABRT (the others are terminated by the pool)."""
+        for proc in list(getattr(executor, "_processes", {}).values()):
+            proc.join(timeout=1.0)
+            if proc.exitcode == -signal.SIGABRT:
+                return True
+        return False
+
     async def run(self, task: str, *args: Any) -> tuple:
         from app.tasks import call_sync
 
@@ -71,7 +81,18 @@ class SyncPool:
             raise ProblemException(503, f"the {task} took longer than {self.time_limit:g} s "
                                         "(NCS_SYNC_TIME_LIMIT) and was stopped", title="Time limit exceeded")
         except BrokenProcessPool:
+            aborted = await asyncio.to_thread(self._aborted, executor)
             self._discard(executor)
+            if aborted and self.memory_mb > 0:
+                # Under RLIMIT_AS a native allocator (Clarabel is Rust; Rust aborts on a failed allocation
+                # instead of raising) ends the process with SIGABRT. The same request aborts the same way
+                # every time, so it is the request that is over the cap, not a transient fault: a 422.
+                log.warning("a %s worker aborted under the %d MB memory cap", task, self.memory_mb)
+                from app.problems import TYPE_BASE
+                from app.worker import memory_message
+
+                raise ProblemException(422, memory_message(self.memory_mb, "request"),
+                                       title="Resource limit exceeded", type_=TYPE_BASE + "limit-exceeded")
             raise ProblemException(503, f"the {task} worker process died; try again",
                                    title="Worker process died")
 
