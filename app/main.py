@@ -13,13 +13,13 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.staticfiles import StaticFiles
 
-from app import problems
-from app.db import Database, run_migrations
-from app.dispatcher import make_dispatcher
-from app.middleware import BodySizeLimit
-from app.routers import analyses, designs, health, margins, simulations
+from app.api import problems
+from app.jobs.database import Database, run_migrations
+from app.jobs.dispatcher import make_dispatcher
+from app.api.middleware import BodySizeLimit
+from app.api import analyses, designs, health, margins, simulations
 from app.settings import Settings
-from app.syncpool import SyncPool
+from app.jobs.sync_pool import SyncPool
 
 log = logging.getLogger("app")
 
@@ -66,7 +66,7 @@ def _docs_static_dir() -> Path:
 
 def _problem_openapi(spec: dict) -> dict:
     """Document every error response as the problem+json it really is (not FastAPI's default 422 schema)."""
-    from app.schemas import Problem
+    from app.api.schemas import Problem
 
     components = spec.setdefault("components", {}).setdefault("schemas", {})
     problem_schema = Problem.model_json_schema(ref_template="#/components/schemas/{model}")

@@ -38,8 +38,8 @@ from harness import FAST, SLOW, TERMINAL, Server, fresh_database, terminate_back
 
 from sqlalchemy import event, func, select, text  # noqa: E402
 
-from app.db import Database  # noqa: E402
-from app.models import Job  # noqa: E402
+from app.jobs.database import Database  # noqa: E402
+from app.jobs.model import Job  # noqa: E402
 
 
 def _counts(url: str) -> dict[str, int]:

@@ -9,9 +9,9 @@ from datetime import timedelta
 
 from sqlalchemy import update
 
-from app.db import Database
+from app.jobs.database import Database
 from app.examples import PAPER_PLANT
-from app.models import Job, utcnow
+from app.jobs.model import Job, utcnow
 
 from .conftest import running_client, wait_for
 

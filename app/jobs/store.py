@@ -13,8 +13,8 @@ from typing import Any
 
 from sqlalchemy import and_, case, select, update
 
-from app.db import Database
-from app.models import CANCELLED, FAILED, QUEUED, RUNNING, SUCCEEDED, Job, utcnow
+from app.jobs.database import Database
+from app.jobs.model import Status, Job, utcnow
 
 
 @dataclass
@@ -26,32 +26,7 @@ class Claimed:
 
 def has_queued(db: Database) -> bool:
     with db.read() as s:
-        return s.execute(select(Job.id).where(Job.status == QUEUED).limit(1)).first() is not None
-
-
-def claim_next(db: Database, owner: str, lease_seconds: float) -> Claimed | None:
-    """Atomically move the oldest queued job to running, owned by ``owner``."""
-    with db.write() as s:
-        row = s.execute(
-            select(Job.id)
-            .where(Job.status == QUEUED)
-            .order_by(Job.created_at, Job.id)
-            .limit(1)
-            .with_for_update(skip_locked=True)
-        ).first()
-        if row is None:
-            return None
-        now = utcnow()
-        res = s.execute(
-            update(Job)
-            .where(Job.id == row.id, Job.status == QUEUED)
-            .values(status=RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
-                    attempts=Job.attempts + 1, started_at=now, worker_pid=None, updated_at=now)
-        )
-        if res.rowcount != 1:
-            return None
-        job = s.execute(select(Job.request, Job.attempts).where(Job.id == row.id)).one()
-        return Claimed(row.id, job.request, job.attempts)
+        return s.execute(select(Job.id).where(Job.status == Status.QUEUED).limit(1)).first() is not None
 
 
 def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
@@ -64,7 +39,7 @@ def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | 
     with db.write() as s:
         ids = [r.id for r in s.execute(
             select(Job.id)
-            .where(Job.status == QUEUED)
+            .where(Job.status == Status.QUEUED)
             .order_by(Job.created_at, Job.id)
             .limit(len(pids))
             .with_for_update(skip_locked=True)
@@ -75,8 +50,8 @@ def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | 
         known = {i: p for i, p in zip(ids, pids) if p}
         rows = s.execute(
             update(Job)
-            .where(Job.id.in_(ids), Job.status == QUEUED)
-            .values(status=RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
+            .where(Job.id.in_(ids), Job.status == Status.QUEUED)
+            .values(status=Status.RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
                     attempts=Job.attempts + 1, started_at=now, updated_at=now,
                     worker_pid=case(known, value=Job.id, else_=None) if known else None)
             .returning(Job.id, Job.request, Job.attempts)
@@ -87,7 +62,7 @@ def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | 
 
 
 def _running_owned(job_id: str, owner: str):
-    return and_(Job.id == job_id, Job.status == RUNNING, Job.lease_owner == owner)
+    return and_(Job.id == job_id, Job.status == Status.RUNNING, Job.lease_owner == owner)
 
 
 def set_worker_pid(db: Database, job_id: str, owner: str, pid: int) -> None:
@@ -102,7 +77,7 @@ def update_progress(db: Database, job_id: str, owner: str, progress: dict[str, A
 
 def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[str, Any] | None = None,
            error: str | None = None, progress: dict[str, Any] | None = None) -> bool:
-    assert status in (SUCCEEDED, FAILED, CANCELLED)
+    assert status in (Status.SUCCEEDED, Status.FAILED, Status.CANCELLED)
     now = utcnow()
     values: dict[str, Any] = dict(status=status, finished_at=now, updated_at=now, lease_owner=None,
                                   lease_expires_at=None, result=result, error=error)
@@ -113,7 +88,7 @@ def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[s
 
 
 #: A lost attempt with attempts left: back to the queue, lease dropped.
-_REQUEUE = dict(status=QUEUED, lease_owner=None, lease_expires_at=None)
+_REQUEUE = dict(status=Status.QUEUED, lease_owner=None, lease_expires_at=None)
 
 
 def _after_lost_attempt(job, reason: str, max_attempts: int, now, retry: dict) -> dict:
@@ -123,10 +98,10 @@ def _after_lost_attempt(job, reason: str, max_attempts: int, now, retry: dict) -
     lease), otherwise ``retry`` with the reason recorded.
     """
     if job.cancel_requested:
-        return dict(status=CANCELLED, finished_at=now, error="cancelled by request",
+        return dict(status=Status.CANCELLED, finished_at=now, error="cancelled by request",
                     lease_owner=None, lease_expires_at=None)
     if job.attempts >= max_attempts:
-        return dict(status=FAILED, finished_at=now, lease_owner=None, lease_expires_at=None,
+        return dict(status=Status.FAILED, finished_at=now, lease_owner=None, lease_expires_at=None,
                     error=f"{reason}; giving up after {job.attempts} of {max_attempts} attempts")
     return {**retry, "error": f"{reason}; retrying (attempt {job.attempts} of {max_attempts} failed)"}
 
@@ -152,7 +127,7 @@ def note_retry(db: Database, job_id: str, owner: str, reason: str, max_attempts:
         if job is None:
             return None
         values = _after_lost_attempt(job, reason, max_attempts, now,
-                                     dict(status=RUNNING, attempts=job.attempts + 1, started_at=now))
+                                     dict(status=Status.RUNNING, attempts=job.attempts + 1, started_at=now))
         s.execute(update(Job).where(_running_owned(job_id, owner)).values(worker_pid=None, updated_at=now, **values))
         return values["status"]
 
@@ -161,7 +136,7 @@ def release(db: Database, job_id: str, owner: str) -> None:
     """Graceful shutdown: give a running job back to the queue without using up an attempt."""
     with db.write() as s:
         s.execute(update(Job).where(_running_owned(job_id, owner))
-                  .values(status=QUEUED, attempts=Job.attempts - 1, lease_owner=None, lease_expires_at=None,
+                  .values(status=Status.QUEUED, attempts=Job.attempts - 1, lease_owner=None, lease_expires_at=None,
                           worker_pid=None, progress=None, updated_at=utcnow()))
 
 
@@ -170,7 +145,7 @@ def heartbeat(db: Database, owner: str, job_ids: list[str], lease_seconds: float
         return
     now = utcnow()
     with db.write() as s:
-        s.execute(update(Job).where(Job.id.in_(job_ids), Job.status == RUNNING, Job.lease_owner == owner)
+        s.execute(update(Job).where(Job.id.in_(job_ids), Job.status == Status.RUNNING, Job.lease_owner == owner)
                   .values(lease_expires_at=now + timedelta(seconds=lease_seconds)))
 
 
@@ -178,17 +153,17 @@ def recover_expired(db: Database, max_attempts: int) -> list[str]:
     """Jobs whose service died (lease expired) go back to the queue (or fail/cancel)."""
     now = utcnow()
     with db.read() as s:
-        rows = s.execute(select(Job.id).where(Job.status == RUNNING, Job.lease_expires_at < now)).all()
+        rows = s.execute(select(Job.id).where(Job.status == Status.RUNNING, Job.lease_expires_at < now)).all()
     recovered = []
     for (job_id,) in rows:
         with db.write() as s:
             job = s.execute(select(Job.attempts, Job.cancel_requested, Job.lease_owner)
-                            .where(Job.id == job_id, Job.status == RUNNING, Job.lease_expires_at < now)).first()
+                            .where(Job.id == job_id, Job.status == Status.RUNNING, Job.lease_expires_at < now)).first()
             if job is None:
                 continue
             values = _after_lost_attempt(job, "the service running this job stopped (lease expired)", max_attempts,
                                          now, _REQUEUE)
-            s.execute(update(Job).where(Job.id == job_id, Job.status == RUNNING, Job.lease_owner == job.lease_owner)
+            s.execute(update(Job).where(Job.id == job_id, Job.status == Status.RUNNING, Job.lease_owner == job.lease_owner)
                       .values(worker_pid=None, updated_at=now, **values))
             recovered.append(job_id)
     return recovered

@@ -100,48 +100,46 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     """Run one design job; returns the job's JSON result."""
     from solver import design
 
-    fam = build_family(request["plant"])
-    res = design(fam, n_drop=request["n_drop"], method=request["method"], callback=callback,
-                 **design_options(request.get("options") or {}))
+    from app.compute.requests import DesignRequest
+
+    req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
+    plant = req.plant.model_dump()
+    fam = build_family(plant)
+    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     return out
 
 
-def design_options(opts: dict[str, Any]) -> dict[str, Any]:
-    """Keyword arguments of solver.design from a request's options."""
-    kwargs = dict(
-        solver=opts.get("solver", "CLARABEL"),
-        margin=opts.get("margin", 1e-6),
-        max_iter=opts.get("max_iter", 50),
-    )
-    for key in ("decay_rate", "plant_switching", "scheme"):
-        if opts.get(key) is not None:
-            kwargs[key] = opts[key]
-    return kwargs
+def design_options(options) -> dict[str, Any]:
+    """Keyword arguments of solver.design from a request's validated ``DesignOptions``: every field is
+    passed, so the defaults are the model's (``app.compute.requests``), not the solver signature's."""
+    return options.model_dump()
 
 
 def run_margin(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
     """Run one margin job (largest n_drop, largest sampling period, or a design grid)."""
     from solver.margins import design_grid, max_n_drop, max_sampling_period
 
-    fam = build_family(request["plant"])
-    kwargs = design_options(request.get("options") or {})
+    from app.compute.requests import MarginRequest
+
+    req = MarginRequest.model_validate(request)
+    fam = build_family(req.plant.model_dump())
+    kwargs = design_options(req.options)
     kwargs.pop("decay_rate", None)
-    search = request["search"]
-    if search == "n_drop":
-        res = max_n_drop(fam, request["method"], n_drop_max=request["n_drop_max"], callback=callback, **kwargs)
-    elif search == "sampling_period":
-        res = max_sampling_period(fam, request["n_drop"], request["method"], h_min=request["h_min"],
-                                  h_max=request["h_max"], tol=request["tol"], callback=callback, **kwargs)
+    if req.search == "n_drop":
+        res = max_n_drop(fam, req.method, n_drop_max=req.n_drop_max, callback=callback, **kwargs)
+    elif req.search == "sampling_period":
+        res = max_sampling_period(fam, req.n_drop, req.method, h_min=req.h_min, h_max=req.h_max, tol=req.tol,
+                                  callback=callback, **kwargs)
     else:
-        res = design_grid(fam, [(p["sampling_period"], p["n_drop"]) for p in request["points"]],
-                          request["method"], callback=callback, **kwargs)
+        res = design_grid(fam, [(p.sampling_period, p.n_drop) for p in req.points], req.method,
+                          callback=callback, **kwargs)
     return jsonable(res.to_dict())
 
 
 def run_job(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
-    """Entry point of the design worker pool: a margin job carries ``search``, a design job does not."""
+    """Entry point of the design workers: a margin job carries ``search``, a design job does not."""
     if request.get("search"):
         return run_margin(request, callback)
     return run_design(request, callback)
@@ -235,30 +233,3 @@ def warm_up() -> None:
     import solver  # noqa: F401
     import cvxpy  # noqa: F401
     import solver.margins  # noqa: F401
-
-
-SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
-              "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot"}
-
-
-_MEMORY_MB = 0  # this process's cap, set by app.syncpool's initializer
-
-
-def call_sync(task: str, *args: Any) -> tuple:
-    """Entry point of the synchronous pool: never raises for a solver error.
-
-    Returns ``("ok", result)``, ``("invalid", field_tuple, message)`` or
-    ``("error", message)``.
-    """
-    try:
-        from solver import InvalidInput
-    except ImportError:  # pragma: no cover - solver missing entirely
-        InvalidInput = ValueError  # type: ignore[assignment]
-    try:
-        return ("ok", globals()[SYNC_TASKS[task]](*args))
-    except InvalidInput as exc:
-        return ("invalid", tuple(getattr(exc, "field", ()) or ()), str(exc))
-    except MemoryError:  # over the worker's address-space cap (NCS_WORKER_MEMORY_MB)
-        return ("memory", _MEMORY_MB)
-    except Exception as exc:  # a genuine solver crash
-        return ("error", f"{type(exc).__name__}: {exc}")

@@ -1,11 +1,11 @@
 """Dask backend of the dispatcher: design jobs run on a ``dask.distributed`` cluster.
 
 Selected by ``NCS_DASK_SCHEDULER=tcp://host:8786``. Everything about the queue stays
-as with the local pool (``app.dispatcher``): the same dispatcher thread claims jobs
+as with the local pool (``app.jobs.dispatcher``): the same dispatcher thread claims jobs
 from the database (``FOR UPDATE SKIP LOCKED`` on PostgreSQL), holds and renews their
 leases, writes progress and results, and a restarted service loses nothing because
 the database is the source of truth. Only the executor differs: a claimed job is
-``Client.submit``-ted (``app.dask_tasks.run_job``) instead of sent down a pipe.
+``Client.submit``-ted (``app.compute.dask_task.run_job``) instead of sent down a pipe.
 
 How the usual guarantees map onto Dask:
 
@@ -37,10 +37,10 @@ import threading
 import time
 from typing import Any
 
-from app import jobs
-from app.db import Database
-from app.dispatcher import Dispatcher, _Slot
-from app.models import CANCELLED, FAILED, RUNNING
+from app.jobs import store as jobs
+from app.jobs.database import Database
+from app.jobs.dispatcher import Dispatcher, _Slot
+from app.jobs.model import Status
 from app.settings import Settings
 
 log = logging.getLogger("app.dask")
@@ -77,7 +77,7 @@ class DaskDispatcher(Dispatcher):
     def _connect(self) -> None:
         from distributed import Client
 
-        from app.dask_tasks import PROGRESS_TOPIC, START_TOPIC
+        from app.compute.dask_task import PROGRESS_TOPIC, START_TOPIC
 
         client = Client(self.address, timeout=10, set_as_default=False)
         client.subscribe_topic(START_TOPIC, lambda ev: self._post("start", ev[1]))
@@ -130,7 +130,7 @@ class DaskDispatcher(Dispatcher):
         return None  # known once the task starts on a worker (its start event)
 
     def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
-        from app.dask_tasks import run_job
+        from app.compute.dask_task import run_job
 
         key = f"ncs-design-{claimed.id}-{claimed.attempts}"
         slot.pid = None
@@ -165,7 +165,7 @@ class DaskDispatcher(Dispatcher):
             reason = f"Dask worker {slot.address} (pid {slot.pid}) died"  # type: ignore[attr-defined]
             outcome = jobs.note_retry(self.db, job_id, self.owner, reason, self.settings.max_attempts)
             log.warning("%s running job %s -> %s", reason, job_id, outcome)
-            if outcome != RUNNING:
+            if outcome != Status.RUNNING:
                 self._forget(slot)
                 return
         slot.pid, slot.address = pid, ev["address"]  # type: ignore[attr-defined]
@@ -187,13 +187,8 @@ class DaskDispatcher(Dispatcher):
             else:
                 err = None
             if reply is not None:
-                *reply, progress = reply
-                if progress is not None:
-                    slot.progress = progress
                 self._drop(slot)
-                self._handle(slot, tuple(reply))
-                if slot.job_id is not None:  # an unknown reply
-                    slot.clear_job()
+                self._handle(slot, reply)
                 return
         elif status == "error":
             err = fut.exception(timeout=30)
@@ -202,7 +197,7 @@ class DaskDispatcher(Dispatcher):
         progress = slot.progress
         self._drop(slot)
         if err is not None and type(err).__name__ != "KilledWorker":
-            self._finish(slot, job_id, FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
+            self._finish(slot, job_id, Status.FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
                          progress=progress)
             return
         slot.clear_job()
@@ -249,14 +244,14 @@ class DaskDispatcher(Dispatcher):
         job_id = slot.job_id
         if slot.pid is not None and now - slot.started > st.job_time_limit:
             self._forget(slot, restart=True)
-            self._finish(slot, job_id, FAILED,
+            self._finish(slot, job_id, Status.FAILED,
                          error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
                                f"(NCS_JOB_TIME_LIMIT) and was stopped")
             return
         if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
             started = slot.pid is not None
             self._forget(slot, restart=started)
-            self._finish(slot, job_id, CANCELLED,
+            self._finish(slot, job_id, Status.CANCELLED,
                          error="cancelled by request (worker stopped)" if started else "cancelled by request")
 
     def _send_cancel(self, slot: _Slot) -> None:
@@ -264,9 +259,9 @@ class DaskDispatcher(Dispatcher):
         if slot.pid is None or address is None:  # still waiting on the cluster: just drop it
             job_id = slot.job_id
             self._forget(slot)
-            self._finish(slot, job_id, CANCELLED, error="cancelled by request")
+            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request")
             return
-        from app.dask_tasks import request_cancel
+        from app.compute.dask_task import request_cancel
 
         try:
             self.client.run(request_cancel, slot.job_id, workers=[address], wait=False)

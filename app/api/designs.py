@@ -16,16 +16,17 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, make_transient
 
-from app import tasks, validation
-from app.db import Database
-from app.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key
+from app.api import validation
+from app.compute import tasks
+from app.jobs.database import Database
+from app.api.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key, run_sync
 from app.examples import DESIGN_EXAMPLES
-from app.models import CANCELLED, QUEUED, RUNNING, SUCCEEDED, TERMINAL, Job as JobRow, new_id, utcnow
-from app.problems import TYPE_BASE, ProblemException, field_error, invalid
-from app.schemas import DesignRequest, Job, JobList
-from app.syncpool import unwrap
+from app.jobs.model import FINISHED, Status, Job as JobRow, new_id, utcnow
+from app.api.problems import TYPE_BASE, ProblemException, field_error, invalid
+from app.api.schemas import Job, JobList
+from app.compute.requests import DesignRequest
 from app.settings import Settings
-from app.views import full, summary
+from app.api.views import full, summary
 
 router = APIRouter(prefix="/v1/designs", tags=["designs"], dependencies=[Depends(require_api_key)],
                    responses=V1_RESPONSES)
@@ -170,7 +171,7 @@ def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, r
         def count_queued() -> int:
             # The rollback is part of the retried read: a connection that dies between the count and
             # the end of its transaction is a lost connection too, not an unavailable database.
-            n = session.execute(select(func.count()).select_from(JobRow).where(JobRow.status == QUEUED)).scalar_one()
+            n = session.execute(select(func.count()).select_from(JobRow).where(JobRow.status == Status.QUEUED)).scalar_one()
             session.rollback()
             return n
 
@@ -181,7 +182,7 @@ def submit_job(kind: str, req: dict, n_drop: int, idempotency_key: str | None, r
                      f"(NCS_MAX_QUEUE_DEPTH); retry after {settings.retry_after} s", title="Too Many Requests",
                 type_=TYPE_BASE + "queue-full", headers={"Retry-After": str(settings.retry_after)})
     now = utcnow()
-    row = JobRow(id=new_id(), kind=kind, status=QUEUED, method=req["method"], n_drop=n_drop,
+    row = JobRow(id=new_id(), kind=kind, status=Status.QUEUED, method=req["method"], n_drop=n_drop,
                  request=req, request_hash=digest, idempotency_key=stored_key, attempts=0,
                  cancel_requested=False, created_at=now, updated_at=now, owner=owner)
     def insert():
@@ -277,14 +278,14 @@ def cancel_job(kind: str, job_id: str, request: Request, response: Response, db:
         if not visible(row, kind, owner):
             raise _not_found(job_id, kind)
         now = utcnow()
-        if row.status == QUEUED:
-            row.status, row.cancel_requested, row.finished_at = CANCELLED, True, now
+        if row.status == Status.QUEUED:
+            row.status, row.cancel_requested, row.finished_at = Status.CANCELLED, True, now
             row.updated_at, row.error = now, "cancelled by request"
             response.status_code = 200
-        elif row.status == RUNNING:
+        elif row.status == Status.RUNNING:
             row.cancel_requested, row.updated_at = True, now
             notify = True
-        elif row.status == CANCELLED:
+        elif row.status == Status.CANCELLED:
             response.status_code = 200
         else:
             raise ProblemException(409, f"job {job_id} already finished with status {row.status!r}; "
@@ -335,7 +336,7 @@ async def job_events(kind: str, job_id: str, request: Request, db: Database, own
                 seq += 1
                 last_progress = prog
                 yield f"id: {seq}\nevent: progress\ndata: {json.dumps(prog)}\n\n"
-            if job.status in TERMINAL:
+            if job.status in FINISHED:
                 seq += 1
                 yield f"id: {seq}\nevent: end\ndata: {job.model_dump_json()}\n\n"
                 return
@@ -404,8 +405,8 @@ async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Sett
     if got is None:
         raise _not_found(job_id)
     status, req, result = got
-    if status != SUCCEEDED or not result or not result.get("gains"):
-        why = f"status is {status!r}" if status != SUCCEEDED else f"outcome is {result.get('outcome')!r}"
+    if status != Status.SUCCEEDED or not result or not result.get("gains"):
+        why = f"status is {status!r}" if status != Status.SUCCEEDED else f"outcome is {result.get('outcome')!r}"
         raise ProblemException(409, f"design {job_id} has no gains to simulate ({why})", title="Conflict")
     n = len(result["F"][0])
     r = len(result["F"])
@@ -458,8 +459,9 @@ async def design_trace(
     key = (job_id, canonical_json(params))
     body = cache.get(key)
     if body is None:
-        out = await request.app.state.sync_pool.run("trace", req["plant"], result["gains"], req["n_drop"], params)
-        body = canonical_json(unwrap(out, ["query"], req["plant"])).encode()
+        out = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
+                             loc=["query"], plant=req["plant"])
+        body = canonical_json(out).encode()
         cache.put(key, body)
     return etag_response(request, "application/json", body)
 
@@ -491,8 +493,7 @@ async def design_trace_image(
     key = (job_id, canonical_json(params), fmt, width, height)
     body = cache.get(key)
     if body is None:
-        out = await request.app.state.sync_pool.run("trace_plot", req["plant"], result["gains"], req["n_drop"],
-                                                    params, fmt, size)
-        body = unwrap(out, ["query"], req["plant"])
+        body = await run_sync(request, "trace_plot", req["plant"], result["gains"], req["n_drop"], params, fmt,
+                              size, loc=["query"], plant=req["plant"])
         cache.put(key, body)
     return etag_response(request, MEDIA_TYPES[fmt], body)

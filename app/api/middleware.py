@@ -6,7 +6,7 @@ import json
 
 from starlette.exceptions import HTTPException
 
-from app.problems import PROBLEM_MEDIA_TYPE
+from app.api.problems import PROBLEM_MEDIA_TYPE
 
 
 class BodyTooLarge(HTTPException):

@@ -10,8 +10,9 @@ from fastapi import Depends, Request
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from app.db import Database
-from app.problems import ProblemException
+from app.jobs.database import Database
+from app.api.problems import ProblemException
+from app.jobs.errors import InvalidComputeInput
 from app.settings import Settings
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
@@ -80,3 +81,15 @@ def require_api_key(
         raise ProblemException(401, "a valid API key is required: send X-API-Key or Authorization: Bearer",
                                title="Unauthorized", headers={"WWW-Authenticate": "Bearer"})
     return owner_of(given)
+
+
+async def run_sync(request: Request, task: str, *args, loc: list, plant: dict | None):
+    """Run a task on the synchronous pool; an input the solver rejects is a 422 naming its field
+    (``loc`` is where the task's inputs sit in the HTTP request, ``plant`` the plant they came with)."""
+    from app.api.problems import invalid
+    from app.api.validation import solver_field_error
+
+    try:
+        return await request.app.state.sync_pool.run(task, *args)
+    except InvalidComputeInput as exc:
+        raise invalid([solver_field_error(exc.field, str(exc), plant, loc)]) from None

@@ -11,18 +11,18 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from sqlalchemy.orm import Session
 
-from app import validation
-from app.db import Database
-from app.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key
+from app.api import validation
+from app.jobs.database import Database
+from app.api.deps import V1_RESPONSES, get_database, get_session, get_settings, require_api_key, run_sync
 from app.examples import MARGIN_EXAMPLES
-from app.models import SUCCEEDED
-from app.problems import ProblemException
-from app.routers.designs import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, _load, cancel_job, etag_response, job_events,
+from app.jobs.model import Status
+from app.api.problems import ProblemException
+from app.api.designs import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, _load, cancel_job, etag_response, job_events,
                                  list_jobs, submit_job, validate_family)
-from app.schemas import Job, JobList, MarginRequest
+from app.api.schemas import Job, JobList
+from app.compute.requests import MarginRequest
 from app.settings import Settings
-from app.syncpool import unwrap
-from app.views import full
+from app.api.views import full
 
 router = APIRouter(prefix="/v1/margins", tags=["margins"], dependencies=[Depends(require_api_key)],
                    responses=V1_RESPONSES)
@@ -111,12 +111,12 @@ async def margin_curve(
     row = _load(session, job_id, KIND, owner)
     status, result = row.status, row.result
     session.rollback()  # release the read snapshot before the slow part
-    if status != SUCCEEDED or not result:
+    if status != Status.SUCCEEDED or not result:
         raise ProblemException(409, f"margin job {job_id} has no curve yet (status {status!r})", title="Conflict")
     key = (job_id, "curve", fmt, width, height)
     body = request.app.state.trace_cache.get(key)
     if body is None:
         size = {"width": width / 100, "height": height / 100, "dpi": 100}
-        body = unwrap(await request.app.state.sync_pool.run("margin_plot", result, fmt, size), ["query"], None)
+        body = await run_sync(request, "margin_plot", result, fmt, size, loc=["query"], plant=None)
         request.app.state.trace_cache.put(key, body)
     return etag_response(request, MEDIA_TYPES[fmt], body)

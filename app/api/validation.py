@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.problems import field_error, invalid
+from app.api.problems import field_error, invalid
 from app.settings import Settings
 
 
