@@ -20,6 +20,7 @@ from app.api.middleware import BodySizeLimit
 from app.api import analyses, designs, health, margins, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
+from app.jobs.watch import JobWatch
 
 log = logging.getLogger("app")
 
@@ -97,7 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        settings.worker_memory_mb)
         app.state.dispatcher = None
         if settings.run_dispatcher:
-            app.state.dispatcher = make_dispatcher(db, settings)
+            app.state.dispatcher = make_dispatcher(db, settings, on_finished=app.state.job_watch.finished)
             app.state.dispatcher.start()
         try:
             yield
@@ -117,6 +118,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
+    app.state.job_watch = JobWatch()
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
     app.include_router(designs.router)

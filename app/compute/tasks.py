@@ -7,6 +7,7 @@ processes stay lean.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Callable
 
@@ -233,3 +234,19 @@ def warm_up() -> None:
     import solver  # noqa: F401
     import cvxpy  # noqa: F401
     import solver.margins  # noqa: F401
+
+
+@functools.lru_cache(maxsize=256)
+def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> bool:
+    """Build the family and (given ``n_drop``) its closed-loop modes as a design would; raises the solver's
+    InvalidInput. Remembered per canonical plant JSON: a sweep submits the same plant many times, and
+    building it costs ~3 ms of the request thread; a rejection is not cached (it raises every time)."""
+    import json
+
+    from solver.network import ModeSet
+
+    fam = build_family(json.loads(plant_json))
+    if n_drop is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            ModeSet.from_family(fam, n_drop, plant_switching, scheme)
+    return True

@@ -35,7 +35,7 @@ import logging
 import queue
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 from app.jobs import store as jobs
 from app.jobs.database import Database
@@ -47,8 +47,8 @@ log = logging.getLogger("app.dask")
 
 
 class DaskDispatcher(Dispatcher):
-    def __init__(self, db: Database, settings: Settings):
-        super().__init__(db, settings)
+    def __init__(self, db: Database, settings: Settings, on_finished: Callable[[str], None] | None = None):
+        super().__init__(db, settings, on_finished)
         self.address = settings.dask_scheduler
         self.slots = []
         self.client: Any = None

@@ -27,7 +27,7 @@ import threading
 import time
 import uuid
 from multiprocessing.connection import wait as mp_wait
-from typing import Any
+from typing import Any, Callable
 
 from sqlalchemy.exc import DBAPIError
 
@@ -71,9 +71,11 @@ class _Slot:
 
 
 class Dispatcher:
-    def __init__(self, db: Database, settings: Settings):
+    def __init__(self, db: Database, settings: Settings, on_finished: Callable[[str], None] | None = None):
         self.db = db
         self.settings = settings
+        # Told the id of every job this dispatcher finished, once its end is recorded (Prefer: wait).
+        self.on_finished = on_finished or (lambda job_id: None)
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.slots = [_Slot(i) for i in range(settings.workers)]
         self._stop = threading.Event()
@@ -220,6 +222,7 @@ class Dispatcher:
         job_id, status, values = slot.pending
         jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
         slot.pending = None
+        self.on_finished(job_id)
 
     def _tick(self) -> None:
         st = self.settings
@@ -394,10 +397,11 @@ class Dispatcher:
             self._kill(slot)
 
 
-def make_dispatcher(db: Database, settings: Settings) -> Dispatcher:
+def make_dispatcher(db: Database, settings: Settings,
+                    on_finished: Callable[[str], None] | None = None) -> Dispatcher:
     """The local process pool, or the Dask backend when ``NCS_DASK_SCHEDULER`` is set."""
     if settings.dask_scheduler:
         from app.jobs.dask_executor import DaskDispatcher
 
-        return DaskDispatcher(db, settings)
-    return Dispatcher(db, settings)
+        return DaskDispatcher(db, settings, on_finished)
+    return Dispatcher(db, settings, on_finished)
