@@ -16,7 +16,7 @@ from fastapi.staticfiles import StaticFiles
 from app.api import problems
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
-from app.api.middleware import BodySizeLimit
+from app.api.middleware import BodySizeLimit, JsonBodiesOnly
 from app.api import analyses, designs, health, margins, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
@@ -121,6 +121,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.job_watch = JobWatch()
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",
+                                                        "/v1/simulations"}))
     app.include_router(designs.router)
     app.include_router(simulations.router)
     app.include_router(analyses.router)

@@ -132,6 +132,16 @@ def _allowed_methods(request: Request) -> str:
     return ", ".join(sorted(methods))
 
 
+def _parse_failure(cause: BaseException | None) -> str:
+    if isinstance(cause, UnicodeDecodeError):
+        return f"it is not UTF-8 text (byte {cause.start} cannot be decoded)"
+    if isinstance(cause, RecursionError):
+        return "it is nested too deeply (arrays or objects inside each other)"
+    if isinstance(cause, ValueError) and "digits" in str(cause):
+        return "a number has too many digits (at most 4300)"
+    return "it could not be parsed"
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ProblemException)
     async def _problem(request: Request, exc: ProblemException):
@@ -187,10 +197,12 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
         if exc.status_code == 400 and exc.detail == "There was an error parsing the body":
-            # FastAPI's answer to a body that is not even text (e.g. invalid UTF-8): malformed JSON like any other.
-            return problem_response(request, 422, "Malformed JSON", "The request body is not valid JSON: it "
-                                    "could not be decoded as UTF-8 text", TYPE_BASE + "malformed-json",
-                                    [{"loc": ["body"], "pointer": "", "msg": "not UTF-8 text", "type": "json_invalid"}])
+            # FastAPI's answer to a body json.loads raised on with something other than a syntax error:
+            # say which (the cause is the original exception).
+            msg = _parse_failure(exc.__cause__)
+            return problem_response(request, 422, "Malformed JSON", "The request body is not valid JSON: " + msg,
+                                    TYPE_BASE + "malformed-json",
+                                    [{"loc": ["body"], "pointer": "", "msg": msg, "type": "json_invalid"}])
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:
             headers = {**(headers or {}), "Allow": _allowed_methods(request)}

@@ -9,7 +9,8 @@ class JobError(Exception):
 
 class JobNotFound(JobError):
     def __init__(self, kind: str, job_id: str):
-        super().__init__(f"no {kind} job with id {job_id!r}")
+        shown = job_id if len(job_id) <= 64 else job_id[:64] + "..."
+        super().__init__(f"no {kind} job with id {shown!r}")
         self.kind, self.job_id = kind, job_id
 
 
