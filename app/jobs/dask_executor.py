@@ -56,6 +56,7 @@ class DaskDispatcher(Dispatcher):
         self._by_key: dict[str, _Slot] = {}
         self._nthreads: dict[str, int] = {}
         self._last_info = 0.0
+        self._next_connect = 0.0
 
     # -- public -----------------------------------------------------------
     def start(self) -> None:
@@ -68,7 +69,12 @@ class DaskDispatcher(Dispatcher):
         return len(self._nthreads)
 
     def ready_workers(self) -> int:
-        return sum(self._nthreads.values()) if self.client is not None else 0
+        return sum(self._nthreads.values()) if self._connected() else 0
+
+    def _connected(self) -> bool:
+        # A client whose scheduler went away says "connecting" (it tries to reconnect on its own) or
+        # "closed"; only "running" can take work, so /readyz is 503 from the moment the connection drops.
+        return self.client is not None and self.client.status == "running"
 
     def worker_pids(self) -> list[int]:
         return [s.pid for s in self.slots if s.job_id and s.pid]
@@ -79,7 +85,8 @@ class DaskDispatcher(Dispatcher):
 
         from app.compute.dask_task import PROGRESS_TOPIC, START_TOPIC
 
-        client = Client(self.address, timeout=10, set_as_default=False)
+        # A short timeout: the dispatcher thread waits this long per attempt while the scheduler is down.
+        client = Client(self.address, timeout=3, set_as_default=False)
         client.subscribe_topic(START_TOPIC, lambda ev: self._post("start", ev[1]))
         client.subscribe_topic(PROGRESS_TOPIC, lambda ev: self._post("progress", ev[1]))
         self.client = client
@@ -101,26 +108,55 @@ class DaskDispatcher(Dispatcher):
 
     # -- the loop -----------------------------------------------------------
     def _tick(self) -> None:
-        if self.client is None:
+        now = time.monotonic()
+        if self.client is not None and not self._connected():
+            self._lose_scheduler(f"lost the Dask scheduler at {self.address} (client {self.client.status})")
+        if self.client is None and now >= self._next_connect:
             try:
                 self._connect()
             except Exception as exc:
-                self.start_error = f"cannot connect to the Dask scheduler at {self.address}: {exc}"
-                raise
-        now = time.monotonic()
-        if now - self._last_info >= 1.0:
+                self.start_error = f"cannot connect to the Dask scheduler at {self.address}: {type(exc).__name__}"
+                self._next_connect = time.monotonic() + 1.0
+        if self.client is not None and now - self._last_info >= 1.0:
             try:
                 self._refresh_workers(now)
-            except Exception as exc:  # scheduler unreachable: claim nothing, but keep leases and results going
-                self._nthreads, self._last_info = {}, now
-                self.start_error = f"lost the Dask scheduler at {self.address}: {type(exc).__name__}: {exc}"
+            except Exception as exc:
+                self._lose_scheduler(f"lost the Dask scheduler at {self.address}: {type(exc).__name__}: {exc}")
         self._process_events()
+        # Leases, pending results and the queue go on while disconnected; with no capacity nothing is claimed.
         super()._tick()
+
+    def _lose_scheduler(self, reason: str) -> None:
+        """The scheduler is gone, and with it every task it held (Dask's workers stop with their scheduler):
+        each running job goes back to the queue at the cost of the one attempt it was on, and the client is
+        dropped, so the next tick connects afresh (a restarted scheduler knows none of the old futures or
+        subscriptions)."""
+        log.warning("%s; re-queueing %d running jobs and reconnecting",
+                    reason, sum(1 for s in self.slots if s.job_id))
+        self.start_error = reason
+        self._nthreads = {}
+        for slot in self.slots:
+            if slot.job_id is None:
+                continue
+            job_id = slot.job_id
+            self._drop(slot)
+            slot.clear_job()
+            slot.pid = None
+            outcome = jobs.retry_or_fail(self.db, job_id, self.owner, "the Dask scheduler was lost",
+                                         self.settings.max_attempts)
+            if outcome is not None and Status(outcome).finished:
+                self.on_finished(job_id)
+        client, self.client = self.client, None
+        # Closing a client whose scheduler is gone can wait for its timeouts: not on the dispatcher thread.
+        threading.Thread(target=_close_quietly, args=(client,), name="ncs-dask-close", daemon=True).start()
+        self.notify()
 
     def _drain(self, slot: _Slot) -> None:
         pass  # events arrive through self._events
 
     def _idle_slots(self) -> list[_Slot]:
+        if not self._connected():
+            return []
         capacity = sum(self._nthreads.values())
         busy = sum(1 for s in self.slots if s.job_id is not None)
         free = [s for s in self.slots if s.job_id is None and s.pending is None]
@@ -225,7 +261,7 @@ class DaskDispatcher(Dispatcher):
                 fut.cancel()
             except Exception:  # pragma: no cover
                 pass
-        if restart and address:
+        if restart and address and self.client is not None:
             # A running Python thread cannot be interrupted: restart the worker process (via its nanny).
             client = self.client
 
@@ -263,6 +299,8 @@ class DaskDispatcher(Dispatcher):
             return
         from app.compute.dask_task import request_cancel
 
+        if not self._connected():
+            return  # the grace timeout handles it
         try:
             self.client.run(request_cancel, slot.job_id, workers=[address], wait=False)
         except Exception:  # pragma: no cover - the worker is gone; the grace timeout handles it
@@ -287,3 +325,10 @@ class DaskDispatcher(Dispatcher):
             except Exception:  # pragma: no cover
                 pass
             self.client = None
+
+
+def _close_quietly(client: Any) -> None:
+    try:
+        client.close(timeout=5)
+    except Exception:  # pragma: no cover - already gone
+        pass
