@@ -102,6 +102,26 @@ def terminate_backends(url: str) -> int:
     return sum(1 for (ok,) in rows if ok)
 
 
+def _pg_cluster() -> list[str]:
+    """``pg_ctlcluster <version> main``: the local PostgreSQL server of the fault scenarios."""
+    versions = sorted(os.listdir("/etc/postgresql"))
+    return ["pg_ctlcluster", "--skip-systemctl-redirect", versions[-1], "main"]
+
+
+def restart_postgres() -> float:
+    """Restart the PostgreSQL server (every connection is lost, new ones are refused meanwhile); the seconds
+    the restart took."""
+    t0 = time.monotonic()
+    subprocess.run([*_pg_cluster(), "restart"], check=True, capture_output=True, timeout=120)
+    return time.monotonic() - t0
+
+
+def ensure_postgres_running() -> None:
+    """Leave the server up whatever happened (a restart that failed half-way, an interrupted test)."""
+    if subprocess.run([*_pg_cluster(), "status"], capture_output=True, timeout=30).returncode != 0:
+        subprocess.run([*_pg_cluster(), "start"], check=True, capture_output=True, timeout=120)
+
+
 class Server:
     """``python -m app.cli serve`` (= ``ncs-design serve``) on a free loopback port."""
 
