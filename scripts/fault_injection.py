@@ -36,8 +36,8 @@ from pathlib import Path
 
 import httpx
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import (FAST, SLOW, TERMINAL, Server, ensure_postgres_running, fresh_database,  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.harness import (FAST, SLOW, TERMINAL, Server, ensure_postgres_running, fresh_database,  # noqa: E402
                      restart_postgres, terminate_backends, wait_all)
 
 from sqlalchemy import event, func, select, text  # noqa: E402

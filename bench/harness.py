@@ -1,5 +1,6 @@
-"""Shared helpers of scripts/fault_injection.py and scripts/load_test.py (and the tests that run their short
-variants): a real service process on a free loopback port, fresh databases, job polling, memory.
+"""The one harness that starts a real service (``python -m app.cli serve`` on a free loopback port) and waits
+for /readyz, shared by the tests (tests/app/conftest.py), the benchmark (bench/service_bench.py) and the
+scripts (scripts/fault_injection.py, scripts/load_test.py); plus fresh databases, job polling, memory.
 
 Everything here talks to 127.0.0.1 only, and every wait is bounded.
 """
@@ -140,14 +141,16 @@ class Server:
                                      env=environ, cwd=str(REPO), stdout=self.log, stderr=subprocess.STDOUT)
 
     def wait_ready(self, timeout: float = 90.0) -> float:
-        """Seconds until /readyz answers 200."""
+        """Seconds until /readyz answers 200 (its body is kept in ``self.readyz``)."""
         t0 = time.monotonic()
         deadline = t0 + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}; log: {self.log_path}")
             try:
-                if httpx.get(self.base + "/readyz", timeout=2).status_code == 200:
+                r = httpx.get(self.base + "/readyz", timeout=2)
+                if r.status_code == 200:
+                    self.readyz = r.json()
                     return time.monotonic() - t0
             except httpx.HTTPError:
                 pass
