@@ -31,14 +31,14 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("migrate", help="apply the database migrations and exit")
     args = parser.parse_args(argv)
 
-    from app.worker import limit_blas_threads
+    from app.compute.process import limit_blas_threads
 
     limit_blas_threads()  # before numpy is imported: the request threads build plant families too
     from app.settings import Settings
 
     settings = Settings()
     if args.command == "migrate":
-        from app.db import run_migrations
+        from app.jobs.database import run_migrations
 
         run_migrations(settings.database_url, settings.alembic_dir)
         print(f"database at {settings.database_url} is up to date")

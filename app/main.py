@@ -13,13 +13,14 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.staticfiles import StaticFiles
 
-from app import problems
-from app.db import Database, run_migrations
-from app.dispatcher import make_dispatcher
-from app.middleware import BodySizeLimit
-from app.routers import analyses, designs, health, margins, simulations
+from app.api import problems
+from app.jobs.database import Database, run_migrations
+from app.jobs.dispatcher import make_dispatcher
+from app.api.middleware import BodySizeLimit, JsonBodiesOnly
+from app.api import analyses, designs, health, margins, simulations
 from app.settings import Settings
-from app.syncpool import SyncPool
+from app.jobs.sync_pool import SyncPool
+from app.jobs.watch import JobWatch
 
 log = logging.getLogger("app")
 
@@ -66,7 +67,7 @@ def _docs_static_dir() -> Path:
 
 def _problem_openapi(spec: dict) -> dict:
     """Document every error response as the problem+json it really is (not FastAPI's default 422 schema)."""
-    from app.schemas import Problem
+    from app.api.schemas import Problem
 
     components = spec.setdefault("components", {}).setdefault("schemas", {})
     problem_schema = Problem.model_json_schema(ref_template="#/components/schemas/{model}")
@@ -97,7 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        settings.worker_memory_mb)
         app.state.dispatcher = None
         if settings.run_dispatcher:
-            app.state.dispatcher = make_dispatcher(db, settings)
+            app.state.dispatcher = make_dispatcher(db, settings, on_finished=app.state.job_watch.finished)
             app.state.dispatcher.start()
         try:
             yield
@@ -117,8 +118,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
+    app.state.job_watch = JobWatch()
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",
+                                                        "/v1/simulations"}))
     app.include_router(designs.router)
     app.include_router(simulations.router)
     app.include_router(analyses.router)

@@ -14,6 +14,9 @@ Scenarios (each on a fresh database: an SQLite file, or a throw-away PostgreSQL 
                     ``default_transaction_read_only``): same expectations as a full disk.
 * ``pg_loss``       (PostgreSQL) ``pg_terminate_backend`` on all of the service's connections, 3 times, while
                     clients submit and poll; the pool reconnects (pool_pre_ping).
+* ``pg_restart``    (PostgreSQL, local server, needs root) the PostgreSQL server restarted twice
+                    (``pg_ctlcluster ... restart``) under the same load: requests meanwhile get 503 problem+json,
+                    no accepted job is lost, the service recovers without a restart.
 
 Only loopback traffic; every loop is bounded in count and time. The tests in tests/app/test_faults.py run
 short variants of the same functions.
@@ -33,13 +36,19 @@ from pathlib import Path
 
 import httpx
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import FAST, SLOW, TERMINAL, Server, fresh_database, terminate_backends, wait_all  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.harness import (FAST, SLOW, TERMINAL, Server, ensure_postgres_running, fresh_database,  # noqa: E402
+                     restart_postgres, terminate_backends, wait_all)
 
 from sqlalchemy import event, func, select, text  # noqa: E402
 
-from app.db import Database  # noqa: E402
-from app.models import Job  # noqa: E402
+from app.jobs.database import Database  # noqa: E402
+from app.jobs.model import Job  # noqa: E402
+
+
+def local_postgres() -> bool:
+    """Whether the PostgreSQL server can be restarted from here (pg_ctlcluster, as root)."""
+    return os.path.isdir("/etc/postgresql") and os.geteuid() == 0 and bool(os.listdir("/etc/postgresql"))
 
 
 def _counts(url: str) -> dict[str, int]:
@@ -254,8 +263,13 @@ def database_fault(url: str, kind: str, submissions: int = 40, baseline: int = 5
 
 # -- 5. PostgreSQL connection loss ---------------------------------------------------------------------------
 
-def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.0, clients: int = 4) -> dict:
-    server = Server(url, workdir / "pg_loss.log", NCS_WORKERS=2, NCS_POLL_INTERVAL=0.05)
+def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.0, clients: int = 4,
+            restart: bool = False) -> dict:
+    """Connections lost while clients submit and poll: ``pg_terminate_backend`` on every connection of the
+    service, or (``restart``) the whole PostgreSQL server restarted, which also refuses connections for a
+    while (those requests get 503 problem+json; none may get anything else, no accepted job may be lost)."""
+    server = Server(url, workdir / ("pg_restart.log" if restart else "pg_loss.log"), NCS_WORKERS=2,
+                    NCS_POLL_INTERVAL=0.05)
     try:
         server.wait_ready()
         accepted: list[str] = []
@@ -301,7 +315,9 @@ def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.
         kills, recover = [], []
         for _ in range(terminations):
             t0 = time.monotonic()
-            kills.append(terminate_backends(url))
+            kills.append(round(restart_postgres(), 2) if restart else terminate_backends(url))
+            if restart:
+                t0 = time.monotonic()  # recovery counts from the moment the server accepts connections again
             deadline = t0 + 30
             while time.monotonic() < deadline:
                 with lock:
@@ -317,7 +333,7 @@ def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.
             done = wait_all(c, accepted, timeout=180)
             ready = c.get("/readyz").status_code
         out = _summary(accepted, done)
-        errors = sum(v for k, v in codes.items() if k >= 500) + len(non_problem)
+        errors = sum(v for k, v in codes.items() if k >= 500 and not (restart and k == 503)) + len(non_problem)
         out.update(terminations=terminations, backends_terminated=kills, status_codes=codes,
                    errors_5xx=errors, non_problem_errors=non_problem,
                    recover_s_max=round(max(recover), 3) if recover else None, readyz_after=ready,
@@ -327,9 +343,11 @@ def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.
         return out
     finally:
         server.stop()
+        if restart:
+            ensure_postgres_running()
 
 
-SCENARIOS = ("worker_kill", "service_kill", "disk_full", "read_only", "pg_loss")
+SCENARIOS = ("worker_kill", "service_kill", "disk_full", "read_only", "pg_loss", "pg_restart")
 
 
 def main() -> int:
@@ -347,7 +365,7 @@ def main() -> int:
         for name in args.only.split(","):
             if name == "disk_full" and pg:
                 continue
-            if name == "pg_loss" and not pg:
+            if name in ("pg_loss", "pg_restart") and not pg:
                 continue
             with fresh_database(args.database_url, work) as url:
                 t0 = time.monotonic()
@@ -361,6 +379,8 @@ def main() -> int:
                     res = database_fault(url, "read_only")
                 elif name == "pg_loss":
                     res = pg_loss(url, work)
+                elif name == "pg_restart":
+                    res = pg_loss(url, work, terminations=2, restart=True)
                 else:
                     raise SystemExit(f"unknown scenario {name}")
                 res["scenario_s"] = round(time.monotonic() - t0, 1)

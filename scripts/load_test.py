@@ -30,8 +30,8 @@ from pathlib import Path
 
 import httpx
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import FAST, TERMINAL, Server, fresh_database, memory_mib, percentile, wait_all  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.harness import FAST, TERMINAL, Server, fresh_database, memory_mib, percentile, wait_all  # noqa: E402
 
 
 class Recorder:

@@ -27,6 +27,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from app import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
+from bench.harness import Server, free_port  # noqa: E402,F401 (free_port: for the test modules)
 
 PG_URL = os.environ.get("NCS_TEST_DATABASE_URL") or None
 REPO = Path(__file__).resolve().parents[2]
@@ -110,52 +111,7 @@ def assert_problem(resp, status: int, pointer: str | None = None) -> dict:
     return body
 
 
-# -- real server processes ------------------------------------------------------------
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Server:
-    def __init__(self, url: str, log_path: Path, **env):
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
-        environ = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
-        environ.update({"NCS_DATABASE_URL": url, "NCS_PORT": str(self.port), "NCS_HOST": "127.0.0.1"})
-        environ.update({k: str(v) for k, v in env.items()})
-        self.log = open(log_path, "ab")
-        self.proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--log-level", "warning"],
-                                     env=environ, cwd=str(REPO), stdout=self.log, stderr=subprocess.STDOUT)
-
-    def wait_ready(self, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise AssertionError(f"server exited with {self.proc.returncode}")
-            try:
-                if httpx.get(self.base + "/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.1)
-        raise AssertionError("server not ready in time")
-
-    def kill(self) -> None:
-        self.proc.kill()
-        self.proc.wait(10)
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self.log.close()
-
+# -- real server processes (bench/harness.py: the one "start a server, wait for /readyz") --------------
 
 @pytest.fixture
 def start_server(tmp_path):

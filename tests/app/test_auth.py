@@ -11,10 +11,10 @@ import pytest
 from sqlalchemy import select
 
 from app.cli import access_notice
-from app.db import Database
-from app.deps import match_key, owner_of
+from app.jobs.database import Database
+from app.api.deps import match_key, owner_of
 from app.examples import PAPER_GAINS_H01, PAPER_PLANT
-from app.models import Job
+from app.jobs.model import Job
 
 from .conftest import assert_problem, running_client, wait_for
 

@@ -9,9 +9,9 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
-from app.db import run_migrations
+from app.jobs.database import run_migrations
 from app.examples import PAPER_GAINS_H01, PAPER_PLANT
-from app.models import Base
+from app.jobs.model import Base
 from app.settings import Settings
 
 from .conftest import REPO, assert_problem, running_client

@@ -74,8 +74,8 @@ def test_paper_example_on_the_cluster_matches_the_solver(client, cluster, method
     if method == "ccl":
         assert job["progress"]["iteration"] is not None
     # It ran in one of the cluster's worker processes.
-    from app.db import Database
-    from app.models import Job
+    from app.jobs.database import Database
+    from app.jobs.model import Job
 
     db = Database(client.app.state.settings.database_url)
     with db.read() as s:

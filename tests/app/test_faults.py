@@ -56,6 +56,15 @@ def test_postgres_connection_loss_reconnects_without_errors(db_url, tmp_path):
     assert res["recover_s_max"] is not None and res["recover_s_max"] < 5, res
 
 
+@pytest.mark.skipif(not PG_URL or not fi.local_postgres(), reason="needs the local PostgreSQL server (pg_ctlcluster)")
+def test_postgres_server_restart_under_load_loses_no_job_and_the_service_recovers(db_url, tmp_path):
+    res = fi.pg_loss(db_url, tmp_path, terminations=2, interval=1.5, clients=3, restart=True)
+    _no_loss(res)
+    assert res["errors_5xx"] == 0 and res["non_problem_errors"] == [], res  # only 503 problem+json meanwhile
+    assert res["readyz_after"] == 200 and res["log_unhandled"] == 0, res
+    assert res["recover_s_max"] is not None and res["recover_s_max"] < 15, res
+
+
 def test_sigkill_worker_mid_job_is_retried(db_url, tmp_path):
     res = fi.worker_kill(db_url, tmp_path, kills=2, fast_jobs=3)
     _no_loss(res)

@@ -23,8 +23,7 @@ from .conftest import REPO
 
 import sys
 
-sys.path.insert(0, str(REPO / "scripts"))
-from harness import Server  # noqa: E402
+from bench.harness import Server  # noqa: E402
 
 KEY = "fuzz-" + uuid.uuid4().hex
 EXAMPLES = int(os.environ.get("NCS_FUZZ_EXAMPLES", "25"))

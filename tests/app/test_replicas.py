@@ -4,7 +4,7 @@ Two real ``ncs-design serve`` processes (uvicorn, each with its own dispatcher a
 pool) share one database (PostgreSQL in the CI's second run, where claims use
 ``SELECT ... FOR UPDATE SKIP LOCKED``; an SQLite file in the first run). Executions are
 counted on the worker side: a ``sitecustomize`` module on the servers' PYTHONPATH wraps
-``app.tasks.run_design`` in every process (service and spawned workers) and appends one
+``app.compute.tasks.run_design`` in every process (service and spawned workers) and appends one
 line per execution to a file, tagged by the job's unique ``max_iter``.
 """
 
@@ -29,7 +29,7 @@ import os
 
 _log = os.environ.get("NCS_TEST_EXECUTION_LOG")
 if _log:
-    import app.tasks as _tasks
+    import app.compute.tasks as _tasks
 
     _orig = _tasks.run_design
 

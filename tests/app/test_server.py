@@ -10,9 +10,9 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 import numpy as np
 
-from app.db import Database
+from app.jobs.database import Database
 from app.examples import PAPER_PLANT
-from app.models import Job
+from app.jobs.model import Job
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 PAPER_LMI = {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}

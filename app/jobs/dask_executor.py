@@ -1,11 +1,11 @@
 """Dask backend of the dispatcher: design jobs run on a ``dask.distributed`` cluster.
 
 Selected by ``NCS_DASK_SCHEDULER=tcp://host:8786``. Everything about the queue stays
-as with the local pool (``app.dispatcher``): the same dispatcher thread claims jobs
+as with the local pool (``app.jobs.dispatcher``): the same dispatcher thread claims jobs
 from the database (``FOR UPDATE SKIP LOCKED`` on PostgreSQL), holds and renews their
 leases, writes progress and results, and a restarted service loses nothing because
 the database is the source of truth. Only the executor differs: a claimed job is
-``Client.submit``-ted (``app.dask_tasks.run_job``) instead of sent down a pipe.
+``Client.submit``-ted (``app.compute.dask_task.run_job``) instead of sent down a pipe.
 
 How the usual guarantees map onto Dask:
 
@@ -35,20 +35,20 @@ import logging
 import queue
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
-from app import jobs
-from app.db import Database
-from app.dispatcher import Dispatcher, _Slot
-from app.models import CANCELLED, FAILED, RUNNING
+from app.jobs import store as jobs
+from app.jobs.database import Database
+from app.jobs.dispatcher import Dispatcher, _Slot
+from app.jobs.model import Status
 from app.settings import Settings
 
 log = logging.getLogger("app.dask")
 
 
 class DaskDispatcher(Dispatcher):
-    def __init__(self, db: Database, settings: Settings):
-        super().__init__(db, settings)
+    def __init__(self, db: Database, settings: Settings, on_finished: Callable[[str], None] | None = None):
+        super().__init__(db, settings, on_finished)
         self.address = settings.dask_scheduler
         self.slots = []
         self.client: Any = None
@@ -56,6 +56,7 @@ class DaskDispatcher(Dispatcher):
         self._by_key: dict[str, _Slot] = {}
         self._nthreads: dict[str, int] = {}
         self._last_info = 0.0
+        self._next_connect = 0.0
 
     # -- public -----------------------------------------------------------
     def start(self) -> None:
@@ -68,7 +69,12 @@ class DaskDispatcher(Dispatcher):
         return len(self._nthreads)
 
     def ready_workers(self) -> int:
-        return sum(self._nthreads.values()) if self.client is not None else 0
+        return sum(self._nthreads.values()) if self._connected() else 0
+
+    def _connected(self) -> bool:
+        # A client whose scheduler went away says "connecting" (it tries to reconnect on its own) or
+        # "closed"; only "running" can take work, so /readyz is 503 from the moment the connection drops.
+        return self.client is not None and self.client.status == "running"
 
     def worker_pids(self) -> list[int]:
         return [s.pid for s in self.slots if s.job_id and s.pid]
@@ -77,9 +83,10 @@ class DaskDispatcher(Dispatcher):
     def _connect(self) -> None:
         from distributed import Client
 
-        from app.dask_tasks import PROGRESS_TOPIC, START_TOPIC
+        from app.compute.dask_task import PROGRESS_TOPIC, START_TOPIC
 
-        client = Client(self.address, timeout=10, set_as_default=False)
+        # A short timeout: the dispatcher thread waits this long per attempt while the scheduler is down.
+        client = Client(self.address, timeout=3, set_as_default=False)
         client.subscribe_topic(START_TOPIC, lambda ev: self._post("start", ev[1]))
         client.subscribe_topic(PROGRESS_TOPIC, lambda ev: self._post("progress", ev[1]))
         self.client = client
@@ -101,26 +108,55 @@ class DaskDispatcher(Dispatcher):
 
     # -- the loop -----------------------------------------------------------
     def _tick(self) -> None:
-        if self.client is None:
+        now = time.monotonic()
+        if self.client is not None and not self._connected():
+            self._lose_scheduler(f"lost the Dask scheduler at {self.address} (client {self.client.status})")
+        if self.client is None and now >= self._next_connect:
             try:
                 self._connect()
             except Exception as exc:
-                self.start_error = f"cannot connect to the Dask scheduler at {self.address}: {exc}"
-                raise
-        now = time.monotonic()
-        if now - self._last_info >= 1.0:
+                self.start_error = f"cannot connect to the Dask scheduler at {self.address}: {type(exc).__name__}"
+                self._next_connect = time.monotonic() + 1.0
+        if self.client is not None and now - self._last_info >= 1.0:
             try:
                 self._refresh_workers(now)
-            except Exception as exc:  # scheduler unreachable: claim nothing, but keep leases and results going
-                self._nthreads, self._last_info = {}, now
-                self.start_error = f"lost the Dask scheduler at {self.address}: {type(exc).__name__}: {exc}"
+            except Exception as exc:
+                self._lose_scheduler(f"lost the Dask scheduler at {self.address}: {type(exc).__name__}: {exc}")
         self._process_events()
+        # Leases, pending results and the queue go on while disconnected; with no capacity nothing is claimed.
         super()._tick()
+
+    def _lose_scheduler(self, reason: str) -> None:
+        """The scheduler is gone, and with it every task it held (Dask's workers stop with their scheduler):
+        each running job goes back to the queue at the cost of the one attempt it was on, and the client is
+        dropped, so the next tick connects afresh (a restarted scheduler knows none of the old futures or
+        subscriptions)."""
+        log.warning("%s; re-queueing %d running jobs and reconnecting",
+                    reason, sum(1 for s in self.slots if s.job_id))
+        self.start_error = reason
+        self._nthreads = {}
+        for slot in self.slots:
+            if slot.job_id is None:
+                continue
+            job_id = slot.job_id
+            self._drop(slot)
+            slot.clear_job()
+            slot.pid = None
+            outcome = jobs.retry_or_fail(self.db, job_id, self.owner, "the Dask scheduler was lost",
+                                         self.settings.max_attempts)
+            if outcome is not None and Status(outcome).finished:
+                self.on_finished(job_id)
+        client, self.client = self.client, None
+        # Closing a client whose scheduler is gone can wait for its timeouts: not on the dispatcher thread.
+        threading.Thread(target=_close_quietly, args=(client,), name="ncs-dask-close", daemon=True).start()
+        self.notify()
 
     def _drain(self, slot: _Slot) -> None:
         pass  # events arrive through self._events
 
     def _idle_slots(self) -> list[_Slot]:
+        if not self._connected():
+            return []
         capacity = sum(self._nthreads.values())
         busy = sum(1 for s in self.slots if s.job_id is not None)
         free = [s for s in self.slots if s.job_id is None and s.pending is None]
@@ -130,15 +166,15 @@ class DaskDispatcher(Dispatcher):
         return None  # known once the task starts on a worker (its start event)
 
     def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
-        from app.dask_tasks import run_job
+        from app.compute.dask_task import run_job
 
         key = f"ncs-design-{claimed.id}-{claimed.attempts}"
         slot.pid = None
-        slot.address = None  # type: ignore[attr-defined]
-        slot.key = key  # type: ignore[attr-defined]
+        slot.address = None
+        slot.key = key
         self._by_key[key] = slot
         fut = self.client.submit(run_job, claimed.id, key, claimed.request, key=key, pure=False, retries=0)
-        slot.future = fut  # type: ignore[attr-defined]
+        slot.future = fut
         fut.add_done_callback(lambda f: self._post("done", f))
 
     def _process_events(self) -> None:
@@ -162,19 +198,19 @@ class DaskDispatcher(Dispatcher):
         job_id, pid = slot.job_id, int(ev["pid"])
         if slot.pid is not None and pid != slot.pid:
             # The scheduler re-ran the task elsewhere: its previous worker died mid-job.
-            reason = f"Dask worker {slot.address} (pid {slot.pid}) died"  # type: ignore[attr-defined]
+            reason = f"Dask worker {slot.address} (pid {slot.pid}) died"
             outcome = jobs.note_retry(self.db, job_id, self.owner, reason, self.settings.max_attempts)
             log.warning("%s running job %s -> %s", reason, job_id, outcome)
-            if outcome != RUNNING:
+            if outcome != Status.RUNNING:
                 self._forget(slot)
                 return
-        slot.pid, slot.address = pid, ev["address"]  # type: ignore[attr-defined]
+        slot.pid, slot.address = pid, ev["address"]
         slot.started = time.monotonic()  # the time limit counts from the real start, not from the claim
         jobs.set_worker_pid(self.db, job_id, self.owner, pid)
 
     def _on_done(self, fut: Any) -> None:
         slot = self._by_key.get(fut.key)
-        if slot is None or getattr(slot, "future", None) is not fut:
+        if slot is None or slot.future is not fut:
             return
         job_id = slot.job_id
         status = fut.status
@@ -187,13 +223,8 @@ class DaskDispatcher(Dispatcher):
             else:
                 err = None
             if reply is not None:
-                *reply, progress = reply
-                if progress is not None:
-                    slot.progress = progress
                 self._drop(slot)
-                self._handle(slot, tuple(reply))
-                if slot.job_id is not None:  # an unknown reply
-                    slot.clear_job()
+                self._handle(slot, reply)
                 return
         elif status == "error":
             err = fut.exception(timeout=30)
@@ -202,7 +233,7 @@ class DaskDispatcher(Dispatcher):
         progress = slot.progress
         self._drop(slot)
         if err is not None and type(err).__name__ != "KilledWorker":
-            self._finish(slot, job_id, FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
+            self._finish(slot, job_id, Status.FAILED, error=f"Dask task failed: {type(err).__name__}: {err}",
                          progress=progress)
             return
         slot.clear_job()
@@ -213,15 +244,15 @@ class DaskDispatcher(Dispatcher):
         self.notify()
 
     def _drop(self, slot: _Slot) -> None:
-        key = getattr(slot, "key", None)
+        key = slot.key
         if key is not None:
             self._by_key.pop(key, None)
-        slot.key = None  # type: ignore[attr-defined]
-        slot.future = None  # type: ignore[attr-defined]
+        slot.key = None
+        slot.future = None
 
     def _forget(self, slot: _Slot, restart: bool = False) -> None:
         """Stop caring about a slot's task: cancel its future and, if it runs, stop its worker."""
-        fut, address = getattr(slot, "future", None), getattr(slot, "address", None)
+        fut, address = slot.future, slot.address
         self._drop(slot)
         slot.clear_job()
         slot.pid = None
@@ -230,7 +261,7 @@ class DaskDispatcher(Dispatcher):
                 fut.cancel()
             except Exception:  # pragma: no cover
                 pass
-        if restart and address:
+        if restart and address and self.client is not None:
             # A running Python thread cannot be interrupted: restart the worker process (via its nanny).
             client = self.client
 
@@ -249,25 +280,27 @@ class DaskDispatcher(Dispatcher):
         job_id = slot.job_id
         if slot.pid is not None and now - slot.started > st.job_time_limit:
             self._forget(slot, restart=True)
-            self._finish(slot, job_id, FAILED,
+            self._finish(slot, job_id, Status.FAILED,
                          error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
                                f"(NCS_JOB_TIME_LIMIT) and was stopped")
             return
         if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
             started = slot.pid is not None
             self._forget(slot, restart=started)
-            self._finish(slot, job_id, CANCELLED,
+            self._finish(slot, job_id, Status.CANCELLED,
                          error="cancelled by request (worker stopped)" if started else "cancelled by request")
 
     def _send_cancel(self, slot: _Slot) -> None:
-        address = getattr(slot, "address", None)
+        address = slot.address
         if slot.pid is None or address is None:  # still waiting on the cluster: just drop it
             job_id = slot.job_id
             self._forget(slot)
-            self._finish(slot, job_id, CANCELLED, error="cancelled by request")
+            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request")
             return
-        from app.dask_tasks import request_cancel
+        from app.compute.dask_task import request_cancel
 
+        if not self._connected():
+            return  # the grace timeout handles it
         try:
             self.client.run(request_cancel, slot.job_id, workers=[address], wait=False)
         except Exception:  # pragma: no cover - the worker is gone; the grace timeout handles it
@@ -292,3 +325,10 @@ class DaskDispatcher(Dispatcher):
             except Exception:  # pragma: no cover
                 pass
             self.client = None
+
+
+def _close_quietly(client: Any) -> None:
+    try:
+        client.close(timeout=5)
+    except Exception:  # pragma: no cover - already gone
+        pass

@@ -6,13 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, Depends, Request
 
-from app import validation
-from app.deps import V1_RESPONSES, get_settings, require_api_key
+from app.api import validation
+from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import ANALYSIS_EXAMPLES
-from app.problems import invalid
-from app.schemas import AnalysisRequest
+from app.api.problems import invalid
+from app.compute.requests import AnalysisRequest
 from app.settings import Settings
-from app.syncpool import unwrap
 
 router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
 PROBLEM = {"content": {"application/problem+json": {}}}
@@ -45,5 +44,4 @@ async def analyses(request: Request,
             req["max_products"] = settings.max_analysis_products
     if errors:
         raise invalid(errors)
-    out = await request.app.state.sync_pool.run("analysis", req)
-    return unwrap(out, ["body"], req["plant"])
+    return await run_sync(request, "analysis", req, loc=["body"], plant=req["plant"])

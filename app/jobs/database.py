@@ -57,6 +57,19 @@ def make_engine(url: str) -> Engine:
     return create_engine(url, pool_size=10, max_overflow=40, pool_pre_ping=True, pool_timeout=60)
 
 
+def database_reason(exc: BaseException) -> str:
+    """A short, safe reason for a database failure (no SQL, no parameters, no credentials)."""
+    text = str(getattr(exc, "orig", None) or exc).splitlines()[0] if str(exc) else type(exc).__name__
+    low = text.lower()
+    if "full" in low or "no space" in low or "quota" in low:
+        return "the database is full (no space left for writes)"
+    if "readonly" in low or "read-only" in low or "read only" in low or "permission" in low:
+        return "the database is read-only"
+    if "locked" in low or "timeout" in low or "timed out" in low:
+        return "the database is busy"
+    return "the database connection failed"
+
+
 class Database:
     """Engine plus two session factories: ``read()`` and ``write()``."""
 
@@ -71,12 +84,6 @@ class Database:
     @property
     def sqlite(self) -> bool:
         return is_sqlite(self.url)
-
-    def read_session(self) -> Session:
-        return self._read()
-
-    def write_session(self) -> Session:
-        return self._write()
 
     @contextmanager
     def write(self) -> Iterator[Session]:

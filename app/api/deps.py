@@ -1,17 +1,16 @@
-"""FastAPI dependencies: settings, one database session per request, auth."""
+"""FastAPI dependencies: settings, the database, auth; running a task on the synchronous pool."""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
-from collections.abc import Iterator
 
 from fastapi import Depends, Request
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
-from sqlalchemy.orm import Session
 
-from app.db import Database
-from app.problems import ProblemException
+from app.jobs.database import Database
+from app.api.problems import ProblemException
+from app.jobs.errors import InvalidComputeInput
 from app.settings import Settings
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
@@ -35,15 +34,6 @@ def get_settings(request: Request) -> Settings:
 
 def get_database(request: Request) -> Database:
     return request.app.state.db
-
-
-def get_session(db: Database = Depends(get_database)) -> Iterator[Session]:
-    """Read session for the request (rolled back at the end)."""
-    session = db.read_session()
-    try:
-        yield session
-    finally:
-        db.end_read(session)
 
 
 def key_digest(key: str) -> bytes:
@@ -80,3 +70,15 @@ def require_api_key(
         raise ProblemException(401, "a valid API key is required: send X-API-Key or Authorization: Bearer",
                                title="Unauthorized", headers={"WWW-Authenticate": "Bearer"})
     return owner_of(given)
+
+
+async def run_sync(request: Request, task: str, *args, loc: list, plant: dict | None):
+    """Run a task on the synchronous pool; an input the solver rejects is a 422 naming its field
+    (``loc`` is where the task's inputs sit in the HTTP request, ``plant`` the plant they came with)."""
+    from app.api.problems import invalid
+    from app.api.validation import solver_field_error
+
+    try:
+        return await request.app.state.sync_pool.run(task, *args)
+    except InvalidComputeInput as exc:
+        raise invalid([solver_field_error(exc.field, str(exc), plant, loc)]) from None

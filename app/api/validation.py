@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.problems import field_error, invalid
+from app.api.problems import field_error, invalid
 from app.settings import Settings
 
 
@@ -251,3 +251,19 @@ def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None 
             field = ("inertias", *field[1:2])
         return field_error(["body", "plant", *field], message, "solver_invalid_input")
     return field_error([*(loc_base or ["body"]), *field], message, "solver_invalid_input")
+
+
+def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_switching: str = "per_interval",
+                      scheme: str = "predictive") -> None:
+    """What the solver library itself checks before a design, run before a job exists: the family (the
+    zero-order hold of a continuous plant) and, given ``n_drop``, its closed-loop modes (``F^n_drop`` of a
+    discrete plant with entries near 1e308 overflows). A rejection is a 422 naming the field."""
+    from solver import InvalidInput
+
+    from app.compute.tasks import check_design_inputs
+    from app.jobs.store import canonical_json
+
+    try:
+        check_design_inputs(canonical_json(plant), n_drop, plant_switching, scheme)
+    except InvalidInput as exc:
+        raise invalid([solver_field_error(getattr(exc, "field", ()), str(exc), plant)]) from None

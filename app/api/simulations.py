@@ -6,13 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, Depends, Request
 
-from app import validation
-from app.deps import V1_RESPONSES, get_settings, require_api_key
+from app.api import validation
+from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import SIMULATION_EXAMPLES
-from app.problems import invalid
-from app.schemas import SimulationRequest
+from app.api.problems import invalid
+from app.compute.requests import SimulationRequest
 from app.settings import Settings
-from app.syncpool import unwrap
 
 router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
 PROBLEM = {"content": {"application/problem+json": {}}}
@@ -40,5 +39,4 @@ async def simulate(request: Request,
     if errors:
         raise invalid(errors)
     req = body.model_dump(mode="json")
-    out = await request.app.state.sync_pool.run("simulation", req)
-    return unwrap(out, ["body"], req["plant"])
+    return await run_sync(request, "simulation", req, loc=["body"], plant=req["plant"])

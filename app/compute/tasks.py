@@ -8,6 +8,8 @@ processes stay lean.
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
@@ -100,48 +102,46 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     """Run one design job; returns the job's JSON result."""
     from solver import design
 
-    fam = build_family(request["plant"])
-    res = design(fam, n_drop=request["n_drop"], method=request["method"], callback=callback,
-                 **design_options(request.get("options") or {}))
+    from app.compute.requests import DesignRequest
+
+    req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
+    plant = req.plant.model_dump()
+    fam = build_family(plant)
+    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     return out
 
 
-def design_options(opts: dict[str, Any]) -> dict[str, Any]:
-    """Keyword arguments of solver.design from a request's options."""
-    kwargs = dict(
-        solver=opts.get("solver", "CLARABEL"),
-        margin=opts.get("margin", 1e-6),
-        max_iter=opts.get("max_iter", 50),
-    )
-    for key in ("decay_rate", "plant_switching", "scheme"):
-        if opts.get(key) is not None:
-            kwargs[key] = opts[key]
-    return kwargs
+def design_options(options) -> dict[str, Any]:
+    """Keyword arguments of solver.design from a request's validated ``DesignOptions``: every field is
+    passed, so the defaults are the model's (``app.compute.requests``), not the solver signature's."""
+    return options.model_dump()
 
 
 def run_margin(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
     """Run one margin job (largest n_drop, largest sampling period, or a design grid)."""
     from solver.margins import design_grid, max_n_drop, max_sampling_period
 
-    fam = build_family(request["plant"])
-    kwargs = design_options(request.get("options") or {})
+    from app.compute.requests import MarginRequest
+
+    req = MarginRequest.model_validate(request)
+    fam = build_family(req.plant.model_dump())
+    kwargs = design_options(req.options)
     kwargs.pop("decay_rate", None)
-    search = request["search"]
-    if search == "n_drop":
-        res = max_n_drop(fam, request["method"], n_drop_max=request["n_drop_max"], callback=callback, **kwargs)
-    elif search == "sampling_period":
-        res = max_sampling_period(fam, request["n_drop"], request["method"], h_min=request["h_min"],
-                                  h_max=request["h_max"], tol=request["tol"], callback=callback, **kwargs)
+    if req.search == "n_drop":
+        res = max_n_drop(fam, req.method, n_drop_max=req.n_drop_max, callback=callback, **kwargs)
+    elif req.search == "sampling_period":
+        res = max_sampling_period(fam, req.n_drop, req.method, h_min=req.h_min, h_max=req.h_max, tol=req.tol,
+                                  callback=callback, **kwargs)
     else:
-        res = design_grid(fam, [(p["sampling_period"], p["n_drop"]) for p in request["points"]],
-                          request["method"], callback=callback, **kwargs)
+        res = design_grid(fam, [(p.sampling_period, p.n_drop) for p in req.points], req.method,
+                          callback=callback, **kwargs)
     return jsonable(res.to_dict())
 
 
 def run_job(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
-    """Entry point of the design worker pool: a margin job carries ``search``, a design job does not."""
+    """Entry point of the design workers: a margin job carries ``search``, a design job does not."""
     if request.get("search"):
         return run_margin(request, callback)
     return run_design(request, callback)
@@ -236,29 +236,34 @@ def warm_up() -> None:
     import cvxpy  # noqa: F401
     import solver.margins  # noqa: F401
 
-
-SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
-              "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot"}
+    import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
 
 
-_MEMORY_MB = 0  # this process's cap, set by app.syncpool's initializer
+_checked: OrderedDict[str, None] = OrderedDict()  # digests of inputs that passed check_design_inputs
+_checked_lock = threading.Lock()
+CHECKED_REMEMBERED = 256
 
 
-def call_sync(task: str, *args: Any) -> tuple:
-    """Entry point of the synchronous pool: never raises for a solver error.
+def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:
+    """Build the family and (given ``n_drop``) its closed-loop modes as a design would; raises the solver's
+    InvalidInput. Inputs that passed are remembered by digest (not by their JSON, which may be large): a
+    sweep submits the same plant many times, and building it costs ~3 ms of the request thread. A
+    rejection is not remembered (it raises every time)."""
+    import hashlib
+    import json
 
-    Returns ``("ok", result)``, ``("invalid", field_tuple, message)`` or
-    ``("error", message)``.
-    """
-    try:
-        from solver import InvalidInput
-    except ImportError:  # pragma: no cover - solver missing entirely
-        InvalidInput = ValueError  # type: ignore[assignment]
-    try:
-        return ("ok", globals()[SYNC_TASKS[task]](*args))
-    except InvalidInput as exc:
-        return ("invalid", tuple(getattr(exc, "field", ()) or ()), str(exc))
-    except MemoryError:  # over the worker's address-space cap (NCS_WORKER_MEMORY_MB)
-        return ("memory", _MEMORY_MB)
-    except Exception as exc:  # a genuine solver crash
-        return ("error", f"{type(exc).__name__}: {exc}")
+    from solver.network import ModeSet
+
+    key = hashlib.sha256(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}".encode()).hexdigest()
+    with _checked_lock:
+        if key in _checked:
+            _checked.move_to_end(key)
+            return
+    fam = build_family(json.loads(plant_json))
+    if n_drop is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            ModeSet.from_family(fam, n_drop, plant_switching, scheme)
+    with _checked_lock:
+        _checked[key] = None
+        while len(_checked) > CHECKED_REMEMBERED:
+            _checked.popitem(last=False)

@@ -12,6 +12,10 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from app.jobs.database import database_reason
+from app.jobs.errors import (ComputeFailed, ComputeTimeLimit, IdempotencyKeyReused, JobAlreadyFinished, JobNotFound,
+                             MemoryLimitExceeded, QueueFull, WorkerDied)
+
 log = logging.getLogger("app")
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
@@ -93,19 +97,6 @@ def _clean_validation_errors(errors: Sequence[dict[str, Any]]) -> list[dict[str,
     return out
 
 
-def database_reason(exc: BaseException) -> str:
-    """A short, safe reason for a database failure (no SQL, no parameters, no credentials)."""
-    text = str(getattr(exc, "orig", None) or exc).splitlines()[0] if str(exc) else type(exc).__name__
-    low = text.lower()
-    if "full" in low or "no space" in low or "quota" in low:
-        return "the database is full (no space left for writes)"
-    if "readonly" in low or "read-only" in low or "read only" in low or "permission" in low:
-        return "the database is read-only"
-    if "locked" in low or "timeout" in low or "timed out" in low:
-        return "the database is busy"
-    return "the database connection failed"
-
-
 def database_unavailable(request: Request | None, exc: BaseException) -> JSONResponse:
     """503 for a database outage: the request changed nothing (its transaction was rolled back)."""
     reason = database_reason(exc)
@@ -141,11 +132,56 @@ def _allowed_methods(request: Request) -> str:
     return ", ".join(sorted(methods))
 
 
+def _parse_failure(cause: BaseException | None) -> str:
+    if isinstance(cause, UnicodeDecodeError):
+        return f"it is not UTF-8 text (byte {cause.start} cannot be decoded)"
+    if isinstance(cause, RecursionError):
+        return "it is nested too deeply (arrays or objects inside each other)"
+    if isinstance(cause, ValueError) and "digits" in str(cause):
+        return "a number has too many digits (at most 4300)"
+    return "it could not be parsed"
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ProblemException)
     async def _problem(request: Request, exc: ProblemException):
         return problem_response(request, exc.status, exc.title, exc.detail, exc.type, exc.errors,
                                 exc.headers)
+
+    # The job layer's refusals (app.jobs.errors) and their HTTP answers.
+    @app.exception_handler(JobNotFound)
+    async def _not_found(request: Request, exc: JobNotFound):
+        return problem_response(request, 404, "Not Found", str(exc))
+
+    @app.exception_handler(JobAlreadyFinished)
+    async def _finished(request: Request, exc: JobAlreadyFinished):
+        return problem_response(request, 409, "Conflict", str(exc))
+
+    @app.exception_handler(QueueFull)
+    async def _queue_full(request: Request, exc: QueueFull):
+        return problem_response(request, 429, "Too Many Requests", str(exc), TYPE_BASE + "queue-full",
+                                headers={"Retry-After": str(exc.retry_after)})
+
+    @app.exception_handler(IdempotencyKeyReused)
+    async def _key_reused(request: Request, exc: IdempotencyKeyReused):
+        errors = [field_error(["header", "Idempotency-Key"], str(exc), "idempotency_key_reused")]
+        return problem_response(request, 422, "Invalid request", str(exc), TYPE_BASE + "invalid-request", errors)
+
+    @app.exception_handler(MemoryLimitExceeded)
+    async def _over_memory(request: Request, exc: MemoryLimitExceeded):
+        return problem_response(request, 422, "Resource limit exceeded", str(exc), TYPE_BASE + "limit-exceeded")
+
+    @app.exception_handler(ComputeTimeLimit)
+    async def _time_limit(request: Request, exc: ComputeTimeLimit):
+        return problem_response(request, 503, "Time limit exceeded", str(exc))
+
+    @app.exception_handler(WorkerDied)
+    async def _worker_died(request: Request, exc: WorkerDied):
+        return problem_response(request, 503, "Worker process died", str(exc))
+
+    @app.exception_handler(ComputeFailed)
+    async def _compute_failed(request: Request, exc: ComputeFailed):
+        return problem_response(request, 500, "Solver error", str(exc))
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
@@ -161,10 +197,12 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
         if exc.status_code == 400 and exc.detail == "There was an error parsing the body":
-            # FastAPI's answer to a body that is not even text (e.g. invalid UTF-8): malformed JSON like any other.
-            return problem_response(request, 422, "Malformed JSON", "The request body is not valid JSON: it "
-                                    "could not be decoded as UTF-8 text", TYPE_BASE + "malformed-json",
-                                    [{"loc": ["body"], "pointer": "", "msg": "not UTF-8 text", "type": "json_invalid"}])
+            # FastAPI's answer to a body json.loads raised on with something other than a syntax error:
+            # say which (the cause is the original exception).
+            msg = _parse_failure(exc.__cause__)
+            return problem_response(request, 422, "Malformed JSON", "The request body is not valid JSON: " + msg,
+                                    TYPE_BASE + "malformed-json",
+                                    [{"loc": ["body"], "pointer": "", "msg": msg, "type": "json_invalid"}])
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:
             headers = {**(headers or {}), "Allow": _allowed_methods(request)}

@@ -1,5 +1,6 @@
-"""Shared helpers of scripts/fault_injection.py and scripts/load_test.py (and the tests that run their short
-variants): a real service process on a free loopback port, fresh databases, job polling, memory.
+"""The one harness that starts a real service (``python -m app.cli serve`` on a free loopback port) and waits
+for /readyz, shared by the tests (tests/app/conftest.py), the benchmark (bench/service_bench.py) and the
+scripts (scripts/fault_injection.py, scripts/load_test.py); plus fresh databases, job polling, memory.
 
 Everything here talks to 127.0.0.1 only, and every wait is bounded.
 """
@@ -102,6 +103,26 @@ def terminate_backends(url: str) -> int:
     return sum(1 for (ok,) in rows if ok)
 
 
+def _pg_cluster() -> list[str]:
+    """``pg_ctlcluster <version> main``: the local PostgreSQL server of the fault scenarios."""
+    versions = sorted(os.listdir("/etc/postgresql"))
+    return ["pg_ctlcluster", "--skip-systemctl-redirect", versions[-1], "main"]
+
+
+def restart_postgres() -> float:
+    """Restart the PostgreSQL server (every connection is lost, new ones are refused meanwhile); the seconds
+    the restart took."""
+    t0 = time.monotonic()
+    subprocess.run([*_pg_cluster(), "restart"], check=True, capture_output=True, timeout=120)
+    return time.monotonic() - t0
+
+
+def ensure_postgres_running() -> None:
+    """Leave the server up whatever happened (a restart that failed half-way, an interrupted test)."""
+    if subprocess.run([*_pg_cluster(), "status"], capture_output=True, timeout=30).returncode != 0:
+        subprocess.run([*_pg_cluster(), "start"], check=True, capture_output=True, timeout=120)
+
+
 class Server:
     """``python -m app.cli serve`` (= ``ncs-design serve``) on a free loopback port."""
 
@@ -120,14 +141,16 @@ class Server:
                                      env=environ, cwd=str(REPO), stdout=self.log, stderr=subprocess.STDOUT)
 
     def wait_ready(self, timeout: float = 90.0) -> float:
-        """Seconds until /readyz answers 200."""
+        """Seconds until /readyz answers 200 (its body is kept in ``self.readyz``)."""
         t0 = time.monotonic()
         deadline = t0 + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}; log: {self.log_path}")
             try:
-                if httpx.get(self.base + "/readyz", timeout=2).status_code == 200:
+                r = httpx.get(self.base + "/readyz", timeout=2)
+                if r.status_code == 200:
+                    self.readyz = r.json()
                     return time.monotonic() - t0
             except httpx.HTTPError:
                 pass

@@ -1,4 +1,4 @@
-"""What runs inside a Dask worker process (see ``app.dask_backend`` for the service side).
+"""What runs inside a Dask worker process (see ``app.jobs.dask_executor`` for the service side).
 
 Kept lean on purpose: it imports no web framework and needs no database access;
 a Dask worker only needs this package installed (``pip install ncs-design``).
@@ -6,8 +6,8 @@ a Dask worker only needs this package installed (``pip install ncs-design``).
 * :func:`run_job` is the task. It reports ``start`` (worker address and pid) and
   throttled ``progress`` through Dask's structured events (``Worker.log_event``:
   fire-and-forget, batched, forwarded by the scheduler to the subscribed service),
-  and returns the same reply tuple as a local worker process (``app.worker.execute``)
-  with the last progress record appended.
+  and returns the same outcome as a local worker process (``app.compute.worker.execute``)
+  carrying the last progress record.
 * :func:`request_cancel` is run on the worker by the service (``Client.run``) to
   cancel a running job cooperatively: it sets a flag that the solver callback reads
   at its next iteration, which costs nothing per iteration (no scheduler round trip).
@@ -15,10 +15,13 @@ a Dask worker only needs this package installed (``pip install ncs-design``).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 import time
 from typing import Any
+
+from app.compute.messages import JobOutcome
 
 START_TOPIC = "ncs-design-start"
 PROGRESS_TOPIC = "ncs-design-progress"
@@ -39,11 +42,11 @@ def _is_cancelled(job_id: str) -> bool:
         return job_id in _cancelled
 
 
-def run_job(job_id: str, key: str, request: dict[str, Any]) -> tuple:
+def run_job(job_id: str, key: str, request: dict[str, Any]) -> JobOutcome:
     from distributed import get_worker
 
-    from app import tasks
-    from app.worker import execute
+    from app.compute import tasks
+    from app.compute.worker import execute
 
     worker = get_worker()
     worker.log_event(START_TOPIC, {"key": key, "job": job_id, "pid": os.getpid(), "address": worker.address})
@@ -63,4 +66,4 @@ def run_job(job_id: str, key: str, request: dict[str, Any]) -> tuple:
     finally:
         with _lock:
             _cancelled.discard(job_id)
-    return (*reply, state["last"])
+    return dataclasses.replace(reply, progress=state["last"])

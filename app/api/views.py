@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from app.models import Job as JobRow
-from app.schemas import Job, JobSummary, Links
+from app.jobs.model import Job as JobRow
+from app.api.schemas import Job, JobSummary, Links
 
 
 def links(job_id: str, kind: str = "design") -> Links:

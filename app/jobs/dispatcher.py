@@ -2,7 +2,7 @@
 of worker processes.
 
 One daemon thread per service process. It owns ``workers`` long-lived
-worker processes (``spawn`` start method; see ``app.worker``), and in a
+worker processes (``spawn`` start method; see ``app.compute.worker``), and in a
 loop it
 
 * reads worker messages (progress -> job row, results -> finished job),
@@ -27,14 +27,16 @@ import threading
 import time
 import uuid
 from multiprocessing.connection import wait as mp_wait
-from typing import Any
+from typing import Any, Callable
 
 from sqlalchemy.exc import DBAPIError
 
-from app import jobs
-from app.db import Database
-from app.models import CANCELLED, FAILED, SUCCEEDED
-from app.problems import database_reason
+from app.compute.messages import Cancel, Cancelled, Failed, Progress, Ready, Run, Stop, Succeeded
+
+from app.jobs import store as jobs
+from app.jobs.database import Database
+from app.jobs.model import Status
+from app.jobs.database import database_reason
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
@@ -60,6 +62,11 @@ class _Slot:
         # A finished job whose final write failed (database full, read-only or unreachable): kept here and
         # written again every tick until it succeeds, so the result is never lost and never half-written.
         self.pending: tuple[str, str, dict[str, Any]] | None = None
+        # The Dask executor's handle on the slot's task (app.jobs.dask_executor): its key, future and the
+        # address of the worker running it; unused by the local pool.
+        self.key: str | None = None
+        self.future: Any = None
+        self.address: str | None = None
 
     def clear_job(self) -> None:
         self.job_id = None
@@ -69,9 +76,11 @@ class _Slot:
 
 
 class Dispatcher:
-    def __init__(self, db: Database, settings: Settings):
+    def __init__(self, db: Database, settings: Settings, on_finished: Callable[[str], None] | None = None):
         self.db = db
         self.settings = settings
+        # Told the id of every job this dispatcher finished, once its end is recorded (Prefer: wait).
+        self.on_finished = on_finished or (lambda job_id: None)
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.slots = [_Slot(i) for i in range(settings.workers)]
         self._stop = threading.Event()
@@ -128,7 +137,7 @@ class Dispatcher:
 
     # -- worker processes --------------------------------------------------
     def _spawn(self, slot: _Slot) -> None:
-        from app.worker import worker_main
+        from app.compute.worker import worker_main
 
         parent_conn, child_conn = _CTX.Pipe(duplex=True)
         proc = _CTX.Process(target=worker_main, args=(child_conn, os.getpid(), self.settings.worker_memory_mb),
@@ -218,6 +227,7 @@ class Dispatcher:
         job_id, status, values = slot.pending
         jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
         slot.pending = None
+        self.on_finished(job_id)
 
     def _tick(self) -> None:
         st = self.settings
@@ -251,23 +261,24 @@ class Dispatcher:
         except (EOFError, OSError):
             pass  # the process is dead; _check handles it
 
-    def _handle(self, slot: _Slot, msg: tuple) -> None:
-        kind = msg[0]
-        if kind == "ready":
-            slot.ready, slot.pid, slot.backoff = True, msg[1], 0.0
+    def _handle(self, slot: _Slot, msg: Any) -> None:
+        if isinstance(msg, Ready):
+            slot.ready, slot.pid, slot.backoff = True, msg.pid, 0.0
             self.start_error = None
             return
-        job_id = msg[1]
+        job_id = msg.job_id
         if job_id != slot.job_id:
             return  # stale message of a job we already gave up
-        if kind == "progress":
-            slot.progress, slot.progress_dirty = msg[2], True
-        elif kind == "done":
-            self._finish(slot, job_id, SUCCEEDED, result=msg[2], progress=slot.progress)
-        elif kind == "cancelled":
-            self._finish(slot, job_id, CANCELLED, error="cancelled by request", progress=slot.progress)
-        elif kind == "error":
-            self._finish(slot, job_id, FAILED, error=msg[2], progress=slot.progress)
+        if isinstance(msg, Progress):
+            slot.progress, slot.progress_dirty = msg.record, True
+            return
+        progress = msg.progress if msg.progress is not None else slot.progress
+        if isinstance(msg, Succeeded):
+            self._finish(slot, job_id, Status.SUCCEEDED, result=msg.result, progress=progress)
+        elif isinstance(msg, Cancelled):
+            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request", progress=progress)
+        elif isinstance(msg, Failed):
+            self._finish(slot, job_id, Status.FAILED, error=msg.reason, progress=progress)
 
     def _check(self, slot: _Slot, now: float) -> None:
         st = self.settings
@@ -284,7 +295,7 @@ class Dispatcher:
                     # SIGABRT under a memory cap: a native allocation failed (e.g. the solver's KKT system).
                     # It would fail the same way again, so the job ends now, saying why.
                     self._respawn(slot)
-                    self._finish(slot, job_id, FAILED, error=f"memory limit exceeded: the worker process "
+                    self._finish(slot, job_id, Status.FAILED, error=f"memory limit exceeded: the worker process "
                                  f"aborted (exit code {code}) when an allocation over the {st.worker_memory_mb} MB "
                                  f"a job may use (NCS_WORKER_MEMORY_MB) failed")
                     log.warning("worker %s aborted running job %s (memory limit)", slot.pid, job_id)
@@ -301,14 +312,14 @@ class Dispatcher:
         if now - slot.started > st.job_time_limit:
             job_id = slot.job_id
             self._respawn(slot)
-            self._finish(slot, job_id, FAILED,
+            self._finish(slot, job_id, Status.FAILED,
                          error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
                                f"(NCS_JOB_TIME_LIMIT) and was stopped")
             return
         if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
             job_id = slot.job_id
             self._respawn(slot)
-            self._finish(slot, job_id, CANCELLED, error="cancelled by request (worker stopped)")
+            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request (worker stopped)")
 
     def _check_cancels(self, now: float) -> None:
         running = [s.job_id for s in self.slots if s.job_id and s.cancel_sent is None]
@@ -323,7 +334,7 @@ class Dispatcher:
                     self._check(slot, now + 1)
 
     # -- the executor: how a claimed job reaches a worker --------------------
-    # The local pool (this class) and the Dask backend (app.dask_backend.DaskDispatcher)
+    # The local pool (this class) and the Dask backend (app.jobs.dask_executor.DaskDispatcher)
     # differ only in these methods and in _drain/_check/_sleep/_shutdown; claiming,
     # leases, progress, cancel requests and the job-table updates are shared.
     def _idle_slots(self) -> list[_Slot]:
@@ -336,13 +347,13 @@ class Dispatcher:
 
     def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
         try:
-            slot.conn.send(("run", claimed.id, claimed.request))
+            slot.conn.send(Run(claimed.id, claimed.request))
         except (OSError, ValueError):
             pass  # dead worker: the next _check retries the job
 
     def _send_cancel(self, slot: _Slot) -> None:
         try:
-            slot.conn.send(("cancel", slot.job_id))
+            slot.conn.send(Cancel(slot.job_id))
         except (OSError, ValueError):
             pass
 
@@ -381,7 +392,7 @@ class Dispatcher:
                 slot.clear_job()
             elif slot.conn is not None:
                 try:
-                    slot.conn.send(("stop",))
+                    slot.conn.send(Stop())
                 except (OSError, ValueError):
                     pass
         deadline = time.monotonic() + 2.0
@@ -391,10 +402,11 @@ class Dispatcher:
             self._kill(slot)
 
 
-def make_dispatcher(db: Database, settings: Settings) -> Dispatcher:
+def make_dispatcher(db: Database, settings: Settings,
+                    on_finished: Callable[[str], None] | None = None) -> Dispatcher:
     """The local process pool, or the Dask backend when ``NCS_DASK_SCHEDULER`` is set."""
     if settings.dask_scheduler:
-        from app.dask_backend import DaskDispatcher
+        from app.jobs.dask_executor import DaskDispatcher
 
-        return DaskDispatcher(db, settings)
-    return Dispatcher(db, settings)
+        return DaskDispatcher(db, settings, on_finished)
+    return Dispatcher(db, settings, on_finished)

@@ -6,7 +6,7 @@ import json
 
 from starlette.exceptions import HTTPException
 
-from app.problems import PROBLEM_MEDIA_TYPE
+from app.api.problems import PROBLEM_MEDIA_TYPE
 
 
 class BodyTooLarge(HTTPException):
@@ -57,4 +57,44 @@ class BodySizeLimit:
                     "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
                                 (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})
+        await send({"type": "http.response.body", "body": body})
+
+
+def _is_json(content_type: str) -> bool:
+    media = content_type.split(";", 1)[0].strip().lower()
+    return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
+
+
+class JsonBodiesOnly:
+    """415 for a request body that is not JSON (``text/plain``, curl's default form type...) on the
+    endpoints that take one, naming Content-Type; otherwise the body would reach validation as bytes
+    and get a 422 "Input should be a valid dictionary" that does not say what is wrong."""
+
+    def __init__(self, app, paths: frozenset[str]):
+        self.app = app
+        self.paths = paths
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http" and scope["method"] == "POST" and scope["path"] in self.paths:
+            for name, value in scope.get("headers", ()):
+                if name == b"content-type":
+                    content_type = value.decode("latin-1")
+                    if not _is_json(content_type):
+                        return await self._reject(scope, send, content_type)
+                    break
+        return await self.app(scope, receive, send)
+
+    async def _reject(self, scope, send, content_type: str):
+        shown = content_type.split(";", 1)[0].strip()[:100]
+        body = json.dumps({
+            "type": "about:blank", "title": "Unsupported Media Type", "status": 415,
+            "detail": f"the request body must be JSON: send Content-Type: application/json (got {shown!r})",
+            "instance": scope.get("path", ""),
+            "errors": [{"loc": ["header", "Content-Type"], "pointer": "", "type": "unsupported_media_type",
+                        "msg": "Content-Type must be application/json"}],
+        }).encode()
+        await send({"type": "http.response.start", "status": 415,
+                    "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
+                                (b"content-length", str(len(body)).encode()),
+                                (b"accept", b"application/json")]})
         await send({"type": "http.response.body", "body": body})

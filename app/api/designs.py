@@ -1,0 +1,169 @@
+"""/v1/designs: submit design jobs (list, get, cancel and events: ``app.api.job_routes``); traces."""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+from fastapi import Body, Depends, Header, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+
+from app.api import validation
+from app.api.deps import get_database, get_settings, require_api_key, run_sync
+from app.api.job_routes import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, PreferHeader, etag_response, job_router,
+                                submit)
+from app.api.problems import ProblemException, field_error, invalid
+from app.api.schemas import Job
+from app.compute.requests import DesignRequest
+from app.examples import DESIGN_EXAMPLES
+from app.jobs import store
+from app.jobs.database import Database
+from app.jobs.model import Status
+from app.jobs.store import canonical_json
+from app.settings import Settings
+
+router = job_router("design")
+
+
+@router.post(
+    "", status_code=202, response_model=Job,
+    summary="Submit a design job",
+    description="Answers 202 with the queued job and its `Location`. With `Prefer: wait=N` it answers 201 with "
+                "the finished job when the design ends within N seconds (else 202 as without it).",
+    responses=SUBMIT_RESPONSES,
+)
+async def submit_design(
+    request: Request,
+    response: Response,
+    body: Annotated[DesignRequest, Body(openapi_examples=DESIGN_EXAMPLES)],
+    idempotency_key: Annotated[str | None, Header(max_length=255, description="Same key and body -> same job")] = None,
+    prefer: PreferHeader = None,
+    settings: Settings = Depends(get_settings),
+    owner: str | None = Depends(require_api_key),
+) -> Job:
+    validation.check_design(body, settings)
+    req = body.model_dump(mode="json")
+    validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
+    return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
+
+
+def _parse_x0(raw: str | None, n: int) -> list[float]:
+    if raw is None:
+        return [1.0] * n
+    try:
+        vals = [float(v) for v in raw.split(",")]
+    except ValueError:
+        raise invalid([field_error(["query", "x0"], "x0 must be comma-separated numbers, e.g. x0=-3,2", "float_parsing")])
+    if not all(math.isfinite(v) for v in vals):
+        raise invalid([field_error(["query", "x0"], "x0 entries must be finite", "finite_number")])
+    if len(vals) != n:
+        raise invalid([field_error(["query", "x0"], f"x0 has {len(vals)} entries, the plant has n = {n} states",
+                                   "vector_mismatch")])
+    return vals
+
+
+class TraceQuery:
+    """Query parameters of a trace (JSON or image); the same query gives the same run."""
+
+    def __init__(
+        self,
+        seed: Annotated[int, Query(ge=0)] = 42,
+        steps: Annotated[int, Query(ge=1)] = 100,
+        x0: Annotated[str | None, Query(description="Initial state, comma-separated (default: all ones)",
+                                        examples=["-3,2"])] = None,
+        loss_model: Literal["paper", "bernoulli"] = "paper",
+        sensor_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+        control_loss: Annotated[float, Query(ge=0, lt=1)] = 0.2,
+        plant_switching: Annotated[Literal["per_interval", "per_sample", "none"] | None,
+                                   Query(description="Default: the design's own plant_switching option")] = None,
+        mode: Annotated[int | None, Query(ge=0)] = None,
+    ):
+        self.seed, self.steps, self.x0, self.loss_model = seed, steps, x0, loss_model
+        self.sensor_loss, self.control_loss = sensor_loss, control_loss
+        self.plant_switching, self.mode = plant_switching, mode
+
+
+async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Settings, owner: str | None):
+    """The succeeded design's request, result and the validated simulation parameters."""
+    row = await run_in_threadpool(store.get, db, "design", job_id, owner)
+    status, req, result = row.status, row.request, row.result
+    if status != Status.SUCCEEDED or not result or not result.get("gains"):
+        why = f"status is {status!r}" if status != Status.SUCCEEDED else f"outcome is {result.get('outcome')!r}"
+        raise ProblemException(409, f"design {job_id} has no gains to simulate ({why})", title="Conflict")
+    n = len(result["F"][0])
+    r = len(result["F"])
+    errors: list = []
+    validation.check_steps(q.steps, settings, errors, ["query", "steps"])
+    if q.mode is not None and q.mode >= r:
+        errors.append(field_error(["query", "mode"], f"mode {q.mode} does not exist: the plant has {r} modes "
+                                  "(0-based)", "mode_out_of_range"))
+    if errors:
+        raise invalid(errors)
+    plant_switching = q.plant_switching or (req.get("options") or {}).get("plant_switching") or "per_interval"
+    params = dict(seed=q.seed, steps=q.steps, x0=_parse_x0(q.x0, n), loss_model=q.loss_model,
+                  sensor_loss=q.sensor_loss, control_loss=q.control_loss, plant_switching=plant_switching,
+                  mode=q.mode)
+    return req, result, params
+
+
+@router.get(
+    "/{job_id}/trace",
+    summary="Seeded simulation of the designed loop (all plant modes)",
+    description="The top level is the run with the requested plant switching (like Fig. 3/4); `per_mode` holds "
+                "one run per fixed plant mode with the same losses. The same query always returns "
+                "byte-identical JSON (keys sorted, compact).",
+    responses={200: {"content": {"application/json": {}}}, 404: ERRORS[404],
+               409: {"description": "The design has no gains (not succeeded or not stabilized)",
+                     "content": {"application/problem+json": {}}}, 422: ERRORS[422]},
+)
+async def design_trace(
+    job_id: str,
+    request: Request,
+    q: TraceQuery = Depends(),
+    db=Depends(get_database),
+    settings: Settings = Depends(get_settings),
+    owner: str | None = Depends(require_api_key),
+):
+    req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
+    cache = request.app.state.trace_cache
+    key = (job_id, canonical_json(params))
+    body = cache.get(key)
+    if body is None:
+        out = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
+                             loc=["query"], plant=req["plant"])
+        body = canonical_json(out).encode()
+        cache.put(key, body)
+    return etag_response(request, "application/json", body)
+
+
+@router.get(
+    "/{job_id}/trace.{fmt}",
+    summary="The trace as a picture (SVG or PNG), like the paper's Fig. 3/4",
+    description="States (top) and inputs (bottom) over time: first the run with the requested plant switching, "
+                "then one column per fixed plant mode; samples whose packet was lost are shaded and marked. "
+                "Same query parameters as `/trace`, plus the picture size in pixels.",
+    responses={200: {"content": {"image/svg+xml": {}, "image/png": {}}}, 404: ERRORS[404],
+               409: {"description": "The design has no gains", "content": {"application/problem+json": {}}},
+               422: ERRORS[422]},
+)
+async def design_trace_image(
+    job_id: str,
+    fmt: Literal["svg", "png"],
+    request: Request,
+    q: TraceQuery = Depends(),
+    width: Annotated[int, Query(ge=200, le=4000, description="Width in pixels")] = 1200,
+    height: Annotated[int, Query(ge=150, le=3000, description="Height in pixels")] = 600,
+    db=Depends(get_database),
+    settings: Settings = Depends(get_settings),
+    owner: str | None = Depends(require_api_key),
+):
+    req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
+    size = {"width": width / 100, "height": height / 100, "dpi": 100}
+    cache = request.app.state.trace_cache
+    key = (job_id, canonical_json(params), fmt, width, height)
+    body = cache.get(key)
+    if body is None:
+        body = await run_sync(request, "trace_plot", req["plant"], result["gains"], req["n_drop"], params, fmt,
+                              size, loc=["query"], plant=req["plant"])
+        cache.put(key, body)
+    return etag_response(request, MEDIA_TYPES[fmt], body)

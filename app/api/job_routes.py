@@ -1,0 +1,224 @@
+"""What designs and margins share: submitting a job, and one router factory for list / get / cancel /
+events of a job kind; the ``Prefer: wait=N`` handling (RFC 7240) of submit and get."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import re
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Depends, Header, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
+
+from app.api.deps import V1_RESPONSES, get_database, require_api_key
+from app.api.schemas import Job, JobList
+from app.api.views import full, summary
+from app.jobs import store
+from app.jobs.database import Database
+from app.jobs.model import FINISHED
+
+PROBLEM = {"content": {"application/problem+json": {}}}
+ERRORS = {
+    404: {"description": "Unknown job id", **PROBLEM},
+    422: {"description": "Invalid request (problem+json naming the field)", **PROBLEM},
+}
+QUEUE_FULL = {"description": "The queue is full (NCS_MAX_QUEUE_DEPTH); retry after `Retry-After` seconds", **PROBLEM,
+              "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}}
+PREFERENCE_APPLIED = {"Preference-Applied": {"description": "`wait=N` when the request's `Prefer: wait=N` was "
+                                                            "honoured", "schema": {"type": "string"}}}
+#: OpenAPI responses of every job submission (designs and margins).
+SUBMIT_RESPONSES = {
+    201: {"description": "Created and already finished (only with `Prefer: wait=N`, when the job ended within "
+                         "N seconds)", "model": Job, "headers": PREFERENCE_APPLIED},
+    202: {"description": "Accepted; poll the Location (optionally with `Prefer: wait=N`) or stream /events",
+          "headers": PREFERENCE_APPLIED},
+    413: {"description": "Body over NCS_MAX_BODY_BYTES", **PROBLEM},
+    422: ERRORS[422], 429: QUEUE_FULL,
+}
+
+#: The longest wait a client may ask for; a longer one is cut to this (RFC 7240 lets a server do so).
+MAX_WAIT_SECONDS = 60.0
+_WAIT = re.compile(r"(?:^|[,;])\s*wait\s*=\s*\"?(\d+(?:\.\d+)?)\"?\s*(?=$|[,;])", re.IGNORECASE)
+
+PreferHeader = Annotated[str | None, Header(
+    description="`wait=N` (RFC 7240): answer as soon as the job is finished, or after N seconds "
+                f"(at most {MAX_WAIT_SECONDS:g}) with its current state. `Preference-Applied` says it was used.",
+    examples=["wait=10"])]
+StatusFilter = Annotated[Literal["queued", "running", "succeeded", "failed", "cancelled"] | None,
+                         Query(description="Only jobs with this status")]
+
+
+def requested_wait(prefer: str | None) -> float | None:
+    """The seconds of a ``Prefer: wait=N`` header, capped; None when the client did not ask to wait."""
+    if not prefer:
+        return None
+    match = _WAIT.search(prefer)
+    if match is None:
+        return None
+    return min(float(match.group(1)), MAX_WAIT_SECONDS)
+
+
+async def wait_for_end(request: Request, db: Database, job_id: str, seconds: float) -> None:
+    watch = request.app.state.job_watch
+
+    async def is_finished() -> bool:
+        return await run_in_threadpool(store.is_finished, db, job_id)
+
+    await watch.wait(job_id, seconds, is_finished)
+
+
+async def submit(request: Request, response: Response, kind: str, req: dict, n_drop: int,
+                 idempotency_key: str | None, owner: str | None, prefer: str | None) -> Job:
+    """Queue a validated job (or replay an idempotent one), wake the dispatcher, and with
+    ``Prefer: wait=N`` answer 201 with the finished job if it ends within N seconds."""
+    settings = request.app.state.settings
+    db: Database = request.app.state.db
+    submitted = await run_in_threadpool(
+        store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
+        max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+    row = submitted.job
+    response.headers["Location"] = f"/v1/{kind}s/{row.id}"
+    if submitted.replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    else:
+        dispatcher = getattr(request.app.state, "dispatcher", None)
+        if dispatcher is not None:
+            dispatcher.notify()
+    wait = requested_wait(prefer)
+    if wait is None:
+        return full(row)
+    response.headers["Preference-Applied"] = f"wait={wait:g}"
+    if row.status not in FINISHED:
+        await wait_for_end(request, db, row.id, wait)
+        row = await run_in_threadpool(store.get, db, kind, row.id, owner)
+    if row.status in FINISHED:
+        response.status_code = 201
+    return full(row)
+
+
+def job_router(kind: str) -> APIRouter:
+    """GET list, GET one (with ``Prefer: wait``), POST cancel and GET events of the jobs of ``kind``."""
+    plural = f"{kind}s"
+    router = APIRouter(prefix=f"/v1/{plural}", tags=[plural], dependencies=[Depends(require_api_key)],
+                       responses=V1_RESPONSES)
+
+    @router.get("", response_model=JobList, summary=f"List {kind} jobs, newest first",
+                operation_id=f"list_{plural}_v1_{plural}_get")
+    def list_jobs(
+        status: StatusFilter = None,
+        limit: Annotated[int, Query(ge=1, le=100)] = 20,
+        offset: Annotated[int, Query(ge=0, le=2**31 - 1, description="Jobs to skip (at most 2^31 - 1)")] = 0,
+        db: Database = Depends(get_database),
+        owner: str | None = Depends(require_api_key),
+    ) -> JobList:
+        rows, total = store.list_jobs(db, kind, status, limit, offset, owner)
+        nxt = None
+        if offset + len(rows) < total:
+            params = f"limit={limit}&offset={offset + limit}" + (f"&status={status}" if status else "")
+            nxt = f"/v1/{plural}?{params}"
+        return JobList(items=[summary(r) for r in rows], total=total, limit=limit, offset=offset, next=nxt)
+
+    @router.get("/{job_id}", response_model=Job, summary=f"A {kind} job with its result",
+                operation_id=f"get_{kind}_v1_{plural}__job_id__get",
+                responses={200: {"headers": PREFERENCE_APPLIED}, 404: ERRORS[404]})
+    async def get_job(job_id: str, request: Request, response: Response, prefer: PreferHeader = None,
+                      db: Database = Depends(get_database), owner: str | None = Depends(require_api_key)) -> Job:
+        row = await run_in_threadpool(store.get, db, kind, job_id, owner)
+        wait = requested_wait(prefer)
+        if wait is not None:
+            response.headers["Preference-Applied"] = f"wait={wait:g}"
+            if row.status not in FINISHED:
+                await wait_for_end(request, db, job_id, wait)
+                row = await run_in_threadpool(store.get, db, kind, job_id, owner)
+        return full(row)
+
+    @router.post(
+        "/{job_id}/cancel", response_model=Job, status_code=202, summary=f"Cancel a {kind} job",
+        operation_id=f"cancel_{kind}_v1_{plural}__job_id__cancel_post",
+        description="A queued job is cancelled at once (200) and never starts. A running job is asked to stop "
+                    "(202): it ends `cancelled` within about a second. A succeeded or failed job: 409. "
+                    "Cancelling a cancelled job again returns it (200).",
+        responses={200: {"description": "Cancelled"}, 404: ERRORS[404],
+                   409: {"description": "The job already finished", **PROBLEM}},
+    )
+    def cancel_job(job_id: str, request: Request, response: Response, db: Database = Depends(get_database),
+                   owner: str | None = Depends(require_api_key)) -> Job:
+        outcome = store.cancel(db, kind, job_id, owner)
+        if outcome.at_once:
+            response.status_code = 200
+            request.app.state.job_watch.finished(job_id)
+        elif getattr(request.app.state, "dispatcher", None) is not None:
+            request.app.state.dispatcher.notify()
+        return full(outcome.job)
+
+    @router.get(
+        "/{job_id}/events", summary="Server-Sent Events: progress and the final state",
+        operation_id=f"{kind}_events_v1_{plural}__job_id__events_get",
+        description="Events: `status` (on every status change, data = job summary), `progress` (data = "
+                    "the last progress record), and a last `end` event with the full job once it is finished; "
+                    "then the stream closes.",
+        responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
+    )
+    async def job_events(job_id: str, request: Request, db: Database = Depends(get_database),
+                         owner: str | None = Depends(require_api_key)):
+        first = full(await run_in_threadpool(store.get, db, kind, job_id, owner))
+        return StreamingResponse(_event_stream(request, db, kind, job_id, owner, first),
+                                 media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+    return router
+
+
+async def _event_stream(request: Request, db: Database, kind: str, job_id: str, owner: str | None, first: Job):
+    def load() -> Job | None:
+        try:
+            return full(store.get(db, kind, job_id, owner))
+        except store.JobNotFound:
+            return None
+
+    job = first
+    last_status = last_progress = None
+    seq = 0
+    idle = 0.0
+    yield "retry: 1000\n\n"
+    while True:
+        if job.status != last_status:
+            seq += 1
+            last_status = job.status
+            yield f"id: {seq}\nevent: status\ndata: {_summary_json(job)}\n\n"
+        prog = job.progress.model_dump() if job.progress else None
+        if prog is not None and prog != last_progress:
+            seq += 1
+            last_progress = prog
+            yield f"id: {seq}\nevent: progress\ndata: {json.dumps(prog)}\n\n"
+        if job.status in FINISHED:
+            seq += 1
+            yield f"id: {seq}\nevent: end\ndata: {job.model_dump_json()}\n\n"
+            return
+        await asyncio.sleep(0.25)
+        idle += 0.25
+        if idle >= 15:
+            idle = 0.0
+            yield ": keep-alive\n\n"
+        if await request.is_disconnected():
+            return
+        job = await run_in_threadpool(load) or job
+
+
+def _summary_json(job: Job) -> str:
+    return json.dumps(job.model_dump(mode="json", exclude={"request", "result"}))
+
+
+# Not imported from solver.plotting: the web process never loads matplotlib, the sync workers draw.
+MEDIA_TYPES = {"svg": "image/svg+xml", "png": "image/png"}
+
+
+def etag_response(request: Request, media_type: str, body: bytes) -> Response:
+    """The body with a strong ETag; 304 when the client already has it."""
+    etag = '"' + hashlib.sha256(body).hexdigest()[:32] + '"'
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers={"ETag": etag})
+    return Response(content=body, media_type=media_type, headers={"ETag": etag})

@@ -1,0 +1,90 @@
+"""Design worker process (the local executor, ``app.jobs.dispatcher``).
+
+One long-lived process per pool slot, started with the ``spawn`` method. It receives
+:class:`~app.compute.messages.Run` on its pipe, runs the job and sends back a
+:class:`~app.compute.messages.Progress` after every solver iteration and finally a
+``Succeeded``, ``Cancelled`` or ``Failed``. A ``Cancel`` makes the solver callback return
+True, which stops the design at its next iteration; the dispatcher kills the process if that
+takes too long.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+
+from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Progress, Ready, Run, Stop, Succeeded)
+from app.compute.process import apply_memory_limit, die_with_parent, limit_blas_threads, memory_message
+
+log = logging.getLogger("app.compute.worker")
+
+
+def failure_reason(exc: BaseException) -> str:
+    """What failed, in words a user can act on; the traceback goes to the worker's log, never to the API."""
+    first_line = (str(exc).strip().splitlines() or [""])[0][:300]
+    return (f"the solver stopped with an unexpected {type(exc).__name__}"
+            + (f" ({first_line})" if first_line else "")
+            + "; the request was valid, so this is a bug worth reporting with the job id")
+
+
+def execute(job_id: str, request: dict, callback, cancelled, memory_mb: int = 0) -> JobOutcome:
+    """Run one job (design or margin search). Shared by the local worker processes and the Dask task
+    (``app.compute.dask_task``)."""
+    from solver import InvalidInput
+
+    from app.compute import tasks
+
+    try:
+        result = tasks.run_job(request, callback)
+    except InvalidInput as exc:
+        where = "/".join(map(str, getattr(exc, "field", ()) or ()))
+        return Failed(job_id, f"invalid input at {where}: {exc}" if where else f"invalid input: {exc}")
+    except MemoryError:
+        return Failed(job_id, memory_message(memory_mb))
+    except Exception as exc:
+        log.exception("job %s failed", job_id)
+        return Failed(job_id, failure_reason(exc))
+    return Cancelled(job_id) if cancelled() else Succeeded(job_id, result)
+
+
+def worker_main(conn, parent_pid: int, memory_mb: int = 0) -> None:
+    die_with_parent(parent_pid)
+    # Ctrl-C or a SIGTERM sent to the whole process group is for the service: it shuts down
+    # gracefully, gives running jobs back to the queue and then stops (or kills) its workers.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    limit_blas_threads()
+    from app.compute import tasks
+
+    tasks.warm_up()
+    apply_memory_limit(memory_mb)
+    conn.send(Ready(os.getpid()))
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if isinstance(msg, Stop):
+            return
+        if not isinstance(msg, Run):
+            continue  # a late cancel for a finished job
+        job_id = msg.job_id
+        state = {"cancel": False}
+
+        def callback(record, job_id=job_id, state=state):
+            try:
+                while conn.poll():
+                    m = conn.recv()
+                    if isinstance(m, Stop) or (isinstance(m, Cancel) and m.job_id == job_id):
+                        state["cancel"] = True
+                conn.send(Progress(job_id, tasks.record_to_dict(record)))
+            except (EOFError, OSError):
+                os._exit(0)  # the service is gone
+            return state["cancel"]
+
+        reply = execute(job_id, msg.request, callback, lambda state=state: state["cancel"], memory_mb)
+        try:
+            conn.send(reply)
+        except (EOFError, OSError):
+            return
