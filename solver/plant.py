@@ -265,6 +265,50 @@ class PlantFamily:
         )
 
     @classmethod
+    def from_dict(cls, data: dict, sampling_period: float | None = None) -> "PlantFamily":
+        """A family from the service's plant JSON (the ``plant`` of a design request).
+
+        Parameters
+        ----------
+        data : dict
+            ``{"kind": "continuous", "A": [...], "B": [...], "sampling_period": h}``,
+            ``{"kind": "discrete", "F": [...], "G": [...]}`` or
+            ``{"kind": "dc_motor", "inertias": [...], "sampling_period": h, ...}``; optional
+            ``state_names``, ``input_names``, ``units``, ``name``.  Without ``kind``, ``A``/``B``
+            means continuous and ``F``/``G`` discrete.
+        sampling_period : float, optional
+            h in seconds, overriding the one in ``data``.
+
+        Raises
+        ------
+        InvalidInput
+            Naming the missing or malformed key.
+        """
+        if not isinstance(data, dict):
+            raise InvalidInput("a plant must be a JSON object with a \"kind\"", ("plant",))
+        kind = data.get("kind") or ("continuous" if "A" in data else "discrete" if "F" in data else None)
+        h = data.get("sampling_period") if sampling_period is None else sampling_period
+        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name") if data.get(k) is not None}
+        need = {"continuous": ("A", "B", "sampling_period"), "discrete": ("F", "G"),
+                "dc_motor": ("inertias", "sampling_period")}
+        if kind not in need:
+            raise InvalidInput(f"plant kind must be one of {sorted(need)}, got {kind!r}", ("kind",))
+        for key in need[kind]:
+            if (h if key == "sampling_period" else data.get(key)) is None:
+                raise InvalidInput(f"a {kind} plant needs {key!r}", (key,))
+        if kind == "continuous":
+            return cls.from_continuous(data["A"], data["B"], h, **labels)
+        if kind == "discrete":
+            return cls(F=data["F"], G=data["G"], sampling_period=h, **labels)
+        params = {k: data[k] for k in ("resistance", "inductance", "torque_constant", "back_emf_constant",
+                                       "damping") if data.get(k) is not None}
+        fam = cls.dc_motor(data["inertias"], h, **params)
+        if labels:
+            fam = cls(F=fam.F, G=fam.G, sampling_period=fam.sampling_period, A=fam.A, B=fam.B,
+                      **{"name": fam.name, **DC_MOTOR_LABELS, **labels})
+        return fam
+
+    @classmethod
     def from_statespace(cls, systems, sampling_period: float | None = None, name: str | None = None,
                         units: dict | None = None) -> "PlantFamily":
         """A family from python-control ``StateSpace`` systems, one per plant mode.

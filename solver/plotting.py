@@ -23,7 +23,7 @@ MEDIA_TYPES = {"svg": "image/svg+xml", "png": "image/png"}
 
 
 def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | None = None,
-                 width: float = 10.0, height: float = 6.0, dpi: int = 100) -> Figure:
+                 width: float = 10.0, height: float = 6.0, dpi: int = 100, family=None) -> Figure:
     """States and inputs over time for each run, lost samples marked.
 
     Parameters
