@@ -86,3 +86,11 @@ def test_service_errors_carry_the_problem(client):
     assert err.value.status == 404 and err.value.title
     with pytest.raises(TypeError, match="PlantFamily"):
         plant_json(np.eye(2))
+
+
+def test_margins_and_listing(client):
+    fam = PlantFamily.paper_example(0.1)
+    res = client.margins(fam, "n_drop", n_drop_max=2)
+    assert res.kind == "n_drop" and res.margin == 2 and [p["n_drop"] for p in res.curve] == [1, 2]
+    margin_jobs = client.jobs(kind="margin")
+    assert margin_jobs and margin_jobs[0].status == "succeeded"
