@@ -450,6 +450,8 @@ class Client:
         """The result of a design job submitted earlier (waits like :meth:`design`)."""
         job = self.job(job_id)
         job = self._wait("design", job, wait) if wait else job
+        if not job.done:
+            raise TimeoutError(f"job {job.id} is still {job.status}")
         if job.status != "succeeded":
             raise JobFailed(job)
         return DesignResult.from_json(job.result, job_id=job.id)
