@@ -137,10 +137,10 @@ def _fit_rows(axes, end: float) -> None:
         lo, hi = np.inf, -np.inf
         for ax in axes[row]:
             for line in ax.lines:
-                x, y = (np.asarray(v, dtype=float) for v in line.get_data())
-                if x.size > 1 and np.ptp(x) == 0:  # the zero line
+                if line.get_label().startswith("_"):  # unlabelled: the zero reference line
                     continue
-                keep = y[(x <= end)] if x.size == y.size else y
+                x, y = (np.asarray(v, dtype=float) for v in line.get_data())
+                keep = y[x <= end]
                 if keep.size:
                     lo, hi = min(lo, keep.min()), max(hi, keep.max())
             for patch in ax.patches:  # stairs
