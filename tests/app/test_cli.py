@@ -37,12 +37,19 @@ def test_version_and_help(workdir):
         assert cmd in out.stdout
 
 
-def test_design_in_process_writes_mat_m_and_json(workdir):
-    ref = design(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3)
+@pytest.fixture(scope="module")
+def gain_files(workdir):
+    """gains.mat, gains.m and gains.json written by `ncs-design design` (in-process)."""
     for name in ("gains.mat", "gains.m", "gains.json"):
         out = ncs("design", "motor.json", "--n-drop", 3, "--output", name, cwd=workdir)
         assert out.returncode == 0, out.stderr
         assert "stabilized" in out.stdout and "omega (rad/s)" in out.stdout and f"wrote {name}" in out.stdout
+    return workdir
+
+
+def test_design_in_process_writes_mat_m_and_json(gain_files):
+    workdir = gain_files
+    ref = design(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3)
     d = scipy.io.loadmat(workdir / "gains.mat")
     np.testing.assert_allclose(d["K"], ref.gains, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(d["P"], ref.certificate.P, rtol=1e-6, atol=1e-9)
@@ -55,7 +62,7 @@ def test_design_in_process_writes_mat_m_and_json(workdir):
     assert np.asarray(result["F"]).shape == (2, 2, 2)
 
 
-def test_analyze_and_simulate_the_written_gains(workdir):
+def test_analyze_and_simulate_the_written_gains(workdir, gain_files):
     out = ncs("analyze", "motor.json", "--gains", "gains.mat", cwd=workdir)
     assert out.returncode == 0 and "stable (certified)" in out.stdout, out.stderr
     out = ncs("simulate", "motor.json", "--gains", "gains.json", "--x0", "1,-1", "--steps", 40,
@@ -98,7 +105,7 @@ def test_infeasible_exits_1(workdir):
     assert out.returncode == 1 and "infeasible" in out.stdout
 
 
-def test_design_against_a_server(workdir, db_url, start_server):
+def test_design_against_a_server(workdir, gain_files, db_url, start_server):
     server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
     out = ncs("design", "motor.json", "--n-drop", 3, "--server", server.base, "-o", "remote.mat", cwd=workdir)
     assert out.returncode == 0, out.stderr
