@@ -178,6 +178,13 @@ class DesignResult:
         """The JSON result (what the service returned)."""
         return self.raw
 
+    def plant_family(self):
+        """The designed (discretized) plant as a :class:`solver.PlantFamily`, e.g. for
+        ``solver.control_interop.closed_loop_systems(res.plant_family(), res.gains)``."""
+        from solver.plant import PlantFamily
+
+        return PlantFamily(F=self.F, G=self.G, sampling_period=self.sampling_period)
+
 
 @dataclass
 class AnalysisResult:

@@ -34,6 +34,7 @@ def test_design_from_a_family_matches_the_library(client):
     assert res.gains.shape == (3, 1, 2) and res.job_id
     np.testing.assert_allclose(res.gains, ref.gains, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(res.F, fam.F, rtol=1e-12)
+    np.testing.assert_allclose(res.plant_family().G, fam.G, rtol=1e-12)
     assert res.certificate["verified"] is True and res.sampling_period == 0.1
     assert res.max_spectral_radius == pytest.approx(float(np.max(ref.spectral_radii)), rel=1e-6)
     # the same gains analysed and simulated by the service and by the library
