@@ -11,20 +11,29 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 
 
 class JobWatch:
+    #: How many recently finished job ids are remembered: a job that ends between the caller's read and its
+    #: registration here is found in them, without a database read on every wait.
+    RECENT = 4096
+
     def __init__(self, first_poll: float = 0.05, max_poll: float = 0.5):
         self.first_poll = first_poll
         self.max_poll = max_poll
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Future]]] = {}
+        self._recent: OrderedDict[str, None] = OrderedDict()
         self._lock = threading.Lock()
 
     def finished(self, job_id: str) -> None:
         """Called from any thread when a job ended."""
         with self._lock:
             waiters = self._waiters.pop(job_id, ())
+            self._recent[job_id] = None
+            if len(self._recent) > self.RECENT:
+                self._recent.popitem(last=False)
         for loop, fut in waiters:
             try:
                 loop.call_soon_threadsafe(_resolve, fut)
@@ -37,13 +46,12 @@ class JobWatch:
         fut = loop.create_future()
         entry = (loop, fut)
         with self._lock:
+            if job_id in self._recent:  # it ended between the caller's read and now
+                return True
             self._waiters.setdefault(job_id, set()).add(entry)
         deadline = time.monotonic() + timeout
         poll = self.first_poll
         try:
-            # The job may have ended between the caller's read and the registration above.
-            if await is_finished():
-                return True
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0:

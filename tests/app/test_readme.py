@@ -33,6 +33,7 @@ def test_readme_curl_examples_run(db_url, start_server, tmp_path):
     assert out.returncode == 0, out.stdout + out.stderr
     text = out.stdout
     assert "202 Accepted" in text
+    assert "201 Created" in text and "preference-applied: wait=30" in text
     assert "event: end" in text
     assert "succeeded stabilized" in text
     assert "stable: True" in text
