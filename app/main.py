@@ -17,7 +17,7 @@ from app.api import problems
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
 from app.api.middleware import BodySizeLimit, JsonBodiesOnly
-from app.api import analyses, designs, health, margins, simulations
+from app.api import analyses, designs, health, margins, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
 from app.jobs.watch import JobWatch
@@ -115,6 +115,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         docs_url=None,
         redoc_url=None,
+        # operationIds are the handler names (submit_design, get_design, ...): readable in generated clients.
+        generate_unique_id_function=lambda route: route.name,
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
@@ -128,6 +130,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(analyses.router)
     app.include_router(margins.router)
     app.include_router(health.router)
+    app.include_router(problem_pages.router)
 
     def openapi():
         if app.openapi_schema is None:

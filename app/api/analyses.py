@@ -24,7 +24,7 @@ PROBLEM = {"content": {"application/problem+json": {}}}
                 "unstable) or null (unknown).",
     responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
 )
-async def analyses(request: Request,
+async def run_analysis(request: Request,
                    body: Annotated[AnalysisRequest, Body(openapi_examples=ANALYSIS_EXAMPLES)],
                    settings: Settings = Depends(get_settings)) -> dict:
     errors: list = []

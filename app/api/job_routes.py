@@ -106,7 +106,7 @@ def job_router(kind: str) -> APIRouter:
                        responses=V1_RESPONSES)
 
     @router.get("", response_model=JobList, summary=f"List {kind} jobs, newest first",
-                operation_id=f"list_{plural}_v1_{plural}_get")
+                operation_id=f"list_{plural}")
     def list_jobs(
         status: StatusFilter = None,
         limit: Annotated[int, Query(ge=1, le=100)] = 20,
@@ -122,7 +122,7 @@ def job_router(kind: str) -> APIRouter:
         return JobList(items=[summary(r) for r in rows], total=total, limit=limit, offset=offset, next=nxt)
 
     @router.get("/{job_id}", response_model=Job, summary=f"A {kind} job with its result",
-                operation_id=f"get_{kind}_v1_{plural}__job_id__get",
+                operation_id=f"get_{kind}",
                 responses={200: {"headers": PREFERENCE_APPLIED}, 404: ERRORS[404]})
     async def get_job(job_id: str, request: Request, response: Response, prefer: PreferHeader = None,
                       db: Database = Depends(get_database), owner: str | None = Depends(require_api_key)) -> Job:
@@ -137,7 +137,7 @@ def job_router(kind: str) -> APIRouter:
 
     @router.post(
         "/{job_id}/cancel", response_model=Job, status_code=202, summary=f"Cancel a {kind} job",
-        operation_id=f"cancel_{kind}_v1_{plural}__job_id__cancel_post",
+        operation_id=f"cancel_{kind}",
         description="A queued job is cancelled at once (200) and never starts. A running job is asked to stop "
                     "(202): it ends `cancelled` within about a second. A succeeded or failed job: 409. "
                     "Cancelling a cancelled job again returns it (200).",
@@ -156,7 +156,7 @@ def job_router(kind: str) -> APIRouter:
 
     @router.get(
         "/{job_id}/events", summary="Server-Sent Events: progress and the final state",
-        operation_id=f"{kind}_events_v1_{plural}__job_id__events_get",
+        operation_id=f"{kind}_events",
         description="Events: `status` (on every status change, data = job summary), `progress` (data = "
                     "the last progress record), and a last `end` event with the full job once it is finished; "
                     "then the stream closes.",

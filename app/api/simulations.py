@@ -24,7 +24,7 @@ PROBLEM = {"content": {"application/problem+json": {}}}
                 "control_arrived, effective, eta, ...",
     responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
 )
-async def simulate(request: Request,
+async def run_simulation(request: Request,
                    body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
                    settings: Settings = Depends(get_settings)) -> dict:
     errors: list = []
