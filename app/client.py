@@ -183,7 +183,8 @@ class DesignResult:
         ``solver.control_interop.closed_loop_systems(res.plant_family(), res.gains)``."""
         from solver.plant import PlantFamily
 
-        return PlantFamily(F=self.F, G=self.G, sampling_period=self.sampling_period)
+        labels = {k: self.raw[k] for k in ("state_names", "input_names", "units") if self.raw.get(k) is not None}
+        return PlantFamily(F=self.F, G=self.G, sampling_period=self.sampling_period, **labels)
 
 
 @dataclass
@@ -310,11 +311,18 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
             raise TypeError("plant must be a solver.PlantFamily, a list of control.StateSpace (one per plant "
                             "mode) or the service's plant JSON as a dict")
     if plant.A is not None and plant.sampling_period is not None:
-        return {"kind": "continuous", "A": np.asarray(plant.A).tolist(), "B": np.asarray(plant.B).tolist(),
-                "sampling_period": plant.sampling_period}
-    out = {"kind": "discrete", "F": np.asarray(plant.F).tolist(), "G": np.asarray(plant.G).tolist()}
-    if plant.sampling_period is not None:
-        out["sampling_period"] = plant.sampling_period
+        out = {"kind": "continuous", "A": np.asarray(plant.A).tolist(), "B": np.asarray(plant.B).tolist(),
+               "sampling_period": plant.sampling_period}
+    else:
+        out = {"kind": "discrete", "F": np.asarray(plant.F).tolist(), "G": np.asarray(plant.G).tolist()}
+        if plant.sampling_period is not None:
+            out["sampling_period"] = plant.sampling_period
+    # names and units travel too: the service's figures and exports label states and inputs with them
+    for key in ("state_names", "input_names"):
+        if getattr(plant, key, None) is not None:
+            out[key] = list(getattr(plant, key))
+    if getattr(plant, "units", None):
+        out["units"] = dict(plant.units)
     return out
 
 
