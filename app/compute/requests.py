@@ -158,14 +158,21 @@ class DesignOptions(_Strict):
     )
 
 
+#: A user's label of a job: shown in job listings; printable text, at most 200 characters.
+Label = Annotated[str, StringConstraints(min_length=1, max_length=200, pattern=r"^[^\x00-\x1f\x7f]*$")]
+_LABEL = dict(description="Your name for the job (at most 200 printable characters, no control characters); "
+                          "shown in job listings.", examples=["motor rig A, h = 0.1 s"])
+
+
 class DesignRequest(_Strict):
+    label: Label | None = Field(None, **_LABEL)
     plant: Plant
     n_drop: Int = Field(3, ge=1, description="N_drop: at most n_drop - 1 consecutive losses.")
     method: MethodName = Field(
         "lmi", description="`lmi`: exact convex design (one SDP); `ccl`: the paper's cone "
         "complementarity linearization (iterative, reports progress)."
     )
-    options: DesignOptions = Field(default_factory=DesignOptions)
+    options: DesignOptions = Field(default_factory=DesignOptions, description="Solver and design options.")
 
 
 _single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
@@ -177,12 +184,14 @@ class SimulationRequest(_Strict):
     _single = field_validator("gains", mode="before")(_single_gains)
     n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
     x0: Vector = Field(description="Initial state (length n).")
-    steps: Int = Field(100, ge=1)
-    seed: Int = Field(42, ge=0)
-    loss_model: Literal["paper", "bernoulli"] = "paper"
-    sensor_loss: Number = Field(0.2, ge=0, lt=1)
-    control_loss: Number = Field(0.2, ge=0, lt=1)
-    plant_switching: Literal["per_interval", "per_sample", "none"] = "per_interval"
+    steps: Int = Field(100, ge=1, description="Samples to simulate.")
+    seed: Int = Field(42, ge=0, description="Seed of the losses and plant jumps: same seed, same run.")
+    loss_model: Literal["paper", "bernoulli"] = Field("paper", description="`paper`: the paper's loss process; "
+                                                      "`bernoulli`: independent losses.")
+    sensor_loss: Number = Field(0.2, ge=0, lt=1, description="Sensor packet loss probability per sample.")
+    control_loss: Number = Field(0.2, ge=0, lt=1, description="Control packet loss probability per sample.")
+    plant_switching: Literal["per_interval", "per_sample", "none"] = Field(
+        "per_interval", description="When the plant mode may jump (`none`: fixed `mode`).")
     mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
 
 
@@ -206,12 +215,13 @@ class AnalysisRequest(_Strict):
 
 class GridPoint(_Strict):
     sampling_period: Number = Field(gt=0, description="h in seconds.")
-    n_drop: Int = Field(ge=1)
+    n_drop: Int = Field(ge=1, description="N at this point.")
 
 
 class MarginRequest(_Strict):
     """A stability-margin job: many designs in the worker pool, with progress and cancel."""
 
+    label: Label | None = Field(None, **_LABEL)
     plant: Plant
     search: Literal["n_drop", "sampling_period", "grid"] = Field(
         description="`n_drop`: the largest drop bound with a design (n_drop = 1, 2, ... up to `n_drop_max`); "
@@ -225,4 +235,4 @@ class MarginRequest(_Strict):
     h_max: Number = Field(2.0, gt=0, description="Largest sampling period tried (s).")
     tol: Number = Field(1e-3, gt=0, description="Tolerance of the bisection on h (s).")
     points: list[GridPoint] | None = Field(None, description="The (h, n_drop) pairs of a `grid`.")
-    options: DesignOptions = Field(default_factory=DesignOptions)
+    options: DesignOptions = Field(default_factory=DesignOptions, description="Solver and design options.")

@@ -86,6 +86,21 @@ def record_to_dict(record: Any) -> dict[str, Any]:
     return jsonable({k: d.get(k) for k in keep})
 
 
+def per_second(rate: Any, sampling_period: float | None) -> float | None:
+    """A per-sample rate lambda as the factor per second, ``lambda^(1/h)``; None without h."""
+    if rate is None or not sampling_period or not isinstance(rate, (int, float)) or rate < 0:
+        return None
+    return jsonable(float(rate) ** (1.0 / float(sampling_period)))
+
+
+def add_per_second_rates(out: dict[str, Any], sampling_period: float | None) -> dict[str, Any]:
+    """``decay_rate_per_second`` next to every ``decay_rate`` of a result and of its certificate."""
+    for d in (out, out.get("certificate") or {}):
+        if "decay_rate" in d:
+            d["decay_rate_per_second"] = per_second(d.get("decay_rate"), sampling_period)
+    return out
+
+
 def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
     """Run one design job; returns the job's JSON result."""
     from solver import design
@@ -98,7 +113,7 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
-    return out
+    return add_per_second_rates(out, fam.sampling_period)
 
 
 def design_options(options) -> dict[str, Any]:
@@ -125,7 +140,10 @@ def run_margin(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     else:
         res = design_grid(fam, [(p.sampling_period, p.n_drop) for p in req.points], req.method,
                           callback=callback, **kwargs)
-    return jsonable(res.to_dict())
+    out = jsonable(res.to_dict())
+    if out.get("design"):
+        add_per_second_rates(out["design"], fam.sampling_period if req.search != "sampling_period" else None)
+    return out
 
 
 def run_job(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
@@ -188,7 +206,7 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
         if req.get(key) is not None:
             kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
-    return jsonable(rep.to_dict())
+    return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
