@@ -187,7 +187,10 @@ async def _submit_and_wait(client, body: dict, out: list) -> None:
         raise RuntimeError(f"POST returned {r.status_code}: {r.text[:300]}")
     item = r.json()
     while item["status"] not in TERMINAL:
-        item = (await client.get(r.headers["Location"], headers=WAIT)).json()
+        try:
+            item = (await client.get(r.headers["Location"], headers=WAIT)).json()
+        except (httpx.ReadError, httpx.RemoteProtocolError, httpx.ConnectError):
+            continue  # a dropped keep-alive connection: ask again
     out.append((time.perf_counter() - t0, item))
 
 

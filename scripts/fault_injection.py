@@ -316,6 +316,8 @@ def pg_loss(url: str, workdir: Path, terminations: int = 3, interval: float = 2.
         for _ in range(terminations):
             t0 = time.monotonic()
             kills.append(round(restart_postgres(), 2) if restart else terminate_backends(url))
+            if restart:
+                t0 = time.monotonic()  # recovery counts from the moment the server accepts connections again
             deadline = t0 + 30
             while time.monotonic() < deadline:
                 with lock:

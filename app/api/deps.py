@@ -1,14 +1,12 @@
-"""FastAPI dependencies: settings, one database session per request, auth."""
+"""FastAPI dependencies: settings, the database, auth; running a task on the synchronous pool."""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
-from collections.abc import Iterator
 
 from fastapi import Depends, Request
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
-from sqlalchemy.orm import Session
 
 from app.jobs.database import Database
 from app.api.problems import ProblemException
@@ -36,15 +34,6 @@ def get_settings(request: Request) -> Settings:
 
 def get_database(request: Request) -> Database:
     return request.app.state.db
-
-
-def get_session(db: Database = Depends(get_database)) -> Iterator[Session]:
-    """Read session for the request (rolled back at the end)."""
-    session = db.read_session()
-    try:
-        yield session
-    finally:
-        db.end_read(session)
 
 
 def key_digest(key: str) -> bytes:

@@ -7,8 +7,9 @@ processes stay lean.
 
 from __future__ import annotations
 
-import functools
 import math
+import threading
+from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
@@ -252,17 +253,31 @@ def warm_up() -> None:
     import solver.margins  # noqa: F401
 
 
-@functools.lru_cache(maxsize=256)
-def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> bool:
+_checked: OrderedDict[str, None] = OrderedDict()  # digests of inputs that passed check_design_inputs
+_checked_lock = threading.Lock()
+CHECKED_REMEMBERED = 256
+
+
+def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:
     """Build the family and (given ``n_drop``) its closed-loop modes as a design would; raises the solver's
-    InvalidInput. Remembered per canonical plant JSON: a sweep submits the same plant many times, and
-    building it costs ~3 ms of the request thread; a rejection is not cached (it raises every time)."""
+    InvalidInput. Inputs that passed are remembered by digest (not by their JSON, which may be large): a
+    sweep submits the same plant many times, and building it costs ~3 ms of the request thread. A
+    rejection is not remembered (it raises every time)."""
+    import hashlib
     import json
 
     from solver.network import ModeSet
 
+    key = hashlib.sha256(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}".encode()).hexdigest()
+    with _checked_lock:
+        if key in _checked:
+            _checked.move_to_end(key)
+            return
     fam = build_family(json.loads(plant_json))
     if n_drop is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             ModeSet.from_family(fam, n_drop, plant_switching, scheme)
-    return True
+    with _checked_lock:
+        _checked[key] = None
+        while len(_checked) > CHECKED_REMEMBERED:
+            _checked.popitem(last=False)

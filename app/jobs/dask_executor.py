@@ -170,11 +170,11 @@ class DaskDispatcher(Dispatcher):
 
         key = f"ncs-design-{claimed.id}-{claimed.attempts}"
         slot.pid = None
-        slot.address = None  # type: ignore[attr-defined]
-        slot.key = key  # type: ignore[attr-defined]
+        slot.address = None
+        slot.key = key
         self._by_key[key] = slot
         fut = self.client.submit(run_job, claimed.id, key, claimed.request, key=key, pure=False, retries=0)
-        slot.future = fut  # type: ignore[attr-defined]
+        slot.future = fut
         fut.add_done_callback(lambda f: self._post("done", f))
 
     def _process_events(self) -> None:
@@ -198,19 +198,19 @@ class DaskDispatcher(Dispatcher):
         job_id, pid = slot.job_id, int(ev["pid"])
         if slot.pid is not None and pid != slot.pid:
             # The scheduler re-ran the task elsewhere: its previous worker died mid-job.
-            reason = f"Dask worker {slot.address} (pid {slot.pid}) died"  # type: ignore[attr-defined]
+            reason = f"Dask worker {slot.address} (pid {slot.pid}) died"
             outcome = jobs.note_retry(self.db, job_id, self.owner, reason, self.settings.max_attempts)
             log.warning("%s running job %s -> %s", reason, job_id, outcome)
             if outcome != Status.RUNNING:
                 self._forget(slot)
                 return
-        slot.pid, slot.address = pid, ev["address"]  # type: ignore[attr-defined]
+        slot.pid, slot.address = pid, ev["address"]
         slot.started = time.monotonic()  # the time limit counts from the real start, not from the claim
         jobs.set_worker_pid(self.db, job_id, self.owner, pid)
 
     def _on_done(self, fut: Any) -> None:
         slot = self._by_key.get(fut.key)
-        if slot is None or getattr(slot, "future", None) is not fut:
+        if slot is None or slot.future is not fut:
             return
         job_id = slot.job_id
         status = fut.status
@@ -244,15 +244,15 @@ class DaskDispatcher(Dispatcher):
         self.notify()
 
     def _drop(self, slot: _Slot) -> None:
-        key = getattr(slot, "key", None)
+        key = slot.key
         if key is not None:
             self._by_key.pop(key, None)
-        slot.key = None  # type: ignore[attr-defined]
-        slot.future = None  # type: ignore[attr-defined]
+        slot.key = None
+        slot.future = None
 
     def _forget(self, slot: _Slot, restart: bool = False) -> None:
         """Stop caring about a slot's task: cancel its future and, if it runs, stop its worker."""
-        fut, address = getattr(slot, "future", None), getattr(slot, "address", None)
+        fut, address = slot.future, slot.address
         self._drop(slot)
         slot.clear_job()
         slot.pid = None
@@ -291,7 +291,7 @@ class DaskDispatcher(Dispatcher):
                          error="cancelled by request (worker stopped)" if started else "cancelled by request")
 
     def _send_cancel(self, slot: _Slot) -> None:
-        address = getattr(slot, "address", None)
+        address = slot.address
         if slot.pid is None or address is None:  # still waiting on the cluster: just drop it
             job_id = slot.job_id
             self._forget(slot)

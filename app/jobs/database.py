@@ -85,9 +85,6 @@ class Database:
     def sqlite(self) -> bool:
         return is_sqlite(self.url)
 
-    def read_session(self) -> Session:
-        return self._read()
-
     @contextmanager
     def write(self) -> Iterator[Session]:
         """A short write transaction: commits on success, rolls back on error."""

@@ -62,6 +62,11 @@ class _Slot:
         # A finished job whose final write failed (database full, read-only or unreachable): kept here and
         # written again every tick until it succeeds, so the result is never lost and never half-written.
         self.pending: tuple[str, str, dict[str, Any]] | None = None
+        # The Dask executor's handle on the slot's task (app.jobs.dask_executor): its key, future and the
+        # address of the worker running it; unused by the local pool.
+        self.key: str | None = None
+        self.future: Any = None
+        self.address: str | None = None
 
     def clear_job(self) -> None:
         self.job_id = None
