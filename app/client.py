@@ -90,8 +90,18 @@ class Job:
         Latest progress (iteration, objective, ... or step/total for margin jobs).
     result : dict or None
         The raw JSON result (see :class:`DesignResult` / :class:`MarginResult` for typed views).
+    label : str or None
+        The label given at submission.
+    plant : dict or None
+        Plant summary: ``kind``, ``n`` states, ``m`` inputs, ``r`` plant modes, ``sampling_period`` (s).
+    margin : int or float or None
+        Margin jobs, once succeeded: the largest n_drop (a count) or sampling period (s), see ``margin_kind``.
+    margin_kind : str or None
+        Margin jobs: ``n_drop``, ``sampling_period`` or ``grid``.
+    links : dict
+        Related URLs (``self``, ``events``, ``trace``, ``gains_mat``, ``gains_m``, ``curve``).
     raw : dict
-        The whole JSON answer.
+        The whole JSON answer (``DesignJob`` / ``MarginJob`` / ``JobSummary`` in ``/openapi.json``).
     """
 
     id: str
@@ -102,13 +112,20 @@ class Job:
     error: str | None = None
     progress: dict | None = None
     result: dict | None = None
+    label: str | None = None
+    plant: dict | None = None
+    margin: float | None = None
+    margin_kind: str | None = None
+    links: dict = field(default_factory=dict, repr=False)
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_json(cls, data: dict) -> "Job":
         return cls(id=data["id"], status=data["status"], method=data.get("method", ""),
                    n_drop=data.get("n_drop", 0), outcome=data.get("outcome"), error=data.get("error"),
-                   progress=data.get("progress"), result=data.get("result"), raw=data)
+                   progress=data.get("progress"), result=data.get("result"), label=data.get("label"),
+                   plant=data.get("plant"), margin=data.get("margin"), margin_kind=data.get("margin_kind"),
+                   links=data.get("links") or {}, raw=data)
 
     @property
     def done(self) -> bool:
@@ -127,8 +144,9 @@ class DesignResult:
         ``gains[q-1] = K_q``: after an effective packet at ``i_m`` the buffer plays
         ``u(i_m + q - 1) = K_q x(i_m)``.
     certificate : dict or None
-        ``kind`` (``common_quadratic`` or ``switched``), ``verified``, ``margin`` (relative decrease,
-        ``decrease / lambda_max(P)``), ``P``, ``X``, ...
+        ``kind`` (``common_quadratic`` or ``switched``: stability proofs; ``farkas`` or ``uncontrollable``:
+        proofs that no design exists), ``verified``, ``margin`` (relative decrease,
+        ``decrease / lambda_max(P)``), ``P``, ``X``, ... (``Certificate`` in ``/openapi.json``).
     message : str
     n_drop : int
     method : str
@@ -138,10 +156,17 @@ class DesignResult:
         The discretized plant, shapes (r, n, n) and (r, n, m).
     sampling_period : float or None
         h in seconds.
+    decay_rate : float or None
+        Per-sample rate lambda the certificate proves, when one was asked for.
+    decay_rate_per_second : float or None
+        The same per second, ``lambda^(1/h)``.
+    state_names, input_names : list of str or None
+    units : dict or None
+        Names and units of the plant's states and inputs.
     job_id : str or None
         The service job (None for an in-process design).
     raw : dict
-        The JSON result.
+        The JSON result (``DesignResult`` in ``/openapi.json``).
     """
 
     outcome: str
@@ -154,6 +179,11 @@ class DesignResult:
     F: np.ndarray | None = None
     G: np.ndarray | None = None
     sampling_period: float | None = None
+    decay_rate: float | None = None
+    decay_rate_per_second: float | None = None
+    state_names: list | None = None
+    input_names: list | None = None
+    units: dict | None = None
     job_id: str | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
@@ -163,8 +193,10 @@ class DesignResult:
                    certificate=result.get("certificate"), message=result.get("message", ""),
                    n_drop=int(result["n_drop"]), method=result.get("method", ""),
                    spectral_radii=_array(result.get("spectral_radii")), F=_array(result.get("F")),
-                   G=_array(result.get("G")), sampling_period=result.get("sampling_period"), job_id=job_id,
-                   raw=result)
+                   G=_array(result.get("G")), sampling_period=result.get("sampling_period"),
+                   decay_rate=result.get("decay_rate"), decay_rate_per_second=result.get("decay_rate_per_second"),
+                   state_names=result.get("state_names"), input_names=result.get("input_names"),
+                   units=result.get("units"), job_id=job_id, raw=result)
 
     @property
     def success(self) -> bool:
@@ -202,7 +234,10 @@ class AnalysisResult:
     certificate : dict or None
     decay_rate : float or None
         Best certified per-sample decay rate.
+    decay_rate_per_second : float or None
+        The same per second, ``lambda^(1/h)``.
     raw : dict
+        The JSON report (``AnalysisReport`` in ``/openapi.json``).
     """
 
     stable: bool | None
@@ -211,6 +246,7 @@ class AnalysisResult:
     max_spectral_radius: float
     certificate: dict | None
     decay_rate: float | None
+    decay_rate_per_second: float | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -218,7 +254,8 @@ class AnalysisResult:
         return cls(stable=data.get("stable"), reason=data.get("reason", ""),
                    spectral_radii=np.asarray(data.get("spectral_radii"), dtype=float),
                    max_spectral_radius=data.get("max_spectral_radius"), certificate=data.get("certificate"),
-                   decay_rate=data.get("decay_rate"), raw=data)
+                   decay_rate=data.get("decay_rate"), decay_rate_per_second=data.get("decay_rate_per_second"),
+                   raw=data)
 
 
 @dataclass
@@ -422,7 +459,7 @@ class Client:
 
     # -- designs
     def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
-               sampling_period: float | None = None, **options) -> DesignResult | Job:
+               sampling_period: float | None = None, label: str | None = None, **options) -> DesignResult | Job:
         """Design gains K_1..K_{n_drop} on the service.
 
         Parameters
@@ -438,6 +475,8 @@ class Client:
             ``TimeoutError``; the job keeps running); False: return the queued :class:`Job`.
         sampling_period : float, optional
             h in seconds for continuous python-control systems.
+        label : str, optional
+            Your name for the job (at most 200 characters), shown in :meth:`jobs`.
         **options
             ``decay_rate``, ``plant_switching``, ``scheme``, ``solver``, ``margin``, ``max_iter``
             (the request's ``options``).
@@ -454,6 +493,8 @@ class Client:
             The job failed or was cancelled.
         """
         body = {"plant": plant_json(plant, sampling_period), "n_drop": n_drop, "method": method}
+        if label is not None:
+            body["label"] = label
         if options:
             body["options"] = options
         job = self._submit("design", body, wait)
@@ -523,9 +564,17 @@ class Client:
         """The trace as a PNG or SVG picture."""
         return self._request("GET", f"/v1/designs/{job_id}/trace.{fmt}", params=query).content
 
+    def gains_file(self, job_id: str, fmt: str = "mat") -> bytes:
+        """A succeeded design as a MATLAB ``.mat`` file (``fmt="mat"``) or an Octave/MATLAB script (``"m"``):
+        ``K`` (n_drop x m x n), ``K1..KN``, ``F``, ``G``, the certificate's ``P``, ``n_drop``, ``outcome``."""
+        if fmt not in ("mat", "m"):
+            raise ValueError('fmt must be "mat" or "m"')
+        return self._request("GET", f"/v1/designs/{job_id}/gains.{fmt}").content
+
     # -- margins
     def margins(self, plant, search: str, method: str = "lmi", *, wait: bool | float = True,
-                sampling_period: float | None = None, **params) -> MarginResult | Job:
+                sampling_period: float | None = None, label: str | None = None,
+                **params) -> MarginResult | Job:
         """A stability-margin search (``POST /v1/margins``).
 
         Parameters
@@ -535,6 +584,8 @@ class Client:
             ``n_drop``, ``n_drop_max``, ``h_min``, ``h_max``, ``tol``, ``points``, ``options``.
         """
         body = {"plant": plant_json(plant, sampling_period), "search": search, "method": method, **params}
+        if label is not None:
+            body["label"] = label
         job = self._submit("margin", body, wait)
         if not job.done:
             return job

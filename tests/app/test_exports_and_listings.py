@@ -102,3 +102,15 @@ def test_per_second_rates_next_to_per_sample_ones(client):
     assert res["decay_rate"] == pytest.approx(0.9)
     assert res["decay_rate_per_second"] == pytest.approx(0.9 ** 10)
     assert res["certificate"]["decay_rate_per_second"] == pytest.approx(0.9 ** 10)
+
+
+def test_readme_typed_http_example_runs(db_url, start_server, capsys, monkeypatch):
+    from .test_cli import _readme_block
+
+    server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
+    monkeypatch.setenv("NCS_URL", server.base)
+    monkeypatch.delenv("NCS_API_KEY", raising=False)
+    exec(compile(_readme_block("http-typed-example", "py"), "README.md", "exec"), {})
+    printed = capsys.readouterr().out.splitlines()
+    assert printed == ["['current', 'speed'] rad/s", "0.9 0.3487", "(3, 1, 2) True", "['K', 'K1', 'K2', 'K3', 'F']",
+                       "rig A 2 2 stabilized", "True True"], printed
