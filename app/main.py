@@ -32,9 +32,14 @@ Design and certify **networked predictive controllers for switched plants** with
   `GET /v1/designs/{id}/events` until `succeeded`, then read `result.gains` (n_drop matrices m x n, K_1 first)
   and the re-checked Lyapunov certificate.
 * `GET /v1/designs/{id}/trace` simulates the designed loop (seeded, reproducible).
+* `GET /v1/designs/{id}/gains.mat` (or `.m`) exports the design for MATLAB/Octave.
 * `POST /v1/analyses` checks given gains; `POST /v1/simulations` simulates them.
 
-Errors are RFC 9457 `application/problem+json`; `errors[].pointer` names the offending field.
+Notation in the schemas: n states, m inputs, r plant modes, n_drop = N (at most N - 1 consecutive losses),
+h the sampling period (s). Rates are per sample (lambda) and per second (lambda^(1/h)).
+
+Errors are RFC 9457 `application/problem+json`; `errors[].pointer` names the offending field and `type` is a page
+of this service (`/problems/{slug}`) saying how to fix it.
 """
 
 
