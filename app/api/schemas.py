@@ -4,8 +4,8 @@ Every field says its shape and unit. Notation: n states, m inputs, r plant modes
 N - 1 consecutive losses), S closed-loop modes (``modes``: S = r N per interval, r + r^2 + ... + r^N per
 sample), h the sampling period in seconds. A *per-sample rate* lambda bounds ``|x(i_{m+1})| <= lambda^eta
 |x(i_m)|`` (eta samples between effective packets) in the certificate's norm; its *per-second* form is
-``lambda^(1/h)`` (the factor by which the norm bound shrinks per second). Result models accept fields
-they do not list (newer solver versions add some), so clients should ignore unknown fields too.
+``lambda^(1/h)`` (the factor by which the norm bound shrinks per second). Numbers inside result arrays are null where
+the computation gave a non-finite value. Result models accept fields they do not list (newer solver versions add some), so clients should ignore unknown fields too.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_serializer
 
 from app.compute.requests import DesignRequest, MarginRequest
 
-Matrix = list[list[float]]
+#: A number in a result; null where the computation gave a non-finite value (NaN, infinity).
+Num = float | None
+Matrix = list[list[Num]]
 
 
 class _Open(BaseModel):
@@ -34,13 +36,13 @@ class ModeLabel(_Open):
                                                 "whole interval.")
     plants: list[int] | None = Field(None, description="Per-sample switching: the plant mode (0-based) at each of "
                                                        "the eta samples of the interval.")
-    eta: int = Field(description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
+    eta: int | None = Field(None, description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
                                  "effective packet.")
 
 
 class LeftVector(_Open):
-    real: list[float] = Field(description="Real part of the left eigenvector w (length n).")
-    imag: list[float] = Field(description="Imaginary part of w (length n).")
+    real: list[Num] = Field(description="Real part of the left eigenvector w (length n).")
+    imag: list[Num] = Field(description="Imaginary part of w (length n).")
 
 
 class Certificate(_Open):
@@ -94,7 +96,7 @@ class Certificate(_Open):
     scaled: bool | None = Field(None, description="`farkas`: true when it holds in the design's balanced "
                                                   "coordinates (`scaling`).")
     plant: int | None = Field(None, description="`uncontrollable`: the plant mode l (0-based).")
-    eigenvalue: list[float] | None = Field(None, description="`uncontrollable`: [real, imaginary] part of the "
+    eigenvalue: list[Num] | None = Field(None, description="`uncontrollable`: [real, imaginary] part of the "
                                                              "eigenvalue of F_l no input reaches (|lambda| >= 1).")
     left_vector: LeftVector | None = Field(None, description="`uncontrollable`: left eigenvector w "
                                                              "(w^H F_l = lambda w^H, w^H G_l = 0).")
@@ -140,8 +142,8 @@ class RateBracket(_Open):
 
 
 class Scaling(_Open):
-    state: list[float] | None = Field(None, description="Diagonal state scaling (length n), powers of two.")
-    input: list[float] | None = Field(None, description="Diagonal input scaling (length m).")
+    state: list[Num] | None = Field(None, description="Diagonal state scaling (length n), powers of two.")
+    input: list[Num] | None = Field(None, description="Diagonal input scaling (length m).")
     certificate: str | None = Field(None, description="Coordinates `certificate` is expressed in (`original` or "
                                                       "`scaled`).")
 
@@ -157,7 +159,7 @@ class DesignResult(_Open):
         None, description="n_drop x m x n: `gains[q-1] = K_q`; after an effective packet at i_m the actuator "
         "applies `u(i_m + q - 1) = K_q x(i_m)`. Input units per state unit. Null when infeasible.")
     certificate: Certificate | None = Field(None, description="The proof of the outcome (see its `kind`).")
-    spectral_radii: Matrix | list[float] | None = Field(
+    spectral_radii: Matrix | list[Num] | None = Field(
         None, description="Spectral radius of every interval closed loop `A_{l,eta}(K)` (eq. 8, dimensionless, "
         "per interval of eta samples, not per sample): r x n_drop, `[l][eta-1]`, for per-interval switching; "
         "a flat list of S in the order of `modes` for per-sample switching.")
@@ -224,7 +226,7 @@ class AnalysisReport(_Open):
     stable: bool | None = Field(description="True: certified (re-checked certificate); false: a mode product "
                                             "is proven unstable (`worst_sequence`); null: unknown.")
     reason: str | None = Field(None, description="The verdict in words.")
-    spectral_radii: Matrix | list[float] | None = Field(
+    spectral_radii: Matrix | list[Num] | None = Field(
         None, description="Spectral radius of every interval closed loop (dimensionless, per interval): r x "
         "n_drop (`[l][eta-1]`) per interval, flat S per sample (order of `modes`).")
     max_spectral_radius: float | None = Field(None, description="Largest of `spectral_radii`.")
@@ -245,7 +247,7 @@ class AnalysisReport(_Open):
     worst_sequence: list[ModeLabel] | None = Field(None, description="The product attaining `jsr_lower_bound`, "
                                                                      "in the order applied.")
     product_length_checked: int | None = Field(None, description="Longest product examined.")
-    scaling: list[float] | None = Field(None, description="State scaling (length n) of a certificate found for "
+    scaling: list[Num] | None = Field(None, description="State scaling (length n) of a certificate found for "
                                                           "the balanced loops; null: none.")
     modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes in order.")
     timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
@@ -254,10 +256,10 @@ class AnalysisReport(_Open):
 class Simulation(_Open):
     """A seeded run; arrays are indexed by sample k = 0 .. steps."""
 
-    t: list[float] = Field(description="Time of each sample, steps + 1 values: `k h` in seconds (k when the plant "
+    t: list[Num] = Field(description="Time of each sample, steps + 1 values: `k h` in seconds (k when the plant "
                                        "has no sampling period).")
-    x: list[list[float]] = Field(description="State, (steps + 1) x n, in the plant's state units.")
-    u: list[list[float]] = Field(description="Input applied over [k, k+1), steps x m.")
+    x: Matrix = Field(description="State, (steps + 1) x n, in the plant's state units.")
+    u: Matrix = Field(description="Input applied over [k, k+1), steps x m.")
     mode: list[int] = Field(description="Plant mode (0-based) over [k, k+1), steps values.")
     sensor_arrived: list[bool] = Field(description="Sensor packet arrived at k (switch S1), steps values.")
     control_arrived: list[bool] = Field(description="Control packet arrived at k (switch S2), steps values.")
@@ -278,7 +280,7 @@ class ModeRun(Simulation):
 class TraceQueryEcho(_Open):
     seed: int | None = Field(None, description="Seed used.")
     steps: int | None = Field(None, description="Samples simulated.")
-    x0: list[float] | None = Field(None, description="Initial state (length n).")
+    x0: list[Num] | None = Field(None, description="Initial state (length n).")
     loss_model: str | None = Field(None, description="`paper` or `bernoulli`.")
     sensor_loss: float | None = Field(None, description="Sensor packet loss probability per sample.")
     control_loss: float | None = Field(None, description="Control packet loss probability per sample.")
@@ -352,8 +354,8 @@ class JobSummary(BaseModel):
     attempts: int = Field(description="Attempts started (a worker that died causes a retry).")
     cancel_requested: bool = Field(description="A cancel was asked for.")
     progress: Progress | None = Field(None, description="The latest progress record.")
-    outcome: str | None = Field(None, description="Once succeeded: the design's outcome (`stabilized`, "
-                                                  "`infeasible`, `not_converged`); for a margin job its design's.")
+    outcome: str | None = Field(None, description="Design jobs, once succeeded: the outcome (`stabilized`, "
+                                                  "`infeasible`, `not_converged`).")
     margin: float | int | None = Field(None, description="Margin jobs, once succeeded: the margin (largest N, a "
                                                           "count, or largest h in seconds; see `margin_kind`).")
     margin_kind: str | None = Field(None, description="Margin jobs: the search (`n_drop`, `sampling_period`, "

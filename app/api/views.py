@@ -55,16 +55,17 @@ def _common(row: JobRow) -> dict:
 
 
 def _typed(model: type[BaseModel], data: dict | None, what: str, job_id: str):
-    """The stored JSON as its response model; a stored value the model does not fit (an older or newer
-    solver's) is passed through unvalidated rather than failing the request."""
+    """The stored JSON as its response model. A stored field the model does not fit (an older or newer
+    solver's) is left out, and logged, rather than failing the whole answer."""
     if data is None:
         return None
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        log.warning("job %s: stored %s does not fit %s (%d errors); sent as stored", job_id, what,
-                    model.__name__, exc.error_count())
-        return model.model_construct(**data)
+        bad = {e["loc"][0] for e in exc.errors() if e["loc"]}
+        log.warning("job %s: stored %s fields %s do not fit %s; left out of the answer", job_id, what,
+                    sorted(map(str, bad)), model.__name__)
+        return model.model_validate({k: v for k, v in data.items() if k not in bad})
 
 
 def summary(row: JobRow) -> JobSummary:

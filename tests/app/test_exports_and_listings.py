@@ -115,3 +115,25 @@ def test_readme_typed_http_example_runs(db_url, start_server, capsys, monkeypatc
     assert printed == ["['current', 'speed'] rad/s", "0.9 0.3487", "(3, 1, 2) True", "['K', 'K1', 'K2', 'K3', 'F']",
                        "rig A 2 2 stabilized", "True True", "1 F must be a list of n x n matrices, one per",
                        "True"], printed
+
+
+def test_results_of_every_certificate_kind_and_unknown_fields_fit_the_models():
+    from app.api.schemas import DesignResult
+    from app.api.views import _typed
+
+    farkas = {"outcome": "infeasible", "gains": None, "rate_bracket": {"lower": 0.3, "upper": 0.4},
+              "certificate": {"kind": "farkas", "method": "lmi", "verified": True, "gain_bound": None,
+                              "gain_bound_unbounded": True, "delta": 0.1, "e_norm": 0.0, "margin": 0.0,
+                              "statement": "no common quadratic Lyapunov design of any gain norm",
+                              "multipliers": [[[1.0, 0.0], [0.0, 1.0]]], "something_new": [1, 2]}}
+    res = _typed(DesignResult, farkas, "result", "job")
+    assert res.certificate.kind == "farkas" and res.certificate.gain_bound_unbounded
+    assert res.model_dump()["certificate"]["something_new"] == [1, 2]
+    unc = {"outcome": "infeasible", "certificate": {
+        "kind": "uncontrollable", "verified": True, "plant": 0, "eigenvalue": [2.0, 0.0],
+        "left_vector": {"real": [1.0, 0.0], "imag": [0.0, 0.0]}, "residual_eig": 0.0, "residual_input": 0.0,
+        "dimension": 1}}
+    assert _typed(DesignResult, unc, "result", "job").certificate.left_vector.real == [1.0, 0.0]
+    odd = {"outcome": "stabilized", "gains": "not a list", "spectral_radii": [[0.5, None]], "timings": {"total": 1}}
+    kept = _typed(DesignResult, odd, "result", "job")  # the field that does not fit is left out, not a 500
+    assert kept.gains is None and kept.spectral_radii == [[0.5, None]]
