@@ -125,6 +125,7 @@ class Timings(_Open):
     overhead: float | None = Field(None, description="The rest of `total` (s).")
     solves: int | None = Field(None, description="Number of conic solves.")
     cached: bool | None = Field(None, description="Whether the compiled problem was reused.")
+    designs: int | None = Field(None, description="Margin jobs: number of designs run (a count, not seconds).")
 
 
 class RatePoint(_Open):

@@ -137,3 +137,36 @@ def test_results_of_every_certificate_kind_and_unknown_fields_fit_the_models():
     odd = {"outcome": "stabilized", "gains": "not a list", "spectral_radii": [[0.5, None]], "timings": {"total": 1}}
     kept = _typed(DesignResult, odd, "result", "job")  # the field that does not fit is left out, not a 500
     assert kept.gains is None and kept.spectral_radii == [[0.5, None]]
+
+
+def _documented(model, data: dict, where: str) -> None:
+    """Every key of a real answer is a documented field of its model (recursively for nested models)."""
+    from pydantic import BaseModel
+
+    obj = model.model_validate(data)
+    undocumented = set(data) - set(model.model_fields)
+    assert not undocumented, f"{where}: undocumented fields {sorted(undocumented)}"
+    for name, value in data.items():
+        sub = getattr(obj, name, None)
+        if isinstance(sub, BaseModel) and isinstance(value, dict):
+            _documented(type(sub), value, f"{where}.{name}")
+        elif isinstance(sub, list) and sub and isinstance(sub[0], BaseModel) and isinstance(value[0], dict):
+            _documented(type(sub[0]), value[0], f"{where}.{name}[0]")
+
+
+def test_real_answers_are_exactly_the_documented_fields(client, design):
+    from app.api import schemas
+
+    _documented(schemas.DesignJob, design, "design job")
+    res = design["result"]
+    trace = client.get(f"/v1/designs/{design['id']}/trace?steps=20").json()
+    _documented(schemas.Trace, trace, "trace")
+    body = {"plant": PLANT, "gains": res["gains"], "n_drop": 3}
+    _documented(schemas.AnalysisReport, client.post("/v1/analyses", json=body).json(), "analysis")
+    sim = client.post("/v1/simulations", json={**body, "x0": [1.0, -1.0], "steps": 10}).json()
+    _documented(schemas.Simulation, sim, "simulation")
+    for item in client.get("/v1/designs").json()["items"]:
+        _documented(schemas.JobSummary, item, "listing")
+    margin = client.post("/v1/margins", json={"plant": PLANT, "search": "n_drop", "n_drop_max": 2},
+                         headers=WAIT).json()
+    _documented(schemas.MarginJob, margin, "margin job")
