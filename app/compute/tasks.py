@@ -252,6 +252,8 @@ def warm_up() -> None:
     import cvxpy  # noqa: F401
     import solver.margins  # noqa: F401
 
+    import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
+
 
 _checked: OrderedDict[str, None] = OrderedDict()  # digests of inputs that passed check_design_inputs
 _checked_lock = threading.Lock()
