@@ -170,3 +170,11 @@ def test_real_answers_are_exactly_the_documented_fields(client, design):
     margin = client.post("/v1/margins", json={"plant": PLANT, "search": "n_drop", "n_drop_max": 2},
                          headers=WAIT).json()
     _documented(schemas.MarginJob, margin, "margin job")
+
+
+def test_the_named_one_mode_docs_example_designs(client):
+    from app.examples import DESIGN_EXAMPLES
+
+    job = client.post("/v1/designs", json=DESIGN_EXAMPLES["named_one_mode"]["value"], headers=WAIT).json()
+    assert job["status"] == "succeeded" and job["result"]["outcome"] == "stabilized", job
+    assert job["label"] == "motor rig A" and job["plant"]["r"] == 1 and job["result"]["units"]["omega"] == "rad/s"
