@@ -1,12 +1,92 @@
-"""``ncs-design`` command line: ``ncs-design serve`` starts the service."""
+"""``ncs-design`` command line.
+
+``ncs-design serve`` starts the service, ``ncs-design migrate`` migrates its database;
+``ncs-design design``, ``analyze`` and ``simulate`` work on plant files, in-process (the library,
+no service needed) or against a service with ``--server URL``.
+
+Exit codes: 0 success (stabilized, certified stable); 1 a valid problem without that answer
+(infeasible, not converged, not certified); 2 bad usage or input (one line on stderr, no traceback);
+3 the service or the solver failed.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
+TOOL_COMMANDS = ("design", "analyze", "simulate")
+
+
+def package_version() -> str:
+    """The installed distribution's version (``ncs-design --version``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ncs-design")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ncs-design", description="Design and certify networked predictive controllers for switched plants.",
+        epilog="Exit codes: 0 ok; 1 infeasible / not converged / not certified; 2 bad usage or input; "
+               "3 service or solver failure.")
+    parser.add_argument("--version", action="version", version=f"ncs-design {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    serve = sub.add_parser("serve", help="run the HTTP service (uvicorn); settings come from NCS_* variables")
+    serve.add_argument("--host", default=None, help="bind address (default NCS_HOST or 127.0.0.1)")
+    serve.add_argument("--port", type=int, default=None, help="port (default NCS_PORT or 8000)")
+    serve.add_argument("--log-level", default="info")
+    sub.add_parser("migrate", help="apply the database migrations and exit")
+
+    def plant_args(p):
+        p.add_argument("plant", metavar="PLANT", help="plant file: the service's plant JSON (or a request "
+                       "with a \"plant\"), or a .mat file with A/B (continuous) or F/G (discrete), each "
+                       "n x k x r (M(:,:,l) is mode l), a cell array {M1, M2, ...} or one matrix")
+        p.add_argument("--sampling-period", type=float, default=None, metavar="H",
+                       help="sampling period in seconds (for A/B .mat files without h; overrides the file)")
+        p.add_argument("--server", default=None, metavar="URL",
+                       help="run on this ncs-design service instead of in-process")
+        p.add_argument("--api-key", default=os.environ.get("NCS_API_KEY"),
+                       help="the service's API key (default $NCS_API_KEY)")
+
+    def gains_args(p):
+        p.add_argument("--gains", required=True, metavar="FILE",
+                       help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
+        p.add_argument("--n-drop", type=int, default=None, help="drop bound (default: the number of gains)")
+
+    d = sub.add_parser("design", help="design gains K_1..K_N for a plant file")
+    plant_args(d)
+    d.add_argument("--n-drop", type=int, required=True, help="at most n_drop - 1 consecutive losses")
+    d.add_argument("--method", default="lmi", help="design method: lmi (one SDP, default), ccl, ...")
+    d.add_argument("--decay-rate", default=None, metavar="LAMBDA",
+                   help="demand a per-sample decay rate in (0, 1], or 'max' for the smallest one")
+    d.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
+    d.add_argument("--scheme", choices=("predictive", "hold", "zero"), default=None)
+    d.add_argument("--output", "-o", default=None, metavar="FILE",
+                   help="write gains and certificate: .json (the service's result), .mat or .m (MATLAB/Octave)")
+
+    a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")
+    plant_args(a)
+    gains_args(a)
+    a.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
+    a.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
+
+    m = sub.add_parser("simulate", help="seeded simulation of given gains with packet losses")
+    plant_args(m)
+    gains_args(m)
+    m.add_argument("--x0", default=None, help="initial state, comma-separated (default all ones)")
+    m.add_argument("--steps", type=int, default=100)
+    m.add_argument("--seed", type=int, default=42)
+    m.add_argument("--plant-switching", choices=("per_interval", "per_sample", "none"), default="per_interval")
+    m.add_argument("--mode", type=int, default=None, help="fixed plant mode (0-based) with --plant-switching none")
+    m.add_argument("--plot", default=None, metavar="FILE", help="draw the run: .png or .svg")
+    m.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the run as JSON")
+    return parser
 
 
 def access_notice(api_keys: list[str], host: str) -> str:
@@ -22,14 +102,12 @@ def access_notice(api_keys: list[str], host: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="ncs-design", description="Networked predictive controller design service")
-    sub = parser.add_subparsers(dest="command", required=True)
-    serve = sub.add_parser("serve", help="run the HTTP service (uvicorn); settings come from NCS_* variables")
-    serve.add_argument("--host", default=None, help="bind address (default NCS_HOST or 127.0.0.1)")
-    serve.add_argument("--port", type=int, default=None, help="port (default NCS_PORT or 8000)")
-    serve.add_argument("--log-level", default="info")
-    sub.add_parser("migrate", help="apply the database migrations and exit")
+    parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command in TOOL_COMMANDS:
+        from app.cli_commands import run_command
+
+        return run_command(args)
 
     from app.compute.process import limit_blas_threads
 

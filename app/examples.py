@@ -18,6 +18,14 @@ DESIGN_EXAMPLES = {
         "summary": "Paper example (eq. 19, h = 0.1), exact convex design",
         "value": {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"},
     },
+    "named_one_mode": {
+        "summary": "One plant mode (still a list: [A]), named states and inputs with units, a label",
+        "value": {"label": "motor rig A", "n_drop": 3,
+                  "plant": {"kind": "continuous", "sampling_period": 0.1,
+                            "A": [[[-4.0, -0.3], [5.0, -6.667]]], "B": [[[2.0], [0.0]]],
+                            "state_names": ["i_a", "omega"], "input_names": ["v_a"],
+                            "units": {"i_a": "A", "omega": "rad/s", "v_a": "V"}}},
+    },
     "paper_ccl": {
         "summary": "Paper example with the paper's CCL iteration",
         "value": {"plant": PAPER_PLANT, "n_drop": 3, "method": "ccl", "options": {"max_iter": 50}},

@@ -17,7 +17,7 @@ from app.api import problems
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
 from app.api.middleware import BodySizeLimit, JsonBodiesOnly
-from app.api import analyses, designs, health, margins, simulations
+from app.api import analyses, designs, health, margins, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
 from app.jobs.watch import JobWatch
@@ -32,9 +32,14 @@ Design and certify **networked predictive controllers for switched plants** with
   `GET /v1/designs/{id}/events` until `succeeded`, then read `result.gains` (n_drop matrices m x n, K_1 first)
   and the re-checked Lyapunov certificate.
 * `GET /v1/designs/{id}/trace` simulates the designed loop (seeded, reproducible).
+* `GET /v1/designs/{id}/gains.mat` (or `.m`) exports the design for MATLAB/Octave.
 * `POST /v1/analyses` checks given gains; `POST /v1/simulations` simulates them.
 
-Errors are RFC 9457 `application/problem+json`; `errors[].pointer` names the offending field.
+Notation in the schemas: n states, m inputs, r plant modes, n_drop = N (at most N - 1 consecutive losses),
+h the sampling period (s). Rates are per sample (lambda) and per second (lambda^(1/h)).
+
+Errors are RFC 9457 `application/problem+json`; `errors[].pointer` names the offending field and `type` is a page
+of this service (`/problems/{slug}`) saying how to fix it.
 """
 
 
@@ -115,6 +120,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         docs_url=None,
         redoc_url=None,
+        # operationIds are the handler names (submit_design, get_design, ...): readable in generated clients.
+        generate_unique_id_function=lambda route: route.name,
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
@@ -128,6 +135,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(analyses.router)
     app.include_router(margins.router)
     app.include_router(health.router)
+    app.include_router(problem_pages.router)
 
     def openapi():
         if app.openapi_schema is None:

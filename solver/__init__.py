@@ -6,6 +6,9 @@ Public names::
 
 See ``design`` for the methods, ``analyze`` for certificates and verdicts and
 ``simulate`` for seeded runs of the network of the paper's Sec. II.
+
+In and out: ``PlantFamily.from_statespace`` / ``solver.control_interop`` (python-control),
+``solver.matlab`` (.mat and .m files), ``solver.plotting`` (figures).
 """
 
 from .analysis import AnalysisReport, analyze

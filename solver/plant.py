@@ -26,12 +26,21 @@ _PAPER_A = (
 )
 _PAPER_B = ([[2.0], [0.0]],) * 3
 
+#: Names and units of the DC motor's state ``x = [i_a, omega]`` and input (eq. 16/18).
+DC_MOTOR_LABELS = {
+    "state_names": ("i_a", "omega"),
+    "input_names": ("v_a",),
+    "units": {"i_a": "A", "omega": "rad/s", "v_a": "V"},
+}
+
 
 def _matrix_list(name: str, mats, ndim_cols: int | None = None) -> list[np.ndarray]:
     """Convert a list of matrices to float64 arrays, naming the bad one on error."""
+    if _is_single_matrix(mats, strict=ndim_cols is None):
+        raise InvalidInput(
+            f"{name} must be a list of matrices, one per plant mode, but got a single matrix; "
+            f"for a plant with one mode wrap it in a list: {name}=[{name}]", (name,))
     if isinstance(mats, np.ndarray):
-        if mats.ndim == 2:
-            raise InvalidInput(f"{name} must be a list of matrices, one per plant mode", (name,))
         mats = list(mats)
     if not isinstance(mats, (list, tuple)) or len(mats) == 0:
         raise InvalidInput(f"{name} must be a non-empty list of matrices, one per plant mode", (name,))
@@ -49,6 +58,34 @@ def _matrix_list(name: str, mats, ndim_cols: int | None = None) -> list[np.ndarr
             raise InvalidInput(f"{name}[{i}] has NaN or infinite entries", (name, i))
         out.append(arr)
     return out
+
+
+def _is_single_matrix(mats, strict: bool) -> bool:
+    """A 2-D array (or, when ``strict``, a list of rows of numbers) where a list of matrices was expected.
+
+    ``strict`` is False for input matrices, whose modes may be given as 1-D columns (m = 1), so a
+    nested list of numbers is ambiguous there.
+    """
+    if isinstance(mats, np.ndarray):
+        return mats.ndim == 2
+    if not strict or not isinstance(mats, (list, tuple)) or not mats:
+        return False
+    return all(isinstance(row, (list, tuple)) and row and
+               all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in row)
+               for row in mats)
+
+
+def _check_names(key: str, names, count: int) -> tuple[str, ...] | None:
+    if names is None:
+        return None
+    if isinstance(names, str) or not all(isinstance(v, str) and v for v in names):
+        raise InvalidInput(f"{key} must be a list of non-empty strings", (key,))
+    names = tuple(names)
+    if len(names) != count:
+        raise InvalidInput(f"{key} has {len(names)} names but the plant has {count}", (key,))
+    if len(set(names)) != len(names):
+        raise InvalidInput(f"{key} has duplicate names", (key,))
+    return names
 
 
 def _check_family(Fs, Gs, fname: str, gname: str) -> tuple[int, int]:
@@ -129,6 +166,14 @@ class PlantFamily:
         Continuous matrices the family was discretized from (kept for reference).
     name : str, optional
         Label used in reports.
+    state_names : sequence of str, optional
+        One name per state, e.g. ``("i_a", "omega")``; figures and the python-control
+        and MATLAB exports use them (default ``x1..xn``).
+    input_names : sequence of str, optional
+        One name per input (default ``u1..um``).
+    units : dict of str to str, optional
+        Unit of each named state or input, e.g. ``{"i_a": "A", "omega": "rad/s", "V": "V"}``
+        (keys are names from ``state_names``/``input_names``).
 
     Attributes
     ----------
@@ -149,12 +194,32 @@ class PlantFamily:
     A: np.ndarray | None = field(default=None, repr=False)
     B: np.ndarray | None = field(default=None, repr=False)
     name: str | None = None
+    state_names: tuple[str, ...] | None = None
+    input_names: tuple[str, ...] | None = None
+    units: dict | None = None
 
     def __post_init__(self):
         Fs = _matrix_list("F", self.F)
         Gs = _matrix_list("G", self.G, ndim_cols=1)
-        _check_family(Fs, Gs, "F", "G")
+        n, m = _check_family(Fs, Gs, "F", "G")
         h = None if self.sampling_period is None else _check_sampling_period(self.sampling_period)
+        state_names = _check_names("state_names", self.state_names, n)
+        input_names = _check_names("input_names", self.input_names, m)
+        units = None
+        if self.units is not None:
+            if not isinstance(self.units, dict) or not all(
+                    isinstance(k, str) and isinstance(v, str) for k, v in self.units.items()):
+                raise InvalidInput("units must map state or input names to unit strings, e.g. "
+                                   '{"omega": "rad/s"}', ("units",))
+            known = set(state_names or ()) | set(input_names or ())
+            unknown = sorted(set(self.units) - known)
+            if unknown:
+                raise InvalidInput(f"units names {unknown} that are not in state_names or input_names",
+                                   ("units", unknown[0]))
+            units = dict(self.units)
+        object.__setattr__(self, "state_names", state_names)
+        object.__setattr__(self, "input_names", input_names)
+        object.__setattr__(self, "units", units)
         F = np.stack(Fs)
         G = np.stack(Gs)
         F.setflags(write=False)
@@ -165,7 +230,8 @@ class PlantFamily:
 
     # ------------------------------------------------------------------ builders
     @classmethod
-    def from_continuous(cls, A: Sequence, B: Sequence, sampling_period: float, name: str | None = None) -> "PlantFamily":
+    def from_continuous(cls, A: Sequence, B: Sequence, sampling_period: float, name: str | None = None,
+                        **labels) -> "PlantFamily":
         """Discretize a continuous family ``dx/dt = A_l x + B_l u`` by zero-order hold (eq. 3).
 
         Parameters
@@ -176,6 +242,9 @@ class PlantFamily:
             Continuous input matrices.
         sampling_period : float
             Sampling period h in seconds, > 0.
+        name : str, optional
+        **labels
+            ``state_names``, ``input_names``, ``units`` (see :class:`PlantFamily`).
         """
         As = _matrix_list("A", A)
         Bs = _matrix_list("B", B, ndim_cols=1)
@@ -192,7 +261,135 @@ class PlantFamily:
             A=np.stack(As),
             B=np.stack(Bs),
             name=name,
+            **labels,
         )
+
+    @classmethod
+    def from_dict(cls, data: dict, sampling_period: float | None = None) -> "PlantFamily":
+        """A family from the service's plant JSON (the ``plant`` of a design request).
+
+        Parameters
+        ----------
+        data : dict
+            ``{"kind": "continuous", "A": [...], "B": [...], "sampling_period": h}``,
+            ``{"kind": "discrete", "F": [...], "G": [...]}`` or
+            ``{"kind": "dc_motor", "inertias": [...], "sampling_period": h, ...}``; optional
+            ``state_names``, ``input_names``, ``units``, ``name``.  Without ``kind``, ``A``/``B``
+            means continuous and ``F``/``G`` discrete.
+        sampling_period : float, optional
+            h in seconds, overriding the one in ``data``.
+
+        Raises
+        ------
+        InvalidInput
+            Naming the missing or malformed key.
+        """
+        if not isinstance(data, dict):
+            raise InvalidInput("a plant must be a JSON object with a \"kind\"", ("plant",))
+        kind = data.get("kind") or ("continuous" if "A" in data else "discrete" if "F" in data else None)
+        h = data.get("sampling_period") if sampling_period is None else sampling_period
+        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name") if data.get(k) is not None}
+        need = {"continuous": ("A", "B", "sampling_period"), "discrete": ("F", "G"),
+                "dc_motor": ("inertias", "sampling_period")}
+        if kind not in need:
+            raise InvalidInput(f"plant kind must be one of {sorted(need)}, got {kind!r}", ("kind",))
+        for key in need[kind]:
+            if (h if key == "sampling_period" else data.get(key)) is None:
+                raise InvalidInput(f"a {kind} plant needs {key!r}", (key,))
+        if kind == "continuous":
+            return cls.from_continuous(data["A"], data["B"], h, **labels)
+        if kind == "discrete":
+            return cls(F=data["F"], G=data["G"], sampling_period=h, **labels)
+        params = {k: data[k] for k in ("resistance", "inductance", "torque_constant", "back_emf_constant",
+                                       "damping") if data.get(k) is not None}
+        fam = cls.dc_motor(data["inertias"], h, **params)
+        if labels:
+            fam = cls(F=fam.F, G=fam.G, sampling_period=fam.sampling_period, A=fam.A, B=fam.B,
+                      **{"name": fam.name, **DC_MOTOR_LABELS, **labels})
+        return fam
+
+    @classmethod
+    def from_statespace(cls, systems, sampling_period: float | None = None, name: str | None = None,
+                        units: dict | None = None) -> "PlantFamily":
+        """A family from python-control ``StateSpace`` systems, one per plant mode.
+
+        Only ``A`` and ``B`` are used (the controllers are state feedback); ``C`` and ``D`` are ignored.
+        State and input names are kept unless they are python-control's defaults (``x[0]``, ``u[0]``).
+
+        Parameters
+        ----------
+        systems : sequence of control.StateSpace (or one StateSpace for a single mode)
+            All continuous (``dt = 0``) or all discrete, with the same numbers of states and inputs.
+        sampling_period : float, optional
+            h in seconds.  Continuous systems are discretized by zero-order hold at h (required);
+            discrete systems use their ``dt``, and h, when given, must agree with it
+            (``dt=True``, python-control's "unspecified", takes h or stays unlabelled).
+        name : str, optional
+            Label used in reports (default: the first system's name when it is not python-control's default).
+        units : dict of str to str, optional
+            Unit of each named state or input.
+
+        Returns
+        -------
+        PlantFamily
+            Continuous input keeps ``A`` and ``B`` for reference.
+
+        Raises
+        ------
+        InvalidInput
+            On a non-StateSpace entry (``field = ("systems", i)``), mixed continuous and discrete
+            systems, disagreeing sampling periods or names, or a missing sampling period.
+
+        Examples
+        --------
+        >>> import control as ct
+        >>> motor = [ct.ss([[-4, -0.3], [5, -J]], [[2], [0]], [[0, 1]], 0, states=["i_a", "omega"])
+        ...          for J in (6.7, 10.0)]
+        >>> fam = PlantFamily.from_statespace(motor, sampling_period=0.1)
+        >>> fam.state_names
+        ('i_a', 'omega')
+        """
+        systems = [systems] if _is_statespace(systems) else systems
+        if not isinstance(systems, (list, tuple)) or not systems:
+            raise InvalidInput("systems must be a non-empty list of control.StateSpace, one per plant mode",
+                               ("systems",))
+        for i, sys in enumerate(systems):
+            if not _is_statespace(sys):
+                raise InvalidInput(f"systems[{i}] is a {type(sys).__name__}, not a control.StateSpace "
+                                   "(convert transfer functions with control.ss)", ("systems", i))
+        continuous = [bool(sys.isctime(strict=True)) for sys in systems]
+        if any(continuous) and not all(continuous):
+            i = continuous.index(not continuous[0])
+            raise InvalidInput(f"systems[{i}] is {'continuous' if continuous[i] else 'discrete'} but systems[0] "
+                               "is not: give all modes in the same time domain", ("systems", i))
+        labels = {"units": units, "name": name or _custom_name(systems[0])}
+        for key, attr, default in (("state_names", "state_labels", "x"), ("input_names", "input_labels", "u")):
+            names = [tuple(getattr(sys, attr)) for sys in systems]
+            for i, got in enumerate(names):
+                if got != names[0]:
+                    raise InvalidInput(f"systems[{i}] names its {key.split('_')[0]}s {list(got)} but systems[0] "
+                                       f"names them {list(names[0])}", ("systems", i))
+            custom = not all(label == f"{default}[{j}]" for j, label in enumerate(names[0]))
+            labels[key] = names[0] if custom else None
+        A = [np.asarray(sys.A, dtype=float) for sys in systems]
+        B = [np.asarray(sys.B, dtype=float) for sys in systems]
+        if continuous[0]:
+            if sampling_period is None:
+                raise InvalidInput("sampling_period is required to discretize continuous systems (zero-order hold)",
+                                   ("sampling_period",))
+            return cls.from_continuous(A, B, sampling_period, **labels)
+        dts = [sys.dt for sys in systems]
+        given = [float(dt) for dt in dts if dt is not True and dt is not None]
+        h = None if sampling_period is None else _check_sampling_period(sampling_period)
+        for i, dt in enumerate(dts):
+            if dt is True or dt is None:
+                continue
+            ref = h if h is not None else given[0]
+            if not np.isclose(float(dt), ref, rtol=1e-9, atol=0.0):
+                what = f"sampling_period={h}" if h is not None else f"systems[0].dt={given[0]}"
+                raise InvalidInput(f"systems[{i}].dt = {float(dt)} s disagrees with {what}: all modes need "
+                                   "the same sampling period", ("systems", i))
+        return cls(F=A, G=B, sampling_period=h if h is not None else (given[0] if given else None), **labels)
 
     @classmethod
     def dc_motor(
@@ -254,12 +451,12 @@ class PlantFamily:
         R, L, Km, Kb, Bd = (float(v) for v in params.values())
         A = [[[-R / L, -Kb / L], [Km / J, -Bd / J]] for J in Js]
         B = [[[1.0 / L], [0.0]] for _ in Js]
-        return cls.from_continuous(A, B, sampling_period, name="dc_motor")
+        return cls.from_continuous(A, B, sampling_period, name="dc_motor", **DC_MOTOR_LABELS)
 
     @classmethod
     def paper_example(cls, sampling_period: float = 0.1) -> "PlantFamily":
         """The paper's switched DC motor, eq. 19 (three inertias), discretized at h."""
-        return cls.from_continuous(_PAPER_A, _PAPER_B, sampling_period, name="paper_example")
+        return cls.from_continuous(_PAPER_A, _PAPER_B, sampling_period, name="paper_example", **DC_MOTOR_LABELS)
 
     # ---------------------------------------------------------------- properties
     @property
@@ -277,6 +474,20 @@ class PlantFamily:
         """Input dimension m."""
         return self.G.shape[2]
 
+    def state_label(self, i: int) -> str:
+        """Axis label of state i (0-based): its name and unit, e.g. ``"omega (rad/s)"``, else ``"x1"``."""
+        return self._label(self.state_names, "x", i)
+
+    def input_label(self, j: int) -> str:
+        """Axis label of input j (0-based), e.g. ``"v_a (V)"``, else ``"u1"``."""
+        return self._label(self.input_names, "u", j)
+
+    def _label(self, names, prefix: str, i: int) -> str:
+        if names is None:
+            return f"{prefix}{i + 1}"
+        unit = (self.units or {}).get(names[i])
+        return f"{names[i]} ({unit})" if unit else names[i]
+
     def to_dict(self) -> dict:
         """JSON-able description (discrete matrices, and continuous ones when known)."""
         out = {
@@ -290,4 +501,19 @@ class PlantFamily:
         if self.A is not None:
             out["A"] = self.A.tolist()
             out["B"] = self.B.tolist()
+        for key in ("state_names", "input_names"):
+            if getattr(self, key) is not None:
+                out[key] = list(getattr(self, key))
+        if self.units is not None:
+            out["units"] = dict(self.units)
         return out
+
+
+def _is_statespace(obj) -> bool:
+    """A python-control StateSpace (checked by duck type: python-control stays an optional import)."""
+    return all(hasattr(obj, attr) for attr in ("A", "B", "dt", "state_labels", "input_labels", "isctime"))
+
+
+def _custom_name(sys) -> str | None:
+    name = getattr(sys, "name", None)
+    return None if not name or name.startswith("sys[") else name

@@ -22,66 +22,174 @@ from .simulate import SimulationResult
 MEDIA_TYPES = {"svg": "image/svg+xml", "png": "image/png"}
 
 
+#: The window of :func:`trace_figure` ends where the state norm has fallen below this fraction of its peak.
+SETTLED_FRACTION = 1e-3
+#: ... but shows at least this many samples.
+MIN_WINDOW_SAMPLES = 10
+
+
+def settling_time(trace: SimulationResult, fraction: float = SETTLED_FRACTION) -> float:
+    """First time after which ``|x(k)|`` stays below ``fraction`` times its peak (the run's end if never).
+
+    Parameters
+    ----------
+    trace : SimulationResult
+    fraction : float
+        Of the peak Euclidean norm of the state.
+
+    Returns
+    -------
+    float
+        In the units of ``trace.time`` (seconds, or samples without a sampling period).
+    """
+    norm = np.linalg.norm(trace.state, axis=1)
+    above = np.flatnonzero(norm > fraction * norm.max())
+    k = min(int(above[-1]) + 1 if above.size else 0, len(trace.time) - 1)
+    return float(trace.time[k])
+
+
+def default_window(traces: Sequence[SimulationResult]) -> float:
+    """End of the time axis that fits every run's transient: the latest settling time plus 20 %,
+    at least :data:`MIN_WINDOW_SAMPLES` samples, at most the runs' length."""
+    end = max(float(tr.time[-1]) for tr in traces)
+    step = min(float(tr.time[1] - tr.time[0]) for tr in traces)
+    settle = max(settling_time(tr) for tr in traces)
+    return float(min(end, max(1.2 * settle, MIN_WINDOW_SAMPLES * step)))
+
+
 def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | None = None,
-                 width: float = 10.0, height: float = 6.0, dpi: int = 100) -> Figure:
-    """States and inputs over time for each run, lost samples marked.
+                 width: float = 10.0, height: float = 6.0, dpi: int = 100, family=None,
+                 t_max: float | None = None) -> Figure:
+    """States, inputs and the network/plant strip over time for each run (like the paper's Fig. 3/4).
+
+    One column per run.  Top: states; middle: inputs (held over each sample); bottom strip:
+    the active plant mode as a step trace and, below it, a tick at every sample without a new packet
+    (sensor or control packet lost), so the marks never cover a trace.  Rows share their y-axis
+    across columns so runs compare at a glance.
 
     Parameters
     ----------
     traces : sequence of SimulationResult
+        Runs of the same plant family (also the client's results: ``time``, ``state``, ``input``,
+        ``mode``, ``effective`` are all that is read).
     titles : sequence of str, optional
     width, height : float
         Figure size in inches (pixels = inches * dpi for PNG).
+    dpi : int
+    family : PlantFamily, optional
+        Names and units for the legends (``family.state_label(i)``, e.g. ``"omega (rad/s)"``) and
+        the time unit; without it states are ``x1..xn`` and inputs ``u1..um``.
+    t_max : float, optional
+        End of the time axis (s, or samples).  Default :func:`default_window`: until the state
+        norm falls below 1e-3 of its peak, plus 20 %, at least 10 samples.
     """
     cols = max(len(traces), 1)
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
-    axes = fig.subplots(2, cols, sharex="col", squeeze=False)
+    axes = fig.subplots(3, cols, sharex="col", sharey="row", squeeze=False,
+                        gridspec_kw={"height_ratios": [3, 2, 1.4]})
+    timed = (family.sampling_period is not None) if family is not None else (
+        bool(traces) and float(traces[0].time[1] - traces[0].time[0]) != 1.0)
+    n_modes = family.n_modes if family is not None else (
+        1 + max((int(np.max(tr.mode)) for tr in traces if len(tr.mode)), default=0))
+    end = t_max if t_max is not None else (default_window(traces) if traces else 1.0)
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for c, tr in enumerate(traces):
-        t = tr.time
-        ax_x, ax_u = axes[0, c], axes[1, c]
-        for i in range(tr.state.shape[1]):
-            ax_x.plot(t, tr.state[:, i], label=f"x{i + 1}")
-        for j in range(tr.input.shape[1]):
-            ax_u.step(t[:-1], tr.input[:, j], where="post", label=f"u{j + 1}")
-        lost = np.flatnonzero(~tr.effective)
-        if lost.size:
-            ax_u.plot(t[lost], np.zeros(lost.size), "x", color="tab:red", markersize=4, label="lost")
-            for ax in (ax_x, ax_u):
-                for k in lost:
-                    ax.axvspan(t[k], t[k + 1], color="tab:red", alpha=0.08, linewidth=0)
+        t = np.asarray(tr.time, dtype=float)
+        ax_x, ax_u, ax_m = axes[:, c]
+        n, m = tr.state.shape[1], tr.input.shape[1]
+        for i in range(n):
+            label = family.state_label(i) if family is not None else f"x{i + 1}"
+            ax_x.plot(t, tr.state[:, i], color=colors[i % len(colors)], label=label)
+        for j in range(m):
+            label = family.input_label(j) if family is not None else f"u{j + 1}"
+            ax_u.stairs(tr.input[:, j], t, baseline=None, color=colors[(n + j) % len(colors)], label=label)
+        ax_m.stairs(np.asarray(tr.mode, dtype=float), t, baseline=None, color="0.2", label="plant mode")
+        lost = np.flatnonzero(~np.asarray(tr.effective, dtype=bool))
+        ax_m.plot(t[lost], np.full(lost.size, -1.0), "|", color="tab:red", markersize=7, markeredgewidth=1.2,
+                  label="packet lost (buffer plays K_q, q > 1)")
         ax_x.set_title(titles[c] if titles else f"run {c + 1}")
-        ax_x.grid(True, alpha=0.3)
-        ax_u.grid(True, alpha=0.3)
-        ax_u.set_xlabel("time (s)" if tr.time[1] != 1.0 else "sample")
+        for ax in (ax_x, ax_u, ax_m):
+            ax.grid(True, alpha=0.3)
+            ax.set_xlim(float(t[0]), end)
+        ax_x.axhline(0.0, color="0.5", linewidth=0.6)
+        ax_u.axhline(0.0, color="0.5", linewidth=0.6)
+        ax_m.set_xlabel("time (s)" if timed else "sample k")
         if c == 0:
             ax_x.set_ylabel("state")
             ax_u.set_ylabel("input")
-        ax_x.legend(loc="upper right", fontsize="small")
-        ax_u.legend(loc="upper right", fontsize="small")
+            ax_m.set_ylabel("network")
+            ax_x.legend(loc="upper right", fontsize="small")
+            ax_u.legend(loc="upper right", fontsize="small")
+    for ax in axes[2]:
+        ax.set_yticks([-1] + list(range(n_modes)), ["lost"] + [f"mode {l}" for l in range(n_modes)],
+                      fontsize="small")
+        ax.set_ylim(-1.7, n_modes - 0.4)
+    if traces:  # the strip's legend below the figure, where it covers nothing
+        fig.legend(*axes[2, 0].get_legend_handles_labels(), loc="outside lower center", ncols=2,
+                   fontsize="small", frameon=False)
+    _fit_rows(axes, end)
     return fig
 
 
+def _fit_rows(axes, end: float) -> None:
+    """Y-limits of the state and input rows from the data inside the shown window (shared by the row)."""
+    for row in (0, 1):
+        lo, hi = np.inf, -np.inf
+        for ax in axes[row]:
+            for line in ax.lines:
+                if line.get_label().startswith("_"):  # unlabelled: the zero reference line
+                    continue
+                x, y = (np.asarray(v, dtype=float) for v in line.get_data())
+                keep = y[x <= end]
+                if keep.size:
+                    lo, hi = min(lo, keep.min()), max(hi, keep.max())
+            for patch in ax.patches:  # stairs
+                vals = np.asarray(patch.get_data().values, dtype=float)
+                edges = np.asarray(patch.get_data().edges, dtype=float)
+                keep = vals[edges[:-1] <= end]
+                if keep.size:
+                    lo, hi = min(lo, keep.min()), max(hi, keep.max())
+        if np.isfinite(lo) and np.isfinite(hi):
+            pad = 0.08 * (hi - lo) if hi > lo else max(abs(hi), 1.0) * 0.1
+            axes[row, 0].set_ylim(lo - pad, hi + pad + 0.25 * (hi - lo))  # room for the legend
+
+
 def margin_figure(result: MarginResult, width: float = 8.0, height: float = 4.5, dpi: int = 100) -> Figure:
-    """Max spectral radius (and stabilized or not) over the points a margin search or grid tried."""
+    """Max spectral radius of the designed loop at every point a margin search or grid tried.
+
+    The points are drawn as markers, not joined: a bisection samples sparsely and in no order, so a
+    line between them would suggest a measured curve.  Green dots: a stabilizing design was
+    found; red crosses: none (drawn at radius 1 when the design has no gains).
+    """
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
     ax = fig.subplots()
     key = "n_drop" if result.kind == "n_drop" else "sampling_period"
     pts = sorted(result.curve, key=lambda p: (p.get(key), p.get("n_drop", 0)))
     xs = np.array([p[key] for p in pts], dtype=float)
-    ys = np.array([np.nan if p["max_spectral_radius"] is None else p["max_spectral_radius"] for p in pts])
-    ok = np.array([p["outcome"] == "stabilized" for p in pts])
-    if result.kind != "grid":
-        ax.plot(xs, ys, "-", color="0.6", zorder=1)
-    ax.scatter(xs[ok], np.where(np.isnan(ys[ok]), 0, ys[ok]), color="tab:green", label="stabilized", zorder=2)
-    ax.scatter(xs[~ok], np.where(np.isnan(ys[~ok]), 1, ys[~ok]), color="tab:red", marker="x",
-               label="no design", zorder=2)
-    ax.axhline(1.0, color="k", linewidth=0.8, linestyle="--")
+    ys = np.array([np.nan if p.get("max_spectral_radius") is None else p["max_spectral_radius"] for p in pts])
+    ok = np.array([p["outcome"] == "stabilized" for p in pts], dtype=bool)
+    if ok.any():
+        ax.plot(xs[ok], np.where(np.isnan(ys[ok]), 0, ys[ok]), "o", color="tab:green", linestyle="none",
+                label="stabilizing design found", zorder=3)
+    if (~ok).any():
+        ax.plot(xs[~ok], np.where(np.isnan(ys[~ok]), 1, ys[~ok]), "x", color="tab:red", linestyle="none",
+                markersize=8, label="no stabilizing design", zorder=3)
+    ax.axhline(1.0, color="k", linewidth=0.8, linestyle="--", label="spectral radius 1 (stability limit)")
     if result.margin is not None:
-        ax.axvline(float(result.margin), color="tab:blue", linewidth=1, label=f"margin {result.margin:g}")
-    ax.set_xlabel({"n_drop": "n_drop", "sampling_period": "sampling period h (s)",
+        text = (f"largest n_drop with a design: {int(result.margin)}" if result.kind == "n_drop"
+                else f"largest h with a design: {float(result.margin):.4g} s")
+        if ok.all():
+            text += " (none failed up to the search limit)"
+        ax.axvline(float(result.margin), color="tab:blue", linewidth=1, label=text)
+    ax.set_xlabel({"n_drop": "n_drop (at most n_drop - 1 consecutive losses)",
+                   "sampling_period": "sampling period h (s)",
                    "grid": "sampling period h (s)"}[result.kind])
+    if result.kind == "n_drop":
+        ax.xaxis.get_major_locator().set_params(integer=True)
     ax.set_ylabel("max spectral radius of the designed loop")
-    ax.set_title(f"{result.kind} search, method {result.method}")
+    what = {"n_drop": "largest drop bound", "sampling_period": "largest sampling period",
+            "grid": "design grid"}[result.kind]
+    ax.set_title(f"{what}, method {result.method}: {len(pts)} designs")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     return fig

@@ -10,6 +10,7 @@ from app.api import validation
 from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import ANALYSIS_EXAMPLES
 from app.api.problems import invalid
+from app.api.schemas import AnalysisReport
 from app.compute.requests import AnalysisRequest
 from app.settings import Settings
 
@@ -18,15 +19,15 @@ PROBLEM = {"content": {"application/problem+json": {}}}
 
 
 @router.post(
-    "/analyses", tags=["analyses"], summary="Analyze given gains (Theorem 1 certificate, spectral radii)",
+    "/analyses", tags=["analyses"], response_model=AnalysisReport, summary="Analyze given gains (Theorem 1 certificate, spectral radii)",
     description="Runs synchronously (the family and the mode products are bounded by the size limits). "
                 "`stable` is true (certified by a re-checked Lyapunov certificate), false (a mode product is "
                 "unstable) or null (unknown).",
     responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
 )
-async def analyses(request: Request,
+async def run_analysis(request: Request,
                    body: Annotated[AnalysisRequest, Body(openapi_examples=ANALYSIS_EXAMPLES)],
-                   settings: Settings = Depends(get_settings)) -> dict:
+                   settings: Settings = Depends(get_settings)):
     errors: list = []
     shape = validation.plant_shape(body.plant, settings, errors)
     if body.n_drop is not None:

@@ -10,10 +10,10 @@ from fastapi.concurrency import run_in_threadpool
 
 from app.api import validation
 from app.api.deps import get_database, get_settings, require_api_key, run_sync
-from app.api.job_routes import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, PreferHeader, etag_response, job_router,
-                                submit)
+from app.api.job_routes import (ERRORS, MEDIA_TYPES, PreferHeader, etag_response, job_router,
+                                submit, submit_responses)
 from app.api.problems import ProblemException, field_error, invalid
-from app.api.schemas import Job
+from app.api.schemas import DesignJob, Trace
 from app.compute.requests import DesignRequest
 from app.examples import DESIGN_EXAMPLES
 from app.jobs import store
@@ -24,13 +24,17 @@ from app.settings import Settings
 
 router = job_router("design")
 
+#: Binary answers, documented as such (not as an empty schema).
+IMAGES = {"image/svg+xml": {"schema": {"type": "string", "description": "An SVG document"}},
+          "image/png": {"schema": {"type": "string", "format": "binary", "description": "A PNG image"}}}
+
 
 @router.post(
-    "", status_code=202, response_model=Job,
+    "", status_code=202, response_model=DesignJob,
     summary="Submit a design job",
     description="Answers 202 with the queued job and its `Location`. With `Prefer: wait=N` it answers 201 with "
                 "the finished job when the design ends within N seconds (else 202 as without it).",
-    responses=SUBMIT_RESPONSES,
+    responses=submit_responses("design"),
 )
 async def submit_design(
     request: Request,
@@ -40,7 +44,7 @@ async def submit_design(
     prefer: PreferHeader = None,
     settings: Settings = Depends(get_settings),
     owner: str | None = Depends(require_api_key),
-) -> Job:
+):
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
@@ -112,7 +116,7 @@ async def _trace_inputs(job_id: str, q: TraceQuery, db: Database, settings: Sett
     description="The top level is the run with the requested plant switching (like Fig. 3/4); `per_mode` holds "
                 "one run per fixed plant mode with the same losses. The same query always returns "
                 "byte-identical JSON (keys sorted, compact).",
-    responses={200: {"content": {"application/json": {}}}, 404: ERRORS[404],
+    responses={200: {"model": Trace, "description": "The runs (keys sorted), with an `ETag`"}, 404: ERRORS[404],
                409: {"description": "The design has no gains (not succeeded or not stabilized)",
                      "content": {"application/problem+json": {}}}, 422: ERRORS[422]},
 )
@@ -142,7 +146,8 @@ async def design_trace(
     description="States (top) and inputs (bottom) over time: first the run with the requested plant switching, "
                 "then one column per fixed plant mode; samples whose packet was lost are shaded and marked. "
                 "Same query parameters as `/trace`, plus the picture size in pixels.",
-    responses={200: {"content": {"image/svg+xml": {}, "image/png": {}}}, 404: ERRORS[404],
+    response_class=Response,
+    responses={200: {"description": "The figure, with an `ETag`", "content": IMAGES}, 404: ERRORS[404],
                409: {"description": "The design has no gains", "content": {"application/problem+json": {}}},
                422: ERRORS[422]},
 )
@@ -167,3 +172,63 @@ async def design_trace_image(
                               size, loc=["query"], plant=req["plant"])
         cache.put(key, body)
     return etag_response(request, MEDIA_TYPES[fmt], body)
+
+
+#: Media types of the MATLAB/Octave exports.
+GAINS_FILES = {
+    "mat": ("application/x-matlab-data",
+            {"schema": {"type": "string", "format": "binary",
+                        "description": "MATLAB 5 .mat file: K (n_drop x m x n), K1..KN (m x n), F (n x n x r), "
+                                       "G (n x m x r), P (the certificate's matrix), n_drop, outcome, "
+                                       "certificate (its kind), h (s)"}}),
+    "m": ("text/x-matlab",
+          {"schema": {"type": "string", "description": "An Octave/MATLAB script defining the same variables "
+                                                       "as gains.mat, with exact (%.17g) numbers"}}),
+}
+_NO_GAINS = {"description": "The design has not succeeded yet (or was cancelled or failed)",
+             "content": {"application/problem+json": {}}}
+
+
+async def _gains_file(request: Request, job_id: str, fmt: str, db: Database, owner: str | None) -> Response:
+    row = await run_in_threadpool(store.get, db, "design", job_id, owner)
+    if row.status != Status.SUCCEEDED or not row.result:
+        raise ProblemException(409, f"design {job_id} has no result to export yet (status {row.status!r}); wait "
+                                    "for it to succeed (GET with Prefer: wait=60)", title="Conflict")
+    media, _ = GAINS_FILES[fmt]
+    key = (job_id, "gains", fmt)
+    body = request.app.state.trace_cache.get(key)
+    if body is None:
+        body = await run_sync(request, "gains_file", row.result, fmt, job_id, loc=["path"], plant=None)
+        request.app.state.trace_cache.put(key, body)
+    response = etag_response(request, media, body)
+    response.headers["Content-Disposition"] = f'attachment; filename="ncs-design-{job_id}.{fmt}"'
+    return response
+
+
+@router.get(
+    "/{job_id}/gains.mat", summary="The design as a MATLAB .mat file (scipy.io.savemat)",
+    description="`load gains.mat` defines `K` (n_drop x m x n, `K(q,:,:)` = K_q), `K1`..`KN` (m x n each), "
+                "`F`, `G` (`F(:,:,l)`: plant mode l, so the file is also a plant file for `ncs-design`), the "
+                "certificate's `P`, `n_drop`, `outcome`, `certificate` (its kind) and `h` (s). An infeasible "
+                "design has no `K1..KN` and `K` is zeros. 409 until the job has succeeded.",
+    response_class=Response,
+    responses={200: {"description": "The .mat file (Content-Disposition: attachment)",
+                     "content": {GAINS_FILES["mat"][0]: GAINS_FILES["mat"][1]}},
+               404: ERRORS[404], 409: _NO_GAINS},
+)
+async def design_gains_mat(job_id: str, request: Request, db: Database = Depends(get_database),
+                           owner: str | None = Depends(require_api_key)):
+    return await _gains_file(request, job_id, "mat", db, owner)
+
+
+@router.get(
+    "/{job_id}/gains.m", summary="The design as an Octave/MATLAB script",
+    description="A script that defines the same variables as `gains.mat` with exact numbers (`run gains.m`).",
+    response_class=Response,
+    responses={200: {"description": "The .m script (Content-Disposition: attachment)",
+                     "content": {GAINS_FILES["m"][0]: GAINS_FILES["m"][1]}},
+               404: ERRORS[404], 409: _NO_GAINS},
+)
+async def design_gains_m(job_id: str, request: Request, db: Database = Depends(get_database),
+                         owner: str | None = Depends(require_api_key)):
+    return await _gains_file(request, job_id, "m", db, owner)

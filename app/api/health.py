@@ -7,17 +7,19 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from app.api.problems import PROBLEM_MEDIA_TYPE
+from app.api.schemas import Health, Readiness
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz", summary="Liveness: the process answers")
-def healthz() -> dict:
+@router.get("/healthz", summary="Liveness: the process answers", response_model=Health)
+def healthz():
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="Readiness: database reachable and workers alive",
-            responses={503: {"content": {"application/problem+json": {}}}})
+@router.get("/readyz", summary="Readiness: database reachable and workers alive", response_model=Readiness,
+            responses={503: {"description": "Not ready (problem+json with `checks`)",
+                             "content": {"application/problem+json": {}}}})
 async def readyz(request: Request):
     state = request.app.state
     checks: dict = {}

@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
 from app.api.deps import V1_RESPONSES, get_database, require_api_key
-from app.api.schemas import Job, JobList
+from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
 from app.jobs.database import Database
@@ -29,15 +29,24 @@ QUEUE_FULL = {"description": "The queue is full (NCS_MAX_QUEUE_DEPTH); retry aft
               "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}}
 PREFERENCE_APPLIED = {"Preference-Applied": {"description": "`wait=N` when the request's `Prefer: wait=N` was "
                                                             "honoured", "schema": {"type": "string"}}}
-#: OpenAPI responses of every job submission (designs and margins).
-SUBMIT_RESPONSES = {
-    201: {"description": "Created and already finished (only with `Prefer: wait=N`, when the job ended within "
-                         "N seconds)", "model": Job, "headers": PREFERENCE_APPLIED},
-    202: {"description": "Accepted; poll the Location (optionally with `Prefer: wait=N`) or stream /events",
-          "headers": PREFERENCE_APPLIED},
-    413: {"description": "Body over NCS_MAX_BODY_BYTES", **PROBLEM},
-    422: ERRORS[422], 429: QUEUE_FULL,
-}
+EVENT_STREAM = {"text/event-stream": {"schema": {
+    "type": "string", "description": "Server-Sent Events: `event: status|progress|end`, `data:` a JSON job "
+                                     "summary, a progress record, or the full job (`end`)."}}}
+
+
+def submit_responses(kind: str) -> dict:
+    """OpenAPI responses of a job submission (designs and margins)."""
+    model = JOB_MODELS[kind]
+    return {
+        201: {"description": "Created and already finished (only with `Prefer: wait=N`, when the job ended "
+                             "within N seconds)", "model": model, "headers": PREFERENCE_APPLIED},
+        202: {"description": "Accepted; poll the Location (optionally with `Prefer: wait=N`) or stream /events",
+              "model": model, "headers": {**PREFERENCE_APPLIED, "Location": {
+                  "description": "The job's URL", "schema": {"type": "string"}}}},
+        413: {"description": "Body over NCS_MAX_BODY_BYTES", **PROBLEM},
+        415: {"description": "The body is not JSON (send Content-Type: application/json)", **PROBLEM},
+        422: ERRORS[422], 429: QUEUE_FULL,
+    }
 
 #: The longest wait a client may ask for; a longer one is cut to this (RFC 7240 lets a server do so).
 MAX_WAIT_SECONDS = 60.0
@@ -71,7 +80,7 @@ async def wait_for_end(request: Request, db: Database, job_id: str, seconds: flo
 
 
 async def submit(request: Request, response: Response, kind: str, req: dict, n_drop: int,
-                 idempotency_key: str | None, owner: str | None, prefer: str | None) -> Job:
+                 idempotency_key: str | None, owner: str | None, prefer: str | None) -> JobSummary:
     """Queue a validated job (or replay an idempotent one), wake the dispatcher, and with
     ``Prefer: wait=N`` answer 201 with the finished job if it ends within N seconds."""
     settings = request.app.state.settings
@@ -102,11 +111,12 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
 def job_router(kind: str) -> APIRouter:
     """GET list, GET one (with ``Prefer: wait``), POST cancel and GET events of the jobs of ``kind``."""
     plural = f"{kind}s"
+    Job = JOB_MODELS[kind]
     router = APIRouter(prefix=f"/v1/{plural}", tags=[plural], dependencies=[Depends(require_api_key)],
                        responses=V1_RESPONSES)
 
     @router.get("", response_model=JobList, summary=f"List {kind} jobs, newest first",
-                operation_id=f"list_{plural}_v1_{plural}_get")
+                operation_id=f"list_{plural}")
     def list_jobs(
         status: StatusFilter = None,
         limit: Annotated[int, Query(ge=1, le=100)] = 20,
@@ -122,10 +132,10 @@ def job_router(kind: str) -> APIRouter:
         return JobList(items=[summary(r) for r in rows], total=total, limit=limit, offset=offset, next=nxt)
 
     @router.get("/{job_id}", response_model=Job, summary=f"A {kind} job with its result",
-                operation_id=f"get_{kind}_v1_{plural}__job_id__get",
+                operation_id=f"get_{kind}",
                 responses={200: {"headers": PREFERENCE_APPLIED}, 404: ERRORS[404]})
     async def get_job(job_id: str, request: Request, response: Response, prefer: PreferHeader = None,
-                      db: Database = Depends(get_database), owner: str | None = Depends(require_api_key)) -> Job:
+                      db: Database = Depends(get_database), owner: str | None = Depends(require_api_key)):
         row = await run_in_threadpool(store.get, db, kind, job_id, owner)
         wait = requested_wait(prefer)
         if wait is not None:
@@ -137,15 +147,15 @@ def job_router(kind: str) -> APIRouter:
 
     @router.post(
         "/{job_id}/cancel", response_model=Job, status_code=202, summary=f"Cancel a {kind} job",
-        operation_id=f"cancel_{kind}_v1_{plural}__job_id__cancel_post",
+        operation_id=f"cancel_{kind}",
         description="A queued job is cancelled at once (200) and never starts. A running job is asked to stop "
                     "(202): it ends `cancelled` within about a second. A succeeded or failed job: 409. "
                     "Cancelling a cancelled job again returns it (200).",
-        responses={200: {"description": "Cancelled"}, 404: ERRORS[404],
+        responses={200: {"description": "Cancelled", "model": Job}, 404: ERRORS[404],
                    409: {"description": "The job already finished", **PROBLEM}},
     )
     def cancel_job(job_id: str, request: Request, response: Response, db: Database = Depends(get_database),
-                   owner: str | None = Depends(require_api_key)) -> Job:
+                   owner: str | None = Depends(require_api_key)):
         outcome = store.cancel(db, kind, job_id, owner)
         if outcome.at_once:
             response.status_code = 200
@@ -156,11 +166,12 @@ def job_router(kind: str) -> APIRouter:
 
     @router.get(
         "/{job_id}/events", summary="Server-Sent Events: progress and the final state",
-        operation_id=f"{kind}_events_v1_{plural}__job_id__events_get",
+        response_class=StreamingResponse,
+        operation_id=f"{kind}_events",
         description="Events: `status` (on every status change, data = job summary), `progress` (data = "
                     "the last progress record), and a last `end` event with the full job once it is finished; "
                     "then the stream closes.",
-        responses={200: {"content": {"text/event-stream": {}}}, 404: ERRORS[404]},
+        responses={200: {"content": EVENT_STREAM}, 404: ERRORS[404]},
     )
     async def job_events(job_id: str, request: Request, db: Database = Depends(get_database),
                          owner: str | None = Depends(require_api_key)):
@@ -172,8 +183,9 @@ def job_router(kind: str) -> APIRouter:
     return router
 
 
-async def _event_stream(request: Request, db: Database, kind: str, job_id: str, owner: str | None, first: Job):
-    def load() -> Job | None:
+async def _event_stream(request: Request, db: Database, kind: str, job_id: str, owner: str | None,
+                        first: JobSummary):
+    def load() -> JobSummary | None:
         try:
             return full(store.get(db, kind, job_id, owner))
         except store.JobNotFound:
@@ -208,7 +220,7 @@ async def _event_stream(request: Request, db: Database, kind: str, job_id: str, 
         job = await run_in_threadpool(load) or job
 
 
-def _summary_json(job: Job) -> str:
+def _summary_json(job: JobSummary) -> str:
     return json.dumps(job.model_dump(mode="json", exclude={"request", "result"}))
 
 

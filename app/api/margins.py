@@ -13,10 +13,11 @@ from fastapi.concurrency import run_in_threadpool
 
 from app.api import validation
 from app.api.deps import get_database, get_settings, require_api_key, run_sync
-from app.api.job_routes import (ERRORS, MEDIA_TYPES, SUBMIT_RESPONSES, PreferHeader, etag_response, job_router,
-                                submit)
+from app.api.job_routes import (ERRORS, MEDIA_TYPES, PreferHeader, etag_response, job_router,
+                                submit, submit_responses)
 from app.api.problems import ProblemException
-from app.api.schemas import Job
+from app.api.designs import IMAGES
+from app.api.schemas import MarginJob
 from app.compute.requests import MarginRequest
 from app.examples import MARGIN_EXAMPLES
 from app.jobs import store
@@ -29,14 +30,14 @@ router = job_router(KIND)
 
 
 @router.post(
-    "", status_code=202, response_model=Job,
+    "", status_code=202, response_model=MarginJob,
     summary="Submit a stability-margin job",
     description="Runs many designs in the worker pool: `progress` says how many are done and the last point "
                 "tried. When succeeded, `result` holds `margin` (the largest n_drop or sampling period with a "
                 "stabilizing design), `design` (that design: gains, certificate), and `curve` (every point tried, "
                 "in order, with its outcome, max spectral radius and gains). Cancel it like a design job. "
                 "`Prefer: wait=N` as for designs.",
-    responses=SUBMIT_RESPONSES,
+    responses=submit_responses("margin"),
 )
 async def submit_margin(
     request: Request,
@@ -46,7 +47,7 @@ async def submit_margin(
     prefer: PreferHeader = None,
     settings: Settings = Depends(get_settings),
     owner: str | None = Depends(require_api_key),
-) -> Job:
+):
     largest = validation.check_margin(body, settings)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"])
@@ -56,7 +57,8 @@ async def submit_margin(
 @router.get(
     "/{job_id}/curve.{fmt}", summary="Plot of every point the search tried (SVG or PNG)",
     description="Max spectral radius of the designed loop at each point, stabilized or not, and the margin.",
-    responses={200: {"content": {"image/svg+xml": {}, "image/png": {}}}, 404: ERRORS[404],
+    response_class=Response,
+    responses={200: {"description": "The figure, with an `ETag`", "content": IMAGES}, 404: ERRORS[404],
                409: {"description": "The job has not succeeded", "content": {"application/problem+json": {}}}},
 )
 async def margin_curve(

@@ -6,7 +6,9 @@ import json
 
 from starlette.exceptions import HTTPException
 
-from app.api.problems import PROBLEM_MEDIA_TYPE
+from starlette.requests import Request
+
+from app.api.problems import PROBLEM_MEDIA_TYPE, problem_type
 
 
 class BodyTooLarge(HTTPException):
@@ -49,7 +51,7 @@ class BodySizeLimit:
 
     async def _reject(self, scope, send):
         body = json.dumps({
-            "type": "about:blank", "title": "Content Too Large", "status": 413,
+            "type": problem_type(Request(scope), "too-large"), "title": "Content Too Large", "status": 413,
             "detail": f"the request body is larger than the limit of {self.limit} bytes (NCS_MAX_BODY_BYTES)",
             "instance": scope.get("path", ""),
         }).encode()
@@ -87,7 +89,8 @@ class JsonBodiesOnly:
     async def _reject(self, scope, send, content_type: str):
         shown = content_type.split(";", 1)[0].strip()[:100]
         body = json.dumps({
-            "type": "about:blank", "title": "Unsupported Media Type", "status": 415,
+            "type": problem_type(Request(scope), "unsupported-media-type"), "title": "Unsupported Media Type",
+            "status": 415,
             "detail": f"the request body must be JSON: send Content-Type: application/json (got {shown!r})",
             "instance": scope.get("path", ""),
             "errors": [{"loc": ["header", "Content-Type"], "pointer": "", "type": "unsupported_media_type",

@@ -19,8 +19,92 @@ from app.jobs.errors import (ComputeFailed, ComputeTimeLimit, IdempotencyKeyReus
 log = logging.getLogger("app")
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
-TYPE_BASE = "https://ncs-design.invalid/problems/"
+#: Problem types are pages this service serves (``GET /problems/{slug}``, see :data:`PROBLEM_TYPES`); the
+#: ``type`` member is made absolute with the request's base URL when one is known.
+TYPE_BASE = "/problems/"
 PLANT_KINDS = {"continuous", "discrete", "dc_motor"}
+
+
+#: Every problem type the service answers with: slug -> (title, what happened, how to fix it).
+#: ``GET /problems/{slug}`` serves each as a page (app.api.problem_pages).
+PROBLEM_TYPES: dict[str, tuple[str, str, str]] = {
+    "invalid-request": (
+        "Invalid request",
+        "The request was read as JSON but a field is missing, has the wrong type or shape, or is over a limit. "
+        "Nothing was created.",
+        "Look at `errors[]`: each entry names the field by `pointer` (a JSON pointer into your request, e.g. "
+        "`/plant/A/1/0/2`) and says what is wrong in `msg`. Matrices are lists of rows; a plant family is a list "
+        "of matrices, one per plant mode (wrap a single matrix as `[M]`). Numbers must be finite JSON numbers."),
+    "malformed-json": (
+        "Malformed JSON",
+        "The request body is not valid JSON (a syntax error, not UTF-8, nested too deeply, or a number with too "
+        "many digits).",
+        "Check the body with a JSON validator (e.g. `python3 -m json.tool`); `detail` gives the character "
+        "position. NaN and Infinity are not JSON."),
+    "unsupported-media-type": (
+        "Unsupported Media Type",
+        "A request body was sent with a Content-Type other than JSON (curl's default is a form).",
+        "Send `Content-Type: application/json` (curl: `-H 'Content-Type: application/json'`)."),
+    "too-large": (
+        "Content Too Large",
+        "The request body is larger than the service accepts (NCS_MAX_BODY_BYTES).",
+        "Send a smaller plant family, or ask the operator to raise NCS_MAX_BODY_BYTES."),
+    "limit-exceeded": (
+        "Resource limit exceeded",
+        "The problem is larger than the service's limits (states, inputs, modes, n_drop, LMI size, memory).",
+        "Reduce the size named in `detail`, or run the library locally (`ncs-design design PLANT.json` needs no "
+        "service and has no limits)."),
+    "not-found": (
+        "Not Found",
+        "No job with this id exists for your API key (or it is a job of another kind: designs and margins are "
+        "separate).",
+        "Check the id (from the `Location` header of the submission) and the path (`/v1/designs/{id}` or "
+        "`/v1/margins/{id}`), and that you use the same API key that submitted it."),
+    "conflict": (
+        "Conflict",
+        "The job is not in a state that allows this: it has not finished yet, or has no gains (not succeeded, "
+        "or its outcome is not `stabilized`), or it already finished and cannot be cancelled.",
+        "Wait for the job to succeed (`GET /v1/designs/{id}` with `Prefer: wait=60`, or stream `/events`), then "
+        "retry; a design whose outcome is `infeasible` has no gains to export or simulate."),
+    "unauthorized": (
+        "Unauthorized",
+        "The service requires an API key and none, or an unknown one, was sent.",
+        "Send `X-API-Key: <key>` or `Authorization: Bearer <key>` with a key from NCS_API_KEYS."),
+    "queue-full": (
+        "Too Many Requests",
+        "More jobs are waiting than the service queues (NCS_MAX_QUEUE_DEPTH).",
+        "Retry after the `Retry-After` seconds; the client (`app.client.Client`) does so by itself."),
+    "database-unavailable": (
+        "Database unavailable",
+        "The job database is full, read-only or unreachable. Nothing was changed.",
+        "Retry after the `Retry-After` seconds; if it persists, tell the operator."),
+    "time-limit": (
+        "Time limit exceeded",
+        "A synchronous computation (analysis, simulation, trace, figure) took longer than NCS_SYNC_TIME_LIMIT.",
+        "Make the request smaller (fewer steps, shorter `max_product_length`, `bounds: none`), or submit a "
+        "design job, which has a longer limit."),
+    "worker-died": (
+        "Worker process died",
+        "The process computing the answer died (for instance out of memory).",
+        "Retry once; if it happens again, make the request smaller and tell the operator."),
+    "internal-error": (
+        "Internal Server Error",
+        "An unexpected error in the service or the solver; it has been logged.",
+        "Retry once; if it persists, report it with the request that caused it."),
+}
+
+
+def problem_type(request: Request | None, slug: str) -> str:
+    """The absolute URI of a problem type page (relative ``/problems/{slug}`` without a request)."""
+    path = TYPE_BASE + slug
+    if request is None:
+        return path
+    return str(request.base_url).rstrip("/") + path
+
+
+#: Problem type of a status when the raiser gives none.
+DEFAULT_TYPES = {401: "unauthorized", 404: "not-found", 409: "conflict", 413: "too-large",
+                 415: "unsupported-media-type", 429: "queue-full"}
 
 
 def json_pointer(loc: Sequence[Any]) -> str:
@@ -55,7 +139,7 @@ class ProblemException(Exception):
         self.status = status
         self.detail = detail
         self.title = title or HTTPStatus(status).phrase
-        self.type = type_ or "about:blank"
+        self.type = type_ or (TYPE_BASE + DEFAULT_TYPES[status] if status in DEFAULT_TYPES else "about:blank")
         self.errors = list(errors) if errors is not None else None
         self.headers = headers
 
@@ -70,6 +154,8 @@ def invalid(errors: list[dict[str, Any]], detail: str | None = None) -> ProblemE
 def problem_response(request: Request | None, status: int, title: str, detail: str | None = None,
                      type_: str = "about:blank", errors: list[dict[str, Any]] | None = None,
                      headers: dict[str, str] | None = None) -> JSONResponse:
+    if type_.startswith(TYPE_BASE):
+        type_ = problem_type(request, type_[len(TYPE_BASE):])
     body: dict[str, Any] = {"type": type_, "title": title, "status": status}
     if detail is not None:
         body["detail"] = detail
@@ -151,11 +237,11 @@ def install(app: FastAPI) -> None:
     # The job layer's refusals (app.jobs.errors) and their HTTP answers.
     @app.exception_handler(JobNotFound)
     async def _not_found(request: Request, exc: JobNotFound):
-        return problem_response(request, 404, "Not Found", str(exc))
+        return problem_response(request, 404, "Not Found", str(exc), TYPE_BASE + "not-found")
 
     @app.exception_handler(JobAlreadyFinished)
     async def _finished(request: Request, exc: JobAlreadyFinished):
-        return problem_response(request, 409, "Conflict", str(exc))
+        return problem_response(request, 409, "Conflict", str(exc), TYPE_BASE + "conflict")
 
     @app.exception_handler(QueueFull)
     async def _queue_full(request: Request, exc: QueueFull):
@@ -173,15 +259,15 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ComputeTimeLimit)
     async def _time_limit(request: Request, exc: ComputeTimeLimit):
-        return problem_response(request, 503, "Time limit exceeded", str(exc))
+        return problem_response(request, 503, "Time limit exceeded", str(exc), TYPE_BASE + "time-limit")
 
     @app.exception_handler(WorkerDied)
     async def _worker_died(request: Request, exc: WorkerDied):
-        return problem_response(request, 503, "Worker process died", str(exc))
+        return problem_response(request, 503, "Worker process died", str(exc), TYPE_BASE + "worker-died")
 
     @app.exception_handler(ComputeFailed)
     async def _compute_failed(request: Request, exc: ComputeFailed):
-        return problem_response(request, 500, "Solver error", str(exc))
+        return problem_response(request, 500, "Solver error", str(exc), TYPE_BASE + "internal-error")
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
@@ -229,4 +315,4 @@ def install(app: FastAPI) -> None:
     async def _unhandled(request: Request, exc: Exception):
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return problem_response(request, 500, "Internal Server Error",
-                                "An unexpected error occurred; it has been logged.")
+                                "An unexpected error occurred; it has been logged.", TYPE_BASE + "internal-error")

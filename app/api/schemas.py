@@ -1,29 +1,335 @@
-"""Pydantic response schemas of the HTTP contract (the request bodies are ``app.compute.requests``)."""
+"""Pydantic response schemas of the HTTP contract (the request bodies are ``app.compute.requests``).
+
+Every field says its shape and unit. Notation: n states, m inputs, r plant modes, ``n_drop`` = N (at most
+N - 1 consecutive losses), S closed-loop modes (``modes``: S = r N per interval, r + r^2 + ... + r^N per
+sample), h the sampling period in seconds. A *per-sample rate* lambda bounds ``|x(i_{m+1})| <= lambda^eta
+|x(i_m)|`` (eta samples between effective packets) in the certificate's norm; its *per-second* form is
+``lambda^(1/h)`` (the factor by which the norm bound shrinks per second). Numbers inside result arrays are null where
+the computation gave a non-finite value. Result models accept fields they do not list (newer solver versions add some), so clients should ignore unknown fields too.
+"""
 
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import Any, Literal
+from typing import Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_serializer
 
-class Progress(BaseModel):
+from app.compute.requests import DesignRequest, MarginRequest
+
+#: A number in a result; null where the computation gave a non-finite value (NaN, infinity).
+Num = float | None
+Matrix = list[list[Num]]
+
+
+class _Open(BaseModel):
+    """A result object: documented fields, and any further ones the solver adds (kept as they are)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+# -- closed-loop modes, certificates --------------------------------------------------------------
+class ModeLabel(_Open):
+    """One closed-loop mode s of the interval maps ``A_s``: the plant mode(s) over the interval and its length."""
+
+    plant: int | None = Field(None, description="Per-interval switching: the plant mode l (0-based) over the "
+                                                "whole interval.")
+    plants: list[int] | None = Field(None, description="Per-sample switching: the plant mode (0-based) at each of "
+                                                       "the eta samples of the interval.")
+    eta: int | None = Field(None, description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
+                                 "effective packet.")
+
+
+class LeftVector(_Open):
+    real: list[Num] = Field(description="Real part of the left eigenvector w (length n).")
+    imag: list[Num] = Field(description="Imaginary part of w (length n).")
+
+
+class Certificate(_Open):
+    """The proof behind a verdict. Which fields are set depends on `kind`:
+
+    * `common_quadratic` (Theorem 1): `P` ((n N) x (n N)), `X` (n x n), `margin`, `decrease`, `min_eig_P`...
+    * `switched` (mode-dependent Lyapunov, Daafouz et al.): `P` (S x n x n, one matrix per mode), same scalars.
+    * `farkas` (no design of the method exists): `multipliers` (S x 2n x 2n), `gain_bound`, `delta`, `e_norm`.
+    * `uncontrollable` (no gains can stabilize): `plant`, `eigenvalue`, `left_vector`, `residual_eig`,
+      `residual_input`.
+    """
+
+    kind: str = Field(description="`common_quadratic`, `switched` (stability proofs), `farkas` or "
+                                  "`uncontrollable` (proofs that no design exists).")
+    verified: bool | None = Field(None, description="True iff the service re-checked the certificate in float64 "
+                                                    "(or exact) arithmetic against the original condition.")
+    source: str | None = Field(None, description="What produced it (`lmi`, `switched`, `ccl_iterate`, "
+                                                 "`theorem1_lmi`, `switched_lmi`, `sdp_dual`, ...).")
+    statement: str | None = Field(None, description="`farkas`, `uncontrollable`: what the certificate proves, "
+                                                    "in words.")
+    method: str | None = Field(None, description="`farkas`: the design method it excludes (`lmi` or `switched`).")
+    margin: float | None = Field(
+        None, description="`common_quadratic`/`switched`: relative decrease `decrease / lambda_max(P)` "
+        "(dimensionless, relative to the largest eigenvalue of P; accepted above 1e-9): how strictly "
+        "`Phi_s^T P Phi_s < P` holds. `farkas`: the relative strictness tau of the excluded designs.")
+    decrease: float | None = Field(None, description="Smallest eigenvalue of `P - Phi_s^T P Phi_s` over all modes "
+                                                     "(absolute, in the units of P).")
+    min_eig_P: float | None = Field(None, description="Smallest eigenvalue of P (of every P_s); must be > 0.")
+    condition_number: float | None = Field(None, description="Largest 2-norm condition number of the P matrices.")
+    decay_rate: float | None = Field(None, description="Per-sample rate lambda the certificate also proves (or "
+                                                       "excludes, for `farkas`); null when none was asked for.")
+    decay_rate_per_second: float | None = Field(
+        None, description="The same rate per second, `decay_rate^(1/h)`; null without a sampling period.")
+    worst_mode: int | None = Field(None, description="Index into `modes` of the mode with the smallest decrease.")
+    P: Matrix | list[Matrix] | None = Field(
+        None, description="`common_quadratic`: the augmented Theorem 1 matrix, (n N) x (n N). `switched`: S "
+        "matrices n x n, `P[s]` for mode `modes[s]`. Omitted in the designs of a margin curve.")
+    X: Matrix | None = Field(None, description="`common_quadratic`: the reduced certificate on x(i_m), n x n "
+                                               "(`A_s^T X A_s < X` for all s).")
+    multipliers: list[Matrix] | list[list[Matrix]] | None = Field(
+        None, description="`farkas`: PSD multipliers Z_s, S x 2n x 2n in the order of `modes` (`switched` "
+        "method: S x S x 2n x 2n).")
+    gain_bound: float | None = Field(None, description="`farkas`: no design with gain norm "
+                                                       "`sqrt(sum_q ||K_q||_2^2)` below this exists; null = any norm.")
+    gain_bound_unbounded: bool | None = Field(None, description="`farkas`: true when `gain_bound` is infinite.")
+    delta: float | None = Field(None, description="`farkas`: proven lower bound of `-lambda_max(Q)` less the PSD "
+                                                  "shifts.")
+    e_norm: float | None = Field(None, description="`farkas`: proven upper bound of `||E||_F`.")
+    skew_norm: float | None = Field(None, description="`farkas`, switched method: bound of the skew part of "
+                                                      "the slack coefficient.")
+    scaled: bool | None = Field(None, description="`farkas`: true when it holds in the design's balanced "
+                                                  "coordinates (`scaling`).")
+    plant: int | None = Field(None, description="`uncontrollable`: the plant mode l (0-based).")
+    eigenvalue: list[Num] | None = Field(None, description="`uncontrollable`: [real, imaginary] part of the "
+                                                             "eigenvalue of F_l no input reaches (|lambda| >= 1).")
+    left_vector: LeftVector | None = Field(None, description="`uncontrollable`: left eigenvector w "
+                                                             "(w^H F_l = lambda w^H, w^H G_l = 0).")
+    residual_eig: float | None = Field(None, description="`uncontrollable`: float64 residual "
+                                                         "`||w^H F_l - lambda w^H||`.")
+    residual_input: float | None = Field(None, description="`uncontrollable`: float64 residual `||w^H G_l||`.")
+    dimension: int | None = Field(None, description="`uncontrollable`: dimension of the uncontrollable part.")
+
+
+# -- designs ---------------------------------------------------------------------------------------
+class IterationRecord(_Open):
+    iteration: int | None = Field(None, description="0 is the feasible start (CCL Step 1), then 1, 2, ...")
+    objective: float | None = Field(None, description="Objective value of the solved SDP.")
+    trace_gap: float | None = Field(None, description="CCL: `trace(P Q)/(n N) - 1` (0 when PQ = I).")
+    theorem1: bool | None = Field(None, description="Whether this iterate's gains satisfy Theorem 1 (re-checked).")
+    certificate_margin: float | None = Field(None, description="Relative margin of that certificate "
+                                                               "(see `Certificate.margin`).")
+    solve_time: float | None = Field(None, description="The conic solver's own time for this iteration (s).")
+    elapsed: float | None = Field(None, description="Wall time since the design started (s).")
+
+
+class Timings(_Open):
+    total: float | None = Field(None, description="Wall time of the whole computation (s).")
+    setup: float | None = Field(None, description="Problem build time (s); 0 when a compiled problem was reused.")
+    solver: float | None = Field(None, description="Sum of the conic solver's own times (s).")
+    overhead: float | None = Field(None, description="The rest of `total` (s).")
+    solves: int | None = Field(None, description="Number of conic solves.")
+    cached: bool | None = Field(None, description="Whether the compiled problem was reused.")
+    designs: int | None = Field(None, description="Margin jobs: number of designs run (a count, not seconds).")
+
+
+class RatePoint(_Open):
+    decay_rate: float | None = Field(None, description="Per-sample rate lambda tried.")
+    outcome: str | None = Field(None, description="The design's outcome at that rate.")
+
+
+class RateBracket(_Open):
+    lower: float | None = Field(None, description="Lower end of the bisection (per sample).")
+    upper: float | None = Field(None, description="Upper end: the returned certified rate (per sample).")
+    lower_proven: bool | None = Field(None, description="Every design of the method at `lower` is excluded by a "
+                                                        "Farkas/uncontrollable certificate.")
+    loop_spectral_rate: float | None = Field(None, description="`max_s rho(A_s)^(1/eta_s)` of the returned loop: "
+                                                               "no certificate for these gains goes below it.")
+
+
+class Scaling(_Open):
+    state: list[Num] | None = Field(None, description="Diagonal state scaling (length n), powers of two.")
+    input: list[Num] | None = Field(None, description="Diagonal input scaling (length m).")
+    certificate: str | None = Field(None, description="Coordinates `certificate` is expressed in (`original` or "
+                                                      "`scaled`).")
+
+
+class DesignResult(_Open):
+    """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
+
+    outcome: str = Field(description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design "
+                                     "of this method exists; `certificate` may prove it) or `not_converged`.")
+    method: str | None = Field(None, description="Design method: `lmi`, `ccl` or `switched`.")
+    n_drop: int | None = Field(None, description="N: at most N - 1 consecutive losses.")
+    gains: list[Matrix] | None = Field(
+        None, description="n_drop x m x n: `gains[q-1] = K_q`; after an effective packet at i_m the actuator "
+        "applies `u(i_m + q - 1) = K_q x(i_m)`. Input units per state unit. Null when infeasible.")
+    certificate: Certificate | None = Field(None, description="The proof of the outcome (see its `kind`).")
+    spectral_radii: Matrix | list[Num] | None = Field(
+        None, description="Spectral radius of every interval closed loop `A_{l,eta}(K)` (eq. 8, dimensionless, "
+        "per interval of eta samples, not per sample): r x n_drop, `[l][eta-1]`, for per-interval switching; "
+        "a flat list of S in the order of `modes` for per-sample switching.")
+    max_spectral_radius: float | None = Field(None, description="Largest of `spectral_radii` (< 1 is necessary "
+                                                                "for stability, not sufficient).")
+    history: list[IterationRecord] | None = Field(None, description="One record per solver iteration.")
+    iterations: int | None = Field(None, description="Iterations after the start (0 for one-shot methods).")
+    solver: str | None = Field(None, description="Conic solver used (`CLARABEL`, `SCS`).")
+    solver_status: str | None = Field(None, description="Status of the last conic solve.")
+    timings: Timings | None = Field(None, description="Where the time went (s).")
+    message: str | None = Field(None, description="The outcome in words.")
+    scheme: str | None = Field(None, description="`predictive` (the paper), `hold` or `zero` (baselines).")
+    plant_switching: str | None = Field(None, description="`per_interval` or `per_sample`.")
+    decay_rate: float | None = Field(None, description="Per-sample decay rate lambda the certificate proves, when "
+                                                       "one was asked for.")
+    decay_rate_per_second: float | None = Field(
+        None, description="The same rate per second, `decay_rate^(1/h)`; null without a sampling period.")
+    rate_search: list[RatePoint] | None = Field(None, description="`decay_rate: max`: every rate tried, in order.")
+    rate_bracket: RateBracket | None = Field(None, description="`decay_rate: max`: the ends of the bisection.")
+    modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes, in the order of the flat "
+                                                            "arrays (`worst_mode`, switched `P`, multipliers).")
+    scaling: Scaling | None = Field(None, description="The diagonal scaling the design was made in (null: none).")
+    F: list[Matrix] | None = Field(None, description="The discretized plant: r x n x n, `F[l]` for plant mode l.")
+    G: list[Matrix] | None = Field(None, description="r x n x m, `G[l]` for plant mode l.")
+    sampling_period: float | None = Field(None, description="h in seconds (null for a discrete plant without one).")
+    state_names: list[str] | None = Field(None, description="Names of the n states (from the plant).")
+    input_names: list[str] | None = Field(None, description="Names of the m inputs (from the plant).")
+    units: dict[str, str] | None = Field(None, description="Unit of each named state or input.")
+
+
+# -- margins -------------------------------------------------------------------------------------
+class CurvePoint(_Open):
+    n_drop: int | None = Field(None, description="The drop bound N of this design.")
+    sampling_period: float | None = Field(None, description="h of this design (s).")
+    outcome: str | None = Field(None, description="The design's outcome at this point.")
+    max_spectral_radius: float | None = Field(None, description="Largest interval closed-loop spectral radius "
+                                                                "(dimensionless; null without gains).")
+    certificate_margin: float | None = Field(None, description="Relative margin of its certificate "
+                                                               "(`Certificate.margin`).")
+    decay_rate: float | None = Field(None, description="Per-sample decay rate proven, if asked for.")
+    gains: list[Matrix] | None = Field(None, description="n_drop x m x n gains at this point (null if none).")
+
+
+class MarginResult(_Open):
+    """The result of a margin job."""
+
+    kind: str = Field(description="The search: `n_drop`, `sampling_period` or `grid`.")
+    margin: float | int | None = Field(
+        None, description="`n_drop` search: the largest N (losses in a row + 1, a count) with a stabilizing "
+        "design; `sampling_period`: the largest h in seconds; null when even the smallest fails, and for grids.")
+    design: DesignResult | None = Field(None, description="The design at the margin (certificate matrices "
+                                                          "omitted).")
+    curve: list[CurvePoint] | None = Field(None, description="Every point tried, in order.")
+    method: str | None = Field(None, description="Design method used at every point.")
+    stopped: bool | None = Field(None, description="True when the search was cancelled early.")
+    message: str | None = Field(None, description="The margin in words, with its unit.")
+    timings: Timings | None = Field(None, description="Where the time went (s).")
+
+
+# -- analyses, simulations, traces ---------------------------------------------------------------
+class AnalysisReport(_Open):
+    """Stability analysis of given gains (`POST /v1/analyses`)."""
+
+    stable: bool | None = Field(description="True: certified (re-checked certificate); false: a mode product "
+                                            "is proven unstable (`worst_sequence`); null: unknown.")
+    reason: str | None = Field(None, description="The verdict in words.")
+    spectral_radii: Matrix | list[Num] | None = Field(
+        None, description="Spectral radius of every interval closed loop (dimensionless, per interval): r x "
+        "n_drop (`[l][eta-1]`) per interval, flat S per sample (order of `modes`).")
+    max_spectral_radius: float | None = Field(None, description="Largest of `spectral_radii`.")
+    margin: float | None = Field(None, description="The certificate's relative margin (`Certificate.margin`).")
+    certificate: Certificate | None = Field(None, description="The certificate when `stable` is true.")
+    jsr_lower_bound: float | None = Field(
+        None, description="Proven lower bound of the joint spectral radius of the interval maps, "
+        "`rho(product)^(1/length)` (per interval, dimensionless): >= 1 means unstable.")
+    jsr_lower_estimate: float | None = Field(None, description="Its float64 estimate (not a proof).")
+    jsr_upper_bound: float | None = Field(None, description="Smallest certified upper bound of that JSR "
+                                                            "(per interval).")
+    jsr_upper_bound_quadratic: float | None = Field(None, description="From common quadratic certificates.")
+    jsr_upper_bound_switched: float | None = Field(None, description="From switched certificates "
+                                                                     "(`bounds: all`).")
+    decay_rate: float | None = Field(None, description="Best certified per-sample decay rate lambda.")
+    decay_rate_per_second: float | None = Field(None, description="The same per second, `decay_rate^(1/h)`; "
+                                                                  "null without a sampling period.")
+    worst_sequence: list[ModeLabel] | None = Field(None, description="The product attaining `jsr_lower_bound`, "
+                                                                     "in the order applied.")
+    product_length_checked: int | None = Field(None, description="Longest product examined.")
+    scaling: list[Num] | None = Field(None, description="State scaling (length n) of a certificate found for "
+                                                          "the balanced loops; null: none.")
+    modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes in order.")
+    timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
+
+
+class Simulation(_Open):
+    """A seeded run; arrays are indexed by sample k = 0 .. steps."""
+
+    t: list[Num] = Field(description="Time of each sample, steps + 1 values: `k h` in seconds (k when the plant "
+                                       "has no sampling period).")
+    x: Matrix = Field(description="State, (steps + 1) x n, in the plant's state units.")
+    u: Matrix = Field(description="Input applied over [k, k+1), steps x m.")
+    mode: list[int] = Field(description="Plant mode (0-based) over [k, k+1), steps values.")
+    sensor_arrived: list[bool] = Field(description="Sensor packet arrived at k (switch S1), steps values.")
+    control_arrived: list[bool] = Field(description="Control packet arrived at k (switch S2), steps values.")
+    effective: list[bool] = Field(description="Both arrived: a new packet reached the buffer at k.")
+    buffer_index: list[int] = Field(description="q of the prediction `K_q x(i_m)` applied at k (1 = fresh).")
+    interval_start: list[int] = Field(description="The effective samples i_m.")
+    eta: list[int] = Field(description="`i_{m+1} - i_m` of every completed interval (samples).")
+    seed: int | None = Field(None, description="Seed of the packet losses and plant jumps.")
+    loss_model: str | None = Field(None, description="`paper` or `bernoulli`.")
+    plant_switching: str | None = Field(None, description="`per_interval`, `per_sample` or `none`.")
+    n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
+
+
+class ModeRun(Simulation):
+    plant_mode: int = Field(description="The fixed plant mode (0-based) of this run.")
+
+
+class TraceQueryEcho(_Open):
+    seed: int | None = Field(None, description="Seed used.")
+    steps: int | None = Field(None, description="Samples simulated.")
+    x0: list[Num] | None = Field(None, description="Initial state (length n).")
+    loss_model: str | None = Field(None, description="`paper` or `bernoulli`.")
+    sensor_loss: float | None = Field(None, description="Sensor packet loss probability per sample.")
+    control_loss: float | None = Field(None, description="Control packet loss probability per sample.")
+    plant_switching: str | None = Field(None, description="Plant switching of the top-level run.")
+    mode: int | None = Field(None, description="Fixed plant mode of the top-level run, if any.")
+
+
+class Trace(Simulation):
+    """The designed loop's seeded run with the requested switching, and one run per fixed plant mode."""
+
+    per_mode: list[ModeRun] = Field(description="One run per plant mode (r runs), same losses, no jumps.")
+    query: TraceQueryEcho = Field(description="The simulation parameters used (defaults filled in).")
+
+
+# -- jobs ------------------------------------------------------------------------------------------
+class MarginPoint(_Open):
+    n_drop: int | None = Field(None, description="N of the last point tried.")
+    sampling_period: float | None = Field(None, description="h of the last point tried (s).")
+    outcome: str | None = Field(None, description="Its design's outcome.")
+
+
+class Progress(_Open):
     iteration: int | None = Field(None, description="Design jobs: the solver iteration (CCL Step 2 count).")
-    objective: float | None = None
-    trace_gap: float | None = None
-    theorem1: bool | None = None
-    elapsed: float | None = None
+    objective: float | None = Field(None, description="Design jobs: objective of the last SDP.")
+    trace_gap: float | None = Field(None, description="CCL: `trace(P Q)/(n N) - 1` of the last iterate.")
+    theorem1: bool | None = Field(None, description="Design jobs: the last iterate satisfies Theorem 1.")
+    elapsed: float | None = Field(None, description="Wall time since the design started (s).")
     step: int | None = Field(None, description="Margin jobs: designs done so far.")
     total: int | None = Field(None, description="Margin jobs: designs planned (an upper bound).")
-    point: dict[str, Any] | None = Field(None, description="Margin jobs: the last point tried and its outcome.")
+    point: MarginPoint | None = Field(None, description="Margin jobs: the last point tried and its outcome.")
 
 
 class Links(BaseModel):
-    self: str
-    events: str
-    cancel: str
+    self: str = Field(description="This job.")
+    events: str = Field(description="Server-Sent Events of this job.")
+    cancel: str = Field(description="POST here to cancel.")
     trace: str | None = Field(None, description="Design jobs: the seeded simulation (also .svg, .png).")
+    gains_mat: str | None = Field(None, description="Design jobs: gains and certificate as a MATLAB .mat file.")
+    gains_m: str | None = Field(None, description="Design jobs: the same as an Octave/MATLAB script.")
     curve: str | None = Field(None, description="Margin jobs: the plot of every point tried (.svg or .png).")
+
+
+class PlantSummary(BaseModel):
+    kind: str = Field(description="`continuous`, `discrete` or `dc_motor`.")
+    n: int = Field(description="Number of states.")
+    m: int = Field(description="Number of inputs.")
+    r: int = Field(description="Number of plant modes.")
+    sampling_period: float | None = Field(None, description="h in seconds (null for a discrete plant without one).")
 
 
 def _utc(dt: datetime | None) -> datetime | None:
@@ -35,20 +341,28 @@ def _utc(dt: datetime | None) -> datetime | None:
 
 
 class JobSummary(BaseModel):
-    id: str
-    status: Literal["queued", "running", "succeeded", "failed", "cancelled"]
-    method: str
-    n_drop: int
-    created_at: datetime
-    started_at: datetime | None = None
-    finished_at: datetime | None = None
-    updated_at: datetime
-    attempts: int
-    cancel_requested: bool
-    progress: Progress | None = None
-    outcome: str | None = Field(None, description="The design's outcome once succeeded.")
+    id: str = Field(description="Job id (a UUID).")
+    status: Literal["queued", "running", "succeeded", "failed", "cancelled"] = Field(
+        description="queued -> running -> succeeded | failed | cancelled.")
+    method: str = Field(description="Design method (`lmi`, `ccl`, `switched`).")
+    n_drop: int = Field(description="N of a design; the largest N a margin job designs for.")
+    label: str | None = Field(None, description="The label given at submission, if any.")
+    plant: PlantSummary | None = Field(None, description="What was designed for: kind and sizes.")
+    created_at: datetime = Field(description="Submission time (UTC).")
+    started_at: datetime | None = Field(None, description="Start of the last attempt (UTC).")
+    finished_at: datetime | None = Field(None, description="End time (UTC).")
+    updated_at: datetime = Field(description="Last change (UTC).")
+    attempts: int = Field(description="Attempts started (a worker that died causes a retry).")
+    cancel_requested: bool = Field(description="A cancel was asked for.")
+    progress: Progress | None = Field(None, description="The latest progress record.")
+    outcome: str | None = Field(None, description="Design jobs, once succeeded: the outcome (`stabilized`, "
+                                                  "`infeasible`, `not_converged`).")
+    margin: float | int | None = Field(None, description="Margin jobs, once succeeded: the margin (largest N, a "
+                                                          "count, or largest h in seconds; see `margin_kind`).")
+    margin_kind: str | None = Field(None, description="Margin jobs: the search (`n_drop`, `sampling_period`, "
+                                                      "`grid`).")
     error: str | None = Field(None, description="Why the job failed (or the last retry reason).")
-    links: Links
+    links: Links = Field(description="Related URLs.")
 
     @field_serializer("created_at", "started_at", "finished_at", "updated_at")
     def _ser_dt(self, dt: datetime | None):
@@ -60,7 +374,8 @@ _JOB_EXAMPLE = {
     "id": "3f0c8a52-8d55-4a4e-9b0e-6d1f0f5a2c11", "status": "succeeded", "method": "lmi", "n_drop": 3,
     "created_at": "2026-11-21T05:44:42.428524Z", "started_at": "2026-11-21T05:44:42.448170Z",
     "finished_at": "2026-11-21T05:44:42.555394Z", "updated_at": "2026-11-21T05:44:42.555394Z",
-    "attempts": 1, "cancel_requested": False, "outcome": "stabilized", "error": None,
+    "label": "motor rig A", "plant": {"kind": "continuous", "n": 2, "m": 1, "r": 3, "sampling_period": 0.1},
+    "attempts": 1, "margin": None, "margin_kind": None, "cancel_requested": False, "outcome": "stabilized", "error": None,
     "progress": {"iteration": 0, "objective": 0.6538, "trace_gap": None, "theorem1": True, "elapsed": 0.0962},
     "links": {"self": "/v1/designs/3f0c8a52-8d55-4a4e-9b0e-6d1f0f5a2c11",
               "events": "/v1/designs/3f0c8a52-8d55-4a4e-9b0e-6d1f0f5a2c11/events",
@@ -77,7 +392,7 @@ _JOB_EXAMPLE = {
         "outcome": "stabilized", "method": "lmi", "n_drop": 3,
         "gains": [[[-4.0611, 0.1010]], [[-0.0021, -0.0305]], [[-0.0003, -0.0056]]],
         "certificate": {"kind": "common_quadratic", "verified": True, "margin": 0.1192,
-                        "X": [[1.5279, -0.0228], [-0.0228, 0.7437]], "P": "... (n n_drop x n n_drop)"},
+                        "X": [[1.5279, -0.0228], [-0.0228, 0.7437]], "P": [[1.5279, -0.0228, 0.0, 0.0, 0.0, 0.0], "... (n n_drop x n n_drop)"]},
         "spectral_radii": [[0.514, 0.264, 0.136], [0.369, 0.136, 0.050], [0.138, 0.020, 0.003]],
         "max_spectral_radius": 0.514,
         "F": [[[0.6703, -0.0018], [0.0294, 0.5134]], "..."], "G": [[[0.1648], [0.0035]], "..."],
@@ -88,38 +403,67 @@ _JOB_EXAMPLE = {
 }
 
 
-class Job(JobSummary):
+class DesignJob(JobSummary):
+    """A design job: its accepted request and, once succeeded, its result."""
+
     model_config = ConfigDict(json_schema_extra={"examples": [_JOB_EXAMPLE]})
 
-    request: dict[str, Any] = Field(description="The design request as accepted (defaults filled in).")
-    result: dict[str, Any] | None = Field(
-        None,
-        description="When succeeded: outcome, gains (n_drop matrices m x n, K_1 first), certificate, "
-        "spectral_radii, F, G (the discretized family), history, timings, solver details.",
-    )
+    request: DesignRequest = Field(description="The design request as accepted (defaults filled in).")
+    result: DesignResult | None = Field(None, description="When succeeded: the design (outcome, gains, "
+                                                          "certificate, ...). Null before.")
+
+
+class MarginJob(JobSummary):
+    """A margin job: its accepted request and, once succeeded, its result."""
+
+    request: MarginRequest = Field(description="The margin request as accepted (defaults filled in).")
+    result: MarginResult | None = Field(None, description="When succeeded: margin, design at the margin, curve.")
+
+
+#: Kept for callers of the first layout: a design job.
+Job = DesignJob
+
+JOB_MODELS: dict[str, type[JobSummary]] = {"design": DesignJob, "margin": MarginJob}
 
 
 class JobList(BaseModel):
-    items: list[JobSummary]
-    total: int
-    limit: int
-    offset: int
+    items: list[JobSummary] = Field(description="One page of jobs, newest first (no request or result).")
+    total: int = Field(description="Jobs matching the filter in all.")
+    limit: int = Field(description="Page size asked for.")
+    offset: int = Field(description="Jobs skipped.")
     next: str | None = Field(None, description="URL of the next page, if any.")
 
 
 class ProblemError(BaseModel):
-    loc: list[str | int]
-    pointer: str
-    msg: str
-    type: str
+    loc: list[str | int] = Field(description="pydantic location: `body`/`query`/`header`, then the path.")
+    pointer: str = Field(description="JSON pointer (RFC 6901) into the request body, e.g. `/plant/A/1/0/2`.")
+    msg: str = Field(description="What is wrong and how to fix it.")
+    type: str = Field(description="Machine-readable error kind (e.g. `single_matrix`, `matrix_not_square`).")
 
 
 class Problem(BaseModel):
-    type: str = "about:blank"
-    title: str
-    status: int
-    detail: str | None = None
-    instance: str | None = None
-    errors: list[ProblemError] | None = None
+    type: str = Field("about:blank", description="URL of a page of this service (`/problems/{slug}`) that "
+                                                 "explains the problem and how to fix it.")
+    title: str = Field(description="Short summary of the problem type.")
+    status: int = Field(description="HTTP status code.")
+    detail: str | None = Field(None, description="This occurrence in words.")
+    instance: str | None = Field(None, description="The request path.")
+    errors: list[ProblemError] | None = Field(None, description="Invalid input: one entry per bad field.")
 
 
+class Health(BaseModel):
+    status: Literal["ok"] = Field(description="Always `ok`: the process answers.")
+
+
+class WorkersStatus(_Open):
+    configured: int | None = Field(None, description="Worker processes (or Dask slots) configured.")
+    alive: int | None = Field(None, description="Of those, alive.")
+    ready: int | None = Field(None, description="Of those, ready for a job.")
+    dispatcher: str | None = Field(None, description="`running`, `stopped` or `disabled`.")
+    last_error: str | None = Field(None, description="The dispatcher's last error, if any.")
+
+
+class Readiness(_Open):
+    status: Literal["ready"] = Field(description="`ready` (else the answer is a 503 problem).")
+    database: str = Field(description="`ok` when reachable.")
+    workers: WorkersStatus = Field(description="Worker pool state.")

@@ -10,6 +10,7 @@ from app.api import validation
 from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import SIMULATION_EXAMPLES
 from app.api.problems import invalid
+from app.api.schemas import Simulation
 from app.compute.requests import SimulationRequest
 from app.settings import Settings
 
@@ -18,15 +19,15 @@ PROBLEM = {"content": {"application/problem+json": {}}}
 
 
 @router.post(
-    "/simulations", tags=["simulations"], summary="Simulate given gains (seeded)",
+    "/simulations", tags=["simulations"], response_model=Simulation, summary="Simulate given gains (seeded)",
     description="Seeded simulation of the networked loop with the given gains: packet losses (sensor and "
                 "control), plant switching and the predictive buffer. Returns t, x, u, mode, sensor_arrived, "
                 "control_arrived, effective, eta, ...",
     responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
 )
-async def simulate(request: Request,
+async def run_simulation(request: Request,
                    body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
-                   settings: Settings = Depends(get_settings)) -> dict:
+                   settings: Settings = Depends(get_settings)):
     errors: list = []
     shape = validation.plant_shape(body.plant, settings, errors)
     if body.n_drop is not None:

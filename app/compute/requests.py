@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Union
 
-from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, Strict
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, StringConstraints, Strict, field_validator
+from pydantic_core import PydanticCustomError
 
 Number = Annotated[float, Strict(), AllowInfNan(False)]
 Int = Annotated[int, Strict()]
@@ -31,24 +32,81 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+def _is_single_matrix(value) -> bool:
+    """A list of rows of numbers where a list of matrices (one per plant mode) was expected."""
+    return (isinstance(value, list) and bool(value) and all(
+        isinstance(row, list) and row and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        for row in value))
+
+
+def _one_error_for_single_matrix(field: str, what: str):
+    """A before-validator: one error saying how to wrap a single matrix, instead of one per row."""
+
+    def check(value):
+        if _is_single_matrix(value):
+            raise PydanticCustomError(
+                "single_matrix",
+                "{field} must be a list of {what}, but got a single matrix; for one {item} wrap it in a list: "
+                "\"{field}\": [{example}]",
+                {"field": field, "what": what, "item": "gain" if field == "gains" else "plant mode",
+                 "example": "[[...], [...]]"})
+        return value
+
+    return check
+
+
+Name = Annotated[str, StringConstraints(min_length=1, max_length=64)]
+Unit = Annotated[str, StringConstraints(max_length=32)]
+_NAMES = dict(max_length=1000)
+
+
+def _labels():
+    """Optional names and units of a plant's states and inputs (every plant kind): figures, MATLAB and
+    python-control exports use them (``PlantFamily.state_names``, ``input_names``, ``units``)."""
+    return (
+        Field(None, **_NAMES, description="Names of the n states in order (e.g. `[\"i_a\", \"omega\"]`); "
+              "distinct. Used in figure labels and exports."),
+        Field(None, **_NAMES, description="Names of the m inputs in order (e.g. `[\"v_a\"]`); distinct."),
+        Field(None, max_length=2000, description="Unit of each named state or input (e.g. "
+              "`{\"omega\": \"rad/s\"}`); keys must be in state_names or input_names. Shown in figure labels."),
+    )
+
+
+_WRAP_DOC = " A plant with one mode is still a list: `[M]`."
+
+
 class ContinuousPlant(_Strict):
     """Continuous-time family `dx/dt = A_l x + B_l u`, discretized by zero-order hold."""
 
-    kind: Literal["continuous"]
-    A: list[Matrix] = Field(description="One n x n matrix per plant mode.")
-    B: list[Matrix] = Field(description="One n x m matrix per plant mode.")
+    kind: Literal["continuous"] = Field(description="`continuous`: A, B and a sampling period.")
+    A: list[Matrix] = Field(description="One n x n matrix per plant mode (1/s)." + _WRAP_DOC)
+    B: list[Matrix] = Field(description="One n x m matrix per plant mode." + _WRAP_DOC)
     sampling_period: Number = Field(gt=0, description="Sampling period h in seconds (> 0).")
+    state_names: list[Name] | None
+    input_names: list[Name] | None
+    units: dict[Name, Unit] | None
+    state_names, input_names, units = _labels()
+
+    _single_A = field_validator("A", mode="before")(_one_error_for_single_matrix("A", "n x n matrices, one per plant mode"))
+    _single_B = field_validator("B", mode="before")(_one_error_for_single_matrix("B", "n x m matrices, one per plant mode"))
 
 
 class DiscretePlant(_Strict):
     """Discrete-time family `x(k+1) = F_l x(k) + G_l u(k)`."""
 
-    kind: Literal["discrete"]
-    F: list[Matrix] = Field(description="One n x n matrix per plant mode.")
-    G: list[Matrix] = Field(description="One n x m matrix per plant mode.")
+    kind: Literal["discrete"] = Field(description="`discrete`: F, G per sample.")
+    F: list[Matrix] = Field(description="One n x n matrix per plant mode." + _WRAP_DOC)
+    G: list[Matrix] = Field(description="One n x m matrix per plant mode." + _WRAP_DOC)
+
+    _single_F = field_validator("F", mode="before")(_one_error_for_single_matrix("F", "n x n matrices, one per plant mode"))
+    _single_G = field_validator("G", mode="before")(_one_error_for_single_matrix("G", "n x m matrices, one per plant mode"))
     sampling_period: Number | None = Field(
         None, gt=0, description="Optional sampling period (s), only used to label time axes."
     )
+    state_names: list[Name] | None
+    input_names: list[Name] | None
+    units: dict[Name, Unit] | None
+    state_names, input_names, units = _labels()
 
 
 class DcMotorPlant(_Strict):
@@ -58,19 +116,28 @@ class DcMotorPlant(_Strict):
     differ from Table I; to reproduce the paper exactly, send eq. 19 as a `continuous` plant.
     """
 
-    kind: Literal["dc_motor"]
+    kind: Literal["dc_motor"] = Field(description="`dc_motor`: built from physical parameters; states i_a (A), "
+                                      "omega (rad/s), input v_a (V) unless named otherwise.")
     inertias: list[Annotated[Number, Field(gt=0)]] = Field(
         description="Moment of inertia J per plant mode (kg m^2).", min_length=1
     )
     sampling_period: Number = Field(gt=0, description="Sampling period h in seconds.")
     resistance: Number = Field(2.0, gt=0, description="Armature resistance R (ohm).")
     inductance: Number = Field(0.5, gt=0, description="Armature inductance L (H).")
-    torque_constant: Number = Field(0.15, description="Torque constant K_m.")
-    back_emf_constant: Number = Field(0.15, description="Back-EMF constant K_b.")
-    damping: Number = Field(0.2, ge=0, description="Viscous damping B.")
+    torque_constant: Number = Field(0.15, description="Torque constant K_m (N m/A).")
+    back_emf_constant: Number = Field(0.15, description="Back-EMF constant K_b (V s/rad).")
+    damping: Number = Field(0.2, ge=0, description="Viscous damping B (N m s/rad).")
+    state_names: list[Name] | None
+    input_names: list[Name] | None
+    units: dict[Name, Unit] | None
+    state_names, input_names, units = _labels()
 
 
-Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(discriminator="kind")]
+Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(
+    discriminator="kind",
+    description="The switched plant family, one of three kinds chosen by `kind`: `continuous` (A, B per mode and "
+                "a sampling period: zero-order hold), `discrete` (F, G per mode) or `dc_motor` (the paper's motor "
+                "from physical parameters, one mode per inertia). Optional `state_names`, `input_names`, `units`.")]
 
 
 class DesignOptions(_Strict):
@@ -91,33 +158,47 @@ class DesignOptions(_Strict):
     )
 
 
+#: A user's label of a job: shown in job listings; printable text, at most 200 characters.
+Label = Annotated[str, StringConstraints(min_length=1, max_length=200, pattern=r"^[^\x00-\x1f\x7f]*$")]
+_LABEL = dict(description="Your name for the job (at most 200 printable characters, no control characters); "
+                          "shown in job listings.", examples=["motor rig A, h = 0.1 s"])
+
+
 class DesignRequest(_Strict):
+    label: Label | None = Field(None, **_LABEL)
     plant: Plant
     n_drop: Int = Field(3, ge=1, description="N_drop: at most n_drop - 1 consecutive losses.")
     method: MethodName = Field(
         "lmi", description="`lmi`: exact convex design (one SDP); `ccl`: the paper's cone "
         "complementarity linearization (iterative, reports progress)."
     )
-    options: DesignOptions = Field(default_factory=DesignOptions)
+    options: DesignOptions = Field(default_factory=DesignOptions, description="Solver and design options.")
+
+
+_single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
 
 
 class SimulationRequest(_Strict):
     plant: Plant
-    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n.")
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
+    _single = field_validator("gains", mode="before")(_single_gains)
     n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
     x0: Vector = Field(description="Initial state (length n).")
-    steps: Int = Field(100, ge=1)
-    seed: Int = Field(42, ge=0)
-    loss_model: Literal["paper", "bernoulli"] = "paper"
-    sensor_loss: Number = Field(0.2, ge=0, lt=1)
-    control_loss: Number = Field(0.2, ge=0, lt=1)
-    plant_switching: Literal["per_interval", "per_sample", "none"] = "per_interval"
+    steps: Int = Field(100, ge=1, description="Samples to simulate.")
+    seed: Int = Field(42, ge=0, description="Seed of the losses and plant jumps: same seed, same run.")
+    loss_model: Literal["paper", "bernoulli"] = Field("paper", description="`paper`: the paper's loss process; "
+                                                      "`bernoulli`: independent losses.")
+    sensor_loss: Number = Field(0.2, ge=0, lt=1, description="Sensor packet loss probability per sample.")
+    control_loss: Number = Field(0.2, ge=0, lt=1, description="Control packet loss probability per sample.")
+    plant_switching: Literal["per_interval", "per_sample", "none"] = Field(
+        "per_interval", description="When the plant mode may jump (`none`: fixed `mode`).")
     mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
 
 
 class AnalysisRequest(_Strict):
     plant: Plant
-    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n.")
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
+    _single = field_validator("gains", mode="before")(_single_gains)
     n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
     max_product_length: Int | None = Field(
         None, ge=1, le=8, description="Longest mode product searched for a destabilizing pattern "
@@ -134,12 +215,13 @@ class AnalysisRequest(_Strict):
 
 class GridPoint(_Strict):
     sampling_period: Number = Field(gt=0, description="h in seconds.")
-    n_drop: Int = Field(ge=1)
+    n_drop: Int = Field(ge=1, description="N at this point.")
 
 
 class MarginRequest(_Strict):
     """A stability-margin job: many designs in the worker pool, with progress and cancel."""
 
+    label: Label | None = Field(None, **_LABEL)
     plant: Plant
     search: Literal["n_drop", "sampling_period", "grid"] = Field(
         description="`n_drop`: the largest drop bound with a design (n_drop = 1, 2, ... up to `n_drop_max`); "
@@ -153,4 +235,4 @@ class MarginRequest(_Strict):
     h_max: Number = Field(2.0, gt=0, description="Largest sampling period tried (s).")
     tol: Number = Field(1e-3, gt=0, description="Tolerance of the bisection on h (s).")
     points: list[GridPoint] | None = Field(None, description="The (h, n_drop) pairs of a `grid`.")
-    options: DesignOptions = Field(default_factory=DesignOptions)
+    options: DesignOptions = Field(default_factory=DesignOptions, description="Solver and design options.")

@@ -45,40 +45,29 @@ def build_family(plant: dict[str, Any]):
 
 
 def _build_family(plant: dict[str, Any]):
+    """The library's family from the plant JSON (names and units included: ``PlantFamily.from_dict``)."""
     from solver import PlantFamily
 
-    kind = plant["kind"]
-    if kind == "continuous":
-        return PlantFamily.from_continuous(
-            A=[np.asarray(a, dtype=float) for a in plant["A"]],
-            B=[np.asarray(b, dtype=float) for b in plant["B"]],
-            sampling_period=plant["sampling_period"],
-        )
-    if kind == "discrete":
-        return PlantFamily(
-            F=[np.asarray(f, dtype=float) for f in plant["F"]],
-            G=[np.asarray(g, dtype=float) for g in plant["G"]],
-            sampling_period=plant.get("sampling_period"),
-        )
-    if kind == "dc_motor":
-        return PlantFamily.dc_motor(
-            inertias=list(plant["inertias"]),
-            sampling_period=plant["sampling_period"],
-            resistance=plant["resistance"],
-            inductance=plant["inductance"],
-            torque_constant=plant["torque_constant"],
-            back_emf_constant=plant["back_emf_constant"],
-            damping=plant["damping"],
-        )
-    raise ValueError(f"unknown plant kind {kind!r}")
+    if plant.get("kind") not in ("continuous", "discrete", "dc_motor"):
+        raise ValueError(f"unknown plant kind {plant.get('kind')!r}")
+    if plant["kind"] == "dc_motor" and plant.get("units") is None and (plant.get("state_names")
+                                                                        or plant.get("input_names")):
+        plant = {**plant, "units": {}}  # renamed: the motor's default units name states that no longer exist
+    return PlantFamily.from_dict(plant)
 
 
 def _family_matrices(fam) -> dict[str, Any]:
-    return {
+    out = {
         "F": jsonable(np.asarray(fam.F)),
         "G": jsonable(np.asarray(fam.G)),
         "sampling_period": fam.sampling_period,
     }
+    for key in ("state_names", "input_names"):
+        if getattr(fam, key, None) is not None:
+            out[key] = list(getattr(fam, key))
+    if getattr(fam, "units", None):
+        out["units"] = dict(fam.units)
+    return out
 
 
 def record_to_dict(record: Any) -> dict[str, Any]:
@@ -98,6 +87,21 @@ def record_to_dict(record: Any) -> dict[str, Any]:
     return jsonable({k: d.get(k) for k in keep})
 
 
+def per_second(rate: Any, sampling_period: float | None) -> float | None:
+    """A per-sample rate lambda as the factor per second, ``lambda^(1/h)``; None without h."""
+    if rate is None or not sampling_period or not isinstance(rate, (int, float)) or rate < 0:
+        return None
+    return jsonable(float(rate) ** (1.0 / float(sampling_period)))
+
+
+def add_per_second_rates(out: dict[str, Any], sampling_period: float | None) -> dict[str, Any]:
+    """``decay_rate_per_second`` next to every ``decay_rate`` of a result and of its certificate."""
+    for d in (out, out.get("certificate") or {}):
+        if "decay_rate" in d:
+            d["decay_rate_per_second"] = per_second(d.get("decay_rate"), sampling_period)
+    return out
+
+
 def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
     """Run one design job; returns the job's JSON result."""
     from solver import design
@@ -110,7 +114,7 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
-    return out
+    return add_per_second_rates(out, fam.sampling_period)
 
 
 def design_options(options) -> dict[str, Any]:
@@ -137,7 +141,10 @@ def run_margin(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     else:
         res = design_grid(fam, [(p.sampling_period, p.n_drop) for p in req.points], req.method,
                           callback=callback, **kwargs)
-    return jsonable(res.to_dict())
+    out = jsonable(res.to_dict())
+    if out.get("design"):
+        add_per_second_rates(out["design"], fam.sampling_period if req.search != "sampling_period" else None)
+    return out
 
 
 def run_job(request: dict[str, Any], callback: Callable[[Any], bool] | None = None) -> dict[str, Any]:
@@ -200,7 +207,7 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
         if req.get(key) is not None:
             kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
-    return jsonable(rep.to_dict())
+    return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
@@ -217,7 +224,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
     titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
-    return render(trace_figure(runs, titles, **size), fmt)
+    return render(trace_figure(runs, titles, family=fam, **size), fmt)
 
 
 def run_margin_plot(result: dict[str, Any], fmt: str, size: dict[str, Any]) -> bytes:
@@ -228,6 +235,15 @@ def run_margin_plot(result: dict[str, Any], fmt: str, size: dict[str, Any]) -> b
     res = MarginResult(kind=result["kind"], margin=result["margin"], design=None, curve=result["curve"],
                        method=result["method"])
     return render(margin_figure(res, **size), fmt)
+
+
+def run_gains_file(result: dict[str, Any], fmt: str, name: str) -> bytes:
+    """A design result as a MATLAB ``.mat`` file or an Octave/MATLAB ``.m`` script (``solver.matlab``)."""
+    from solver.matlab import m_script, mat_bytes
+
+    if fmt == "mat":
+        return mat_bytes(result)
+    return m_script(result, name=name).encode()
 
 
 def warm_up() -> None:

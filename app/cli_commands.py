@@ -1,0 +1,300 @@
+"""``ncs-design design | analyze | simulate``: the CLI's computing commands (see :mod:`app.cli`).
+
+In-process they call the solver library directly (no service, no web framework imported); with
+``--server URL`` they go through :class:`app.client.Client`.  Results print as a short human
+summary on stdout; ``--output`` writes machine formats.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+EXIT_OK, EXIT_NO, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+
+
+class UsageError(Exception):
+    """Bad usage or input: printed as one line, exit 2."""
+
+
+def jsonable(obj):
+    """Plain JSON values: arrays to lists, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if hasattr(obj, "to_dict"):
+        return jsonable(obj.to_dict())
+    return obj
+
+
+# --------------------------------------------------------------------------------------------- files
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except OSError as exc:
+        raise UsageError(f"cannot read {path}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{path} is not valid JSON: {exc}") from None
+
+
+def load_plant(path: str, sampling_period: float | None = None):
+    """A PlantFamily from a plant file (.json: the service's plant JSON or a request holding one; .mat)."""
+    from solver.plant import PlantFamily
+
+    p = Path(path)
+    if not p.exists():
+        raise UsageError(f"plant file {path} does not exist")
+    if p.suffix.lower() == ".mat":
+        from solver.matlab import plant_from_mat
+
+        return plant_from_mat(str(p), sampling_period=sampling_period)
+    data = _read_json(p)
+    if isinstance(data, dict) and isinstance(data.get("plant"), dict):
+        data = data["plant"]  # a whole design request
+    fam = PlantFamily.from_dict(data, sampling_period=sampling_period)
+    return fam if fam.name else _renamed(fam, p.stem)
+
+
+def _renamed(fam, name: str):
+    from dataclasses import replace
+
+    return replace(fam, name=name)
+
+
+def load_gains(path: str) -> np.ndarray:
+    """Gains (n_drop, m, n) from a JSON result/list or a .mat file with K or K1..KN."""
+    p = Path(path)
+    if not p.exists():
+        raise UsageError(f"gains file {path} does not exist")
+    if p.suffix.lower() == ".mat":
+        import scipy.io
+
+        try:
+            d = scipy.io.loadmat(str(p))
+        except Exception as exc:
+            raise UsageError(f"{path} is not a readable .mat file: {exc}") from None
+        if "K" in d and np.asarray(d["K"]).ndim == 3:
+            return np.asarray(d["K"], dtype=float)
+        ks = []
+        while f"K{len(ks) + 1}" in d:
+            ks.append(np.asarray(d[f"K{len(ks) + 1}"], dtype=float))
+        if not ks:
+            raise UsageError(f"{path} has neither K (n_drop x m x n) nor K1, K2, ...")
+        return np.stack(ks)
+    data = _read_json(p)
+    if isinstance(data, dict):  # a design result, or a whole job holding one
+        data = (data["result"] if isinstance(data.get("result"), dict) else data).get("gains")
+    if data is None:
+        raise UsageError(f"{path} has no gains (an infeasible design?)")
+    try:
+        return np.asarray(data, dtype=float)
+    except (TypeError, ValueError):
+        raise UsageError(f"{path}: gains must be a list of n_drop matrices m x n") from None
+
+
+def _parse_decay_rate(text: str | None):
+    if text is None or text == "max":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise UsageError(f"--decay-rate must be a number in (0, 1] or 'max', got {text!r}") from None
+
+
+# ------------------------------------------------------------------------------------------- summary
+def _fmt_matrix(M) -> str:
+    M = np.atleast_2d(np.asarray(M, dtype=float))
+    return "[" + "; ".join(" ".join(f"{v:.6g}" for v in row) for row in M) + "]"
+
+
+def plant_summary(fam) -> str:
+    h = f"h = {fam.sampling_period:g} s" if fam.sampling_period is not None else "no sampling period"
+    names = ""
+    if fam.state_names:
+        names = "; x = [" + ", ".join(fam.state_label(i) for i in range(fam.n_states)) + "]"
+    if fam.input_names:
+        names += ", u = [" + ", ".join(fam.input_label(j) for j in range(fam.n_inputs)) + "]"
+    return (f"plant {fam.name or ''}: r = {fam.n_modes} modes, n = {fam.n_states} states, "
+            f"m = {fam.n_inputs} inputs, {h}{names}").replace("plant :", "plant:")
+
+
+def design_summary(result: dict) -> list[str]:
+    lines = [f"design: method {result.get('method')}, n_drop = {result['n_drop']}: {result['outcome']}"]
+    cert = result.get("certificate")
+    if cert:
+        lines.append(f"certificate: {cert.get('kind')}, {'verified' if cert.get('verified') else 'NOT verified'}, "
+                     f"relative margin {cert.get('margin'):.3g} (decrease / lambda_max(P))")
+    if result.get("max_spectral_radius") is not None:
+        lines.append(f"max spectral radius of the interval closed loops: {result['max_spectral_radius']:.4g}")
+    if result.get("decay_rate") is not None:
+        lines.append(f"certified decay rate: {result['decay_rate']:.4g} per sample")
+    for q, K in enumerate(result.get("gains") or []):
+        lines.append(f"K_{q + 1} = {_fmt_matrix(K)}")
+    if result.get("message"):
+        lines.append(f"message: {result['message']}")
+    return lines
+
+
+# ------------------------------------------------------------------------------------------ commands
+def _client(args):
+    from app.client import Client
+
+    return Client(args.server, api_key=args.api_key)
+
+
+def cmd_design(args) -> int:
+    fam = load_plant(args.plant, args.sampling_period)
+    decay_rate = _parse_decay_rate(args.decay_rate)
+    options = {k: v for k, v in (("decay_rate", decay_rate), ("plant_switching", args.plant_switching),
+                                 ("scheme", args.scheme)) if v is not None}
+    suffix = Path(args.output).suffix.lower() if args.output else None
+    if suffix not in (None, ".json", ".mat", ".m"):
+        raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
+    print(plant_summary(fam))
+    if args.server:
+        with _client(args) as c:
+            result = c.design(fam, n_drop=args.n_drop, method=args.method, **options).raw
+    else:
+        from solver import design
+
+        res = design(fam, n_drop=args.n_drop, method=args.method, **options)
+        result = jsonable(res.to_dict())
+        result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
+    print("\n".join(design_summary(result)))
+    if args.output:
+        _write_design(args.output, suffix, result, fam)
+        print(f"wrote {args.output}")
+    return EXIT_OK if result["outcome"] == "stabilized" else EXIT_NO
+
+
+def _write_design(path: str, suffix: str, result: dict, fam) -> None:
+    from solver.matlab import m_script, save_mat
+
+    if suffix == ".json":
+        Path(path).write_text(json.dumps(result, indent=1, allow_nan=False) + "\n")
+    elif suffix == ".mat":
+        save_mat(path, result, fam)
+    else:
+        Path(path).write_text(m_script(result, fam, name=Path(path).stem))
+
+
+def cmd_analyze(args) -> int:
+    fam = load_plant(args.plant, args.sampling_period)
+    gains = load_gains(args.gains)
+    n_drop = args.n_drop or len(gains)
+    kwargs = {"plant_switching": args.plant_switching} if args.plant_switching else {}
+    print(plant_summary(fam))
+    if args.server:
+        with _client(args) as c:
+            report = c.analyze(fam, gains, n_drop, **kwargs).raw
+    else:
+        from solver import analyze
+
+        report = jsonable(analyze(fam, gains, n_drop=n_drop, **kwargs).to_dict())
+    verdict = {True: "stable (certified)", False: "UNSTABLE", None: "unknown"}[report["stable"]]
+    print(f"analysis, n_drop = {n_drop}: {verdict}: {report.get('reason', '')}")
+    print(f"max spectral radius of the interval closed loops: {report['max_spectral_radius']:.4g}")
+    if report.get("margin") is not None:
+        print(f"certificate relative margin: {report['margin']:.3g}")
+    if report.get("decay_rate") is not None:
+        print(f"best certified decay rate: {report['decay_rate']:.4g} per sample")
+    if args.output:
+        Path(args.output).write_text(json.dumps(report, indent=1) + "\n")
+        print(f"wrote {args.output}")
+    return EXIT_OK if report["stable"] is True else EXIT_NO
+
+
+def cmd_simulate(args) -> int:
+    fam = load_plant(args.plant, args.sampling_period)
+    gains = load_gains(args.gains)
+    n_drop = args.n_drop or len(gains)
+    if args.x0 is None:
+        x0 = [1.0] * fam.n_states
+    else:
+        try:
+            x0 = [float(v) for v in args.x0.split(",")]
+        except ValueError:
+            raise UsageError(f"--x0 must be comma-separated numbers, e.g. --x0 1,-0.5, got {args.x0!r}") from None
+    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".svg"):
+        raise UsageError(f"--plot must end in .png or .svg, got {args.plot!r}")
+    opts = dict(steps=args.steps, seed=args.seed, plant_switching=args.plant_switching, mode=args.mode)
+    print(plant_summary(fam))
+    if args.server:
+        with _client(args) as c:
+            run = c.simulate(fam, gains, x0, n_drop, **{k: v for k, v in opts.items() if v is not None})
+        data = run.raw
+    else:
+        from solver import simulate
+
+        run = simulate(fam, gains, n_drop, x0=x0, **opts)
+        data = jsonable(run.to_dict())
+    lost = int(np.sum(~np.asarray(run.effective)))
+    peak = float(np.max(np.linalg.norm(run.state, axis=1)))
+    print(f"simulated {args.steps} samples (seed {args.seed}): {lost} without a new packet; "
+          f"|x| from {np.linalg.norm(run.state[0]):.4g} (peak {peak:.4g}) to {np.linalg.norm(run.state[-1]):.4g}")
+    if args.output:
+        Path(args.output).write_text(json.dumps(data) + "\n")
+        print(f"wrote {args.output}")
+    if args.plot:
+        from solver.plotting import render, trace_figure
+
+        Path(args.plot).write_bytes(render(trace_figure([run], [f"{args.plant_switching} plant switching"],
+                                                        family=fam), Path(args.plot).suffix[1:].lower()))
+        print(f"wrote {args.plot}")
+    return EXIT_OK
+
+
+COMMANDS = {"design": cmd_design, "analyze": cmd_analyze, "simulate": cmd_simulate}
+
+
+def run_command(args) -> int:
+    """Run a computing command; bad input becomes one line on stderr and exit 2, never a traceback."""
+    from solver.errors import InvalidInput, SolverFailed
+
+    try:
+        from app.client import JobFailed, ServiceError
+    except ImportError:  # pragma: no cover - httpx missing: only --server needs it
+        JobFailed = ServiceError = ()  # type: ignore[assignment]
+    try:
+        return COMMANDS[args.command](args)
+    except UsageError as exc:
+        print(f"ncs-design {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except InvalidInput as exc:
+        where = ".".join(str(f) for f in exc.field)
+        print(f"ncs-design {args.command}: invalid input{' (' + where + ')' if where else ''}: {exc}",
+              file=sys.stderr)
+        return EXIT_USAGE
+    except ServiceError as exc:
+        one_line = str(exc).replace("\n", ";")
+        print(f"ncs-design {args.command}: the service refused the request: {one_line}", file=sys.stderr)
+        return EXIT_USAGE if 400 <= exc.status < 500 else EXIT_FAILED
+    except JobFailed as exc:
+        print(f"ncs-design {args.command}: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except SolverFailed as exc:
+        print(f"ncs-design {args.command}: the solver failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except OSError as exc:  # connection refused, unwritable output, ...
+        print(f"ncs-design {args.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except Exception as exc:
+        import httpx
+
+        if isinstance(exc, httpx.HTTPError):
+            print(f"ncs-design {args.command}: cannot reach {args.server}: {exc}", file=sys.stderr)
+            return EXIT_FAILED
+        raise

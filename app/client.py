@@ -1,0 +1,599 @@
+"""A synchronous Python client of the ncs-design service (httpx; no FastAPI needed).
+
+    from app.client import Client
+
+    with Client("http://127.0.0.1:8000", api_key="...") as c:
+        res = c.design(plant, n_drop=3)          # waits for the job, returns a DesignResult
+        res.gains                                # ndarray (n_drop, m, n), gains[q-1] = K_q
+
+``plant`` may be a :class:`solver.PlantFamily`, a list of python-control ``StateSpace`` objects
+(one per plant mode; continuous ones need ``sampling_period=``) or the service's plant JSON as a
+dict (``{"kind": "continuous", "A": [...], "B": [...], "sampling_period": 0.1}``, ``"discrete"`` with
+``F``/``G`` or ``"dc_motor"`` with ``inertias``).  Errors of the service raise :class:`ServiceError`
+carrying its ``application/problem+json`` body.
+
+Jobs are submitted with an ``Idempotency-Key`` (so a retried submission never makes a second job)
+and ``Prefer: wait=N`` (RFC 7240: a server that supports it answers once the job is done or N
+seconds have passed); the client then polls ``GET /v1/designs/{id}`` with backoff until the job ends.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import httpx
+import numpy as np
+
+__all__ = ["Client", "ServiceError", "JobFailed", "Job", "DesignResult", "AnalysisResult", "SimulationResult",
+           "MarginResult", "plant_json"]
+
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+
+# ----------------------------------------------------------------------------------------- errors
+class ServiceError(Exception):
+    """An error answer of the service (RFC 9457 problem details).
+
+    Attributes
+    ----------
+    status : int
+        HTTP status.
+    title, detail, type : str or None
+    errors : list of dict
+        For 422: one entry per bad field, each with ``loc``, ``pointer``, ``msg``, ``type``.
+    problem : dict
+        The whole problem+json body (or ``{"detail": text}`` when the body was not JSON).
+    """
+
+    def __init__(self, status: int, problem: dict):
+        self.status = status
+        self.problem = problem
+        self.title = problem.get("title")
+        self.detail = problem.get("detail")
+        self.type = problem.get("type")
+        self.errors = list(problem.get("errors") or [])
+        lines = [f"{status} {self.title or 'error'}" + (f": {self.detail}" if self.detail else "")]
+        lines += [f"  {e.get('pointer') or e.get('loc')}: {e.get('msg')}" for e in self.errors]
+        super().__init__("\n".join(lines))
+
+
+class JobFailed(Exception):
+    """A job ended ``failed`` or ``cancelled`` (``job.error`` says why)."""
+
+    def __init__(self, job: "Job"):
+        self.job = job
+        super().__init__(f"job {job.id} {job.status}" + (f": {job.error}" if job.error else ""))
+
+
+# ------------------------------------------------------------------------------------------ results
+def _array(value) -> np.ndarray | None:
+    return None if value is None else np.asarray(value, dtype=float)
+
+
+@dataclass
+class Job:
+    """A design or margin job as the service reports it.
+
+    Attributes
+    ----------
+    id : str
+    status : {"queued", "running", "succeeded", "failed", "cancelled"}
+    method : str
+    n_drop : int
+    outcome : str or None
+        The design's outcome once succeeded.
+    error : str or None
+    progress : dict or None
+        Latest progress (iteration, objective, ... or step/total for margin jobs).
+    result : dict or None
+        The raw JSON result (see :class:`DesignResult` / :class:`MarginResult` for typed views).
+    label : str or None
+        The label given at submission.
+    plant : dict or None
+        Plant summary: ``kind``, ``n`` states, ``m`` inputs, ``r`` plant modes, ``sampling_period`` (s).
+    margin : int or float or None
+        Margin jobs, once succeeded: the largest n_drop (a count) or sampling period (s), see ``margin_kind``.
+    margin_kind : str or None
+        Margin jobs: ``n_drop``, ``sampling_period`` or ``grid``.
+    links : dict
+        Related URLs (``self``, ``events``, ``trace``, ``gains_mat``, ``gains_m``, ``curve``).
+    raw : dict
+        The whole JSON answer (``DesignJob`` / ``MarginJob`` / ``JobSummary`` in ``/openapi.json``).
+    """
+
+    id: str
+    status: str
+    method: str
+    n_drop: int
+    outcome: str | None = None
+    error: str | None = None
+    progress: dict | None = None
+    result: dict | None = None
+    label: str | None = None
+    plant: dict | None = None
+    margin: float | None = None
+    margin_kind: str | None = None
+    links: dict = field(default_factory=dict, repr=False)
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "Job":
+        return cls(id=data["id"], status=data["status"], method=data.get("method", ""),
+                   n_drop=data.get("n_drop", 0), outcome=data.get("outcome"), error=data.get("error"),
+                   progress=data.get("progress"), result=data.get("result"), label=data.get("label"),
+                   plant=data.get("plant"), margin=data.get("margin"), margin_kind=data.get("margin_kind"),
+                   links=data.get("links") or {}, raw=data)
+
+    @property
+    def done(self) -> bool:
+        return self.status in TERMINAL
+
+
+@dataclass
+class DesignResult:
+    """A finished design.
+
+    Attributes
+    ----------
+    outcome : {"stabilized", "infeasible", "not_converged"}
+        ``stabilized`` only with a certificate that passed the service's float64 re-check.
+    gains : ndarray, shape (n_drop, m, n), or None
+        ``gains[q-1] = K_q``: after an effective packet at ``i_m`` the buffer plays
+        ``u(i_m + q - 1) = K_q x(i_m)``.
+    certificate : dict or None
+        ``kind`` (``common_quadratic`` or ``switched``: stability proofs; ``farkas`` or ``uncontrollable``:
+        proofs that no design exists), ``verified``, ``margin`` (relative decrease,
+        ``decrease / lambda_max(P)``), ``P``, ``X``, ... (``Certificate`` in ``/openapi.json``).
+    message : str
+    n_drop : int
+    method : str
+    spectral_radii : ndarray or None
+        Spectral radius of each interval closed loop, shape (r, n_drop) per interval switching.
+    F, G : ndarray or None
+        The discretized plant, shapes (r, n, n) and (r, n, m).
+    sampling_period : float or None
+        h in seconds.
+    decay_rate : float or None
+        Per-sample rate lambda the certificate proves, when one was asked for.
+    decay_rate_per_second : float or None
+        The same per second, ``lambda^(1/h)``.
+    state_names, input_names : list of str or None
+    units : dict or None
+        Names and units of the plant's states and inputs.
+    job_id : str or None
+        The service job (None for an in-process design).
+    raw : dict
+        The JSON result (``DesignResult`` in ``/openapi.json``).
+    """
+
+    outcome: str
+    gains: np.ndarray | None
+    certificate: dict | None
+    message: str
+    n_drop: int
+    method: str
+    spectral_radii: np.ndarray | None = None
+    F: np.ndarray | None = None
+    G: np.ndarray | None = None
+    sampling_period: float | None = None
+    decay_rate: float | None = None
+    decay_rate_per_second: float | None = None
+    state_names: list | None = None
+    input_names: list | None = None
+    units: dict | None = None
+    job_id: str | None = None
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, result: dict, job_id: str | None = None) -> "DesignResult":
+        return cls(outcome=result["outcome"], gains=_array(result.get("gains")),
+                   certificate=result.get("certificate"), message=result.get("message", ""),
+                   n_drop=int(result["n_drop"]), method=result.get("method", ""),
+                   spectral_radii=_array(result.get("spectral_radii")), F=_array(result.get("F")),
+                   G=_array(result.get("G")), sampling_period=result.get("sampling_period"),
+                   decay_rate=result.get("decay_rate"), decay_rate_per_second=result.get("decay_rate_per_second"),
+                   state_names=result.get("state_names"), input_names=result.get("input_names"),
+                   units=result.get("units"), job_id=job_id, raw=result)
+
+    @property
+    def success(self) -> bool:
+        return self.outcome == "stabilized"
+
+    @property
+    def max_spectral_radius(self) -> float | None:
+        return None if self.spectral_radii is None else float(np.max(self.spectral_radii))
+
+    def to_json(self) -> dict:
+        """The JSON result (what the service returned)."""
+        return self.raw
+
+    def plant_family(self):
+        """The designed (discretized) plant as a :class:`solver.PlantFamily`, e.g. for
+        ``solver.control_interop.closed_loop_systems(res.plant_family(), res.gains)``."""
+        from solver.plant import PlantFamily
+
+        labels = {k: self.raw[k] for k in ("state_names", "input_names", "units") if self.raw.get(k) is not None}
+        return PlantFamily(F=self.F, G=self.G, sampling_period=self.sampling_period, **labels)
+
+
+@dataclass
+class AnalysisResult:
+    """An analysis of given gains.
+
+    Attributes
+    ----------
+    stable : bool or None
+        True: certified by a re-checked Lyapunov certificate; False: a mode product is unstable;
+        None: unknown.
+    reason : str
+    spectral_radii : ndarray
+    max_spectral_radius : float
+    certificate : dict or None
+    decay_rate : float or None
+        Best certified per-sample decay rate.
+    decay_rate_per_second : float or None
+        The same per second, ``lambda^(1/h)``.
+    raw : dict
+        The JSON report (``AnalysisReport`` in ``/openapi.json``).
+    """
+
+    stable: bool | None
+    reason: str
+    spectral_radii: np.ndarray
+    max_spectral_radius: float
+    certificate: dict | None
+    decay_rate: float | None
+    decay_rate_per_second: float | None = None
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "AnalysisResult":
+        return cls(stable=data.get("stable"), reason=data.get("reason", ""),
+                   spectral_radii=np.asarray(data.get("spectral_radii"), dtype=float),
+                   max_spectral_radius=data.get("max_spectral_radius"), certificate=data.get("certificate"),
+                   decay_rate=data.get("decay_rate"), decay_rate_per_second=data.get("decay_rate_per_second"),
+                   raw=data)
+
+
+@dataclass
+class SimulationResult:
+    """A seeded simulated run; arrays are indexed by sample k.
+
+    Attributes
+    ----------
+    time : ndarray, shape (steps + 1,)
+        Seconds (samples when the plant has no sampling period).
+    state : ndarray, shape (steps + 1, n)
+    input : ndarray, shape (steps, m)
+    mode : ndarray of int, shape (steps,)
+        Plant mode (0-based) over [k, k+1).
+    effective : ndarray of bool, shape (steps,)
+        A new packet reached the buffer at k.
+    per_mode : list of SimulationResult
+        For a design's trace: one run per fixed plant mode (same losses).
+    raw : dict
+    """
+
+    time: np.ndarray
+    state: np.ndarray
+    input: np.ndarray
+    mode: np.ndarray
+    effective: np.ndarray
+    per_mode: list = field(default_factory=list)
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "SimulationResult":
+        return cls(time=np.asarray(data["t"], dtype=float), state=np.asarray(data["x"], dtype=float),
+                   input=np.asarray(data["u"], dtype=float), mode=np.asarray(data["mode"], dtype=int),
+                   effective=np.asarray(data["effective"], dtype=bool),
+                   per_mode=[cls.from_json(run) for run in data.get("per_mode") or []], raw=data)
+
+
+@dataclass
+class MarginResult:
+    """A finished margin search.
+
+    Attributes
+    ----------
+    kind : {"n_drop", "sampling_period", "grid"}
+    margin : float or int or None
+        The largest n_drop, or the largest sampling period in seconds, with a stabilizing design.
+    curve : list of dict
+        Every point tried with its outcome and max spectral radius.
+    method : str
+    raw : dict
+    """
+
+    kind: str
+    margin: float | None
+    curve: list
+    method: str
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "MarginResult":
+        return cls(kind=data["kind"], margin=data.get("margin"), curve=list(data.get("curve") or []),
+                   method=data.get("method", ""), raw=data)
+
+
+# -------------------------------------------------------------------------------------------- plants
+def _is_family(obj) -> bool:
+    return all(hasattr(obj, a) for a in ("F", "G", "n_modes", "sampling_period"))
+
+
+def plant_json(plant, sampling_period: float | None = None) -> dict:
+    """The service's plant JSON for a PlantFamily, python-control systems or a plant dict.
+
+    A family that was discretized from continuous matrices is sent as ``continuous`` (so margin
+    searches over the sampling period can re-discretize it), any other as ``discrete``.
+
+    Raises
+    ------
+    TypeError
+        For anything else, saying what is accepted.
+    """
+    if isinstance(plant, dict):
+        return plant
+    if not _is_family(plant):
+        systems = plant if isinstance(plant, (list, tuple)) else [plant]
+        if systems and all(hasattr(s, "state_labels") and hasattr(s, "dt") for s in systems):
+            from solver.plant import PlantFamily
+
+            plant = PlantFamily.from_statespace(list(systems), sampling_period=sampling_period)
+        else:
+            raise TypeError("plant must be a solver.PlantFamily, a list of control.StateSpace (one per plant "
+                            "mode) or the service's plant JSON as a dict")
+    if plant.A is not None and plant.sampling_period is not None:
+        out = {"kind": "continuous", "A": np.asarray(plant.A).tolist(), "B": np.asarray(plant.B).tolist(),
+               "sampling_period": plant.sampling_period}
+    else:
+        out = {"kind": "discrete", "F": np.asarray(plant.F).tolist(), "G": np.asarray(plant.G).tolist()}
+        if plant.sampling_period is not None:
+            out["sampling_period"] = plant.sampling_period
+    # names and units travel too: the service's figures and exports label states and inputs with them
+    for key in ("state_names", "input_names"):
+        if getattr(plant, key, None) is not None:
+            out[key] = list(getattr(plant, key))
+    if getattr(plant, "units", None):
+        out["units"] = dict(plant.units)
+    return out
+
+
+def _gains_json(gains) -> list:
+    return np.asarray(gains, dtype=float).tolist()
+
+
+# --------------------------------------------------------------------------------------------- client
+class Client:
+    """Synchronous client of the ncs-design HTTP API (``/v1``).
+
+    Parameters
+    ----------
+    base_url : str
+        E.g. ``"http://127.0.0.1:8000"``.
+    api_key : str, optional
+        Sent as ``X-API-Key`` (needed when the service has ``NCS_API_KEYS``).
+    timeout : float, default 30
+        Seconds for one HTTP request (waiting for a job is not bounded by it).
+    poll_interval : float, default 0.1
+        First pause between polls of a running job (s); it doubles up to ``max_poll_interval``.
+    max_poll_interval : float, default 2
+    http_client : httpx.Client, optional
+        A ready client to send requests with (e.g. a Starlette ``TestClient``); ``base_url``
+        is then only used to build URLs.
+    """
+
+    def __init__(self, base_url: str, api_key: str | None = None, timeout: float = 30.0, *,
+                 poll_interval: float = 0.1, max_poll_interval: float = 2.0,
+                 http_client: httpx.Client | None = None):
+        headers = {"Accept": "application/json", "User-Agent": "ncs-design-client"}
+        if api_key:
+            headers["X-API-Key"] = api_key
+        self._owns_http = http_client is None
+        self._http = http_client or httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout)
+        self._headers = headers
+        self.base_url = base_url.rstrip("/")
+        self.poll_interval = poll_interval
+        self.max_poll_interval = max_poll_interval
+
+    # -- plumbing
+    def close(self) -> None:
+        if self._owns_http:
+            self._http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _request(self, method: str, path: str, *, json: Any = None, params: dict | None = None,
+                 headers: dict | None = None) -> httpx.Response:
+        url = path if self._owns_http else self.base_url + path
+        resp = self._http.request(method, url, json=json, params=params, headers={**self._headers, **(headers or {})})
+        if resp.status_code >= 400:
+            try:
+                problem = resp.json()
+                if not isinstance(problem, dict):
+                    problem = {"detail": str(problem)}
+            except ValueError:
+                problem = {"detail": resp.text[:500] or resp.reason_phrase}
+            raise ServiceError(resp.status_code, problem)
+        return resp
+
+    @staticmethod
+    def _prefer(wait) -> dict:
+        if wait is True:
+            return {"Prefer": "wait=10"}
+        if wait and wait is not False:
+            return {"Prefer": f"wait={max(1, int(min(float(wait), 60)))}"}
+        return {}
+
+    def _wait(self, kind: str, job: Job, wait) -> Job:
+        """Poll until the job ends (``wait=True``) or ``wait`` seconds pass (then TimeoutError)."""
+        deadline = None if wait is True else time.monotonic() + float(wait)
+        pause = self.poll_interval
+        while not job.done:
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                raise TimeoutError(f"job {job.id} still {job.status} after {wait} s")
+            time.sleep(pause if left is None else min(pause, left))
+            pause = min(pause * 2, self.max_poll_interval)
+            prefer = self._prefer(True if left is None else max(left, 1))
+            job = Job.from_json(self._request("GET", f"/v1/{kind}s/{job.id}", headers=prefer).json())
+        return job
+
+    def _submit(self, kind: str, body: dict, wait) -> Job:
+        headers = {"Idempotency-Key": str(uuid.uuid4()), **self._prefer(wait)}
+        job = Job.from_json(self._request("POST", f"/v1/{kind}s", json=body, headers=headers).json())
+        if wait is False or wait is None or wait == 0:
+            return job
+        job = self._wait(kind, job, wait)
+        if job.status != "succeeded":
+            raise JobFailed(job)
+        return job
+
+    # -- designs
+    def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
+               sampling_period: float | None = None, label: str | None = None, **options) -> DesignResult | Job:
+        """Design gains K_1..K_{n_drop} on the service.
+
+        Parameters
+        ----------
+        plant : PlantFamily, list of control.StateSpace or dict
+            See :func:`plant_json`.
+        n_drop : int
+            At most ``n_drop - 1`` consecutive losses.
+        method : str, default "lmi"
+            ``lmi`` (one SDP), ``ccl`` (the paper's iteration), ... (``GET /openapi.json`` lists them).
+        wait : bool or float, default True
+            True: block until the job ends; a number: at most that many seconds (then
+            ``TimeoutError``; the job keeps running); False: return the queued :class:`Job`.
+        sampling_period : float, optional
+            h in seconds for continuous python-control systems.
+        label : str, optional
+            Your name for the job (at most 200 characters), shown in :meth:`jobs`.
+        **options
+            ``decay_rate``, ``plant_switching``, ``scheme``, ``solver``, ``margin``, ``max_iter``
+            (the request's ``options``).
+
+        Returns
+        -------
+        DesignResult, or Job when ``wait=False``.
+
+        Raises
+        ------
+        ServiceError
+            The service refused the request (``.errors`` names the fields).
+        JobFailed
+            The job failed or was cancelled.
+        """
+        body = {"plant": plant_json(plant, sampling_period), "n_drop": n_drop, "method": method}
+        if label is not None:
+            body["label"] = label
+        if options:
+            body["options"] = options
+        job = self._submit("design", body, wait)
+        if not job.done:
+            return job
+        return DesignResult.from_json(job.result, job_id=job.id)
+
+    def result(self, job_id: str, wait: bool | float = True) -> DesignResult:
+        """The result of a design job submitted earlier (waits like :meth:`design`)."""
+        job = self.job(job_id)
+        job = self._wait("design", job, wait) if wait else job
+        if not job.done:
+            raise TimeoutError(f"job {job.id} is still {job.status}")
+        if job.status != "succeeded":
+            raise JobFailed(job)
+        return DesignResult.from_json(job.result, job_id=job.id)
+
+    def job(self, job_id: str, kind: str = "design") -> Job:
+        """One job (``kind`` ``"design"`` or ``"margin"``)."""
+        return Job.from_json(self._request("GET", f"/v1/{kind}s/{job_id}").json())
+
+    def jobs(self, kind: str = "design", status: str | None = None, limit: int = 20, offset: int = 0) -> list[Job]:
+        """One page of jobs, newest first."""
+        params = {"limit": limit, "offset": offset}
+        if status:
+            params["status"] = status
+        data = self._request("GET", f"/v1/{kind}s", params=params).json()
+        return [Job.from_json(item) for item in data["items"]]
+
+    def cancel(self, job_id: str, kind: str = "design") -> Job:
+        """Ask a job to stop (a queued one never starts; a running one ends ``cancelled`` shortly)."""
+        return Job.from_json(self._request("POST", f"/v1/{kind}s/{job_id}/cancel").json())
+
+    # -- synchronous computations
+    def analyze(self, plant, gains, n_drop: int | None = None, *, sampling_period: float | None = None,
+                **options) -> AnalysisResult:
+        """Certify given gains (``POST /v1/analyses``): Theorem 1 certificate and spectral radii.
+
+        ``gains`` has shape (n_drop, m, n); ``options``: ``plant_switching``, ``bounds``,
+        ``max_product_length``.
+        """
+        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **options}
+        if n_drop is not None:
+            body["n_drop"] = n_drop
+        return AnalysisResult.from_json(self._request("POST", "/v1/analyses", json=body).json())
+
+    def simulate(self, plant, gains, x0, n_drop: int | None = None, *, steps: int = 100, seed: int = 42,
+                 sampling_period: float | None = None, **options) -> SimulationResult:
+        """A seeded simulation of given gains (``POST /v1/simulations``).
+
+        ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``.
+        """
+        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains),
+                "x0": [float(v) for v in x0], "steps": steps, "seed": seed, **options}
+        if n_drop is not None:
+            body["n_drop"] = n_drop
+        return SimulationResult.from_json(self._request("POST", "/v1/simulations", json=body).json())
+
+    def trace(self, job_id: str, *, x0=None, steps: int = 100, seed: int = 42, **query) -> SimulationResult:
+        """The designed loop's seeded run (``GET /v1/designs/{id}/trace``), with one run per plant mode."""
+        params = {"steps": steps, "seed": seed, **query}
+        if x0 is not None:
+            params["x0"] = ",".join(repr(float(v)) for v in x0)
+        return SimulationResult.from_json(self._request("GET", f"/v1/designs/{job_id}/trace", params=params).json())
+
+    def trace_image(self, job_id: str, fmt: str = "png", **query) -> bytes:
+        """The trace as a PNG or SVG picture."""
+        return self._request("GET", f"/v1/designs/{job_id}/trace.{fmt}", params=query).content
+
+    def gains_file(self, job_id: str, fmt: str = "mat") -> bytes:
+        """A succeeded design as a MATLAB ``.mat`` file (``fmt="mat"``) or an Octave/MATLAB script (``"m"``):
+        ``K`` (n_drop x m x n), ``K1..KN``, ``F``, ``G``, the certificate's ``P``, ``n_drop``, ``outcome``."""
+        if fmt not in ("mat", "m"):
+            raise ValueError('fmt must be "mat" or "m"')
+        return self._request("GET", f"/v1/designs/{job_id}/gains.{fmt}").content
+
+    # -- margins
+    def margins(self, plant, search: str, method: str = "lmi", *, wait: bool | float = True,
+                sampling_period: float | None = None, label: str | None = None,
+                **params) -> MarginResult | Job:
+        """A stability-margin search (``POST /v1/margins``).
+
+        Parameters
+        ----------
+        search : {"n_drop", "sampling_period", "grid"}
+        **params
+            ``n_drop``, ``n_drop_max``, ``h_min``, ``h_max``, ``tol``, ``points``, ``options``.
+        """
+        body = {"plant": plant_json(plant, sampling_period), "search": search, "method": method, **params}
+        if label is not None:
+            body["label"] = label
+        job = self._submit("margin", body, wait)
+        if not job.done:
+            return job
+        return MarginResult.from_json(job.result)
+
+    def ready(self) -> bool:
+        """Whether ``/readyz`` answers 200."""
+        try:
+            return self._http.get(("" if self._owns_http else self.base_url) + "/readyz").status_code == 200
+        except httpx.HTTPError:
+            return False

@@ -1,0 +1,148 @@
+"""The ncs-design CLI run as a subprocess: design / analyze / simulate, outputs read back, exit codes."""
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+
+from solver import PlantFamily, design
+
+MOTOR = {"kind": "dc_motor", "inertias": [0.03, 0.05], "sampling_period": 0.1}
+
+
+def ncs(*args, cwd, timeout=180):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout, env={**env, "PYTHONPATH": os.getcwd()})
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    (d / "motor.json").write_text(json.dumps(MOTOR))
+    return d
+
+
+def test_version_and_help(workdir):
+    out = ncs("--version", cwd=workdir)
+    assert out.returncode == 0 and re.fullmatch(r"ncs-design \d+\.\d+\.\d+\S*\n", out.stdout)
+    out = ncs("--help", cwd=workdir)
+    for cmd in ("serve", "migrate", "design", "analyze", "simulate"):
+        assert cmd in out.stdout
+
+
+@pytest.fixture(scope="module")
+def gain_files(workdir):
+    """gains.mat, gains.m and gains.json written by `ncs-design design` (in-process)."""
+    for name in ("gains.mat", "gains.m", "gains.json"):
+        out = ncs("design", "motor.json", "--n-drop", 3, "--output", name, cwd=workdir)
+        assert out.returncode == 0, out.stderr
+        assert "stabilized" in out.stdout and "omega (rad/s)" in out.stdout and f"wrote {name}" in out.stdout
+    return workdir
+
+
+def test_design_in_process_writes_mat_m_and_json(gain_files):
+    workdir = gain_files
+    ref = design(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3)
+    d = scipy.io.loadmat(workdir / "gains.mat")
+    np.testing.assert_allclose(d["K"], ref.gains, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(d["P"], ref.certificate.P, rtol=1e-6, atol=1e-9)
+    assert str(d["outcome"][0]) == "stabilized" and int(d["n_drop"][0, 0]) == 3
+    text = (workdir / "gains.m").read_text()
+    k1 = re.search(r"^K1 = \[(.*)\];$", text, flags=re.M).group(1)
+    np.testing.assert_allclose([float(v) for v in k1.split()], ref.gains[0].ravel(), rtol=1e-6)
+    result = json.loads((workdir / "gains.json").read_text())
+    np.testing.assert_allclose(result["gains"], ref.gains, rtol=1e-6, atol=1e-9)
+    assert np.asarray(result["F"]).shape == (2, 2, 2)
+
+
+def test_analyze_and_simulate_the_written_gains(workdir, gain_files):
+    out = ncs("analyze", "motor.json", "--gains", "gains.mat", cwd=workdir)
+    assert out.returncode == 0 and "stable (certified)" in out.stdout, out.stderr
+    out = ncs("simulate", "motor.json", "--gains", "gains.json", "--x0", "1,-1", "--steps", 40,
+              "--plot", "run.png", "--output", "run.json", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    assert (workdir / "run.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    run = json.loads((workdir / "run.json").read_text())
+    assert len(run["t"]) == 41 and run["x"][0] == [1.0, -1.0]
+
+
+def test_mat_plant_with_sampling_period_option(workdir):
+    fam = PlantFamily.paper_example(0.1)
+    scipy.io.savemat(workdir / "paper.mat", {"A": np.moveaxis(fam.A, 0, -1), "B": np.moveaxis(fam.B, 0, -1)})
+    out = ncs("design", "paper.mat", "--n-drop", 2, cwd=workdir)
+    assert out.returncode == 2 and "--sampling-period" in out.stderr and "Traceback" not in out.stderr
+    out = ncs("design", "paper.mat", "--n-drop", 2, "--sampling-period", 0.1, "-o", "paper.json", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    np.testing.assert_allclose(json.loads((workdir / "paper.json").read_text())["gains"], design(fam, 2).gains,
+                               rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("plant, args, words", [
+    ({"kind": "discrete", "F": [[1.0, 0.0], [0.0, 1.0]], "G": [[1.0], [0.0]]}, ["--n-drop", 2], "F=[F]"),
+    (MOTOR, ["--n-drop", 0], "n_drop"),
+    (MOTOR, ["--n-drop", 2, "--output", "gains.txt"], ".json, .mat or .m"),
+    (MOTOR, ["--n-drop", 2, "--decay-rate", "fast"], "--decay-rate"),
+    ("not json", ["--n-drop", 2], "not valid JSON"),
+])
+def test_bad_input_is_one_line_and_exit_2(workdir, plant, args, words):
+    (workdir / "bad.json").write_text(plant if isinstance(plant, str) else json.dumps(plant))
+    out = ncs("design", "bad.json", *args, cwd=workdir)
+    assert out.returncode == 2
+    assert words in out.stderr and "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_infeasible_exits_1(workdir):
+    (workdir / "unstab.json").write_text(json.dumps({"kind": "discrete", "F": [[[2.0, 0.0], [0.0, 2.0]]],
+                                                     "G": [[[0.0], [0.0]]]}))
+    out = ncs("design", "unstab.json", "--n-drop", 2, cwd=workdir)
+    assert out.returncode == 1 and "infeasible" in out.stdout
+
+
+def test_design_against_a_server(workdir, gain_files, db_url, start_server):
+    server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
+    out = ncs("design", "motor.json", "--n-drop", 3, "--server", server.base, "-o", "remote.mat", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    np.testing.assert_allclose(scipy.io.loadmat(workdir / "remote.mat")["K"],
+                               scipy.io.loadmat(workdir / "gains.mat")["K"], rtol=1e-6, atol=1e-9)
+    out = ncs("analyze", "motor.json", "--gains", "remote.mat", "--server", server.base, cwd=workdir)
+    assert out.returncode == 0 and "stable (certified)" in out.stdout, out.stderr
+    out = ncs("design", "motor.json", "--n-drop", 3, "--method", "nope", "--server", server.base, cwd=workdir)
+    assert out.returncode == 2 and "422" in out.stderr and "Traceback" not in out.stderr
+
+
+def _readme_block(name: str, fence: str) -> str:
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = readme.split(f"<!-- {name}: start -->", 1)[1].split(f"<!-- {name}: end -->", 1)[0]
+    return re.search(rf"```{fence}\n(.*?)```", section, re.S).group(1)
+
+
+def test_readme_cli_example_runs(tmp_path):
+    bindir = tmp_path / "bin"  # `ncs-design` on PATH, from this checkout
+    bindir.mkdir()
+    (bindir / "ncs-design").write_text(f"#!/bin/sh\nexec {sys.executable} -m app.cli \"$@\"\n")
+    (bindir / "ncs-design").chmod(0o755)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
+    env.update(PATH=f"{bindir}:{env['PATH']}", PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    out = subprocess.run(["bash", "-euo", "pipefail", "-c", _readme_block("cli-example", "bash")], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "stabilized" in out.stdout and "stable (certified)" in out.stdout and "ncs-design " in out.stdout
+    assert (tmp_path / "run.png").stat().st_size > 10_000
+    assert scipy.io.loadmat(tmp_path / "gains.mat")["K"].shape == (3, 1, 2)
+
+
+def test_readme_client_example_runs(db_url, start_server, capsys, monkeypatch):
+    server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
+    monkeypatch.setenv("NCS_URL", server.base)
+    monkeypatch.delenv("NCS_API_KEY", raising=False)
+    exec(compile(_readme_block("client-example", "py"), "README.md", "exec"), {})
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[:3] == ["stabilized (3, 1, 2)", "True", "(51, 2) 2"]
+    assert printed[3] == "422 /plant/F", printed[3]  # a single matrix: one error saying how to wrap it
