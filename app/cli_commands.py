@@ -135,8 +135,12 @@ def design_summary(result: dict) -> list[str]:
     lines = [f"design: method {result.get('method')}, n_drop = {result['n_drop']}: {result['outcome']}"]
     cert = result.get("certificate")
     if cert:
-        lines.append(f"certificate: {cert.get('kind')}, {'verified' if cert.get('verified') else 'NOT verified'}, "
-                     f"relative margin {cert.get('margin'):.3g} (decrease / lambda_max(P))")
+        checked = 'verified' if cert.get('verified') else 'NOT verified'
+        if cert.get("margin") is not None:  # a Lyapunov certificate: stabilized
+            lines.append(f"certificate: {cert.get('kind')}, {checked}, "
+                         f"relative margin {cert['margin']:.3g} (decrease / lambda_max(P))")
+        else:  # a proof of infeasibility (farkas, uncontrollable) says what it proves in words
+            lines.append(f"certificate: {cert.get('kind')}, {checked}: {cert.get('statement') or ''}".rstrip(": "))
     if result.get("max_spectral_radius") is not None:
         lines.append(f"max spectral radius of the interval closed loops: {result['max_spectral_radius']:.4g}")
     if result.get("decay_rate") is not None:
