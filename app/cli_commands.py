@@ -8,36 +8,18 @@ summary on stdout; ``--output`` writes machine formats.
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from solver.result import jsonable
 
 EXIT_OK, EXIT_NO, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 
 
 class UsageError(Exception):
     """Bad usage or input: printed as one line, exit 2."""
-
-
-def jsonable(obj):
-    """Plain JSON values: arrays to lists, non-finite floats to None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if hasattr(obj, "to_dict"):
-        return jsonable(obj.to_dict())
-    return obj
 
 
 # --------------------------------------------------------------------------------------------- files

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -161,3 +162,30 @@ class DesignResult:
             "scaling": self.scaling,
             "rate_bracket": self.rate_bracket,
         }
+
+
+def jsonable(obj):
+    """``obj`` as plain JSON values: arrays to lists, numpy scalars to Python ones, non-finite floats to None.
+
+    JSON has no NaN or infinity, so a non-finite number becomes ``null``; fields where infinity means something
+    carry a companion flag (e.g. ``gain_bound_unbounded``).  Objects with ``to_dict()`` (results, certificates)
+    are converted through it.
+    """
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if obj is None or isinstance(obj, (str, int)):
+        return obj
+    if hasattr(obj, "to_dict"):
+        return jsonable(obj.to_dict())
+    return str(obj)
