@@ -80,10 +80,14 @@ class Dispatcher:
         self._last_recover = 0.0
         self._last_cancel_check = 0.0
         self.tick_error: str | None = None  # last database/dispatcher error, cleared by a good tick
+        # Whether a claim may find a job without asking first: after a submission here (notify) or a claim
+        # that filled every free slot. Otherwise a cheap read (has_queued) comes first, so an idle
+        # dispatcher does not take SQLite's write lock every poll interval.
+        self._queue_maybe_nonempty = True
 
     # -- public -----------------------------------------------------------
     def start(self) -> None:
-        self.executor.start(self.notify)
+        self.executor.start(self._wake)
         self._thread = threading.Thread(target=self._run, name="ncs-dispatcher", daemon=True)
         self._thread.start()
 
@@ -99,6 +103,11 @@ class Dispatcher:
                 pass
 
     def notify(self) -> None:
+        """A job was queued or asked to cancel: look at the table now."""
+        self._queue_maybe_nonempty = True
+        self._wake()
+
+    def _wake(self) -> None:
         try:
             os.write(self._wake_w, b"x")
         except (BlockingIOError, OSError):
@@ -284,10 +293,11 @@ class Dispatcher:
 
     def _fill(self) -> None:
         free = self.executor.free_slots()
-        if not free or not jobs.has_queued(self.db):
+        if not free or not (self._queue_maybe_nonempty or jobs.has_queued(self.db)):
             return
         # One transaction claims a job for every free slot (and records the worker pids known now).
         claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [s.pid for s in free])
+        self._queue_maybe_nonempty = len(claimed) == len(free)
         for slot, job in zip(free, claimed):
             try:
                 handle = self.executor.submit(slot, job)

@@ -354,10 +354,12 @@ def cancel(db: Database, kind: str, job_id: str, owner: str | None = None) -> Ca
     return CancelOutcome(row, at_once)
 
 
-def is_finished(db: Database, job_id: str) -> bool:
-    def read() -> bool:
+def finished_among(db: Database, job_ids: list[str]) -> set[str]:
+    """Those of ``job_ids`` that are finished, or gone (deleted): nobody should wait for them."""
+    def read() -> set[str]:
         with db.read() as s:
-            status = s.execute(select(Job.status).where(Job.id == job_id)).scalar_one_or_none()
-        return status is None or Status(status).finished
+            rows = s.execute(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all()
+        unfinished = {r.id for r in rows if not Status(r.status).finished}
+        return set(job_ids) - unfinished
 
     return db.retry_on_disconnect(read)
