@@ -14,6 +14,7 @@ from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagge
 from fastapi.staticfiles import StaticFiles
 
 from app.api import problems
+from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
 from app.api.middleware import BodySizeLimit, JsonBodiesOnly
@@ -125,7 +126,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
-    app.state.job_watch = JobWatch()
+    # Jobs other replicas finish are found by one batched read for all waiters (app.jobs.watch).
+    app.state.job_watch = JobWatch(lambda ids: store.finished_among(app.state.db, ids))
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
     app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",

@@ -35,7 +35,7 @@ async def readyz(request: Request):
         checks["workers"] = {"dispatcher": "disabled"}
     else:
         alive, ready = disp.alive_workers(), disp.ready_workers()
-        checks["workers"] = {"configured": len(disp.slots), "alive": alive, "ready": ready,
+        checks["workers"] = {"configured": disp.configured_workers(), "alive": alive, "ready": ready,
                              "dispatcher": "running" if disp.thread_alive() else "stopped"}
         if disp.error:
             checks["workers"]["last_error"] = disp.error

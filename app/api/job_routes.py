@@ -70,13 +70,8 @@ def requested_wait(prefer: str | None) -> float | None:
     return min(float(match.group(1)), MAX_WAIT_SECONDS)
 
 
-async def wait_for_end(request: Request, db: Database, job_id: str, seconds: float) -> None:
-    watch = request.app.state.job_watch
-
-    async def is_finished() -> bool:
-        return await run_in_threadpool(store.is_finished, db, job_id)
-
-    await watch.wait(job_id, seconds, is_finished)
+async def wait_for_end(request: Request, job_id: str, seconds: float) -> None:
+    await request.app.state.job_watch.wait(job_id, seconds)
 
 
 async def submit(request: Request, response: Response, kind: str, req: dict, n_drop: int,
@@ -101,7 +96,7 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
         return full(row)
     response.headers["Preference-Applied"] = f"wait={wait:g}"
     if row.status not in FINISHED:
-        await wait_for_end(request, db, row.id, wait)
+        await wait_for_end(request, row.id, wait)
         row = await run_in_threadpool(store.get, db, kind, row.id, owner)
     if row.status in FINISHED:
         response.status_code = 201
@@ -141,7 +136,7 @@ def job_router(kind: str) -> APIRouter:
         if wait is not None:
             response.headers["Preference-Applied"] = f"wait={wait:g}"
             if row.status not in FINISHED:
-                await wait_for_end(request, db, job_id, wait)
+                await wait_for_end(request, job_id, wait)
                 row = await run_in_threadpool(store.get, db, kind, job_id, owner)
         return full(row)
 

@@ -3,9 +3,10 @@
 Kept lean on purpose: it imports no web framework and needs no database access;
 a Dask worker only needs this package installed (``pip install ncs-design``).
 
-* :func:`run_job` is the task. It reports ``start`` (worker address and pid) and
-  throttled ``progress`` through Dask's structured events (``Worker.log_event``:
-  fire-and-forget, batched, forwarded by the scheduler to the subscribed service),
+* :func:`run_job` is the task. It reports ``Started`` (worker address and pid) and
+  throttled ``Progress`` through Dask's structured events (``Worker.log_event``:
+  fire-and-forget, batched, forwarded by the scheduler to the subscribed service;
+  the messages travel as plain dicts, ``messages.to_event``),
   and returns the same outcome as a local worker process (``app.compute.worker.execute``)
   carrying the last progress record.
 * :func:`request_cancel` is run on the worker by the service (``Client.run``) to
@@ -21,7 +22,7 @@ import threading
 import time
 from typing import Any
 
-from app.compute.messages import JobOutcome
+from app.compute.messages import JobOutcome, Progress, Started, to_event
 
 START_TOPIC = "ncs-design-start"
 PROGRESS_TOPIC = "ncs-design-progress"
@@ -49,7 +50,7 @@ def run_job(job_id: str, key: str, request: dict[str, Any]) -> JobOutcome:
     from app.compute.worker import execute
 
     worker = get_worker()
-    worker.log_event(START_TOPIC, {"key": key, "job": job_id, "pid": os.getpid(), "address": worker.address})
+    worker.log_event(START_TOPIC, to_event(key, Started(job_id, os.getpid(), worker.address)))
     state: dict[str, Any] = {"last": None, "sent": 0.0}
 
     def callback(record) -> bool:
@@ -58,7 +59,7 @@ def run_job(job_id: str, key: str, request: dict[str, Any]) -> JobOutcome:
         now = time.monotonic()
         if now - state["sent"] >= PROGRESS_EVERY:
             state["sent"] = now
-            worker.log_event(PROGRESS_TOPIC, {"key": key, "job": job_id, "progress": progress})
+            worker.log_event(PROGRESS_TOPIC, to_event(key, Progress(job_id, progress)))
         return _is_cancelled(job_id)
 
     try:

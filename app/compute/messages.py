@@ -1,10 +1,14 @@
 """The messages that cross a process boundary: service <-> design worker (a pipe), service <-> synchronous
-pool (a future's result), service <-> Dask task (a future's result). Dataclasses, so a sender and its
-receivers cannot disagree on a tuple's layout; all of them pickle."""
+pool (a future's result), service <-> Dask task (a future's result, and ``Started``/``Progress`` through
+Dask's event log as plain dicts, see :func:`to_event` / :func:`from_event`). Dataclasses, so a sender and
+its receivers cannot disagree on a tuple's layout; all of them pickle.
+
+An executor (``app.jobs.executor``) hands the dispatcher only these: ``Started``, ``Progress``, a
+``JobOutcome`` (``Succeeded``, ``Cancelled``, ``Failed``) or ``Lost``."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 
@@ -29,6 +33,16 @@ class Stop:
 @dataclass(frozen=True)
 class Ready:
     pid: int
+
+
+@dataclass(frozen=True)
+class Started:
+    """The job began on a worker process. A second ``Started`` of one job from another pid means the executor
+    re-ran it there (Dask re-runs a task whose worker died): one more attempt."""
+
+    job_id: str
+    pid: int
+    address: str = ""  # the Dask worker's address; empty for a local worker process
 
 
 @dataclass(frozen=True)
@@ -60,6 +74,54 @@ class Failed:
 
 
 JobOutcome = Succeeded | Cancelled | Failed
+
+
+# -- executor -> dispatcher (besides the above) ---------------------------------
+@dataclass(frozen=True)
+class Lost:
+    """The job's worker went away mid-job (the process died, Dask gave up on the task or lost its scheduler):
+    the job may run again, at the cost of the attempt it was on."""
+
+    job_id: str
+    reason: str
+
+
+ExecutorEvent = Started | Progress | Succeeded | Cancelled | Failed | Lost
+
+
+# -- Dask's event log: plain dicts, checked on the way back ------------------------
+class MalformedEvent(ValueError):
+    pass
+
+
+_EVENT_TYPES: dict[str, tuple[type, dict[str, type]]] = {
+    "started": (Started, {"job_id": str, "pid": int, "address": str}),
+    "progress": (Progress, {"job_id": str, "record": dict}),
+}
+
+
+def to_event(key: str, message: Started | Progress) -> dict[str, Any]:
+    """A message as the plain dict Dask's event log carries; ``key`` names the task (job and attempt)."""
+    kind = {Started: "started", Progress: "progress"}[type(message)]
+    return {"key": key, "kind": kind, "fields": asdict(message)}
+
+
+def from_event(event: Any) -> tuple[str, Started | Progress]:
+    """The task key and the message of an event written by :func:`to_event`; :class:`MalformedEvent` if the
+    dict is not one (another version of this package on a Dask worker, say)."""
+    if not isinstance(event, dict) or not isinstance(event.get("key"), str):
+        raise MalformedEvent(f"not an ncs-design event: {event!r:.200}")
+    kind, fields = event.get("kind"), event.get("fields")
+    if kind not in _EVENT_TYPES or not isinstance(fields, dict):
+        raise MalformedEvent(f"unknown event kind {kind!r} or no fields")
+    cls, types = _EVENT_TYPES[kind]
+    if set(fields) != set(types):
+        raise MalformedEvent(f"{kind} event has fields {sorted(fields)}, expected {sorted(types)}")
+    for name, want in types.items():
+        value = fields[name]
+        if not isinstance(value, want) or (want is int and isinstance(value, bool)):
+            raise MalformedEvent(f"{kind} event field {name!r} is {type(value).__name__}, expected {want.__name__}")
+    return event["key"], cls(**fields)
 
 
 # -- synchronous pool -> service ---------------------------------------------

@@ -1,27 +1,27 @@
-"""Dispatcher: claims queued jobs from the database and runs them on a pool
-of worker processes.
+"""Dispatcher: claims queued jobs from the database and runs them on an executor
+(``app.jobs.executor``: local worker processes, or a Dask cluster).
 
-One daemon thread per service process. It owns ``workers`` long-lived
-worker processes (``spawn`` start method; see ``app.compute.worker``), and in a
-loop it
+One daemon thread per service process. Whatever the executor, in a loop it
 
-* reads worker messages (progress -> job row, results -> finished job),
-* replaces dead workers and retries their job (bounded by ``max_attempts``),
-* kills a worker whose job exceeded ``job_time_limit`` (job -> failed),
-* forwards cancel requests (cooperative first, kill after ``cancel_grace``),
+* lets the executor do its housekeeping (replace dead workers, reconnect),
+* turns the executor's messages into job-table updates: ``Started`` (worker pid;
+  a re-run elsewhere is one more attempt), ``Progress`` (written at most every
+  0.2 s), an outcome (the job is finished), ``Lost`` (retried, bounded by
+  ``max_attempts``),
+* stops a job that exceeded ``job_time_limit`` (job -> failed),
+* forwards cancel requests (cooperative first, stopped after ``cancel_grace``),
 * renews the leases of its running jobs and re-queues jobs whose lease
   expired (their service was killed),
-* claims a queued job for every idle worker.
+* claims a queued job for every free slot of the executor, in one transaction.
 
-It sleeps in ``multiprocessing.connection.wait`` on the worker pipes, the
-process sentinels and a self-pipe that ``notify()`` writes to, so it reacts
-immediately to results, deaths and new submissions.
+It sleeps in ``multiprocessing.connection.wait`` on the executor's waitables
+(worker pipes and process sentinels) and a self-pipe that ``notify()`` writes to,
+so it reacts immediately to results, deaths and new submissions.
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import threading
 import time
@@ -31,58 +31,46 @@ from typing import Any, Callable
 
 from sqlalchemy.exc import DBAPIError
 
-from app.compute.messages import Cancel, Cancelled, Failed, Progress, Ready, Run, Stop, Succeeded
-
+from app.compute.messages import Cancelled, ExecutorEvent, Failed, Lost, Progress, Started, Succeeded
 from app.jobs import store as jobs
-from app.jobs.database import Database
+from app.jobs.database import Database, database_reason
+from app.jobs.executor import Executor
 from app.jobs.model import Status
-from app.jobs.database import database_reason
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
-_CTX = mp.get_context("spawn")
+
+PROGRESS_WRITE_EVERY = 0.2  # seconds between progress writes of one job
 
 
-class _Slot:
-    def __init__(self, index: int):
-        self.index = index
-        self.proc: Any = None
-        self.conn: Any = None
-        self.pid: int | None = None
-        self.ready = False
-        self.job_id: str | None = None
-        self.attempt = 0
-        self.started = 0.0
+class _Running:
+    """A job this dispatcher claimed and handed to its executor."""
+
+    def __init__(self, job_id: str, handle: Any, pid: int | None):
+        self.job_id = job_id
+        self.handle = handle
+        self.pid = pid                      # recorded with the claim, or by the first Started
+        self.address = ""                   # the Dask worker it runs on
+        self.started: float | None = None   # monotonic; the time limit counts from the real start
         self.cancel_sent: float | None = None
         self.progress: dict[str, Any] | None = None
+        self.progress_dirty = False
         self.progress_written = 0.0
-        self.progress_dirty = False
-        self.spawn_after = 0.0  # monotonic time before which no replacement is started
-        self.backoff = 0.0      # grows while workers die before they become ready
-        # A finished job whose final write failed (database full, read-only or unreachable): kept here and
-        # written again every tick until it succeeds, so the result is never lost and never half-written.
-        self.pending: tuple[str, str, dict[str, Any]] | None = None
-        # The Dask executor's handle on the slot's task (app.jobs.dask_executor): its key, future and the
-        # address of the worker running it; unused by the local pool.
-        self.key: str | None = None
-        self.future: Any = None
-        self.address: str | None = None
-
-    def clear_job(self) -> None:
-        self.job_id = None
-        self.cancel_sent = None
-        self.progress = None
-        self.progress_dirty = False
 
 
 class Dispatcher:
-    def __init__(self, db: Database, settings: Settings, on_finished: Callable[[str], None] | None = None):
+    def __init__(self, db: Database, settings: Settings, executor: Executor,
+                 on_finished: Callable[[str], None] | None = None):
         self.db = db
         self.settings = settings
+        self.executor = executor
         # Told the id of every job this dispatcher finished, once its end is recorded (Prefer: wait).
         self.on_finished = on_finished or (lambda job_id: None)
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        self.slots = [_Slot(i) for i in range(settings.workers)]
+        self.running: dict[str, _Running] = {}
+        # Finished jobs whose final write failed (database full, read-only or unreachable): kept here and
+        # written again every tick until it succeeds, so a result is never lost and never half-written.
+        self.pending: dict[str, tuple[str, dict[str, Any]]] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
@@ -91,14 +79,15 @@ class Dispatcher:
         self._last_heartbeat = 0.0
         self._last_recover = 0.0
         self._last_cancel_check = 0.0
-        self.tick_error: str | None = None   # last database/dispatcher error, cleared by a good tick
-        self.start_error: str | None = None  # a worker failed to start, cleared when one is ready
-        self.started_workers = 0
+        self.tick_error: str | None = None  # last database/dispatcher error, cleared by a good tick
+        # Whether a claim may find a job without asking first: after a submission here (notify) or a claim
+        # that filled every free slot. Otherwise a cheap read (has_queued) comes first, so an idle
+        # dispatcher does not take SQLite's write lock every poll interval.
+        self._queue_maybe_nonempty = True
 
     # -- public -----------------------------------------------------------
     def start(self) -> None:
-        for slot in self.slots:
-            self._spawn(slot)
+        self.executor.start(self._wake)
         self._thread = threading.Thread(target=self._run, name="ncs-dispatcher", daemon=True)
         self._thread.start()
 
@@ -114,6 +103,11 @@ class Dispatcher:
                 pass
 
     def notify(self) -> None:
+        """A job was queued or asked to cancel: look at the table now."""
+        self._queue_maybe_nonempty = True
+        self._wake()
+
+    def _wake(self) -> None:
         try:
             os.write(self._wake_w, b"x")
         except (BlockingIOError, OSError):
@@ -121,60 +115,24 @@ class Dispatcher:
 
     @property
     def error(self) -> str | None:
-        return "; ".join(e for e in (self.tick_error, self.start_error) if e) or None
+        return "; ".join(e for e in (self.tick_error, self.executor.error) if e) or None
 
     def thread_alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def configured_workers(self) -> int:
+        return self.executor.configured_workers()
+
     def alive_workers(self) -> int:
-        return sum(1 for s in self.slots if s.proc is not None and s.proc.is_alive())
+        return self.executor.alive_workers()
 
     def ready_workers(self) -> int:
-        return sum(1 for s in self.slots if s.ready and s.proc is not None and s.proc.is_alive())
+        return self.executor.ready_workers()
 
-    def worker_pids(self) -> list[int]:
-        return [s.pid for s in self.slots if s.pid]
-
-    # -- worker processes --------------------------------------------------
-    def _spawn(self, slot: _Slot) -> None:
-        from app.compute.worker import worker_main
-
-        parent_conn, child_conn = _CTX.Pipe(duplex=True)
-        proc = _CTX.Process(target=worker_main, args=(child_conn, os.getpid(), self.settings.worker_memory_mb),
-                            name=f"ncs-worker-{slot.index}", daemon=True)
-        proc.start()
-        child_conn.close()
-        slot.proc, slot.conn, slot.pid, slot.ready = proc, parent_conn, proc.pid, False
-        self.started_workers += 1
-
-    def _kill(self, slot: _Slot) -> None:
-        if slot.proc is not None:
-            try:
-                slot.proc.kill()
-                slot.proc.join(5)
-            except Exception:  # pragma: no cover
-                pass
-        if slot.conn is not None:
-            try:
-                slot.conn.close()
-            except Exception:  # pragma: no cover
-                pass
-        slot.proc = slot.conn = None
-        slot.pid = None
-        slot.ready = False
-
-    def _respawn(self, slot: _Slot) -> None:
-        never_ready = slot.proc is not None and not slot.ready
-        self._kill(slot)
-        if never_ready and slot.job_id is None:
-            # It died while starting (e.g. the solver cannot be imported): back off, don't spin.
-            slot.backoff = min(30.0, max(1.0, slot.backoff * 2))
-            slot.spawn_after = time.monotonic() + slot.backoff
-            self.start_error = f"worker process {slot.index} exited during start-up; retrying in {slot.backoff:g} s"
-            return
-        slot.backoff = 0.0
-        if not self._stop.is_set():
-            self._spawn(slot)
+    def worker_pid(self, job_id: str) -> int | None:
+        """The pid of the worker process running the job, once known (tests and fault scripts kill it)."""
+        running = self.running.get(job_id)
+        return running.pid if running is not None else None
 
     # -- main loop ---------------------------------------------------------
     def _run(self) -> None:
@@ -198,14 +156,8 @@ class Dispatcher:
             self._shutdown()
 
     def _sleep(self) -> None:
-        waitables: list[Any] = [self._wake_r]
-        for s in self.slots:
-            if s.conn is not None:
-                waitables.append(s.conn)
-            if s.proc is not None:
-                waitables.append(s.proc.sentinel)
         try:
-            ready = mp_wait(waitables, timeout=self.settings.poll_interval)
+            ready = mp_wait([self._wake_r, *self.executor.waitables()], timeout=self.settings.poll_interval)
         except OSError:
             ready = []
         if self._wake_r in ready:
@@ -215,33 +167,17 @@ class Dispatcher:
             except (BlockingIOError, OSError):
                 pass
 
-    def _finish(self, slot: _Slot, job_id: str, status: str, **values: Any) -> None:
-        """Record a job's end; if the write fails, keep it pending on the slot and retry next tick."""
-        slot.clear_job()
-        slot.pending = (job_id, status, values)
-        self._flush_pending(slot)
-
-    def _flush_pending(self, slot: _Slot) -> None:
-        if slot.pending is None:
-            return
-        job_id, status, values = slot.pending
-        jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
-        slot.pending = None
-        self.on_finished(job_id)
-
     def _tick(self) -> None:
         st = self.settings
         now = time.monotonic()
-        for slot in self.slots:
-            self._flush_pending(slot)
-        for slot in self.slots:
-            self._drain(slot)
-        for slot in self.slots:
-            self._check(slot, now)
+        self._flush_pending()
+        self.executor.maintain(now)
+        for event in self.executor.poll():
+            self._handle(event)
+        self._check_limits(now)
         self._flush_progress(now)
         if now - self._last_heartbeat >= st.lease_seconds / 3:
-            held = [s.job_id or s.pending[0] for s in self.slots if s.job_id or s.pending]
-            jobs.heartbeat(self.db, self.owner, held, st.lease_seconds)
+            jobs.heartbeat(self.db, self.owner, [*self.running, *self.pending], st.lease_seconds)
             self._last_heartbeat = now
         if now - self._last_recover >= min(2.0, st.lease_seconds / 2):
             if jobs.recover_expired(self.db, st.max_attempts):
@@ -252,161 +188,151 @@ class Dispatcher:
             self._last_cancel_check = now
         self._fill()
 
-    def _drain(self, slot: _Slot) -> None:
-        if slot.conn is None:
-            return
-        try:
-            while slot.conn.poll():
-                self._handle(slot, slot.conn.recv())
-        except (EOFError, OSError):
-            pass  # the process is dead; _check handles it
+    # -- finishing -------------------------------------------------------------
+    def _finish(self, job_id: str, status: str, **values: Any) -> None:
+        """Record a job's end; if the write fails, keep it pending and retry next tick."""
+        self.running.pop(job_id, None)
+        self.pending[job_id] = (status, values)
+        self._flush_pending()
 
-    def _handle(self, slot: _Slot, msg: Any) -> None:
-        if isinstance(msg, Ready):
-            slot.ready, slot.pid, slot.backoff = True, msg.pid, 0.0
-            self.start_error = None
-            return
-        job_id = msg.job_id
-        if job_id != slot.job_id:
-            return  # stale message of a job we already gave up
-        if isinstance(msg, Progress):
-            slot.progress, slot.progress_dirty = msg.record, True
-            return
-        progress = msg.progress if msg.progress is not None else slot.progress
-        if isinstance(msg, Succeeded):
-            self._finish(slot, job_id, Status.SUCCEEDED, result=msg.result, progress=progress)
-        elif isinstance(msg, Cancelled):
-            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request", progress=progress)
-        elif isinstance(msg, Failed):
-            self._finish(slot, job_id, Status.FAILED, error=msg.reason, progress=progress)
+    def _flush_pending(self) -> None:
+        for job_id in list(self.pending):
+            status, values = self.pending[job_id]
+            jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
+            del self.pending[job_id]
+            self.on_finished(job_id)
 
-    def _check(self, slot: _Slot, now: float) -> None:
+    def _retry_or_fail(self, job_id: str, reason: str) -> None:
+        self.running.pop(job_id, None)
+        outcome = jobs.retry_or_fail(self.db, job_id, self.owner, reason, self.settings.max_attempts)
+        log.warning("job %s: %s -> %s", job_id, reason, outcome)
+        if outcome is not None and Status(outcome).finished:
+            self.on_finished(job_id)
+        self.notify()  # a re-queued job can be claimed at once
+
+    # -- the executor's messages --------------------------------------------------
+    def _handle(self, msg: ExecutorEvent) -> None:
+        running = self.running.get(msg.job_id)
+        if running is None:
+            return  # a job given up
+        if isinstance(msg, Started):
+            self._on_started(running, msg)
+        elif isinstance(msg, Progress):
+            running.progress, running.progress_dirty = msg.record, True
+        elif isinstance(msg, Lost):
+            self._retry_or_fail(msg.job_id, msg.reason)
+        else:
+            progress = msg.progress if msg.progress is not None else running.progress
+            if isinstance(msg, Succeeded):
+                self._finish(msg.job_id, Status.SUCCEEDED, result=msg.result, progress=progress)
+            elif isinstance(msg, Cancelled):
+                self._finish(msg.job_id, Status.CANCELLED, error="cancelled by request", progress=progress)
+            elif isinstance(msg, Failed):
+                self._finish(msg.job_id, Status.FAILED, error=msg.reason, progress=progress)
+
+    def _on_started(self, running: _Running, msg: Started) -> None:
+        running.started = time.monotonic()
+        if running.pid == msg.pid:
+            return  # recorded with the claim
+        if running.pid is not None:
+            # The executor re-ran the job elsewhere (Dask re-runs a task whose worker died).
+            reason = (f"Dask worker {running.address} (pid {running.pid}) died" if running.address
+                      else f"worker process {running.pid} died")
+            outcome = jobs.note_retry(self.db, running.job_id, self.owner, reason, self.settings.max_attempts)
+            log.warning("%s running job %s -> %s", reason, running.job_id, outcome)
+            if outcome != Status.RUNNING:
+                self.running.pop(running.job_id, None)
+                self.executor.stop(running.handle, interrupt=False)
+                if outcome is not None and Status(outcome).finished:
+                    self.on_finished(running.job_id)
+                return
+        running.pid, running.address = msg.pid, msg.address
+        jobs.set_worker_pid(self.db, running.job_id, self.owner, msg.pid)
+
+    # -- limits and cancels ---------------------------------------------------------
+    def _check_limits(self, now: float) -> None:
         st = self.settings
-        if slot.proc is None:
-            if now >= slot.spawn_after and not self._stop.is_set():
-                self._spawn(slot)
-            return
-        if not slot.proc.is_alive():
-            code = slot.proc.exitcode
-            if slot.job_id is not None:
-                job_id = slot.job_id
-                slot.clear_job()
-                if code == -6 and st.worker_memory_mb > 0:
-                    # SIGABRT under a memory cap: a native allocation failed (e.g. the solver's KKT system).
-                    # It would fail the same way again, so the job ends now, saying why.
-                    self._respawn(slot)
-                    self._finish(slot, job_id, Status.FAILED, error=f"memory limit exceeded: the worker process "
-                                 f"aborted (exit code {code}) when an allocation over the {st.worker_memory_mb} MB "
-                                 f"a job may use (NCS_WORKER_MEMORY_MB) failed")
-                    log.warning("worker %s aborted running job %s (memory limit)", slot.pid, job_id)
-                    return
-                reason = f"worker process died (exit code {code})"
-                outcome = jobs.retry_or_fail(self.db, job_id, self.owner, reason, st.max_attempts)
-                log.warning("worker %s died (exit %s) running job %s -> %s", slot.pid, code, job_id, outcome)
-            else:
-                log.warning("idle worker %s died (exit %s); replacing it", slot.pid, code)
-            self._respawn(slot)
-            return
-        if slot.job_id is None:
-            return
-        if now - slot.started > st.job_time_limit:
-            job_id = slot.job_id
-            self._respawn(slot)
-            self._finish(slot, job_id, Status.FAILED,
-                         error=f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
-                               f"(NCS_JOB_TIME_LIMIT) and was stopped")
-            return
-        if slot.cancel_sent is not None and now - slot.cancel_sent > st.cancel_grace:
-            job_id = slot.job_id
-            self._respawn(slot)
-            self._finish(slot, job_id, Status.CANCELLED, error="cancelled by request (worker stopped)")
+        for running in list(self.running.values()):
+            if running.started is not None and now - running.started > st.job_time_limit:
+                self._give_up(running, Status.FAILED,
+                              f"time limit exceeded: the design ran longer than {st.job_time_limit:g} s "
+                              f"(NCS_JOB_TIME_LIMIT) and was stopped")
+            elif running.cancel_sent is not None and now - running.cancel_sent > st.cancel_grace:
+                self._give_up(running, Status.CANCELLED, "cancelled by request (worker stopped)")
+
+    def _give_up(self, running: _Running, status: str, error: str) -> None:
+        self.running.pop(running.job_id, None)
+        self.executor.stop(running.handle, interrupt=True)
+        self._finish(running.job_id, status, error=error, progress=running.progress)
 
     def _check_cancels(self, now: float) -> None:
-        running = [s.job_id for s in self.slots if s.job_id and s.cancel_sent is None]
-        if not running:
+        asked = [r.job_id for r in self.running.values() if r.cancel_sent is None]
+        if not asked:
             return
-        wanted = jobs.cancel_requested_among(self.db, running)
-        for slot in self.slots:
-            if slot.job_id in wanted:
-                slot.cancel_sent = now
-                self._send_cancel(slot)
-                if self.settings.cancel_grace == 0:
-                    self._check(slot, now + 1)
-
-    # -- the executor: how a claimed job reaches a worker --------------------
-    # The local pool (this class) and the Dask backend (app.jobs.dask_executor.DaskDispatcher)
-    # differ only in these methods and in _drain/_check/_sleep/_shutdown; claiming,
-    # leases, progress, cancel requests and the job-table updates are shared.
-    def _idle_slots(self) -> list[_Slot]:
-        return [s for s in self.slots if s.job_id is None and s.pending is None and s.ready
-                and s.proc is not None and s.proc.is_alive()]
-
-    def _pid_for(self, slot: _Slot) -> int | None:
-        """The worker pid recorded with the claim (None when the executor does not know it yet)."""
-        return slot.pid
-
-    def _submit(self, slot: _Slot, claimed: jobs.Claimed) -> None:
-        try:
-            slot.conn.send(Run(claimed.id, claimed.request))
-        except (OSError, ValueError):
-            pass  # dead worker: the next _check retries the job
-
-    def _send_cancel(self, slot: _Slot) -> None:
-        try:
-            slot.conn.send(Cancel(slot.job_id))
-        except (OSError, ValueError):
-            pass
+        wanted = jobs.cancel_requested_among(self.db, asked)
+        for job_id in wanted:
+            running = self.running.get(job_id)
+            if running is None:
+                continue
+            if running.started is None:  # still waiting for a worker: just drop it
+                self.running.pop(job_id, None)
+                self.executor.stop(running.handle, interrupt=False)
+                self._finish(job_id, Status.CANCELLED, error="cancelled by request")
+                continue
+            running.cancel_sent = now
+            self.executor.cancel(running.handle)
+        if wanted and self.settings.cancel_grace == 0:
+            self._check_limits(now + 1e-3)
 
     def _flush_progress(self, now: float) -> None:
-        for slot in self.slots:
-            if slot.job_id and slot.progress_dirty and now - slot.progress_written >= 0.2:
-                jobs.update_progress(self.db, slot.job_id, self.owner, slot.progress)
-                slot.progress_dirty = False
-                slot.progress_written = now
+        for running in self.running.values():
+            if running.progress_dirty and now - running.progress_written >= PROGRESS_WRITE_EVERY:
+                jobs.update_progress(self.db, running.job_id, self.owner, running.progress)
+                running.progress_dirty = False
+                running.progress_written = now
 
     def _fill(self) -> None:
-        idle = self._idle_slots()
-        if not idle or not jobs.has_queued(self.db):
+        free = self.executor.free_slots()
+        if not free or not (self._queue_maybe_nonempty or jobs.has_queued(self.db)):
             return
-        # One transaction claims a job for every idle slot (and records the worker pids).
-        claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [self._pid_for(s) for s in idle])
-        now = time.monotonic()
-        for slot, job in zip(idle, claimed):
-            slot.job_id, slot.attempt, slot.started = job.id, job.attempts, now
-            slot.cancel_sent, slot.progress, slot.progress_dirty = None, None, False
-            self._submit(slot, job)
+        # One transaction claims a job for every free slot (and records the worker pids known now).
+        claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [s.pid for s in free])
+        self._queue_maybe_nonempty = len(claimed) == len(free)
+        for slot, job in zip(free, claimed):
+            try:
+                handle = self.executor.submit(slot, job)
+            except Exception as exc:  # e.g. the Dask client lost its scheduler just now
+                log.exception("could not hand job %s to the executor", job.id)
+                self.running[job.id] = _Running(job.id, None, slot.pid)
+                self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
+                continue
+            self.running[job.id] = _Running(job.id, handle, slot.pid)
 
     def _shutdown(self) -> None:
-        for slot in self.slots:
+        try:
+            self._flush_pending()
+        except Exception:  # pragma: no cover - the lease expires and the job runs again
+            log.exception("could not record the end of jobs %s", list(self.pending))
+        for job_id, running in list(self.running.items()):
+            self.executor.stop(running.handle, interrupt=False)
             try:
-                self._flush_pending(slot)
-            except Exception:  # pragma: no cover - the lease expires and the job runs again
-                log.exception("could not record the end of job %s", slot.pending and slot.pending[0])
-            job_id = slot.job_id
-            if job_id is not None:
-                self._kill(slot)
-                try:
-                    jobs.release(self.db, job_id, self.owner)
-                except Exception:  # pragma: no cover - the lease will expire instead
-                    log.exception("could not release job %s", job_id)
-                slot.clear_job()
-            elif slot.conn is not None:
-                try:
-                    slot.conn.send(Stop())
-                except (OSError, ValueError):
-                    pass
-        deadline = time.monotonic() + 2.0
-        for slot in self.slots:
-            if slot.proc is not None:
-                slot.proc.join(max(0.0, deadline - time.monotonic()))
-            self._kill(slot)
+                jobs.release(self.db, job_id, self.owner)
+            except Exception:  # pragma: no cover - the lease will expire instead
+                log.exception("could not release job %s", job_id)
+        self.running.clear()
+        self.executor.shutdown()
 
 
 def make_dispatcher(db: Database, settings: Settings,
                     on_finished: Callable[[str], None] | None = None) -> Dispatcher:
-    """The local process pool, or the Dask backend when ``NCS_DASK_SCHEDULER`` is set."""
+    """The dispatcher on the local process pool, or on Dask when ``NCS_DASK_SCHEDULER`` is set."""
+    executor: Executor
     if settings.dask_scheduler:
-        from app.jobs.dask_executor import DaskDispatcher
+        from app.jobs.dask_executor import DaskExecutor
 
-        return DaskDispatcher(db, settings, on_finished)
-    return Dispatcher(db, settings, on_finished)
+        executor = DaskExecutor(settings)
+    else:
+        from app.jobs.local_executor import LocalExecutor
+
+        executor = LocalExecutor(settings)
+    return Dispatcher(db, settings, executor, on_finished)

@@ -16,8 +16,8 @@ from datetime import timedelta
 from typing import Any
 
 from sqlalchemy import and_, case, func, select, update
+from sqlalchemy import insert as insert_stmt
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import make_transient
 
 from app.jobs.database import Database
 from app.jobs.errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, QueueFull
@@ -264,21 +264,22 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
         existing = db.retry_on_disconnect(lookup)
         if existing is not None:
             return replay(existing)
-    if max_queue_depth is not None:
-        queued = db.retry_on_disconnect(lambda: queue_depth(db))
-        if queued >= max_queue_depth:
-            raise QueueFull(queued, max_queue_depth, retry_after)
     now = utcnow()
-    row = Job(id=new_id(), kind=kind, status=Status.QUEUED.value, method=request["method"], n_drop=n_drop,
-              request=request, request_hash=digest, idempotency_key=stored_key, attempts=0,
-              cancel_requested=False, created_at=now, updated_at=now, owner=owner)
+    values = dict(id=new_id(), kind=kind, status=Status.QUEUED.value, method=request["method"], n_drop=n_drop,
+                  request=request, request_hash=digest, idempotency_key=stored_key, attempts=0,
+                  cancel_requested=False, created_at=now, updated_at=now, owner=owner)
+    row = Job(**values)  # the answer; never attached to a session
 
     def insert() -> None:
-        make_transient(row)  # a retry after a lost connection inserts the row again
+        # The back-pressure count and the INSERT share one write transaction (one connection checkout and
+        # commit per submission, and the count cannot go stale before the insert); a Core INSERT, not the
+        # ORM's unit of work, on this hot path.
         with db.write() as s:
-            s.add(row)
-            s.flush()
-            s.expunge(row)
+            if max_queue_depth is not None:
+                queued = s.execute(_QUEUED_COUNT).scalar_one()
+                if queued >= max_queue_depth:
+                    raise QueueFull(queued, max_queue_depth, retry_after)
+            s.execute(insert_stmt(Job).values(**values))
 
     try:
         db.retry_on_disconnect(insert)
@@ -296,9 +297,12 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
     return Submitted(row, replayed=False)
 
 
+_QUEUED_COUNT = select(func.count()).select_from(Job).where(Job.status == Status.QUEUED)
+
+
 def queue_depth(db: Database) -> int:
     with db.read() as s:
-        return s.execute(select(func.count()).select_from(Job).where(Job.status == Status.QUEUED)).scalar_one()
+        return s.execute(_QUEUED_COUNT).scalar_one()
 
 
 def list_jobs(db: Database, kind: str, status: str | None, limit: int, offset: int,
@@ -354,10 +358,12 @@ def cancel(db: Database, kind: str, job_id: str, owner: str | None = None) -> Ca
     return CancelOutcome(row, at_once)
 
 
-def is_finished(db: Database, job_id: str) -> bool:
-    def read() -> bool:
+def finished_among(db: Database, job_ids: list[str]) -> set[str]:
+    """Those of ``job_ids`` that are finished, or gone (deleted): nobody should wait for them."""
+    def read() -> set[str]:
         with db.read() as s:
-            status = s.execute(select(Job.status).where(Job.id == job_id)).scalar_one_or_none()
-        return status is None or Status(status).finished
+            rows = s.execute(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all()
+        unfinished = {r.id for r in rows if not Status(r.status).finished}
+        return set(job_ids) - unfinished
 
     return db.retry_on_disconnect(read)

@@ -48,9 +48,9 @@ def dask_pid_of(client, job_id: str, timeout: float = 60.0) -> int:
     disp = client.app.state.dispatcher
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        for slot in list(disp.slots):
-            if slot.job_id == job_id and slot.pid:
-                return slot.pid
+        pid = disp.worker_pid(job_id)
+        if pid:
+            return pid
         time.sleep(0.02)
     raise AssertionError(f"job {job_id} never started on a Dask worker")
 

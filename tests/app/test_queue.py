@@ -23,9 +23,9 @@ def worker_pid_of(client, job_id: str, timeout: float = 30.0) -> int:
     disp = client.app.state.dispatcher
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        for slot in disp.slots:
-            if slot.job_id == job_id and slot.pid:
-                return slot.pid
+        pid = disp.worker_pid(job_id)
+        if pid:
+            return pid
         time.sleep(0.05)
     raise AssertionError(f"job {job_id} never started")
 
