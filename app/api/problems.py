@@ -228,46 +228,41 @@ def _parse_failure(cause: BaseException | None) -> str:
     return "it could not be parsed"
 
 
+#: Domain error -> (HTTP status, problem title, problem type slug).  QueueFull also sends Retry-After.
+DOMAIN_ERRORS = {
+    JobNotFound: (404, "Not Found", "not-found"),
+    JobAlreadyFinished: (409, "Conflict", "conflict"),
+    QueueFull: (429, "Too Many Requests", "queue-full"),
+    MemoryLimitExceeded: (422, "Resource limit exceeded", "limit-exceeded"),
+    ComputeTimeLimit: (503, "Time limit exceeded", "time-limit"),
+    WorkerDied: (503, "Worker process died", "worker-died"),
+    ComputeFailed: (500, "Solver error", "internal-error"),
+}
+
+
+def _domain_handler(status: int, title: str, slug: str):
+    async def handler(request: Request, exc: Exception):
+        retry_after = getattr(exc, "retry_after", None)
+        headers = None if retry_after is None else {"Retry-After": str(retry_after)}
+        return problem_response(request, status, title, str(exc), TYPE_BASE + slug, headers=headers)
+
+    return handler
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ProblemException)
     async def _problem(request: Request, exc: ProblemException):
         return problem_response(request, exc.status, exc.title, exc.detail, exc.type, exc.errors,
                                 exc.headers)
 
-    # The job layer's refusals (app.jobs.errors) and their HTTP answers.
-    @app.exception_handler(JobNotFound)
-    async def _not_found(request: Request, exc: JobNotFound):
-        return problem_response(request, 404, "Not Found", str(exc), TYPE_BASE + "not-found")
-
-    @app.exception_handler(JobAlreadyFinished)
-    async def _finished(request: Request, exc: JobAlreadyFinished):
-        return problem_response(request, 409, "Conflict", str(exc), TYPE_BASE + "conflict")
-
-    @app.exception_handler(QueueFull)
-    async def _queue_full(request: Request, exc: QueueFull):
-        return problem_response(request, 429, "Too Many Requests", str(exc), TYPE_BASE + "queue-full",
-                                headers={"Retry-After": str(exc.retry_after)})
+    # The job and compute layers' refusals (app.jobs.errors) and their HTTP answers, in one table.
+    for error, (status, title, slug) in DOMAIN_ERRORS.items():
+        app.add_exception_handler(error, _domain_handler(status, title, slug))
 
     @app.exception_handler(IdempotencyKeyReused)
     async def _key_reused(request: Request, exc: IdempotencyKeyReused):
         errors = [field_error(["header", "Idempotency-Key"], str(exc), "idempotency_key_reused")]
         return problem_response(request, 422, "Invalid request", str(exc), TYPE_BASE + "invalid-request", errors)
-
-    @app.exception_handler(MemoryLimitExceeded)
-    async def _over_memory(request: Request, exc: MemoryLimitExceeded):
-        return problem_response(request, 422, "Resource limit exceeded", str(exc), TYPE_BASE + "limit-exceeded")
-
-    @app.exception_handler(ComputeTimeLimit)
-    async def _time_limit(request: Request, exc: ComputeTimeLimit):
-        return problem_response(request, 503, "Time limit exceeded", str(exc), TYPE_BASE + "time-limit")
-
-    @app.exception_handler(WorkerDied)
-    async def _worker_died(request: Request, exc: WorkerDied):
-        return problem_response(request, 503, "Worker process died", str(exc), TYPE_BASE + "worker-died")
-
-    @app.exception_handler(ComputeFailed)
-    async def _compute_failed(request: Request, exc: ComputeFailed):
-        return problem_response(request, 500, "Solver error", str(exc), TYPE_BASE + "internal-error")
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):

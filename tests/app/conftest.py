@@ -9,11 +9,7 @@ creates its own throw-away database on that server instead.
 from __future__ import annotations
 
 import os
-import socket
-import subprocess
-import sys
 import time
-import uuid
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,39 +23,18 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from app import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
-from bench.harness import Server, free_port  # noqa: E402,F401 (free_port: for the test modules)
+from bench.harness import Server, free_port, fresh_database  # noqa: E402,F401 (free_port: for the test modules)
 
 PG_URL = os.environ.get("NCS_TEST_DATABASE_URL") or None
 REPO = Path(__file__).resolve().parents[2]
 TERMINAL = ("succeeded", "failed", "cancelled")
 
 
-def _pg_admin(url: str):
-    import psycopg
-    from sqlalchemy.engine import make_url
-
-    u = make_url(url)
-    host = u.query.get("host") or u.host or "127.0.0.1"  # ?host=/var/run/postgresql: Unix socket
-    return psycopg.connect(host=host, port=u.port or 5432, user=u.username,
-                           password=u.password, dbname=u.database, autocommit=True), u
-
-
 @contextmanager
 def fresh_database_url(tmp_dir: Path):
-    """A URL of an empty database: an SQLite file, or a new PostgreSQL database."""
-    if not PG_URL:
-        yield f"sqlite:///{tmp_dir / ('ncs-' + uuid.uuid4().hex[:8] + '.db')}"
-        return
-    name = "ncs_test_" + uuid.uuid4().hex[:12]
-    conn, u = _pg_admin(PG_URL)
-    with conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield u.set(database=name).render_as_string(hide_password=False)
-    finally:
-        conn, _ = _pg_admin(PG_URL)
-        with conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+    """A URL of an empty database: an SQLite file, or a new PostgreSQL database (``NCS_TEST_DATABASE_URL``)."""
+    with fresh_database(PG_URL or None, tmp_dir) as url:
+        yield url
 
 
 def make_settings(url: str, **overrides) -> Settings:
