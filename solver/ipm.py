@@ -1,0 +1,743 @@
+"""A structure-exploiting primal-dual interior-point solver for the design LMIs (docs/design.md).
+
+Every SDP the design methods solve has the form::
+
+    maximize   t
+    subject to B_b(V) - t I >= 0,   b = 1..nb        (all blocks of one side k)
+               one linear equality on V (the normalization, e.g. trace W = n)
+
+where ``V`` is a handful of matrix variables (symmetric ``W``, general
+``Y``, ...) and every block is a sum of terms ``c (L V R + (L V R)^T)`` plus
+a constant.  A general conic solver keeps each block's scaling as a dense
+``(k(k+1)/2)^2`` matrix in its KKT system; here the Schur complement
+``M_ij = sum_b tr(A_i X_b A_j S_b^{-1})`` (HKM direction) is assembled from
+Kronecker products of small ``L^T G L'``, ``R X R'^T`` pieces: the sum over
+the blocks of ``kron(P_b, Q_b)`` is ONE matrix product
+``P^T Q`` of the blocks' vectorized pieces (``P`` of shape (nb, r r'),
+``Q`` of shape (nb, c c')), so the cost is ``O(nb n^4)`` BLAS-3 work instead
+of ``O(nb k^6)``.
+
+The solver works on the standard pair (``y`` the free variables left after
+eliminating the equality, ``X_b`` the block multipliers)::
+
+    (D)  max b^T y   s.t.  S = C + A(y) >= 0
+    (P)  min <C, X>  s.t.  A^*(X) + b = 0,  X >= 0
+
+with an infeasible start (``S`` starts strictly feasible, ``X = I / (nb k)``
+does not satisfy ``A^*(X) + b = 0``), the HKM symmetrized direction and
+Mehrotra's predictor-corrector, separate primal and dual step lengths, and
+stops on relative gap and relative primal/dual infeasibility.  Because the
+``y`` iterates stay feasible (``S > 0``), ``t = b^T y`` is always an
+*attained* value: a returned ``t > margin`` is backed by a feasible
+``(W, Y)`` whatever the status; ``<C, X>`` bounds ``t*`` from above once
+the primal residual is small.
+
+Public entry points: :func:`solve_lmi` (the ``lmi`` design),
+:func:`solve_switched` (the ``switched`` design), :func:`solve_common_fixed_gain`
+(the fixed-gain certificate LMI of ``analyze``), and the generic
+:class:`BlockLMI` / :func:`solve_block_lmi` they are built on.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+__all__ = [
+    "MatrixVariable",
+    "BlockLMI",
+    "IPMOptions",
+    "IPMSolution",
+    "LMISolution",
+    "SwitchedSolution",
+    "FixedGainSolution",
+    "solve_block_lmi",
+    "solve_lmi",
+    "solve_switched",
+    "solve_common_fixed_gain",
+    "lmi_problem",
+    "switched_problem",
+]
+
+
+# ----------------------------------------------------------------------------- problem description
+@dataclass
+class MatrixVariable:
+    """One matrix variable and the terms through which it enters the blocks.
+
+    Parameters
+    ----------
+    name : str
+    shape : (int, int)
+        ``(r, c)``.
+    sym_block : int or None
+        If set, the variable is a vertical stack of ``r / sym_block`` symmetric
+        ``sym_block x sym_block`` matrices (``sym_block = r = c`` for one
+        symmetric matrix); otherwise it is general.
+    terms : list of (L, R, coef)
+        ``L`` of shape (nb, k, r), ``R`` of shape (nb, c, k), ``coef`` a float:
+        the variable contributes ``coef (L_b V R_b + (L_b V R_b)^T)`` to block b.
+    """
+
+    name: str
+    shape: tuple
+    sym_block: int | None
+    terms: list = field(default_factory=list)
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+
+@dataclass
+class BlockLMI:
+    """``max t`` s.t. ``C_b + sum_V terms_b(V) - t I >= 0`` and ``<a, vec V> = beta``.
+
+    Parameters
+    ----------
+    C : ndarray, shape (nb, k, k)
+        Constant part of the blocks at ``V = V0``.
+    variables : list of MatrixVariable
+    V0 : list of ndarray
+        A point satisfying the equality (the start; ``C`` is the blocks' value there).
+    equality : ndarray, shape (n_full,) or None
+        Coefficients ``a`` of the one linear equality on the row-major
+        concatenation of the variables (``beta`` is implied by ``V0``).
+    """
+
+    C: np.ndarray
+    variables: list
+    V0: list
+    equality: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.nb, self.k = self.C.shape[0], self.C.shape[1]
+        offsets = np.cumsum([0] + [v.size for v in self.variables])
+        self.slices = [slice(int(offsets[i]), int(offsets[i + 1])) for i in range(len(self.variables))]
+        self.n_full = int(offsets[-1]) + 1  # + t, the last entry
+        self.T = self._basis()
+        self.p = self.T.shape[1]
+        self.b = np.asarray(self.T[-1, :].todense()).ravel()  # t = b^T y (t enters with coefficient 1)
+
+    def _basis(self) -> sp.csr_matrix:
+        """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
+        rows, cols, vals = [], [], []
+        col = 0
+        for var, sl in zip(self.variables, self.slices):
+            r, c = var.shape
+            base = sl.start
+            if var.sym_block is None:
+                for e in range(r * c):
+                    rows.append(base + e), cols.append(col), vals.append(1.0)
+                    col += 1
+            else:
+                q = var.sym_block
+                for blk in range(r // q):
+                    for i in range(q):
+                        for j in range(i, q):
+                            rows.append(base + (blk * q + i) * c + j), cols.append(col), vals.append(1.0)
+                            if i != j:
+                                rows.append(base + (blk * q + j) * c + i), cols.append(col), vals.append(1.0)
+                            col += 1
+        rows.append(self.n_full - 1), cols.append(col), vals.append(1.0)  # t
+        col += 1
+        T = sp.csr_matrix((vals, (rows, cols)), shape=(self.n_full, col))
+        if self.equality is None:
+            return T
+        a = T.T @ np.append(self.equality, 0.0)
+        piv = int(np.argmax(np.abs(a)))
+        # Eliminate the pivot parameter: y_piv = -(sum_{j != piv} a_j y_j) / a_piv (x0 already satisfies it).
+        keep = np.array([j for j in range(col) if j != piv])
+        E = sp.lil_matrix((col, col - 1))
+        E[keep, np.arange(col - 1)] = 1.0
+        E[piv, :] = -a[keep] / a[piv]
+        return (T @ E.tocsr()).tocsr()
+
+    # ----------------------------------------------------------------- the operator and its adjoint
+    def full(self, y: np.ndarray) -> np.ndarray:
+        return self.T @ y
+
+    def op(self, y: np.ndarray) -> np.ndarray:
+        """``A(y)``: the blocks' change for a step ``y``, shape (nb, k, k)."""
+        x = self.T @ y
+        out = -x[-1] * np.broadcast_to(np.eye(self.k), (self.nb, self.k, self.k))
+        out = out.copy()
+        for var, sl in zip(self.variables, self.slices):
+            V = x[sl].reshape(var.shape)
+            for L, R, coef in var.terms:
+                LVR = L @ V @ R
+                out += coef * (LVR + np.swapaxes(LVR, 1, 2))
+        return out
+
+    def adj_full(self, U: np.ndarray) -> np.ndarray:
+        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric)."""
+        Us = U + np.swapaxes(U, 1, 2)
+        g = np.empty(self.n_full)
+        for var, sl in zip(self.variables, self.slices):
+            acc = np.zeros(var.shape)
+            for L, R, coef in var.terms:
+                acc += coef * (np.swapaxes(L, 1, 2) @ Us @ np.swapaxes(R, 1, 2)).sum(axis=0)
+            g[sl] = acc.ravel()
+        g[-1] = -np.trace(U, axis1=1, axis2=2).sum()
+        return g
+
+    def adj(self, U: np.ndarray) -> np.ndarray:
+        return self.T.T @ self.adj_full(U)
+
+    # ----------------------------------------------------------------- Schur complement (HKM)
+    def schur(self, X: np.ndarray, G: np.ndarray) -> np.ndarray:
+        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p).
+
+        For terms ``c (L E R + R^T E^T L^T)`` and ``c' (L' E' R' + ...)`` the four
+        products of ``tr(A_E X A_E' G)`` are Kronecker products of small pieces
+        (row-major ``E = e_a e_b^T``, ``E' = e_c e_d^T``)::
+
+            (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
+          + (R'G L)^T_ad (R X L')_bc   + (L^T X R'^T)_ad (R G L')_bc
+
+        and each sum over blocks is one GEMM over the stacked pieces.
+        """
+        nf = self.n_full
+        M = np.zeros((nf, nf))
+        cache = []
+        for var in self.variables:
+            per = []
+            for L, R, coef in var.terms:
+                Rt = np.swapaxes(R, 1, 2)
+                per.append((L, R, coef, G @ L, X @ L, G @ Rt, X @ Rt, np.swapaxes(L, 1, 2)))
+            cache.append(per)
+        nb = self.nb
+        for i, (vi, si) in enumerate(zip(self.variables, self.slices)):
+            r, c = vi.shape
+            for j in range(i, len(self.variables)):
+                vj, sj = self.variables[j], self.slices[j]
+                r2, c2 = vj.shape
+                acc = np.zeros((r, c, r2, c2))
+                for L, R, cf, GL, XL, GRt, XRt, Lt in cache[i]:
+                    for L2, R2, cf2, GL2, XL2, GRt2, XRt2, Lt2 in cache[j]:
+                        # (a,c | b,d) layout: kron-type products
+                        P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)])
+                        Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)])
+                        K = (P.T @ Q).reshape(r, r2, c, c2).transpose(0, 2, 1, 3)
+                        # (a,d | b,c) layout
+                        P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)])
+                        Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)])
+                        K = K + (P.T @ Q).reshape(r, c2, c, r2).transpose(0, 2, 3, 1)
+                        acc += (cf * cf2) * K
+                block = acc.reshape(r * c, r2 * c2)
+                M[si, sj] = block
+                if j != i:
+                    M[sj, si] = block.T
+        # t column: A_t = -I, so M[t, v] = -sum tr(A_v G X) (tr(A X A_t G) = -tr(A X G)).
+        GX = G @ X
+        col = -self.adj_full(GX)
+        col[-1] = np.einsum("bij,bji->", X, G)
+        M[-1, :] = col
+        M[:, -1] = col
+        TtM = np.asarray(self.T.T @ M)
+        return np.asarray(self.T.T @ TtM.T)
+
+    def dense_operator(self) -> np.ndarray:
+        """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
+        return np.stack([self.op(e) for e in np.eye(self.p)])
+
+
+# ----------------------------------------------------------------------------- options and results
+@dataclass
+class IPMOptions:
+    """Tolerances and limits of the interior-point method.
+
+    Attributes
+    ----------
+    gap_tol : float
+        Stop when ``|<C,X> - b^T y| / (1 + |<C,X>| + |b^T y|)`` is below this ...
+    feas_tol : float
+        ... and the relative primal and dual residuals are below this.
+    max_iter : int
+        Iteration cap (the method never hangs on degenerate data).
+    step : float
+        Fraction of the step to the boundary that is taken.
+    time_limit : float or None
+        Seconds; the best iterate so far is returned with status ``"time_limit"``.
+    dense : bool or None
+        Force (True) or forbid (False) the dense-operator Schur path; None picks
+        it for small problems, where it needs fewer numpy calls.
+    """
+
+    gap_tol: float = 1e-8
+    feas_tol: float = 1e-8
+    max_iter: int = 100
+    step: float = 0.98
+    time_limit: float | None = None
+    dense: bool | None = None
+
+
+@dataclass
+class IPMSolution:
+    """Raw result of :func:`solve_block_lmi` in the solver's own coordinates.
+
+    Attributes
+    ----------
+    t : float
+        ``b^T y``: attained by the returned variables (``S >= 0`` throughout).
+    upper : float
+        ``<C, X>``: an upper bound on ``t*`` up to the primal residual.
+    V : list of ndarray
+        The matrix variables at the returned iterate.
+    X : ndarray, shape (nb, k, k)
+        Block multipliers (PSD, ``sum_b trace X_b = 1`` up to the primal residual).
+    equality_multiplier : float
+        Multiplier ``nu`` of the equality ``<a, vec V> = beta``:
+        ``A_V^*(X) = nu a`` at the optimum (cvxpy/Clarabel's sign for ``== `` in a
+        maximization, see :func:`solve_lmi`).
+    status : {"optimal", "inaccurate", "max_iterations", "time_limit", "numerical_error"}
+    iterations : int
+    primal_residual, dual_residual, gap : float
+        Relative residuals and relative gap at the returned iterate.
+    timings : dict
+        Seconds in ``assembly`` (Schur complement), ``factorization``,
+        ``line_search`` (step lengths), ``other`` and ``total``.
+    """
+
+    t: float
+    upper: float
+    V: list
+    X: np.ndarray
+    equality_multiplier: float
+    status: str
+    iterations: int
+    primal_residual: float
+    dual_residual: float
+    gap: float
+    timings: dict
+
+
+def _max_step(Z: np.ndarray, dZ: np.ndarray, chol: np.ndarray | None = None) -> float:
+    """Largest alpha <= 1e30 with Z + alpha dZ >= 0 for every block (Z > 0)."""
+    Lc = np.linalg.cholesky(Z) if chol is None else chol
+    Li = np.linalg.inv(Lc)
+    lam = np.linalg.eigvalsh(Li @ dZ @ np.swapaxes(Li, 1, 2))[:, 0].min()
+    return np.inf if lam >= 0 else -1.0 / lam
+
+
+def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPMSolution:
+    """Solve a :class:`BlockLMI` by an infeasible primal-dual path-following method.
+
+    HKM direction, Mehrotra predictor-corrector, Schur complement from
+    :meth:`BlockLMI.schur` (or from the dense operator for small problems).
+
+    Parameters
+    ----------
+    problem : BlockLMI
+    options : IPMOptions, optional
+
+    Returns
+    -------
+    IPMSolution
+    """
+    o = options or IPMOptions()
+    t_start = time.perf_counter()
+    tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
+    nb, k, p = problem.nb, problem.k, problem.p
+    N = nb * k
+    C = problem.C
+    b = problem.b
+    eye = np.eye(k)
+    dense = o.dense if o.dense is not None else (p * nb * k * k <= 20000)
+    if dense:
+        Aop = problem.dense_operator()
+        Aflat = Aop.reshape(p, -1)
+        op = lambda y: np.tensordot(y, Aop, 1)  # noqa: E731
+        adj = lambda U: Aflat @ U.reshape(-1)  # noqa: E731  (A_i symmetric: tr(A_i U) = <A_i, U>)
+
+        def schur(X, G):
+            U = X[None] @ Aop @ G[None]
+            return Aflat @ U.reshape(p, -1).T
+    else:
+        op, adj, schur = problem.op, problem.adj, problem.schur
+
+    # Start: y = 0 except t below every block's smallest eigenvalue, so S > 0 (dual feasible);
+    # X = I / N satisfies the t-row of A^*(X) + b = 0 but not the others (infeasible start).
+    y = np.zeros(p)
+    lam0 = np.linalg.eigvalsh(C)[:, 0].min()
+    scale = max(1.0, float(np.abs(C).max()))
+    y[-1] = lam0 - scale  # t enters as -t I: S = C - t I
+    S = C + op(y)
+    X = np.broadcast_to(eye / N, (nb, k, k)).copy()
+    normC = 1.0 + np.linalg.norm(C)
+    normb = 1.0 + np.linalg.norm(b)
+    status = "max_iterations"
+    best = None
+    it = 0
+    rp = rd = gap = np.inf
+    for it in range(o.max_iter + 1):
+        try:
+            LS = np.linalg.cholesky(S)
+            LX = np.linalg.cholesky(X)
+        except np.linalg.LinAlgError:
+            status = "numerical_error"
+            break
+        LSi = np.linalg.inv(LS)
+        G = np.swapaxes(LSi, 1, 2) @ LSi
+        r_p = -b - adj(X)
+        R_d = C + op(y) - S
+        pobj = float(np.einsum("bij,bij->", C, X))
+        dobj = float(b @ y)
+        XS = float(np.einsum("bij,bij->", X, S))
+        mu = XS / N
+        rp = np.linalg.norm(r_p) / normb
+        rd = np.linalg.norm(R_d) / normC
+        gap = abs(pobj - dobj) / (1.0 + abs(pobj) + abs(dobj))
+        gap = max(gap, XS / (1.0 + abs(pobj) + abs(dobj)))
+        score = max(rp, rd, gap)
+        if best is None or score < best[0]:
+            best = (score, it, y.copy(), X.copy(), rp, rd, gap, pobj)
+        if rp < o.feas_tol and rd < o.feas_tol and gap < o.gap_tol:
+            status = "optimal"
+            break
+        if it == o.max_iter:
+            break
+        if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
+            status = "time_limit"
+            break
+        t0 = time.perf_counter()
+        M = schur(X, G)
+        t1 = time.perf_counter()
+        tim["assembly"] += t1 - t0
+        try:
+            fac = scipy.linalg.cho_factor(M, lower=True, check_finite=False)
+            solve = lambda h: scipy.linalg.cho_solve(fac, h, check_finite=False)  # noqa: E731
+        except (np.linalg.LinAlgError, ValueError):
+            # Lose positive definiteness only when the multipliers degenerate: regularize.
+            reg = 1e-12 * max(1.0, np.abs(np.diag(M)).max())
+            try:
+                fac = scipy.linalg.cho_factor(M + reg * np.eye(p), lower=True, check_finite=False)
+                solve = lambda h: scipy.linalg.cho_solve(fac, h, check_finite=False)  # noqa: E731
+            except (np.linalg.LinAlgError, ValueError):
+                lu = scipy.linalg.lu_factor(M, check_finite=False)
+                solve = lambda h: scipy.linalg.lu_solve(lu, h, check_finite=False)  # noqa: E731
+        tim["factorization"] += time.perf_counter() - t1
+        XRdG = X @ R_d @ G
+
+        def direction(RcG):
+            h = adj(RcG - XRdG) - r_p
+            dy = solve(h)
+            dS = op(dy) + R_d
+            W = RcG - X @ dS @ G
+            dX = 0.5 * (W + np.swapaxes(W, 1, 2))
+            return dy, dS, dX
+
+        # Predictor (affine scaling): R_c = -X S, so R_c G = -X.
+        dy, dS, dX = direction(-X)
+        t3 = time.perf_counter()
+        ap = min(1.0, _max_step(X, dX, LX))
+        ad = min(1.0, _max_step(S, dS, LS))
+        tim["line_search"] += time.perf_counter() - t3
+        mu_aff = float(np.einsum("bij,bij->", X + ap * dX, S + ad * dS)) / N
+        sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
+        # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
+        RcG = sigma * mu * G - X - dX @ dS @ G
+        dy, dS, dX = direction(RcG)
+        t4 = time.perf_counter()
+        ap = min(1.0, o.step * _max_step(X, dX, LX))
+        ad = min(1.0, o.step * _max_step(S, dS, LS))
+        tim["line_search"] += time.perf_counter() - t4
+        X = X + ap * dX
+        y = y + ad * dy
+        S = S + ad * dS
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(X))):
+            status = "numerical_error"
+            break
+    if status != "optimal" and best is not None:
+        _, it_best, y, X, rp, rd, gap, pobj = best
+        if status in ("max_iterations", "numerical_error") and max(rp, rd, gap) < 1e-6:
+            # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
+            status = "inaccurate"
+    elif best is not None:
+        pobj = best[7] if best[1] == it else float(np.einsum("bij,bij->", C, X))
+    x = problem.full(y)
+    V = []
+    for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0):
+        V.append(v0 + x[sl].reshape(var.shape))
+    t = float(x[-1])
+    nu = 0.0
+    if problem.equality is not None:
+        a = problem.equality
+        g = problem.adj_full(X)[:-1]
+        nu = float(a @ g / (a @ a))
+    tim["total"] = time.perf_counter() - t_start
+    tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
+    return IPMSolution(t=t, upper=float(np.einsum("bij,bij->", C, X)) + 0.0, V=V, X=X,
+                       equality_multiplier=nu, status=status, iterations=it,
+                       primal_residual=float(rp), dual_residual=float(rd), gap=float(gap), timings=tim)
+
+
+# ----------------------------------------------------------------------------- the design families
+def _selectors(n: int):
+    """``P1`` (2n, n) selecting the top half, ``P2`` the bottom half."""
+    P1 = np.zeros((2 * n, n))
+    P1[:n] = np.eye(n)
+    P2 = np.zeros((2 * n, n))
+    P2[n:] = np.eye(n)
+    return P1, P2
+
+
+def _gain_L(coef: np.ndarray, active: np.ndarray | None) -> np.ndarray:
+    """``[coef_{s,1} ... coef_{s,J}]`` per mode, inactive terms zeroed: shape (S, n, J m)."""
+    S, J, n, m = coef.shape
+    c = coef if active is None else coef * np.asarray(active, dtype=float)[:, :, None, None]
+    return c.transpose(0, 2, 1, 3).reshape(S, n, J * m)
+
+
+def lmi_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = None,
+                rho: np.ndarray | None = None) -> BlockLMI:
+    """The ``lmi`` design SDP as a :class:`BlockLMI` (docs/design.md, "The structured interior-point solver").
+
+    ``max t`` s.t. ``trace W = n`` and, per mode s,
+    ``[[rho_s W, (A_s W)^T], [A_s W, W]] - t I >= 0`` with
+    ``A_s W = free_s W + sum_j coef_{s,j} Y_j``.
+
+    Parameters
+    ----------
+    free : ndarray, shape (S, n, n)
+    coef : ndarray, shape (S, J, n, m)
+    active : ndarray of bool, shape (S, J), optional
+        Terms left out where False (as :meth:`solver.network.ModeSet.scheme_coef` says).
+    rho : ndarray, shape (S,), optional
+        Top-left factors (default 1; the congruent decay-rate form needs none).
+    """
+    free = np.asarray(free, dtype=np.float64)
+    coef = np.asarray(coef, dtype=np.float64)
+    S, n, _ = free.shape
+    J, m = coef.shape[1], coef.shape[3]
+    P1, P2 = _selectors(n)
+    sq = np.ones(S) if rho is None else np.sqrt(np.asarray(rho, dtype=np.float64))
+    Ltop = sq[:, None, None] * P1[None]
+    Rtop = sq[:, None, None] * P1.T[None]
+    Lbot = np.broadcast_to(P2, (S, 2 * n, n))
+    Rbot = np.broadcast_to(P2.T, (S, n, 2 * n))
+    Rleft = np.broadcast_to(P1.T, (S, n, 2 * n))
+    LF = P2[None] @ free  # (S, 2n, n)
+    W = MatrixVariable("W", (n, n), n, [(Ltop, Rtop, 0.5), (Lbot, Rbot, 0.5), (LF, Rleft, 1.0)])
+    variables = [W]
+    if J * m > 0:
+        LY = P2[None] @ _gain_L(coef, active)
+        variables.append(MatrixVariable("Y", (J * m, n), None, [(LY, Rleft, 1.0)]))
+    C = np.zeros((S, 2 * n, 2 * n))
+    C[:, :n, :n] = (sq**2)[:, None, None] * np.eye(n)
+    C[:, n:, n:] = np.eye(n)
+    C[:, n:, :n] = free
+    C[:, :n, n:] = np.swapaxes(free, 1, 2)
+    a = np.zeros(sum(v.size for v in variables))
+    a[: n * n: n + 1] = 1.0  # trace W
+    V0 = [np.eye(n)] + ([np.zeros((J * m, n))] if J * m > 0 else [])
+    return BlockLMI(C=C, variables=variables, V0=V0, equality=a)
+
+
+def switched_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = None,
+                     rho: np.ndarray | None = None) -> BlockLMI:
+    """The ``switched`` design SDP as a :class:`BlockLMI`.
+
+    ``max t`` s.t. ``trace Z = n`` and, for every pair (s, u) (block ``s S + u``),
+    ``[[rho_s (Z + Z^T - S_s), (A_s Z)^T], [A_s Z, S_u]] - t I >= 0``.
+    The ``S_s`` are one stacked variable (S n, n) of symmetric n x n blocks.
+    """
+    free = np.asarray(free, dtype=np.float64)
+    coef = np.asarray(coef, dtype=np.float64)
+    S, n, _ = free.shape
+    J, m = coef.shape[1], coef.shape[3]
+    P1, P2 = _selectors(n)
+    B = S * S
+    s_of = np.repeat(np.arange(S), S)
+    u_of = np.tile(np.arange(S), S)
+    sq = np.ones(S) if rho is None else np.sqrt(np.asarray(rho, dtype=np.float64))
+    sqb = sq[s_of][:, None, None]
+    Rleft = np.broadcast_to(P1.T, (B, n, 2 * n))
+    Z = MatrixVariable("Z", (n, n), None, [(sqb * P1[None], sqb * P1.T[None], 1.0),
+                                           (P2[None] @ free[s_of], Rleft, 1.0)])
+    # E_s^T = e_s^T kron I_n picks S_s out of the stack.
+    Lss = np.zeros((B, 2 * n, S * n))
+    Lsu = np.zeros((B, 2 * n, S * n))
+    for bi in range(B):
+        s, u = s_of[bi], u_of[bi]
+        Lss[bi, :n, s * n:(s + 1) * n] = sq[s] * np.eye(n)
+        Lsu[bi, n:, u * n:(u + 1) * n] = np.eye(n)
+    Sv = MatrixVariable("S", (S * n, n), n, [(Lss, sqb * P1.T[None], -0.5),
+                                            (Lsu, np.broadcast_to(P2.T, (B, n, 2 * n)), 0.5)])
+    variables = [Z, Sv]
+    if J * m > 0:
+        LY = P2[None] @ _gain_L(coef, active)[s_of]
+        variables.append(MatrixVariable("Y", (J * m, n), None, [(LY, Rleft, 1.0)]))
+    C = np.zeros((B, 2 * n, 2 * n))
+    C[:, :n, :n] = (sq[s_of] ** 2)[:, None, None] * np.eye(n)
+    C[:, n:, n:] = np.eye(n)
+    C[:, n:, :n] = free[s_of]
+    C[:, :n, n:] = np.swapaxes(free[s_of], 1, 2)
+    a = np.zeros(sum(v.size for v in variables))
+    a[: n * n: n + 1] = 1.0  # trace Z
+    V0 = [np.eye(n), np.tile(np.eye(n), (S, 1))] + ([np.zeros((J * m, n))] if J * m > 0 else [])
+    return BlockLMI(C=C, variables=variables, V0=V0, equality=a)
+
+
+def _split_Y(Ystack: np.ndarray | None, J: int, m: int, n: int) -> np.ndarray:
+    if Ystack is None:
+        return np.zeros((J, m, n))
+    return Ystack.reshape(J, m, n)
+
+
+@dataclass
+class LMISolution:
+    """Result of :func:`solve_lmi` (primal and dual solutions of the ``lmi`` SDP).
+
+    Attributes
+    ----------
+    t : float
+        Attained optimal value (the returned ``W``, ``Y`` make every block
+        ``>= t I`` up to rounding, whatever the status).
+    W : ndarray, shape (n, n)
+        Symmetric, ``trace W = n``.
+    Y : ndarray, shape (J, m, n)
+    duals : ndarray, shape (S, 2n, 2n)
+        ``Z_s``, the multiplier of block s's constraint ``L_s(W, Y) - t I >= 0``:
+        PSD, ``sum_s trace Z_s = 1`` -- the same normalization as
+        ``constraint.dual_value`` from cvxpy with Clarabel for the same problem.
+    trace_multiplier : float
+        Multiplier of ``trace W == n`` with cvxpy's sign convention:
+        ``sum_s A_W^*(Z_s) = trace_multiplier * I`` at the optimum
+        (``A_W^*`` the adjoint of the W-part of the blocks), so ``t* = n *
+        trace_multiplier`` ... up to the rho terms (exact for rho = 1).
+    upper : float
+        Dual objective ``sum_s <C_s, Z_s>``: an upper bound on ``t*`` up to
+        ``primal_residual``.
+    status : {"optimal", "inaccurate", "max_iterations", "time_limit", "numerical_error"}
+    iterations : int
+    primal_residual, dual_residual, gap : float
+        Relative residuals of the multipliers' equations and of the blocks, and the relative gap.
+    timings : dict
+        Seconds: ``setup`` (building the structure), ``assembly``, ``factorization``,
+        ``line_search``, ``other``, ``total``.
+    """
+
+    t: float
+    W: np.ndarray
+    Y: np.ndarray
+    duals: np.ndarray
+    trace_multiplier: float
+    upper: float
+    status: str
+    iterations: int
+    primal_residual: float
+    dual_residual: float
+    gap: float
+    timings: dict
+
+
+@dataclass
+class SwitchedSolution:
+    """Result of :func:`solve_switched`.
+
+    Attributes
+    ----------
+    t : float
+    Z : ndarray, shape (n, n)
+    S : ndarray, shape (S, n, n)
+    Y : ndarray, shape (J, m, n)
+    duals : ndarray, shape (S*S, 2n, 2n)
+        Multiplier of the block of pair (s, u) at index ``s S + u``; ``sum trace = 1``.
+    trace_multiplier : float
+        Multiplier of ``trace(Z + Z^T) == 2n`` (cvxpy's convention, the constraint as written
+        in solver/methods/switched.py).
+    upper, status, iterations, primal_residual, dual_residual, gap, timings
+        As in :class:`LMISolution`.
+    """
+
+    t: float
+    Z: np.ndarray
+    S: np.ndarray
+    Y: np.ndarray
+    duals: np.ndarray
+    trace_multiplier: float
+    upper: float
+    status: str
+    iterations: int
+    primal_residual: float
+    dual_residual: float
+    gap: float
+    timings: dict
+
+
+def _check_data(free, coef, active):
+    free = np.asarray(free, dtype=np.float64)
+    coef = np.asarray(coef, dtype=np.float64)
+    if free.ndim != 3 or free.shape[1] != free.shape[2] or coef.ndim != 4 or coef.shape[0] != free.shape[0] \
+            or coef.shape[2] != free.shape[1]:
+        raise ValueError(f"free must be (S, n, n) and coef (S, J, n, m); got {free.shape} and {coef.shape}")
+    if not (np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
+        raise ValueError("free and coef must be finite")
+    if active is not None:
+        active = np.asarray(active, dtype=bool)
+        if active.shape != coef.shape[:2]:
+            raise ValueError(f"active must have shape {coef.shape[:2]}, got {active.shape}")
+    return free, coef, active
+
+
+def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> LMISolution:
+    """Solve the ``lmi`` design SDP (see :func:`lmi_problem`) with the structured IPM.
+
+    Parameters
+    ----------
+    free : array_like, shape (S, n, n)
+    coef : array_like, shape (S, J, n, m)
+    active : array_like of bool, shape (S, J), optional
+    rho : array_like, shape (S,), optional
+    options : IPMOptions, optional
+
+    Returns
+    -------
+    LMISolution
+
+    Raises
+    ------
+    ValueError
+        On inconsistent shapes or non-finite data.
+    """
+    t0 = time.perf_counter()
+    free, coef, active = _check_data(free, coef, active)
+    S, J, n, m = coef.shape
+    prob = lmi_problem(free, coef, active, rho)
+    setup = time.perf_counter() - t0
+    sol = solve_block_lmi(prob, options)
+    W = sol.V[0]
+    W = 0.5 * (W + W.T)
+    Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n)
+    tim = dict(sol.timings, setup=setup)
+    tim["total"] = time.perf_counter() - t0
+    return LMISolution(t=sol.t, W=W, Y=Y, duals=sol.X, trace_multiplier=sol.equality_multiplier, upper=sol.upper,
+                       status=sol.status, iterations=sol.iterations, primal_residual=sol.primal_residual,
+                       dual_residual=sol.dual_residual, gap=sol.gap, timings=tim)
+
+
+def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> SwitchedSolution:
+    """Solve the ``switched`` design SDP (see :func:`switched_problem`) with the structured IPM.
+
+    Parameters and errors as :func:`solve_lmi`; returns :class:`SwitchedSolution`.
+    """
+    t0 = time.perf_counter()
+    free, coef, active = _check_data(free, coef, active)
+    S, J, n, m = coef.shape
+    prob = switched_problem(free, coef, active, rho)
+    setup = time.perf_counter() - t0
+    sol = solve_block_lmi(prob, options)
+    Sm = sol.V[1].reshape(S, n, n)
+    Sm = 0.5 * (Sm + np.swapaxes(Sm, 1, 2))
+    Y = _split_Y(sol.V[2] if len(sol.V) > 2 else None, J, m, n)
+    tim = dict(sol.timings, setup=setup)
+    tim["total"] = time.perf_counter() - t0
+    return SwitchedSolution(t=sol.t, Z=sol.V[0], S=Sm, Y=Y, duals=sol.X, trace_multiplier=0.5 * sol.equality_multiplier,
+                            upper=sol.upper, status=sol.status, iterations=sol.iterations,
+                            primal_residual=sol.primal_residual, dual_residual=sol.dual_residual, gap=sol.gap,
+                            timings=tim)
