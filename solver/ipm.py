@@ -40,6 +40,8 @@ Public entry points: :func:`solve_lmi` (the ``lmi`` design),
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import time
 from dataclasses import dataclass, field
 
@@ -64,6 +66,63 @@ __all__ = [
 ]
 
 
+# ----------------------------------------------------------------------------- BLAS threads
+_BLAS = None
+
+
+def _blas_controls() -> list:
+    """(get, set) pairs of every OpenBLAS loaded in this process (numpy's and scipy's are separate)."""
+    global _BLAS
+    if _BLAS is not None:
+        return _BLAS
+    _BLAS = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")})
+    except OSError:
+        paths = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for suffix in ("64_", "", "_"):
+            for stem in ("scipy_openblas", "openblas"):
+                try:
+                    get = getattr(lib, f"{stem}_get_num_threads{suffix}")
+                    set_ = getattr(lib, f"{stem}_set_num_threads{suffix}")
+                except AttributeError:
+                    continue
+                get.restype = ctypes.c_int
+                set_.argtypes = [ctypes.c_int]
+                _BLAS.append((get, set_))
+                break
+            else:
+                continue
+            break
+    return _BLAS
+
+
+@contextlib.contextmanager
+def blas_threads(n: int | None):
+    """Run a block with ``n`` OpenBLAS threads (None: leave as is), restoring them after.
+
+    The IPM's BLAS calls are many and small (k = 2n <= 64): on a loaded
+    2-core machine OpenBLAS's threads spin against each other and one
+    solve took 10-20x longer than single-threaded (measured: n = 12,
+    11.5 s vs 0.7 s), so the solver runs single-threaded by default.
+    """
+    controls = _blas_controls() if n is not None else []
+    saved = [get() for get, _ in controls]
+    for _, set_ in controls:
+        set_(int(n))
+    try:
+        yield
+    finally:
+        for (_, set_), old in zip(controls, saved):
+            set_(old)
+
+
 # ----------------------------------------------------------------------------- problem description
 @dataclass
 class MatrixVariable:
@@ -81,6 +140,7 @@ class MatrixVariable:
     terms : list of (L, R, coef)
         ``L`` of shape (nb, k, r), ``R`` of shape (nb, c, k), ``coef`` a float:
         the variable contributes ``coef (L_b V R_b + (L_b V R_b)^T)`` to block b.
+        ``R = None`` (symmetric variables only) means ``coef L_b V L_b^T``.
     """
 
     name: str
@@ -164,23 +224,30 @@ class BlockLMI:
     def op(self, y: np.ndarray) -> np.ndarray:
         """``A(y)``: the blocks' change for a step ``y``, shape (nb, k, k)."""
         x = self.T @ y
-        out = -x[-1] * np.broadcast_to(np.eye(self.k), (self.nb, self.k, self.k))
-        out = out.copy()
+        out = np.multiply(-x[-1], np.eye(self.k))[None].repeat(self.nb, axis=0)
         for var, sl in zip(self.variables, self.slices):
             V = x[sl].reshape(var.shape)
             for L, R, coef in var.terms:
-                LVR = L @ V @ R
-                out += coef * (LVR + np.swapaxes(LVR, 1, 2))
+                if R is None:
+                    out += coef * (L @ V @ np.swapaxes(L, 1, 2))
+                else:
+                    LVR = L @ V @ R
+                    out += coef * (LVR + np.swapaxes(LVR, 1, 2))
         return out
 
     def adj_full(self, U: np.ndarray) -> np.ndarray:
         """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric)."""
         Us = U + np.swapaxes(U, 1, 2)
+        Ut = np.swapaxes(U, 1, 2)
         g = np.empty(self.n_full)
         for var, sl in zip(self.variables, self.slices):
             acc = np.zeros(var.shape)
             for L, R, coef in var.terms:
-                acc += coef * (np.swapaxes(L, 1, 2) @ Us @ np.swapaxes(R, 1, 2)).sum(axis=0)
+                Lt = np.swapaxes(L, 1, 2)
+                if R is None:  # tr(L E_ab L^T U) = (L^T U^T L)_ab
+                    acc += coef * (Lt @ Ut @ L).sum(axis=0)
+                else:
+                    acc += coef * (Lt @ Us @ np.swapaxes(R, 1, 2)).sum(axis=0)
             g[sl] = acc.ravel()
         g[-1] = -np.trace(U, axis1=1, axis2=2).sum()
         return g
@@ -189,6 +256,48 @@ class BlockLMI:
         return self.T.T @ self.adj_full(U)
 
     # ----------------------------------------------------------------- Schur complement (HKM)
+    @staticmethod
+    def _pieces(L, R, coef, X, G):
+        Lt = np.swapaxes(L, 1, 2)
+        if R is None:
+            return (L, None, coef, G @ L, X @ L, None, None, Lt)
+        Rt = np.swapaxes(R, 1, 2)
+        return (L, R, coef, G @ L, X @ L, G @ Rt, X @ Rt, Lt)
+
+    @staticmethod
+    def _pair(a, b, shape_a, shape_b, nb):
+        """Sum over blocks of ``tr(A_E X A_E' G)`` for one term of each variable, shape (r c, r2 c2).
+
+        Layouts: ``[P]_ac [Q]_bd`` is ``kron``; ``[P]_ad [Q]_bc`` a ``kron`` with a
+        commutation.  A sym-kind term is ``c L E L^T`` (E symmetric): one product
+        per pair instead of four.
+        """
+        L, R, cf, GL, XL, GRt, XRt, Lt = a
+        L2, R2, cf2, GL2, XL2, GRt2, XRt2, Lt2 = b
+        r, c = shape_a
+        r2, c2 = shape_b
+        if R is None and R2 is None:
+            # (L^T G L')_ad (L^T X L')_bc
+            K = ((Lt @ GL2).reshape(nb, -1).T @ (Lt @ XL2).reshape(nb, -1)).reshape(r, r2, r, r2).transpose(0, 2, 3, 1)
+        elif R is None:
+            # (L^T G R'^T)_ad (L^T X L')_bc + (L^T G L')_ac (L^T X R'^T)_bd
+            K = ((Lt @ GRt2).reshape(nb, -1).T @ (Lt @ XL2).reshape(nb, -1)).reshape(r, c2, r, r2).transpose(0, 2, 3, 1)
+            K = K + ((Lt @ GL2).reshape(nb, -1).T @ (Lt @ XRt2).reshape(nb, -1)).reshape(r, r2, r, c2).transpose(0, 2, 1, 3)
+        elif R2 is None:
+            # Only the projected (symmetric-basis) matrix matters, where block (i, j) is block (j, i)^T.
+            K = BlockLMI._pair(b, a, shape_b, shape_a, nb)
+            return K.reshape(r2 * c2, r * c).T * 1.0
+        else:
+            # (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
+            P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)])
+            Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)])
+            K = (P.T @ Q).reshape(r, r2, c, c2).transpose(0, 2, 1, 3)
+            # (R' G L)^T_ad (R X L')_bc + (L^T X R'^T)_ad (R G L')_bc
+            P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)])
+            Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)])
+            K = K + (P.T @ Q).reshape(r, c2, c, r2).transpose(0, 2, 3, 1)
+        return (cf * cf2) * K.reshape(r * c, r2 * c2)
+
     def schur(self, X: np.ndarray, G: np.ndarray) -> np.ndarray:
         """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p).
 
@@ -199,36 +308,22 @@ class BlockLMI:
             (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
           + (R'G L)^T_ad (R X L')_bc   + (L^T X R'^T)_ad (R G L')_bc
 
-        and each sum over blocks is one GEMM over the stacked pieces.
+        and each sum over blocks is one GEMM over the stacked pieces (see :meth:`_pair`).
         """
         nf = self.n_full
-        M = np.zeros((nf, nf))
-        cache = []
-        for var in self.variables:
-            per = []
-            for L, R, coef in var.terms:
-                Rt = np.swapaxes(R, 1, 2)
-                per.append((L, R, coef, G @ L, X @ L, G @ Rt, X @ Rt, np.swapaxes(L, 1, 2)))
-            cache.append(per)
+        M = np.empty((nf, nf))
+        cache = [[self._pieces(L, R, cf, X, G) for L, R, cf in var.terms] for var in self.variables]
         nb = self.nb
         for i, (vi, si) in enumerate(zip(self.variables, self.slices)):
-            r, c = vi.shape
             for j in range(i, len(self.variables)):
                 vj, sj = self.variables[j], self.slices[j]
-                r2, c2 = vj.shape
-                acc = np.zeros((r, c, r2, c2))
-                for L, R, cf, GL, XL, GRt, XRt, Lt in cache[i]:
-                    for L2, R2, cf2, GL2, XL2, GRt2, XRt2, Lt2 in cache[j]:
-                        # (a,c | b,d) layout: kron-type products
-                        P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)])
-                        Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)])
-                        K = (P.T @ Q).reshape(r, r2, c, c2).transpose(0, 2, 1, 3)
-                        # (a,d | b,c) layout
-                        P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)])
-                        Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)])
-                        K = K + (P.T @ Q).reshape(r, c2, c, r2).transpose(0, 2, 3, 1)
-                        acc += (cf * cf2) * K
-                block = acc.reshape(r * c, r2 * c2)
+                block = None
+                for a in cache[i]:
+                    for b in cache[j]:
+                        K = self._pair(a, b, vi.shape, vj.shape, nb)
+                        block = K if block is None else block + K
+                if block is None:
+                    block = np.zeros((vi.size, vj.size))
                 M[si, sj] = block
                 if j != i:
                     M[sj, si] = block.T
@@ -266,6 +361,9 @@ class IPMOptions:
     dense : bool or None
         Force (True) or forbid (False) the dense-operator Schur path; None picks
         it for small problems, where it needs fewer numpy calls.
+    threads : int or None
+        OpenBLAS threads during the solve (default 1, see :func:`blas_threads`;
+        None leaves the process setting alone).
     """
 
     gap_tol: float = 1e-8
@@ -274,6 +372,7 @@ class IPMOptions:
     step: float = 0.98
     time_limit: float | None = None
     dense: bool | None = None
+    threads: int | None = 1
 
 
 @dataclass
@@ -316,10 +415,8 @@ class IPMSolution:
     timings: dict
 
 
-def _max_step(Z: np.ndarray, dZ: np.ndarray, chol: np.ndarray | None = None) -> float:
-    """Largest alpha <= 1e30 with Z + alpha dZ >= 0 for every block (Z > 0)."""
-    Lc = np.linalg.cholesky(Z) if chol is None else chol
-    Li = np.linalg.inv(Lc)
+def _max_step(Li: np.ndarray, dZ: np.ndarray) -> float:
+    """Largest alpha with Z + alpha dZ >= 0 for every block, ``Li`` the inverse Cholesky factor of Z > 0."""
     lam = np.linalg.eigvalsh(Li @ dZ @ np.swapaxes(Li, 1, 2))[:, 0].min()
     return np.inf if lam >= 0 else -1.0 / lam
 
@@ -340,6 +437,11 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
     IPMSolution
     """
     o = options or IPMOptions()
+    with blas_threads(o.threads):
+        return _solve(problem, o)
+
+
+def _solve(problem: BlockLMI, o: IPMOptions) -> IPMSolution:
     t_start = time.perf_counter()
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
     nb, k, p = problem.nb, problem.k, problem.p
@@ -382,6 +484,7 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
             status = "numerical_error"
             break
         LSi = np.linalg.inv(LS)
+        LXi = np.linalg.inv(LX)
         G = np.swapaxes(LSi, 1, 2) @ LSi
         r_p = -b - adj(X)
         R_d = C + op(y) - S
@@ -434,8 +537,8 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         # Predictor (affine scaling): R_c = -X S, so R_c G = -X.
         dy, dS, dX = direction(-X)
         t3 = time.perf_counter()
-        ap = min(1.0, _max_step(X, dX, LX))
-        ad = min(1.0, _max_step(S, dS, LS))
+        ap = min(1.0, _max_step(LXi, dX))
+        ad = min(1.0, _max_step(LSi, dS))
         tim["line_search"] += time.perf_counter() - t3
         mu_aff = float(np.einsum("bij,bij->", X + ap * dX, S + ad * dS)) / N
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
@@ -443,8 +546,8 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         RcG = sigma * mu * G - X - dX @ dS @ G
         dy, dS, dX = direction(RcG)
         t4 = time.perf_counter()
-        ap = min(1.0, o.step * _max_step(X, dX, LX))
-        ad = min(1.0, o.step * _max_step(S, dS, LS))
+        ap = min(1.0, o.step * _max_step(LXi, dX))
+        ad = min(1.0, o.step * _max_step(LSi, dS))
         tim["line_search"] += time.perf_counter() - t4
         X = X + ap * dX
         y = y + ad * dy
@@ -516,13 +619,12 @@ def lmi_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = 
     J, m = coef.shape[1], coef.shape[3]
     P1, P2 = _selectors(n)
     sq = np.ones(S) if rho is None else np.sqrt(np.asarray(rho, dtype=np.float64))
-    Ltop = sq[:, None, None] * P1[None]
-    Rtop = sq[:, None, None] * P1.T[None]
-    Lbot = np.broadcast_to(P2, (S, 2 * n, n))
-    Rbot = np.broadcast_to(P2.T, (S, n, 2 * n))
     Rleft = np.broadcast_to(P1.T, (S, n, 2 * n))
-    LF = P2[None] @ free  # (S, 2n, n)
-    W = MatrixVariable("W", (n, n), n, [(Ltop, Rtop, 0.5), (Lbot, Rbot, 0.5), (LF, Rleft, 1.0)])
+    # sym([[rho/2 W], [F W]] [I 0]) = [[rho W, (F W)^T], [F W, 0]] (no cancellation for huge F),
+    # plus the sym-kind term [0; I] W [0, I] (one Kronecker product per pair instead of four).
+    LF = np.concatenate([(0.5 * sq**2)[:, None, None] * np.eye(n)[None], free], axis=1)  # (S, 2n, n)
+    Lbot = np.broadcast_to(P2, (S, 2 * n, n))
+    W = MatrixVariable("W", (n, n), n, [(LF, Rleft, 1.0), (Lbot, None, 1.0)])
     variables = [W]
     if J * m > 0:
         LY = P2[None] @ _gain_L(coef, active)
@@ -583,10 +685,21 @@ def switched_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | No
     return BlockLMI(C=C, variables=variables, V0=V0, equality=a)
 
 
-def _split_Y(Ystack: np.ndarray | None, J: int, m: int, n: int) -> np.ndarray:
+def _split_Y(Ystack: np.ndarray | None, J: int, m: int, n: int, scale: np.ndarray) -> np.ndarray:
     if Ystack is None:
         return np.zeros((J, m, n))
-    return Ystack.reshape(J, m, n)
+    return Ystack.reshape(J, m, n) / scale[:, None, None]
+
+
+def _gain_scale(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scale each free gain's coefficients to unit size: ``coef_j / s_j`` with ``Y_j = Y'_j / s_j``.
+
+    Input matrices of 1e6 (or 1e-6) would otherwise make the Y columns of the
+    Schur complement 1e12 times larger (smaller) than W's.
+    """
+    s = np.abs(coef).max(axis=(0, 2, 3))
+    s = np.where(s > 0, s, 1.0)
+    return coef / s[None, :, None, None], s
 
 
 @dataclass
@@ -708,12 +821,13 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
     t0 = time.perf_counter()
     free, coef, active = _check_data(free, coef, active)
     S, J, n, m = coef.shape
-    prob = lmi_problem(free, coef, active, rho)
+    coef_s, gscale = _gain_scale(coef)
+    prob = lmi_problem(free, coef_s, active, rho)
     setup = time.perf_counter() - t0
     sol = solve_block_lmi(prob, options)
     W = sol.V[0]
     W = 0.5 * (W + W.T)
-    Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n)
+    Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n, gscale)
     tim = dict(sol.timings, setup=setup)
     tim["total"] = time.perf_counter() - t0
     return LMISolution(t=sol.t, W=W, Y=Y, duals=sol.X, trace_multiplier=sol.equality_multiplier, upper=sol.upper,
@@ -729,12 +843,13 @@ def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None
     t0 = time.perf_counter()
     free, coef, active = _check_data(free, coef, active)
     S, J, n, m = coef.shape
-    prob = switched_problem(free, coef, active, rho)
+    coef_s, gscale = _gain_scale(coef)
+    prob = switched_problem(free, coef_s, active, rho)
     setup = time.perf_counter() - t0
     sol = solve_block_lmi(prob, options)
     Sm = sol.V[1].reshape(S, n, n)
     Sm = 0.5 * (Sm + np.swapaxes(Sm, 1, 2))
-    Y = _split_Y(sol.V[2] if len(sol.V) > 2 else None, J, m, n)
+    Y = _split_Y(sol.V[2] if len(sol.V) > 2 else None, J, m, n, gscale)
     tim = dict(sol.timings, setup=setup)
     tim["total"] = time.perf_counter() - t0
     return SwitchedSolution(t=sol.t, Z=sol.V[0], S=Sm, Y=Y, duals=sol.X, trace_multiplier=0.5 * sol.equality_multiplier,
