@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 import scipy.sparse as sp
 
 __all__ = [
@@ -415,10 +416,159 @@ class IPMSolution:
     timings: dict
 
 
-def _max_step(Li: np.ndarray, dZ: np.ndarray) -> float:
-    """Largest alpha with Z + alpha dZ >= 0 for every block, ``Li`` the inverse Cholesky factor of Z > 0."""
-    lam = np.linalg.eigvalsh(Li @ dZ @ np.swapaxes(Li, 1, 2))[:, 0].min()
-    return np.inf if lam >= 0 else -1.0 / lam
+_potrf = scipy.linalg.lapack.dpotrf
+_potrs = scipy.linalg.lapack.dpotrs
+
+
+def _steps(Li: np.ndarray, dZ: np.ndarray, nb: int) -> tuple[float, float]:
+    """Largest alphas with ``Z + alpha dZ >= 0`` for the two stacked halves (X's blocks, then S's).
+
+    ``Li`` holds the inverse Cholesky factors of both; one batched eigvalsh call serves both.
+    """
+    lam = np.linalg.eigvalsh(Li @ dZ @ np.swapaxes(Li, 1, 2))[:, 0]
+    lx, ls = lam[:nb].min(), lam[nb:].min()
+    return (np.inf if lx >= 0 else -1.0 / lx), (np.inf if ls >= 0 else -1.0 / ls)
+
+
+@dataclass
+class _Core:
+    """What the iteration returns, in the solver's coordinates."""
+
+    y: np.ndarray
+    X: np.ndarray
+    status: str
+    iterations: int
+    primal_residual: float
+    gap: float
+    upper: float
+    timings: dict
+
+
+def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
+    """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S = C + A(y) >= 0``.
+
+    The ``y`` iterates stay feasible: ``S`` is recomputed as ``C + A(y)`` (no
+    drift), so the dual residual is zero and the predictor's right-hand side
+    is just ``b``; ``X`` starts infeasible (``A^*(X) + b != 0``) and its
+    residual is driven to zero by the Newton steps.
+    """
+    tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
+    nb, k = C.shape[0], C.shape[1]
+    N = nb * k
+    eye = np.eye(k)
+    y = np.zeros(b.shape[0])
+    # t far enough below every block's smallest eigenvalue: S = C - t I > 0.
+    y[-1] = np.linalg.eigvalsh(C)[:, 0].min() - max(1.0, float(np.abs(C).max()))
+    S = C + op(y)
+    X = np.broadcast_to(eye / N, (nb, k, k)).copy()
+    normb = 1.0 + np.linalg.norm(b)
+    status = "max_iterations"
+    best = None
+    it = 0
+    ad = 0.0
+    for it in range(o.max_iter + 1):
+        try:
+            LL = np.linalg.cholesky(np.concatenate([X, S]))
+        except np.linalg.LinAlgError:
+            # Rounding made the new S (recomputed from y) or X singular: shorten the last step.
+            if best is None or ad < 1e-12:
+                status = "numerical_error"
+                break
+            ad *= 0.5
+            y = y_prev + ad * dy
+            S = C + op(y)
+            X = X_prev + ad * dX if ap > ad else X
+            continue
+        Li = np.linalg.inv(LL)
+        LSi = Li[nb:]
+        G = np.swapaxes(LSi, 1, 2) @ LSi
+        r_p = -b - adj(X)
+        pobj = float(np.vdot(C, X))
+        dobj = float(b @ y)
+        XS = float(np.vdot(X, S))
+        mu = XS / N
+        rp = np.linalg.norm(r_p) / normb
+        denom = 1.0 + abs(pobj) + abs(dobj)
+        gap = max(abs(pobj - dobj), XS) / denom
+        score = max(rp, gap)
+        if best is None or score < best[0]:
+            best = (score, it, y, X, rp, gap, pobj)
+        if rp < o.feas_tol and gap < o.gap_tol:
+            status = "optimal"
+            break
+        if it == o.max_iter:
+            break
+        if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
+            status = "time_limit"
+            break
+        t0 = time.perf_counter()
+        M = schur(X, G)
+        t1 = time.perf_counter()
+        tim["assembly"] += t1 - t0
+        fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
+        if info != 0:
+            # The multipliers degenerate (a direction no block sees, e.g. a zero input matrix): regularize.
+            d = np.abs(np.diag(M))
+            fac, info = _potrf(M + np.diag(np.maximum(d, d.max()) * 1e-12 + 1e-300), lower=1, clean=0)
+            if info != 0:
+                status = "numerical_error"
+                break
+        tim["factorization"] += time.perf_counter() - t1
+
+        def direction(h, RcG):
+            dy = _potrs(fac, h, lower=1)[0]
+            dS = op(dy)
+            W = RcG - X @ dS @ G
+            return dy, dS, 0.5 * (W + np.swapaxes(W, 1, 2))
+
+        # Predictor (affine scaling), R_c = -X S: the right-hand side adj(R_c G) - r_p is b.
+        dy, dS, dX = direction(b, -X)
+        t3 = time.perf_counter()
+        ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
+        ap, ad = min(1.0, ap), min(1.0, ad)
+        tim["line_search"] += time.perf_counter() - t3
+        mu_aff = float(np.vdot(X + ap * dX, S + ad * dS)) / N
+        sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
+        # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
+        RcG = sigma * mu * G - X - dX @ dS @ G
+        dy, dS, dX = direction(adj(RcG) - r_p, RcG)
+        t4 = time.perf_counter()
+        ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
+        ap, ad = min(1.0, o.step * ap), min(1.0, o.step * ad)
+        tim["line_search"] += time.perf_counter() - t4
+        y_prev, X_prev = y, X
+        X = X + ap * dX
+        y = y + ad * dy
+        S = C + op(y)
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(X))):
+            status = "numerical_error"
+            break
+    if status != "optimal" and best is not None:
+        _, _, y, X, rp, gap, pobj = best
+        if status in ("max_iterations", "numerical_error") and max(rp, gap) < 1e-6:
+            # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
+            status = "inaccurate"
+    tim["total"] = time.perf_counter() - t_start
+    tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
+    return _Core(y=y, X=X, status=status, iterations=it, primal_residual=float(rp), gap=float(gap),
+                 upper=float(np.vdot(C, X)), timings=tim)
+
+
+def _dense_ops(Aop: np.ndarray):
+    """``op``, ``adj``, ``schur`` from the explicit basis matrices (p, nb, k, k): few numpy calls."""
+    p = Aop.shape[0]
+    Aflat = Aop.reshape(p, -1)
+
+    def op(y):
+        return (y @ Aflat).reshape(Aop.shape[1:])
+
+    def adj(U):
+        return Aflat @ U.reshape(-1)  # A_i symmetric: tr(A_i U) = <A_i, U> for any U
+
+    def schur(X, G):
+        return Aflat @ (X @ Aop @ G).reshape(p, -1).T
+
+    return op, adj, schur
 
 
 def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPMSolution:
@@ -438,145 +588,22 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
     """
     o = options or IPMOptions()
     with blas_threads(o.threads):
-        return _solve(problem, o)
-
-
-def _solve(problem: BlockLMI, o: IPMOptions) -> IPMSolution:
-    t_start = time.perf_counter()
-    tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
-    nb, k, p = problem.nb, problem.k, problem.p
-    N = nb * k
-    C = problem.C
-    b = problem.b
-    eye = np.eye(k)
-    dense = o.dense if o.dense is not None else (p * nb * k * k <= 20000)
-    if dense:
-        Aop = problem.dense_operator()
-        Aflat = Aop.reshape(p, -1)
-        op = lambda y: np.tensordot(y, Aop, 1)  # noqa: E731
-        adj = lambda U: Aflat @ U.reshape(-1)  # noqa: E731  (A_i symmetric: tr(A_i U) = <A_i, U>)
-
-        def schur(X, G):
-            U = X[None] @ Aop @ G[None]
-            return Aflat @ U.reshape(p, -1).T
-    else:
-        op, adj, schur = problem.op, problem.adj, problem.schur
-
-    # Start: y = 0 except t below every block's smallest eigenvalue, so S > 0 (dual feasible);
-    # X = I / N satisfies the t-row of A^*(X) + b = 0 but not the others (infeasible start).
-    y = np.zeros(p)
-    lam0 = np.linalg.eigvalsh(C)[:, 0].min()
-    scale = max(1.0, float(np.abs(C).max()))
-    y[-1] = lam0 - scale  # t enters as -t I: S = C - t I
-    S = C + op(y)
-    X = np.broadcast_to(eye / N, (nb, k, k)).copy()
-    normC = 1.0 + np.linalg.norm(C)
-    normb = 1.0 + np.linalg.norm(b)
-    status = "max_iterations"
-    best = None
-    it = 0
-    rp = rd = gap = np.inf
-    for it in range(o.max_iter + 1):
-        try:
-            LS = np.linalg.cholesky(S)
-            LX = np.linalg.cholesky(X)
-        except np.linalg.LinAlgError:
-            status = "numerical_error"
-            break
-        LSi = np.linalg.inv(LS)
-        LXi = np.linalg.inv(LX)
-        G = np.swapaxes(LSi, 1, 2) @ LSi
-        r_p = -b - adj(X)
-        R_d = C + op(y) - S
-        pobj = float(np.einsum("bij,bij->", C, X))
-        dobj = float(b @ y)
-        XS = float(np.einsum("bij,bij->", X, S))
-        mu = XS / N
-        rp = np.linalg.norm(r_p) / normb
-        rd = np.linalg.norm(R_d) / normC
-        gap = abs(pobj - dobj) / (1.0 + abs(pobj) + abs(dobj))
-        gap = max(gap, XS / (1.0 + abs(pobj) + abs(dobj)))
-        score = max(rp, rd, gap)
-        if best is None or score < best[0]:
-            best = (score, it, y.copy(), X.copy(), rp, rd, gap, pobj)
-        if rp < o.feas_tol and rd < o.feas_tol and gap < o.gap_tol:
-            status = "optimal"
-            break
-        if it == o.max_iter:
-            break
-        if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
-            status = "time_limit"
-            break
-        t0 = time.perf_counter()
-        M = schur(X, G)
-        t1 = time.perf_counter()
-        tim["assembly"] += t1 - t0
-        try:
-            fac = scipy.linalg.cho_factor(M, lower=True, check_finite=False)
-            solve = lambda h: scipy.linalg.cho_solve(fac, h, check_finite=False)  # noqa: E731
-        except (np.linalg.LinAlgError, ValueError):
-            # Lose positive definiteness only when the multipliers degenerate: regularize.
-            reg = 1e-12 * max(1.0, np.abs(np.diag(M)).max())
-            try:
-                fac = scipy.linalg.cho_factor(M + reg * np.eye(p), lower=True, check_finite=False)
-                solve = lambda h: scipy.linalg.cho_solve(fac, h, check_finite=False)  # noqa: E731
-            except (np.linalg.LinAlgError, ValueError):
-                lu = scipy.linalg.lu_factor(M, check_finite=False)
-                solve = lambda h: scipy.linalg.lu_solve(lu, h, check_finite=False)  # noqa: E731
-        tim["factorization"] += time.perf_counter() - t1
-        XRdG = X @ R_d @ G
-
-        def direction(RcG):
-            h = adj(RcG - XRdG) - r_p
-            dy = solve(h)
-            dS = op(dy) + R_d
-            W = RcG - X @ dS @ G
-            dX = 0.5 * (W + np.swapaxes(W, 1, 2))
-            return dy, dS, dX
-
-        # Predictor (affine scaling): R_c = -X S, so R_c G = -X.
-        dy, dS, dX = direction(-X)
-        t3 = time.perf_counter()
-        ap = min(1.0, _max_step(LXi, dX))
-        ad = min(1.0, _max_step(LSi, dS))
-        tim["line_search"] += time.perf_counter() - t3
-        mu_aff = float(np.einsum("bij,bij->", X + ap * dX, S + ad * dS)) / N
-        sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
-        # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
-        RcG = sigma * mu * G - X - dX @ dS @ G
-        dy, dS, dX = direction(RcG)
-        t4 = time.perf_counter()
-        ap = min(1.0, o.step * _max_step(LXi, dX))
-        ad = min(1.0, o.step * _max_step(LSi, dS))
-        tim["line_search"] += time.perf_counter() - t4
-        X = X + ap * dX
-        y = y + ad * dy
-        S = S + ad * dS
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(X))):
-            status = "numerical_error"
-            break
-    if status != "optimal" and best is not None:
-        _, it_best, y, X, rp, rd, gap, pobj = best
-        if status in ("max_iterations", "numerical_error") and max(rp, rd, gap) < 1e-6:
-            # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
-            status = "inaccurate"
-    elif best is not None:
-        pobj = best[7] if best[1] == it else float(np.einsum("bij,bij->", C, X))
-    x = problem.full(y)
-    V = []
-    for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0):
-        V.append(v0 + x[sl].reshape(var.shape))
-    t = float(x[-1])
-    nu = 0.0
-    if problem.equality is not None:
-        a = problem.equality
-        g = problem.adj_full(X)[:-1]
-        nu = float(a @ g / (a @ a))
-    tim["total"] = time.perf_counter() - t_start
-    tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
-    return IPMSolution(t=t, upper=float(np.einsum("bij,bij->", C, X)) + 0.0, V=V, X=X,
-                       equality_multiplier=nu, status=status, iterations=it,
-                       primal_residual=float(rp), dual_residual=float(rd), gap=float(gap), timings=tim)
+        t_start = time.perf_counter()
+        dense = o.dense if o.dense is not None else (problem.p * problem.nb * problem.k**2 <= 40000)
+        if dense:
+            op, adj, schur = _dense_ops(problem.dense_operator())
+        else:
+            op, adj, schur = problem.op, problem.adj, problem.schur
+        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start)
+        x = problem.full(core.y)
+        V = [v0 + x[sl].reshape(var.shape) for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0)]
+        nu = 0.0
+        if problem.equality is not None:
+            a = problem.equality
+            nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
+        return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
+                           status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
+                           dual_residual=0.0, gap=core.gap, timings=core.timings)
 
 
 # ----------------------------------------------------------------------------- the design families
