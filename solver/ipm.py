@@ -154,6 +154,10 @@ class MatrixVariable:
         return self.shape[0] * self.shape[1]
 
 
+#: Basis matrices T per variable structure (they depend on shapes only, not on the plant data).
+_BASIS_CACHE: dict = {}
+
+
 @dataclass
 class BlockLMI:
     """``max t`` s.t. ``C_b + sum_V terms_b(V) - t I >= 0`` and ``<a, vec V> = beta``.
@@ -180,9 +184,16 @@ class BlockLMI:
         offsets = np.cumsum([0] + [v.size for v in self.variables])
         self.slices = [slice(int(offsets[i]), int(offsets[i + 1])) for i in range(len(self.variables))]
         self.n_full = int(offsets[-1]) + 1  # + t, the last entry
-        self.T = self._basis()
+        key = (tuple((v.shape, v.sym_block) for v in self.variables),
+               None if self.equality is None else self.equality.tobytes())
+        if key not in _BASIS_CACHE:
+            if len(_BASIS_CACHE) > 64:
+                _BASIS_CACHE.clear()
+            T = self._basis()
+            _BASIS_CACHE[key] = (T, np.asarray(T[-1, :].todense()).ravel(), None)
+        self.T, self.b, _ = _BASIS_CACHE[key]
         self.p = self.T.shape[1]
-        self.b = np.asarray(self.T[-1, :].todense()).ravel()  # t = b^T y (t enters with coefficient 1)
+        self._key = key
 
     def _basis(self) -> sp.csr_matrix:
         """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
@@ -339,7 +350,22 @@ class BlockLMI:
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
-        return np.stack([self.op(e) for e in np.eye(self.p)])
+        T = _BASIS_CACHE[self._key][2]
+        if T is None:
+            T = self.T.toarray()
+            _BASIS_CACHE[self._key] = _BASIS_CACHE[self._key][:2] + (T,)
+        p, k = self.p, self.k
+        out = np.zeros((p, self.nb, k, k))
+        out -= T[-1][:, None, None, None] * np.eye(k)
+        for var, sl in zip(self.variables, self.slices):
+            Vs = T[sl].T.reshape(p, 1, *var.shape)
+            for L, R, coef in var.terms:
+                if R is None:
+                    out += coef * (L @ Vs @ np.swapaxes(L, 1, 2))
+                else:
+                    LVR = L @ Vs @ R
+                    out += coef * (LVR + np.swapaxes(LVR, 2, 3))
+        return out
 
 
 # ----------------------------------------------------------------------------- options and results
@@ -589,7 +615,7 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
     o = options or IPMOptions()
     with blas_threads(o.threads):
         t_start = time.perf_counter()
-        dense = o.dense if o.dense is not None else (problem.p * problem.nb * problem.k**2 <= 40000)
+        dense = o.dense if o.dense is not None else (problem.p * problem.nb * problem.k**2 <= 60000)
         if dense:
             op, adj, schur = _dense_ops(problem.dense_operator())
         else:
@@ -724,6 +750,8 @@ def _gain_scale(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Input matrices of 1e6 (or 1e-6) would otherwise make the Y columns of the
     Schur complement 1e12 times larger (smaller) than W's.
     """
+    if coef.size == 0:
+        return coef, np.ones(coef.shape[1])
     s = np.abs(coef).max(axis=(0, 2, 3))
     s = np.where(s > 0, s, 1.0)
     return coef / s[None, :, None, None], s
@@ -883,3 +911,89 @@ def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None
                             upper=sol.upper, status=sol.status, iterations=sol.iterations,
                             primal_residual=sol.primal_residual, dual_residual=sol.dual_residual, gap=sol.gap,
                             timings=tim)
+
+
+def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> LMISolution:
+    """The fixed-gain certificate LMI of ``analyze`` (Theorem 1 for given closed loops ``A_s``).
+
+    ``max t`` s.t. ``trace X = n`` and ``[[rho_s X, X A_s], [A_s^T X, X]] - t I >= 0``:
+    the ``lmi`` structure with ``free_s = A_s^T`` and no gains, so ``W`` of the result is ``X``.
+    ``t* > 0`` iff some ``X > 0`` has ``rho_s X - A_s^T X A_s > 0`` for all s, the same verdict as
+    the cvxpy form in solver/lyapunov.py (whose ``t`` bounds only the top-left block, so the
+    magnitudes differ; only the sign is used before the float64 re-check).
+
+    Parameters
+    ----------
+    A : array_like, shape (S, n, n)
+    rho : array_like, shape (S,), optional
+    options : IPMOptions, optional
+
+    Returns
+    -------
+    LMISolution
+        ``W`` is the certificate candidate X; ``Y`` is empty (shape (0, 0, n)).
+    """
+    A = np.asarray(A, dtype=np.float64)
+    S, n, _ = A.shape
+    return solve_lmi(np.swapaxes(A, 1, 2), np.zeros((S, 0, n, 0)), None, rho, options)
+
+
+# ----------------------------------------------------------------------------- the design methods' hook
+def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None):
+    """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
+
+    The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.
+
+    Parameters
+    ----------
+    modes : solver.network.ModeSet
+    kind : {"lmi", "switched"}
+    rho : ndarray, shape (S,), optional
+    time_limit : float, optional
+
+    Returns
+    -------
+    info : solver.compiled.SolveInfo
+        ``status`` in cvxpy's words (``"optimal"``, ``"optimal_inaccurate"``).
+    solution : LMISolution or SwitchedSolution
+
+    Raises
+    ------
+    solver.errors.SolverFailed
+        When the iteration ends without an (almost) optimal point.
+    """
+    from .compiled import SolveInfo
+    from .errors import SolverFailed
+
+    coef, active = modes.scheme_coef()
+    if rho is not None and np.all(np.asarray(rho) == 1.0):
+        rho = None
+    opts = IPMOptions(time_limit=time_limit)
+    start = time.perf_counter()
+    solve = {"lmi": solve_lmi, "switched": solve_switched}[kind]
+    sol = solve(modes.free, coef, active, rho, opts)
+    wall = time.perf_counter() - start
+    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate"}.get(sol.status)
+    if status is None:
+        raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations "
+                           f"(primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})", status=sol.status)
+    info = SolveInfo(status=status, solver="IPM", solve_time=sol.timings["total"], wall_time=wall,
+                     objective=sol.t, iterations=sol.iterations)
+    return info, sol
+
+
+def design_solve_fixed_gain(A, rho=None, time_limit: float | None = None):
+    """``(X, t, info)`` of :func:`solve_common_fixed_gain`, as ``solver.lyapunov.common_lmi`` returns them."""
+    from .compiled import SolveInfo
+    from .errors import SolverFailed
+
+    start = time.perf_counter()
+    if rho is not None and np.all(np.asarray(rho) == 1.0):
+        rho = None
+    sol = solve_common_fixed_gain(A, rho, IPMOptions(time_limit=time_limit))
+    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate"}.get(sol.status)
+    if status is None:
+        raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations", status=sol.status)
+    info = SolveInfo(status=status, solver="IPM", solve_time=sol.timings["total"],
+                     wall_time=time.perf_counter() - start, objective=sol.t, iterations=sol.iterations)
+    return sol.W, sol.t, info

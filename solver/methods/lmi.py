@@ -22,6 +22,7 @@ import time
 import cvxpy as cp
 import numpy as np
 
+from .. import ipm
 from ..compiled import CompiledProblem, block, check_memory, problem_cache, schur_block
 from ..network import ModeSet
 from ..result import DesignResult
@@ -71,15 +72,19 @@ def plant_values(modes: ModeSet) -> dict:
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
     check_memory([2 * modes.n_states] * modes.n_modes, "lmi")
     clock = RunClock()
-    compiled, clock.cached, clock.setup = compiled_for(modes, "lmi", build)
-    values = plant_values(modes)
-    values["rho"] = options.rho(modes)
-    info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
+    if options.solver == "IPM":  # the structured interior-point solver, solver/ipm.py
+        info, sol = ipm.design_solve(modes, "lmi", options.rho(modes), options.time_limit)
+        t, W, Y = sol.t, sol.W, sol.Y
+    else:
+        compiled, clock.cached, clock.setup = compiled_for(modes, "lmi", build)
+        values = plant_values(modes)
+        values["rho"] = options.rho(modes)
+        info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
+        t = float(compiled.value("t"))
+        W = compiled.value("W")
+        W = 0.5 * (W + W.T)
+        Y = np.stack(compiled.value("Y"))
     clock.add(info)
-    t = float(compiled.value("t"))
-    W = compiled.value("W")
-    W = 0.5 * (W + W.T)
-    Y = np.stack(compiled.value("Y"))
     if t <= options.margin:
         return conclude_one_shot(modes, "lmi", options, clock, info, t,
                                  infeasible="no common quadratic Lyapunov design exists (trace W = n)")

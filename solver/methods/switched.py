@@ -20,6 +20,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
+from .. import ipm
 from ..compiled import CompiledProblem, block, check_memory, schur_block
 from ..errors import InvalidInput
 from ..network import ModeSet
@@ -60,20 +61,23 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
         )
     check_memory([2 * modes.n_states] * modes.n_modes**2, "switched")
     clock = RunClock()
-    compiled, clock.cached, clock.setup = compiled_for(modes, "switched", build)
-    values = plant_values(modes)
-    values["rho"] = options.rho(modes)
-    info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
+    if options.solver == "IPM":  # the structured interior-point solver, solver/ipm.py
+        info, sol = ipm.design_solve(modes, "switched", options.rho(modes), options.time_limit)
+        t, Z, Y, S_all = sol.t, sol.Z, sol.Y, sol.S
+    else:
+        compiled, clock.cached, clock.setup = compiled_for(modes, "switched", build)
+        values = plant_values(modes)
+        values["rho"] = options.rho(modes)
+        info = compiled.solve(values, solver=options.solver, time_limit=options.time_limit)
+        t = float(compiled.value("t"))
+        Z, Y, S_all = compiled.value("Z"), np.stack(compiled.value("Y")), np.stack(compiled.value("S"))
     clock.add(info)
-    t = float(compiled.value("t"))
     if t <= options.margin:
         return conclude_one_shot(modes, "switched", options, clock, info, t,
                                  infeasible="no switched-Lyapunov design with a common slack exists")
-    Z = compiled.value("Z")
-    Y = np.stack(compiled.value("Y"))
     theta = np.linalg.solve(Z.T, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
     gains = modes.expand(theta)
-    P = np.linalg.inv(np.stack(compiled.value("S")))
+    P = np.linalg.inv(S_all)
     cert, A = certify_gains(modes, gains, options, clock, candidate=P, candidate_kind="switched",
                             candidate_source="switched")
     return conclude_one_shot(modes, "switched", options, clock, info, t, gains=gains, cert=cert, A=A)

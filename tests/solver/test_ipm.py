@@ -130,3 +130,27 @@ def test_bad_shapes_are_a_clear_error():
         ipm.solve_lmi(np.zeros((2, 3, 3)), np.zeros((2, 1, 2, 1)))
     with pytest.raises(ValueError, match="finite"):
         ipm.solve_lmi(np.full((1, 2, 2), np.nan), np.zeros((1, 1, 2, 1)))
+
+
+@pytest.mark.parametrize("method", ["lmi", "switched"])
+def test_design_with_solver_ipm_matches_clarabel(method):
+    from solver import design
+
+    fam = PlantFamily.paper_example(0.1)
+    a = design(fam, 3, method=method, solver="IPM")
+    b = design(fam, 3, method=method, solver="CLARABEL")
+    assert a.outcome == b.outcome == "stabilized"
+
+
+def test_analyze_fixed_gain_lmi_with_ipm():
+    from solver.lyapunov import common_lmi
+
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    from solver import design
+
+    gains = design(PlantFamily.paper_example(0.1), 3, method="lmi").gains
+    A = modes.closed_loops(np.asarray(gains))
+    X, t, info = common_lmi(A, solver="IPM")
+    X2, t2, _ = common_lmi(A, solver="CLARABEL")
+    assert info.solver == "IPM" and (t > 0) == (t2 > 0)
+    assert np.all(np.linalg.eigvalsh(X - np.swapaxes(A, 1, 2) @ X @ A) > 0)
