@@ -522,6 +522,9 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
         if rp < o.feas_tol and gap < o.gap_tol:
             status = "optimal"
             break
+        if it - best[1] >= 8 and best[0] < 1e-6:
+            status = "stalled"  # no progress for 8 iterations near the optimum: rounding floor reached
+            break
         if it == o.max_iter:
             break
         if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
@@ -531,11 +534,18 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
         M = schur(X, G)
         t1 = time.perf_counter()
         tim["assembly"] += t1 - t0
+        d = np.diag(M)
+        dead = d <= 1e-14 * d.max()
+        if dead.any():
+            # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
+            # instead of regularizing all of M, which stalls the residuals.
+            M = M.copy()
+            M[dead, :] = 0.0
+            M[:, dead] = 0.0
+            M[dead, dead] = 1.0
         fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
         if info != 0:
-            # The multipliers degenerate (a direction no block sees, e.g. a zero input matrix): regularize.
-            d = np.abs(np.diag(M))
-            fac, info = _potrf(M + np.diag(np.maximum(d, d.max()) * 1e-12 + 1e-300), lower=1, clean=0)
+            fac, info = _potrf(M + np.diag(d * 1e-12 + 1e-300), lower=1, clean=0)
             if info != 0:
                 status = "numerical_error"
                 break
@@ -548,7 +558,10 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
             return dy, dS, 0.5 * (W + np.swapaxes(W, 1, 2))
 
         # Predictor (affine scaling), R_c = -X S: the right-hand side adj(R_c G) - r_p is b.
-        dy, dS, dX = direction(b, -X)
+        hb = b
+        if dead.any():
+            hb = np.where(dead, 0.0, b)
+        dy, dS, dX = direction(hb, -X)
         t3 = time.perf_counter()
         ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
         ap, ad = min(1.0, ap), min(1.0, ad)
@@ -557,7 +570,10 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
         RcG = sigma * mu * G - X - dX @ dS @ G
-        dy, dS, dX = direction(adj(RcG) - r_p, RcG)
+        h = adj(RcG) - r_p
+        if dead.any():
+            h[dead] = 0.0
+        dy, dS, dX = direction(h, RcG)
         t4 = time.perf_counter()
         ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
         ap, ad = min(1.0, o.step * ap), min(1.0, o.step * ad)
@@ -571,7 +587,7 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
             break
     if status != "optimal" and best is not None:
         _, _, y, X, rp, gap, pobj = best
-        if status in ("max_iterations", "numerical_error") and max(rp, gap) < 1e-6:
+        if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
             # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
             status = "inaccurate"
     tim["total"] = time.perf_counter() - t_start
