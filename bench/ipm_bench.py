@@ -67,15 +67,16 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
     modes = modes_for(case)
     coef, active = modes.scheme_coef()
     n, m, S, J = modes.n_states, modes.n_inputs, modes.n_modes, modes.n_free_gains
-    out = {"case": case, "solver": solver, "times": []}
+    out = {"case": case, "solver": solver, "times": [], "cpu": []}
     if solver == "ipm":
         ipm.solve_lmi(modes.free, coef, active)  # first-use costs (imports, BLAS handles)
         base = _rss_mb()
         t_end = time.perf_counter() + cap
         for _ in range(repeats):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             sol = ipm.solve_lmi(modes.free, coef, active)
             out["times"].append(time.perf_counter() - t0)
+            out["cpu"].append(time.process_time() - c0)
             if time.perf_counter() > t_end:
                 break
         out.update(t=sol.t, status=sol.status, iterations=sol.iterations, timings=sol.timings)
@@ -91,15 +92,17 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 if solver == "clarabel_cvxpy":
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     prob.solve(solver=cp.CLARABEL, warm_start=False)
                     out["times"].append(time.perf_counter() - t0)
+                    out["cpu"].append(time.process_time() - c0)
                     out.update(t=float(compiled.value("t")), status=prob.status,
                                iterations=prob.solver_stats.num_iters)
                 elif solver == "cvxopt":
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     prob.solve(solver=cp.CVXOPT, warm_start=False)
                     out["times"].append(time.perf_counter() - t0)
+                    out["cpu"].append(time.process_time() - c0)
                     out.update(t=float(compiled.value("t")), status=prob.status,
                                iterations=prob.solver_stats.num_iters)
                 else:
@@ -113,8 +116,10 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
                     settings = clarabel.DefaultSettings()
                     settings.verbose = False
                     solver_obj = clarabel.DefaultSolver(P, q, A.tocsc(), b, dims_to_solver_cones(data["dims"]), settings)
+                    c0 = time.process_time()
                     res = solver_obj.solve()
                     out["times"].append(float(res.solve_time))
+                    out["cpu"].append(time.process_time() - c0)
                     out.update(t=-float(res.obj_val), status=str(res.status), iterations=int(res.iterations))
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
     return out
@@ -148,9 +153,13 @@ def fmt(sec: float) -> str:
 
 
 def cell_text(c: dict) -> str:
+    """Median wall time, median process CPU time in brackets (the time on an idle core for a
+    single-threaded solver; a multi-threaded one can show more CPU than wall), iterations."""
     if "note" in c:
         return c["note"]
-    return f"{fmt(statistics.median(c['times']))} ({c['iterations']} it)"
+    it = c.get("iterations")
+    return (f"{fmt(statistics.median(c['times']))} [cpu {fmt(statistics.median(c['cpu']))}]"
+            f"{f' ({it} it)' if it is not None else ''}")
 
 
 def main_table(cases, repeats: dict, caps: dict, mem_gb: float, echo=print) -> list:
@@ -287,8 +296,8 @@ def main(argv=None) -> int:
                 "cvxopt": dict(big, n12=a.cvxopt_cap, n20=a.cvxopt_cap)}
         rows = main_table(cases, repeats, caps, a.mem_limit)
         print()
-        print("Median wall time of one solve (iterations); CVXOPT / IPM from the same run; "
-              "t* diff = largest |t*(solver) - t*(IPM)|:")
+        print("Median wall time of one solve [median process CPU time] (iterations); CVXOPT / IPM = wall-time "
+              "ratio from the same run; t* diff = largest |t*(solver) - t*(IPM)|:")
         print()
         print(table(rows))
         print()
