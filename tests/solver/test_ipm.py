@@ -19,7 +19,7 @@ def _rand_psd(rng, nb, k):
 
 
 @pytest.mark.parametrize("builder", [ipm.lmi_problem, ipm.switched_problem])
-@pytest.mark.parametrize("n_drop", [1, 3])
+@pytest.mark.parametrize("n_drop", [1, 2])
 def test_structured_schur_equals_dense(builder, n_drop):
     """The Kronecker-assembled Schur complement and adjoint equal the brute-force ones."""
     rng = np.random.default_rng(n_drop)
@@ -72,7 +72,7 @@ def test_dense_and_structured_paths_agree():
 #: A bounded sample of the benchmark's cross-check (python -m bench ipm-check runs >= 300).
 @pytest.mark.parametrize("seed", range(1000, 1028))
 def test_cross_check_against_clarabel(seed):
-    row = check_one(seed, max_lmi_rows=160)
+    row = check_one(seed, max_lmi_rows=96)
     assert row["ref_status"] == "ok" or row["status"] in ("optimal", "inaccurate"), row
     if row["ref_status"] != "ok":
         pytest.skip(f"Clarabel itself failed on {row['desc']}")
