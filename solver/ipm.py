@@ -330,9 +330,13 @@ class BlockLMI:
             for j in range(i, len(self.variables)):
                 vj, sj = self.variables[j], self.slices[j]
                 block = None
-                for a in cache[i]:
-                    for b in cache[j]:
+                for ta, a in enumerate(cache[i]):
+                    for tb, b in enumerate(cache[j]):
+                        if i == j and tb < ta:
+                            continue  # added below as the transpose of (tb, ta): only the projection counts
                         K = self._pair(a, b, vi.shape, vj.shape, nb)
+                        if i == j and tb != ta:
+                            K = K + K.T
                         block = K if block is None else block + K
                 if block is None:
                     block = np.zeros((vi.size, vj.size))
