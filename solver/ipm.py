@@ -57,7 +57,9 @@ __all__ = [
     "IPMSolution",
     "LMISolution",
     "SwitchedSolution",
-    "FixedGainSolution",
+    "design_solve",
+    "design_solve_fixed_gain",
+    "blas_threads",
     "solve_block_lmi",
     "solve_lmi",
     "solve_switched",
@@ -427,7 +429,8 @@ class IPMSolution:
     status : {"optimal", "inaccurate", "max_iterations", "time_limit", "numerical_error"}
     iterations : int
     primal_residual, dual_residual, gap : float
-        Relative residuals and relative gap at the returned iterate.
+        Relative residual of ``A^*(X) + b = 0``, of ``S = C + A(y)`` (zero by construction: ``S`` is
+        recomputed from ``y`` and is positive definite at the returned iterate) and the relative gap.
     timings : dict
         Seconds in ``assembly`` (Schur complement), ``factorization``,
         ``line_search`` (step lengths), ``other`` and ``total``.
