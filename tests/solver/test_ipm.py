@@ -154,3 +154,21 @@ def test_analyze_fixed_gain_lmi_with_ipm():
     X2, t2, _ = common_lmi(A, solver="CLARABEL")
     assert info.solver == "IPM" and (t > 0) == (t2 > 0)
     assert np.all(np.linalg.eigvalsh(X - np.swapaxes(A, 1, 2) @ X @ A) > 0)
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_duals_are_farkas_multipliers(seed):
+    """docs/design.md: Q = sum_s (Z11 + Z22 + Z21^T F_s + F_s^T Z21) = (t*/n) I and E = 0 at the optimum."""
+    from bench.ipm_check import draw_case
+
+    modes, _ = draw_case(seed)
+    coef, active = modes.scheme_coef()
+    sol = ipm.solve_lmi(modes.free, coef, active)
+    n, Z, F = modes.n_states, sol.duals, modes.free
+    Z11, Z21, Z22 = Z[:, :n, :n], Z[:, n:, :n], Z[:, n:, n:]
+    Q = (Z11 + Z22 + np.swapaxes(Z21, 1, 2) @ F + np.swapaxes(F, 1, 2) @ Z21).sum(axis=0)
+    E = 2 * np.einsum("sjab,sac->jbc", coef * active[:, :, None, None], Z21)
+    assert np.abs(Q - sol.t / n * np.eye(n)).max() < 1e-7
+    assert np.abs(E).max() < 1e-7
+    assert abs(n * sol.trace_multiplier - sol.t) < 1e-7
+    assert np.linalg.eigvalsh(Z)[:, 0].min() > -1e-12
