@@ -962,7 +962,7 @@ def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> L
 
 
 # ----------------------------------------------------------------------------- the design methods' hook
-def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None):
+def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None):
     """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
 
     The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.
@@ -973,6 +973,9 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     kind : {"lmi", "switched"}
     rho : ndarray, shape (S,), optional
     time_limit : float, optional
+    free, coef : ndarray, optional
+        Replace ``modes.free`` (S, n, n) and ``modes.scheme_coef()[0]`` (S, J, n, m), e.g. by the
+        congruent decay-rate form's ``lambda^(-eta_s)``-scaled ones.
 
     Returns
     -------
@@ -988,13 +991,15 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     from .compiled import SolveInfo
     from .errors import SolverFailed
 
-    coef, active = modes.scheme_coef()
+    coef0, active = modes.scheme_coef()
+    coef = coef0 if coef is None else coef
+    free = modes.free if free is None else free
     if rho is not None and np.all(np.asarray(rho) == 1.0):
         rho = None
     opts = IPMOptions(time_limit=time_limit)
     start = time.perf_counter()
     solve = {"lmi": solve_lmi, "switched": solve_switched}[kind]
-    sol = solve(modes.free, coef, active, rho, opts)
+    sol = solve(free, coef, active, rho, opts)
     wall = time.perf_counter() - start
     status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate"}.get(sol.status)
     if status is None:

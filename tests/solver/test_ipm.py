@@ -172,3 +172,14 @@ def test_duals_are_farkas_multipliers(seed):
     assert np.abs(E).max() < 1e-7
     assert abs(n * sol.trace_multiplier - sol.t) < 1e-7
     assert np.linalg.eigvalsh(Z)[:, 0].min() > -1e-12
+
+
+def test_design_solve_congruent_decay_form():
+    """The congruent decay-rate form (free_s, coef_s scaled by lambda^-eta_s) has t* > 0 iff rho-form does."""
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    coef, _ = modes.scheme_coef()
+    for lam in (0.3, 0.5):
+        c = lam ** (-modes.eta.astype(float))
+        _, a = ipm.design_solve(modes, "lmi", free=modes.free * c[:, None, None], coef=coef * c[:, None, None, None])
+        _, b = ipm.design_solve(modes, "lmi", rho=lam ** (2.0 * modes.eta))
+        assert (a.t > 1e-9) == (b.t > 1e-9)
