@@ -22,8 +22,11 @@ import numpy as np
 
 from .errors import InvalidInput, SolverFailed
 
-#: Solvers a user may pick.  Clarabel is the default; SCS is a first-order fallback.
-SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+#: Solvers a user may pick.  Clarabel is the default; SCS is a first-order fallback.  "IPM" is the
+#: structured interior-point solver (solver/ipm.py) for the lmi and switched designs and the common
+#: fixed-gain certificate LMI; every other compiled problem (ccl, switched fixed-gain LMI) falls back
+#: to Clarabel under that name.
+SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS, "IPM": cp.CLARABEL}
 
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 
@@ -146,7 +149,7 @@ class CompiledProblem:
             stats = self.problem.solver_stats
             info = SolveInfo(
                 status=status,
-                solver=name,
+                solver="CLARABEL" if name == "IPM" else name,  # the IPM's fallback
                 solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
                 wall_time=wall,
                 objective=float(self.problem.value) if self.problem.value is not None else float("nan"),

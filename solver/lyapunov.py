@@ -228,6 +228,10 @@ def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLAR
     t : float
     info : SolveInfo
     """
+    if solver == "IPM":  # solver/ipm.py; its t bounds the whole block, so only its sign compares
+        from .ipm import design_solve_fixed_gain
+
+        return design_solve_fixed_gain(A, rho, time_limit)
     compiled, info = _solve_fixed_gain("common_lmi", A, rho, solver, time_limit)
     return compiled.value("X"), float(compiled.value("t")), info
 

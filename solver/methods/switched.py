@@ -26,7 +26,7 @@ from ..errors import InvalidInput
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
-from .lmi import compiled_for, plant_values
+from .lmi import compiled_for, ipm_sdp, plant_values
 
 #: Pairwise constraints grow as S^2; refuse beyond this many modes.
 MAX_MODES = 128
@@ -57,6 +57,8 @@ def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem
 def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
               clock=None) -> DesignSdpSolution:
     """Solve the congruent switched SDP once; ``duals`` has S^2 blocks, pair (s, u) at ``s * S + u``."""
+    if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
+        return ipm_sdp(modes, "switched", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "switched", build)
     if clock is not None:
         clock.cached, clock.setup = clock.cached and cached, clock.setup + setup

@@ -282,7 +282,7 @@ def test_jsr_bounds_enclose_closed_forms(case):
 
 
 def test_http_serialization_carries_the_proof_fields():
-    from app.tasks import jsonable
+    from app.compute.tasks import jsonable
 
     res = design(CONFLICT, 1, method="lmi")
     out = jsonable(res.to_dict())
