@@ -30,6 +30,12 @@ MARGIN = 1e-6
 
 def draw_case(seed: int, max_n: int = 12, max_lmi_rows: int = 400):
     """A seeded random (ModeSet, description); the SDP has at most ``max_lmi_rows`` rows (r n_drop 2n)."""
+    fam, N, desc = draw_family(seed, max_n, max_lmi_rows)
+    return ModeSet.from_family(fam, N), desc
+
+
+def draw_family(seed: int, max_n: int = 12, max_lmi_rows: int = 400):
+    """The seeded random ``(PlantFamily, n_drop, description)`` behind :func:`draw_case`."""
     rng = np.random.default_rng(seed)
     kind = KINDS[seed % len(KINDS)]
     while True:
@@ -69,11 +75,10 @@ def draw_case(seed: int, max_n: int = 12, max_lmi_rows: int = 400):
         Gs = [G * 1e-3 for G in Gs]
     fam = PlantFamily(F=Fs, G=Gs, name=f"{kind} seed={seed}")
     try:
-        modes = ModeSet.from_family(fam, N)
+        ModeSet.from_family(fam, N)
     except Exception:  # noqa: BLE001  (F^N overflow for very unstable draws: try a smaller N)
-        modes = ModeSet.from_family(fam, 1)
         N = 1
-    return modes, f"{kind} n={n} r={r} N={N} m={m}"
+    return fam, N, f"{kind} n={n} r={r} N={N} m={m}"
 
 
 def clarabel_solve(modes: ModeSet):
@@ -148,11 +153,63 @@ def check_one(seed: int, tol: float = 1e-6, max_lmi_rows: int = 400) -> dict:
             "time_ipm": t_ipm, "time_clarabel": t_cla}
 
 
+def design_pair(fam, N, method: str, **kw) -> dict:
+    """``design()`` with the IPM and with Clarabel: the verdicts, proofs and t* must be the same."""
+    from solver import design
+
+    out = {}
+    for name in ("IPM", "CLARABEL"):
+        t0 = time.perf_counter()
+        try:
+            res = design(fam, N, method=method, solver=name, **kw)
+            out[name] = {"outcome": res.outcome, "proof": None if res.certificate is None else res.certificate.kind,
+                         "verified": None if res.certificate is None else bool(res.certificate.verified),
+                         "t": res.history[0].objective if res.history else float("nan"),
+                         "rate": res.decay_rate, "solver": res.solver, "time": time.perf_counter() - t0}
+        except Exception as err:  # noqa: BLE001
+            out[name] = {"outcome": f"error: {type(err).__name__}: {err}", "proof": None, "verified": None,
+                         "t": float("nan"), "rate": None, "solver": name, "time": time.perf_counter() - t0}
+    a, b = out["IPM"], out["CLARABEL"]
+    return {"ipm": a, "ref": b, "same": a["outcome"] == b["outcome"] and a["proof"] == b["proof"]
+            and a["rate"] == b["rate"], "dt": abs(a["t"] - b["t"]) / max(1.0, abs(b["t"]))}
+
+
+def check_designs(seeds, max_lmi_rows: int, switched_max_modes: int = 8) -> int:
+    """``design()`` both ways on the same families: lmi on every case, switched where it has at most
+    ``switched_max_modes`` modes (the IPM's range under "AUTO")."""
+    rows = []
+    for seed in seeds:
+        fam, N, desc = draw_family(seed, max_lmi_rows=max_lmi_rows)
+        methods = ["lmi"] + (["switched"] if fam.n_modes * N <= switched_max_modes else [])
+        for method in methods:
+            r = design_pair(fam, N, method)
+            r.update(seed=seed, desc=desc, method=method)
+            rows.append(r)
+            if not r["same"]:
+                print(f"DESIGN MISMATCH seed {seed} {desc} {method}: IPM {r['ipm']} CLARABEL {r['ref']}", flush=True)
+    for method in ("lmi", "switched"):
+        sel = [r for r in rows if r["method"] == method]
+        if not sel:
+            continue
+        counts: dict = {}
+        for r in sel:
+            key = (r["ipm"]["outcome"], r["ipm"]["proof"])
+            counts[key] = counts.get(key, 0) + 1
+        fin = [r["dt"] for r in sel if np.isfinite(r["dt"])]
+        print(f"design(method={method!r}): cases {len(sel)}, identical verdicts and proofs {sum(r['same'] for r in sel)}"
+              f"; max |dt*|/max(1,|t*|) {max(fin) if fin else float('nan'):.2e}; IPM outcomes "
+              + ", ".join(f"{o} ({p}) {c}" for (o, p), c in sorted(counts.items(), key=str))
+              + f"; time IPM {sum(r['ipm']['time'] for r in sel):.1f} s, Clarabel {sum(r['ref']['time'] for r in sel):.1f} s")
+    return sum(not r["same"] for r in rows)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench ipm-check")
     p.add_argument("--count", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-rows", type=int, default=400)
+    p.add_argument("--design", action="store_true",
+                   help="also run design() with solver='IPM' and 'CLARABEL' on every case (verdicts, proofs, t*)")
     a = p.parse_args(argv)
     rows = []
     t0 = time.perf_counter()
@@ -190,7 +247,8 @@ def main(argv=None) -> int:
           f"{max(r['iterations'] for r in rows)}")
     print(f"time: IPM {sum(r['time_ipm'] for r in rows):.1f} s, Clarabel via cvxpy (incl. build) "
           f"{sum(r['time_clarabel'] for r in rows):.1f} s; total {time.perf_counter() - t0:.0f} s")
-    return 0 if n_ok == len(rows) else 1
+    bad = check_designs(range(a.seed, a.seed + a.count), a.max_rows) if a.design else 0
+    return 0 if n_ok == len(rows) and bad == 0 else 1
 
 
 if __name__ == "__main__":

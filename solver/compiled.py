@@ -22,11 +22,31 @@ import numpy as np
 
 from .errors import InvalidInput, SolverFailed
 
-#: Solvers a user may pick.  Clarabel is the default; SCS is a first-order fallback.  "IPM" is the
-#: structured interior-point solver (solver/ipm.py) for the lmi and switched designs and the common
-#: fixed-gain certificate LMI; every other compiled problem (ccl, switched fixed-gain LMI) falls back
-#: to Clarabel under that name.
-SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS, "IPM": cp.CLARABEL}
+#: Solvers a user may pick.  "AUTO" (the default) is the fastest one that gives the same verdicts,
+#: per problem (:func:`resolve_solver`).  "IPM" is the structured interior-point solver
+#: (solver/ipm.py) for the lmi and switched designs and the common fixed-gain certificate LMI; every
+#: other compiled problem (ccl, the switched fixed-gain LMI) falls back to Clarabel under both names.
+#: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
+SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+
+#: Above this many modes the switched design SDP (S^2 blocks) goes to Clarabel under "AUTO": the IPM's
+#: Schur complement is dense in the S per-mode matrices S_s (docs/performance.md, measured).
+AUTO_SWITCHED_MAX_MODES = 8
+
+
+def resolve_solver(solver: str, problem: str, n_modes: int = 1) -> str:
+    """The solver that runs ``problem`` ("lmi", "switched", "common_lmi", or any other) for ``solver``.
+
+    "AUTO" picks IPM for the lmi design (every decay-rate bisection step too), the switched design up
+    to :data:`AUTO_SWITCHED_MAX_MODES` modes and the common fixed-gain LMI, where it was measured
+    faster with identical verdicts (bench/ipm_check.py), and Clarabel everywhere else.
+    """
+    name = str(solver).upper()
+    if name != "AUTO":
+        return name
+    if problem in ("lmi", "common_lmi") or (problem == "switched" and n_modes <= AUTO_SWITCHED_MAX_MODES):
+        return "IPM"
+    return "CLARABEL"
 
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 
@@ -109,7 +129,8 @@ class CompiledProblem:
         ----------
         values : dict
             ``name -> ndarray`` for every parameter.
-        solver : {"CLARABEL", "SCS"}
+        solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
+            The first two run Clarabel here (the structured IPM has its own entry points).
         time_limit : float, optional
             Seconds the solver may take.
 
@@ -149,7 +170,7 @@ class CompiledProblem:
             stats = self.problem.solver_stats
             info = SolveInfo(
                 status=status,
-                solver="CLARABEL" if name == "IPM" else name,  # the IPM's fallback
+                solver="CLARABEL" if name in ("IPM", "AUTO") else name,  # their fallback
                 solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
                 wall_time=wall,
                 objective=float(self.problem.value) if self.problem.value is not None else float("nan"),

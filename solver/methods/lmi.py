@@ -24,7 +24,8 @@ import cvxpy as cp
 import numpy as np
 
 from .. import ipm
-from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, schur_block
+from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, resolve_solver,
+                        schur_block)
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
@@ -74,7 +75,7 @@ def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
     return {"free": free.reshape(S * n, n), "coef": coef.reshape(S * modes.n_free_gains * n, m)}
 
 
-def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
+def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
               clock=None) -> DesignSdpSolution:
     """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
 
@@ -84,6 +85,7 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_
     scale : ndarray, shape (S,)
         ``c_s = lambda^(-eta_s)`` (ones for plain stability).
     """
+    solver = resolve_solver(solver, "lmi", modes.n_modes)
     if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
         return ipm_sdp(modes, "lmi", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "lmi", build)
