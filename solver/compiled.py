@@ -29,24 +29,18 @@ from .errors import InvalidInput, SolverFailed
 #: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
 SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
 
-#: Above this many modes the switched design SDP (S^2 blocks) goes to Clarabel under "AUTO": the IPM's
-#: Schur complement is dense in the S per-mode matrices S_s (docs/performance.md, measured).
-AUTO_SWITCHED_MAX_MODES = 8
-
-
 def resolve_solver(solver: str, problem: str, n_modes: int = 1) -> str:
     """The solver that runs ``problem`` ("lmi", "switched", "common_lmi", or any other) for ``solver``.
 
-    "AUTO" picks IPM for the lmi design (every decay-rate bisection step too), the switched design up
-    to :data:`AUTO_SWITCHED_MAX_MODES` modes and the common fixed-gain LMI, where it was measured
-    faster with identical verdicts (bench/ipm_check.py), and Clarabel everywhere else.
+    "AUTO" picks the structured IPM for the lmi and switched designs (every decay-rate bisection step
+    too) and the common fixed-gain LMI, where it was measured faster with identical verdicts
+    (bench/ipm_check.py, docs/performance.md), and Clarabel everywhere else (ccl, the switched
+    fixed-gain LMI).  ``n_modes`` is kept for a size-dependent choice (none is needed today).
     """
     name = str(solver).upper()
     if name != "AUTO":
         return name
-    if problem in ("lmi", "common_lmi") or (problem == "switched" and n_modes <= AUTO_SWITCHED_MAX_MODES):
-        return "IPM"
-    return "CLARABEL"
+    return "IPM" if problem in ("lmi", "switched", "common_lmi") else "CLARABEL"
 
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 

@@ -77,9 +77,8 @@ def design(
     solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
         Conic solver.  ``"AUTO"`` (default): the fastest with the same verdicts, per problem
         (:func:`solver.compiled.resolve_solver`): the structured interior-point solver
-        (solver/ipm.py) for ``lmi``, every decay-rate bisection step, ``switched`` up to 8 modes and
-        the common fixed-gain certificate LMI; Clarabel for ``ccl``, larger ``switched`` and the
-        switched fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel
+        (solver/ipm.py) for ``lmi``, every decay-rate bisection step, ``switched`` and the common
+        fixed-gain certificate LMI; Clarabel for ``ccl`` and the switched fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel
         elsewhere); ``"CLARABEL"`` and ``"SCS"`` (first order) run through cvxpy.
     margin : float
         Strictness margin of the LMIs (normalized; must exceed the solver

@@ -140,10 +140,14 @@ class MatrixVariable:
         If set, the variable is a vertical stack of ``r / sym_block`` symmetric
         ``sym_block x sym_block`` matrices (``sym_block = r = c`` for one
         symmetric matrix); otherwise it is general.
-    terms : list of (L, R, coef)
+    terms : list of (L, R, coef) or (L, R, coef, sel)
         ``L`` of shape (nb, k, r), ``R`` of shape (nb, c, k), ``coef`` a float:
         the variable contributes ``coef (L_b V R_b + (L_b V R_b)^T)`` to block b.
         ``R = None`` (symmetric variables only) means ``coef L_b V L_b^T``.
+        With ``sel`` (int array (nb,)) the variable is a stack of ``r / r_s`` row blocks of
+        ``r_s = L.shape[2]`` rows and block b sees only row block ``sel[b]`` (``V`` above is
+        that row block): the switched design's per-mode ``S_s``.  The Schur complement then
+        sums each block's Kronecker pieces only into the row blocks it touches.
     """
 
     name: str
@@ -241,11 +245,12 @@ class BlockLMI:
         out = np.multiply(-x[-1], np.eye(self.k))[None].repeat(self.nb, axis=0)
         for var, sl in zip(self.variables, self.slices):
             V = x[sl].reshape(var.shape)
-            for L, R, coef in var.terms:
+            for L, R, coef, *sel in var.terms:
+                Vb = V.reshape(-1, L.shape[2], var.shape[1])[sel[0]] if sel else V
                 if R is None:
-                    out += coef * (L @ V @ np.swapaxes(L, 1, 2))
+                    out += coef * (L @ Vb @ np.swapaxes(L, 1, 2))
                 else:
-                    LVR = L @ V @ R
+                    LVR = L @ Vb @ R
                     out += coef * (LVR + np.swapaxes(LVR, 1, 2))
         return out
 
@@ -256,12 +261,17 @@ class BlockLMI:
         g = np.empty(self.n_full)
         for var, sl in zip(self.variables, self.slices):
             acc = np.zeros(var.shape)
-            for L, R, coef in var.terms:
+            for L, R, coef, *sel in var.terms:
                 Lt = np.swapaxes(L, 1, 2)
                 if R is None:  # tr(L E_ab L^T U) = (L^T U^T L)_ab
-                    acc += coef * (Lt @ Ut @ L).sum(axis=0)
+                    per = Lt @ Ut @ L
                 else:
-                    acc += coef * (Lt @ Us @ np.swapaxes(R, 1, 2)).sum(axis=0)
+                    per = Lt @ Us @ np.swapaxes(R, 1, 2)
+                if sel:
+                    acc += coef * (_onehot(sel[0], var.shape[0] // L.shape[2]) @ per.reshape(self.nb, -1)).reshape(
+                        var.shape)
+                else:
+                    acc += coef * per.sum(axis=0)
             g[sl] = acc.ravel()
         g[-1] = -np.trace(U, axis1=1, axis2=2).sum()
         return g
@@ -271,12 +281,13 @@ class BlockLMI:
 
     # ----------------------------------------------------------------- Schur complement (HKM)
     @staticmethod
-    def _pieces(L, R, coef, X, G):
+    def _pieces(L, R, coef, X, G, *sel):
         Lt = np.swapaxes(L, 1, 2)
+        sel = sel[0] if sel else None
         if R is None:
-            return (L, None, coef, G @ L, X @ L, None, None, Lt)
+            return (L, None, coef, G @ L, X @ L, None, None, Lt, sel)
         Rt = np.swapaxes(R, 1, 2)
-        return (L, R, coef, G @ L, X @ L, G @ Rt, X @ Rt, Lt)
+        return (L, R, coef, G @ L, X @ L, G @ Rt, X @ Rt, Lt, sel)
 
     @staticmethod
     def _pair(a, b, shape_a, shape_b, nb):
@@ -284,33 +295,64 @@ class BlockLMI:
 
         Layouts: ``[P]_ac [Q]_bd`` is ``kron``; ``[P]_ad [Q]_bc`` a ``kron`` with a
         commutation.  A sym-kind term is ``c L E L^T`` (E symmetric): one product
-        per pair instead of four.
+        per pair instead of four.  Terms with a row-block selection (``sel``) sum each
+        block's pieces into the (row block of a, row block of b) pair it touches only,
+        instead of a dense product over the whole stack (the switched design's ``S_s``:
+        O(nb n^4) instead of O(nb S^2 n^4)).
         """
-        L, R, cf, GL, XL, GRt, XRt, Lt = a
-        L2, R2, cf2, GL2, XL2, GRt2, XRt2, Lt2 = b
-        r, c = shape_a
-        r2, c2 = shape_b
+        L, R, cf, GL, XL, GRt, XRt, Lt, sel = a
+        L2, R2, cf2, GL2, XL2, GRt2, XRt2, Lt2, sel2 = b
+        r, c = L.shape[2], shape_a[1]  # rows of the (selected) variable block
+        r2, c2 = L2.shape[2], shape_b[1]
+        na = 1 if sel is None else shape_a[0] // r
+        nb2 = 1 if sel2 is None else shape_b[0] // r2
+        if sel is None and sel2 is None:
+            def mm(P, Q):
+                return (P.T @ Q)[None]
+        else:
+            gid = (np.zeros(nb, dtype=np.intp) if sel is None else sel * nb2) + (0 if sel2 is None else sel2)
+            groups, inv = np.unique(gid, return_inverse=True)
+            H = _onehot(inv, len(groups))
+
+            def mm(P, Q):
+                return (H @ (P[:, :, None] * Q[:, None, :]).reshape(nb, -1)).reshape(len(groups), P.shape[1], -1)
         if R is None and R2 is None:
             # (L^T G L')_ad (L^T X L')_bc
-            K = ((Lt @ GL2).reshape(nb, -1).T @ (Lt @ XL2).reshape(nb, -1)).reshape(r, r2, r, r2).transpose(0, 2, 3, 1)
+            K = mm((Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)).reshape(-1, r, r2, r, r2).transpose(
+                0, 1, 3, 4, 2)
         elif R is None:
             # (L^T G R'^T)_ad (L^T X L')_bc + (L^T G L')_ac (L^T X R'^T)_bd
-            K = ((Lt @ GRt2).reshape(nb, -1).T @ (Lt @ XL2).reshape(nb, -1)).reshape(r, c2, r, r2).transpose(0, 2, 3, 1)
-            K = K + ((Lt @ GL2).reshape(nb, -1).T @ (Lt @ XRt2).reshape(nb, -1)).reshape(r, r2, r, c2).transpose(0, 2, 1, 3)
+            K = mm((Lt @ GRt2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)).reshape(-1, r, c2, r, r2).transpose(
+                0, 1, 3, 4, 2)
+            K = K + mm((Lt @ GL2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)).reshape(-1, r, r2, r, c2).transpose(
+                0, 1, 3, 2, 4)
         elif R2 is None:
             # Only the projected (symmetric-basis) matrix matters, where block (i, j) is block (j, i)^T.
             K = BlockLMI._pair(b, a, shape_b, shape_a, nb)
-            return K.reshape(r2 * c2, r * c).T * 1.0
+            return K.reshape(shape_b[0] * c2, shape_a[0] * c).T * 1.0
         else:
             # (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
-            P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)])
-            Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)])
-            K = (P.T @ Q).reshape(r, r2, c, c2).transpose(0, 2, 1, 3)
+            P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)], axis=1)
+            Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)], axis=1)
+            if sel is None and sel2 is None:  # stacked along the blocks: one GEMM of twice the depth
+                K = (P.reshape(2 * nb, -1).T @ Q.reshape(2 * nb, -1))[None]
+            else:
+                K = mm(P[:, :r * r2], Q[:, :c * c2]) + mm(P[:, r * r2:], Q[:, c * c2:])
+            K = K.reshape(-1, r, r2, c, c2).transpose(0, 1, 3, 2, 4)
             # (R' G L)^T_ad (R X L')_bc + (L^T X R'^T)_ad (R G L')_bc
-            P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)])
-            Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)])
-            K = K + (P.T @ Q).reshape(r, c2, c, r2).transpose(0, 2, 3, 1)
-        return (cf * cf2) * K.reshape(r * c, r2 * c2)
+            P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)], axis=1)
+            Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)], axis=1)
+            if sel is None and sel2 is None:
+                K2 = (P.reshape(2 * nb, -1).T @ Q.reshape(2 * nb, -1))[None]
+            else:
+                K2 = mm(P[:, :r * c2], Q[:, :c * r2]) + mm(P[:, r * c2:], Q[:, c * r2:])
+            K = K + K2.reshape(-1, r, c2, c, r2).transpose(0, 1, 3, 4, 2)
+        K = (cf * cf2) * K.reshape(-1, r * c, r2 * c2)
+        if sel is None and sel2 is None:
+            return K[0]
+        full = np.zeros((na, nb2, r * c, r2 * c2))
+        full[groups // nb2, groups % nb2] = K
+        return full.transpose(0, 2, 1, 3).reshape(na * r * c, nb2 * r2 * c2)
 
     def schur(self, X: np.ndarray, G: np.ndarray) -> np.ndarray:
         """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p).
@@ -326,7 +368,7 @@ class BlockLMI:
         """
         nf = self.n_full
         M = np.empty((nf, nf))
-        cache = [[self._pieces(L, R, cf, X, G) for L, R, cf in var.terms] for var in self.variables]
+        cache = [[self._pieces(*term[:3], X, G, *term[3:]) for term in var.terms] for var in self.variables]
         nb = self.nb
         for i, (vi, si) in enumerate(zip(self.variables, self.slices)):
             for j in range(i, len(self.variables)):
@@ -364,8 +406,10 @@ class BlockLMI:
         out = np.zeros((p, self.nb, k, k))
         out -= T[-1][:, None, None, None] * np.eye(k)
         for var, sl in zip(self.variables, self.slices):
-            Vs = T[sl].T.reshape(p, 1, *var.shape)
-            for L, R, coef in var.terms:
+            for L, R, coef, *sel in var.terms:
+                Vs = T[sl].T.reshape(p, 1, *var.shape)
+                if sel:
+                    Vs = Vs.reshape(p, -1, L.shape[2], var.shape[1])[:, sel[0]]
                 if R is None:
                     out += coef * (L @ Vs @ np.swapaxes(L, 1, 2))
                 else:
@@ -447,6 +491,12 @@ class IPMSolution:
     dual_residual: float
     gap: float
     timings: dict
+
+
+def _onehot(index: np.ndarray, n: int) -> sp.csr_matrix:
+    """Sparse (n, len(index)) matrix summing the rows of ``index == g`` into row g."""
+    m = len(index)
+    return sp.csr_matrix((np.ones(m), (index, np.arange(m))), shape=(n, m))
 
 
 _potrf = scipy.linalg.lapack.dpotrf
@@ -737,15 +787,11 @@ def switched_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | No
     Rleft = np.broadcast_to(P1.T, (B, n, 2 * n))
     Z = MatrixVariable("Z", (n, n), None, [(sqb * P1[None], sqb * P1.T[None], 1.0),
                                            (P2[None] @ free[s_of], Rleft, 1.0)])
-    # E_s^T = e_s^T kron I_n picks S_s out of the stack.
-    Lss = np.zeros((B, 2 * n, S * n))
-    Lsu = np.zeros((B, 2 * n, S * n))
-    for bi in range(B):
-        s, u = s_of[bi], u_of[bi]
-        Lss[bi, :n, s * n:(s + 1) * n] = sq[s] * np.eye(n)
-        Lsu[bi, n:, u * n:(u + 1) * n] = np.eye(n)
-    Sv = MatrixVariable("S", (S * n, n), n, [(Lss, sqb * P1.T[None], -0.5),
-                                            (Lsu, np.broadcast_to(P2.T, (B, n, 2 * n)), 0.5)])
+    # Block (s, u) sees S_s (top left) and S_u (bottom right) only: row-block selections of the stack.
+    Lss = sqb * P1[None]
+    Lsu = np.broadcast_to(P2, (B, 2 * n, n))
+    Sv = MatrixVariable("S", (S * n, n), n, [(Lss, sqb * P1.T[None], -0.5, s_of),
+                                            (Lsu, np.broadcast_to(P2.T, (B, n, 2 * n)), 0.5, u_of)])
     variables = [Z, Sv]
     if J * m > 0:
         LY = P2[None] @ _gain_L(coef, active)[s_of]
