@@ -332,20 +332,17 @@ class BlockLMI:
             return K.reshape(shape_b[0] * c2, shape_a[0] * c).T * 1.0
         else:
             # (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
-            P = np.concatenate([(Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1)], axis=1)
-            Q = np.concatenate([(R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)], axis=1)
-            if sel is None and sel2 is None:  # stacked along the blocks: one GEMM of twice the depth
-                K = (P.reshape(2 * nb, -1).T @ Q.reshape(2 * nb, -1))[None]
-            else:
-                K = mm(P[:, :r * r2], Q[:, :c * c2]) + mm(P[:, r * r2:], Q[:, c * c2:])
-            K = K.reshape(-1, r, r2, c, c2).transpose(0, 1, 3, 2, 4)
+            def mm2(P1, P2, Q1, Q2):  # without selections: stacked along the blocks, one GEMM of twice the depth
+                if sel is None and sel2 is None:
+                    return (np.concatenate([P1, P2]).T @ np.concatenate([Q1, Q2]))[None]
+                return mm(P1, Q1) + mm(P2, Q2)
+
+            K = mm2((Lt @ GL2).reshape(nb, -1), (Lt @ XL2).reshape(nb, -1),
+                    (R @ XRt2).reshape(nb, -1), (R @ GRt2).reshape(nb, -1)).reshape(-1, r, r2, c, c2).transpose(
+                0, 1, 3, 2, 4)
             # (R' G L)^T_ad (R X L')_bc + (L^T X R'^T)_ad (R G L')_bc
-            P = np.concatenate([np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1)], axis=1)
-            Q = np.concatenate([(R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1)], axis=1)
-            if sel is None and sel2 is None:
-                K2 = (P.reshape(2 * nb, -1).T @ Q.reshape(2 * nb, -1))[None]
-            else:
-                K2 = mm(P[:, :r * c2], Q[:, :c * r2]) + mm(P[:, r * c2:], Q[:, c * r2:])
+            K2 = mm2(np.swapaxes(R2 @ GL, 1, 2).reshape(nb, -1), (Lt @ XRt2).reshape(nb, -1),
+                     (R @ XL2).reshape(nb, -1), (R @ GL2).reshape(nb, -1))
             K = K + K2.reshape(-1, r, c2, c, r2).transpose(0, 1, 3, 4, 2)
         K = (cf * cf2) * K.reshape(-1, r * c, r2 * c2)
         if sel is None and sel2 is None:
