@@ -2,7 +2,9 @@
 
 ``python -m bench service [options]`` runs the service benchmark instead
 (``bench/service_bench.py``: the real server over HTTP, SQLite and PostgreSQL;
-``python -m bench service --help``).
+``python -m bench service --help``).  ``python -m bench ipm [--grid]`` compares the
+structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py``);
+``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``).
 
 Options::
 
@@ -54,6 +56,14 @@ def main(argv=None) -> int:
         from . import service_bench
 
         return service_bench.main(argv[1:])
+    if argv and argv[0] == "ipm":
+        from . import ipm_bench
+
+        return ipm_bench.main(argv[1:])
+    if argv and argv[0] == "ipm-check":
+        from . import ipm_check
+
+        return ipm_check.main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m bench", description="Solver benchmark tables.")
     p.add_argument("--quick", action="store_true")
     p.add_argument("--repeats", type=int, default=20)

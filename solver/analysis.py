@@ -208,7 +208,7 @@ def analyze(
     bounds: str = "quadratic",
     rate_tol: float = 1e-3,
     max_modes: int = MAX_MODES,
-    solver: str = "CLARABEL",
+    solver: str = "AUTO",
 ) -> AnalysisReport:
     """Decide stability of the networked loop with given gains under arbitrary losses and jumps.
 
@@ -235,7 +235,9 @@ def analyze(
     rate_tol : float
         Tolerance of those bisections.
     max_modes : int
-    solver : {"CLARABEL", "SCS"}
+    solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
+        As in :func:`solver.design`: under "AUTO" the common fixed-gain LMI (and its rate bisection)
+        runs on the structured IPM, the switched one on Clarabel.
 
     Returns
     -------

@@ -22,8 +22,25 @@ import numpy as np
 
 from .errors import InvalidInput, SolverFailed
 
-#: Solvers a user may pick.  Clarabel is the default; SCS is a first-order fallback.
-SOLVERS = {"CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+#: Solvers a user may pick.  "AUTO" (the default) is the fastest one that gives the same verdicts,
+#: per problem (:func:`resolve_solver`).  "IPM" is the structured interior-point solver
+#: (solver/ipm.py) for the lmi and switched designs and the common fixed-gain certificate LMI; every
+#: other compiled problem (ccl, the switched fixed-gain LMI) falls back to Clarabel under both names.
+#: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
+SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+
+def resolve_solver(solver: str, problem: str, n_modes: int = 1) -> str:
+    """The solver that runs ``problem`` ("lmi", "switched", "common_lmi", or any other) for ``solver``.
+
+    "AUTO" picks the structured IPM for the lmi and switched designs (every decay-rate bisection step
+    too) and the common fixed-gain LMI, where it was measured faster with identical verdicts
+    (bench/ipm_check.py, docs/performance.md), and Clarabel everywhere else (ccl, the switched
+    fixed-gain LMI).  ``n_modes`` is kept for a size-dependent choice (none is needed today).
+    """
+    name = str(solver).upper()
+    if name != "AUTO":
+        return name
+    return "IPM" if problem in ("lmi", "switched", "common_lmi") else "CLARABEL"
 
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 
@@ -106,7 +123,8 @@ class CompiledProblem:
         ----------
         values : dict
             ``name -> ndarray`` for every parameter.
-        solver : {"CLARABEL", "SCS"}
+        solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
+            The first two run Clarabel here (the structured IPM has its own entry points).
         time_limit : float, optional
             Seconds the solver may take.
 
@@ -146,7 +164,7 @@ class CompiledProblem:
             stats = self.problem.solver_stats
             info = SolveInfo(
                 status=status,
-                solver=name,
+                solver="CLARABEL" if name in ("IPM", "AUTO") else name,  # their fallback
                 solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
                 wall_time=wall,
                 objective=float(self.problem.value) if self.problem.value is not None else float("nan"),

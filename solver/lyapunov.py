@@ -27,7 +27,7 @@ from typing import Callable
 import cvxpy as cp
 import numpy as np
 
-from .compiled import CompiledProblem, SolveInfo, block, problem_cache, schur_block
+from .compiled import CompiledProblem, SolveInfo, block, problem_cache, resolve_solver, schur_block
 from .errors import SolverFailed
 from .network import augmented_matrices
 
@@ -210,7 +210,7 @@ def _solve_fixed_gain(kind: str, A: np.ndarray, rho, solver: str, time_limit) ->
     return compiled, info
 
 
-def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLARABEL", time_limit=None):
+def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "AUTO", time_limit=None):
     """Best-margin common quadratic certificate for fixed gains (Theorem 1 as an LMI).
 
     Solves ``max t`` s.t. ``rho_s X - A_s^T X A_s >= t I``, ``X >= t I``, ``trace X = n``;
@@ -228,11 +228,15 @@ def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLAR
     t : float
     info : SolveInfo
     """
+    if resolve_solver(solver, "common_lmi") == "IPM":  # solver/ipm.py; its t bounds the whole block: only its sign compares
+        from .ipm import design_solve_fixed_gain
+
+        return design_solve_fixed_gain(A, rho, time_limit)
     compiled, info = _solve_fixed_gain("common_lmi", A, rho, solver, time_limit)
     return compiled.value("X"), float(compiled.value("t")), info
 
 
-def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CLARABEL", time_limit=None):
+def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "AUTO", time_limit=None):
     """Best-margin mode-dependent certificate for fixed gains.
 
     Solves ``max t`` s.t. ``rho_s P_s - A_s^T P_u A_s >= t I`` for all pairs,
@@ -248,7 +252,7 @@ def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "CL
     return np.stack(compiled.value("P")), float(compiled.value("t")), info
 
 
-def certify(A: np.ndarray, n_drop: int, kinds=("common_quadratic", "switched"), solver="CLARABEL",
+def certify(A: np.ndarray, n_drop: int, kinds=("common_quadratic", "switched"), solver="AUTO",
             time_limit=None, on_solve: Callable | None = None) -> Certificate | None:
     """A verified stability certificate for fixed closed loops, trying the kinds in order.
 
@@ -300,7 +304,7 @@ def bisect_rate(feasible: Callable[[float], object], lo: float, hi: float, tol: 
 
 
 def certified_rate(A: np.ndarray, eta: np.ndarray, kind: str = "common_quadratic", per: str = "sample",
-                   hi: float = 1.0, tol: float = 1e-3, solver: str = "CLARABEL"):
+                   hi: float = 1.0, tol: float = 1e-3, solver: str = "AUTO"):
     """Smallest certified rate for fixed closed loops, by bisection.
 
     Parameters

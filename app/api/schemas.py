@@ -168,7 +168,7 @@ class DesignResult(_Open):
                                                                 "for stability, not sufficient).")
     history: list[IterationRecord] | None = Field(None, description="One record per solver iteration.")
     iterations: int | None = Field(None, description="Iterations after the start (0 for one-shot methods).")
-    solver: str | None = Field(None, description="Conic solver used (`CLARABEL`, `SCS`).")
+    solver: str | None = Field(None, description="Conic solver used (`IPM`, `CLARABEL`, `SCS`).")
     solver_status: str | None = Field(None, description="Status of the last conic solve.")
     timings: Timings | None = Field(None, description="Where the time went (s).")
     message: str | None = Field(None, description="The outcome in words.")
@@ -386,7 +386,7 @@ _JOB_EXAMPLE = {
                                 [[-4.0, -0.03], [1.5, -20.0]]],
                           "B": [[[2.0], [0.0]], [[2.0], [0.0]], [[2.0], [0.0]]]},
                 "n_drop": 3, "method": "lmi",
-                "options": {"solver": "CLARABEL", "margin": 1e-06, "max_iter": 50, "decay_rate": None,
+                "options": {"solver": "AUTO", "margin": 1e-06, "max_iter": 50, "decay_rate": None,
                             "plant_switching": "per_interval", "scheme": "predictive"}},
     "result": {
         "outcome": "stabilized", "method": "lmi", "n_drop": 3,
@@ -397,7 +397,7 @@ _JOB_EXAMPLE = {
         "max_spectral_radius": 0.514,
         "F": [[[0.6703, -0.0018], [0.0294, 0.5134]], "..."], "G": [[[0.1648], [0.0035]], "..."],
         "sampling_period": 0.1, "history": [{"iteration": 0, "objective": 0.6538, "theorem1": True}],
-        "iterations": 0, "solver": "CLARABEL", "solver_status": "optimal",
+        "iterations": 0, "solver": "IPM", "solver_status": "optimal",
         "timings": {"total": 0.0966, "solver": 0.0014}, "message": "stabilized; certificate re-checked",
     },
 }

@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
-from ..compiled import SolveInfo
+from ..compiled import SolveInfo, resolve_solver
 from ..errors import SolverFailed
 from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
 from ..network import ModeSet, spectral_radii
@@ -20,7 +20,7 @@ from ..result import DesignResult, IterationRecord
 class DesignOptions:
     """Options shared by all methods (see :func:`solver.design` for their meaning)."""
 
-    solver: str = "CLARABEL"
+    solver: str = "AUTO"
     margin: float = 1e-6
     max_iter: int = 50
     time_limit: float | None = None
@@ -138,7 +138,7 @@ def finish(
         method=method,
         n_drop=modes.n_drop,
         history=history,
-        solver=info_solver,
+        solver=resolve_solver(info_solver, method, modes.n_modes),
         solver_status=status,
         timings=clock.timings(),
         message=message,

@@ -23,7 +23,9 @@ import time
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, schur_block
+from .. import ipm
+from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, resolve_solver,
+                        schur_block)
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
@@ -73,7 +75,7 @@ def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
     return {"free": free.reshape(S * n, n), "coef": coef.reshape(S * modes.n_free_gains * n, m)}
 
 
-def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
+def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
               clock=None) -> DesignSdpSolution:
     """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
 
@@ -83,6 +85,9 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_
     scale : ndarray, shape (S,)
         ``c_s = lambda^(-eta_s)`` (ones for plain stability).
     """
+    solver = resolve_solver(solver, "lmi", modes.n_modes)
+    if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
+        return ipm_sdp(modes, "lmi", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "lmi", build)
     if clock is not None:
         clock.cached, clock.setup = clock.cached and cached, clock.setup + setup
@@ -92,6 +97,17 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_
         t=float(compiled.value("t")), W=0.5 * (W + W.T), Y=np.stack(compiled.value("Y")), S=None,
         duals=compiled.duals("blocks"), info=info,
     )
+
+
+def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | None) -> DesignSdpSolution:
+    """The congruent SDP of ``kind`` ("lmi" or "switched") solved by :func:`solver.ipm.design_solve`."""
+    values = plant_values(modes, scale)
+    S, n, m, J = modes.n_modes, modes.n_states, modes.n_inputs, modes.n_free_gains
+    info, sol = ipm.design_solve(modes, kind, None, time_limit, free=values["free"].reshape(S, n, n),
+                                 coef=values["coef"].reshape(S, J, n, m))
+    if kind == "switched":
+        return DesignSdpSolution(t=float(sol.t), W=sol.Z, Y=sol.Y, S=sol.S, duals=sol.duals, info=info)
+    return DesignSdpSolution(t=float(sol.t), W=sol.W, Y=sol.Y, S=None, duals=sol.duals, info=info)
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:

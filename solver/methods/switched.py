@@ -21,12 +21,12 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory
+from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, resolve_solver
 from ..errors import InvalidInput
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
-from .lmi import compiled_for, plant_values
+from .lmi import compiled_for, ipm_sdp, plant_values
 
 #: Pairwise constraints grow as S^2; refuse beyond this many modes.
 MAX_MODES = 128
@@ -54,9 +54,12 @@ def build(n: int, m: int, S: int, J: int, active: np.ndarray) -> CompiledProblem
                            {"Z": Z, "S": Sm, "Y": Y, "t": t, "blocks": blocks})
 
 
-def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "CLARABEL", time_limit: float | None = None,
+def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
               clock=None) -> DesignSdpSolution:
     """Solve the congruent switched SDP once; ``duals`` has S^2 blocks, pair (s, u) at ``s * S + u``."""
+    solver = resolve_solver(solver, "switched", modes.n_modes)
+    if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
+        return ipm_sdp(modes, "switched", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "switched", build)
     if clock is not None:
         clock.cached, clock.setup = clock.cached and cached, clock.setup + setup

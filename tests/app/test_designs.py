@@ -41,7 +41,7 @@ def test_paper_example_designs_match_the_solver(client, method):
     job = resp.json()
     assert resp.headers["location"] == f"/v1/designs/{job['id']}"
     assert job["status"] in ("queued", "running")
-    assert job["request"]["options"]["solver"] == "CLARABEL"  # defaults are filled in
+    assert job["request"]["options"]["solver"] == "AUTO"  # defaults are filled in
     done = wait_for(client, job["id"])
     assert done["status"] == "succeeded", done
     res = done["result"]

@@ -115,7 +115,18 @@ def test_solver_failure_is_an_error_not_infeasible(monkeypatch):
 
     monkeypatch.setattr(CompiledProblem, "solve", broken)
     with pytest.raises(SolverFailed):
-        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi")
+        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi", solver="CLARABEL")
+
+
+def test_ipm_failure_is_an_error_not_infeasible(monkeypatch):
+    from solver import ipm
+
+    def broken(*args, **kwargs):
+        raise SolverFailed("IPM ended with status 'numerical_error'", status="numerical_error")
+
+    monkeypatch.setattr(ipm, "design_solve", broken)
+    with pytest.raises(SolverFailed):
+        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi")  # AUTO: the IPM for lmi
 
 
 @pytest.mark.parametrize("method", ["lmi", "switched", "ccl"])
@@ -136,11 +147,11 @@ def test_callback_sees_every_iteration_and_can_stop():
 def test_cached_problem_gives_the_same_design_as_a_fresh_one():
     for seed in (3, 5, 7):
         fam = random_family(seed, n=3, m=2, r=2)
-        warm = design(fam, n_drop=2, method="lmi")
+        warm = design(fam, n_drop=2, method="lmi", solver="CLARABEL")
         problem_cache.clear()
-        cold = design(fam, n_drop=2, method="lmi")
+        cold = design(fam, n_drop=2, method="lmi", solver="CLARABEL")
         assert not cold.timings["cached"]
-        again = design(fam, n_drop=2, method="lmi")
+        again = design(fam, n_drop=2, method="lmi", solver="CLARABEL")
         assert again.timings["cached"]
         assert warm.outcome == cold.outcome == again.outcome
         if cold.gains is not None:
@@ -151,9 +162,9 @@ def test_cached_problem_gives_the_same_design_as_a_fresh_one():
             assert cold.certificate.margin == pytest.approx(again.certificate.margin, rel=1e-5)
     # different shapes never share a problem: interleave two shapes and get the same answers
     small, big = random_family(1, n=2, m=1, r=3), random_family(3, n=3, m=2, r=2)
-    first = design(small, n_drop=2, method="lmi").gains
-    design(big, n_drop=2, method="lmi")
-    np.testing.assert_array_equal(design(small, n_drop=2, method="lmi").gains, first)
+    first = design(small, n_drop=2, method="lmi", solver="CLARABEL").gains
+    design(big, n_drop=2, method="lmi", solver="CLARABEL")
+    np.testing.assert_array_equal(design(small, n_drop=2, method="lmi", solver="CLARABEL").gains, first)
     lmi_keys = [k for k in problem_cache.keys() if k[0] == "lmi"]
     assert {k[1:4] for k in lmi_keys} >= {(2, 1, 6), (3, 2, 4)}  # (n, m, modes)
     assert len(lmi_keys) == len(set(lmi_keys))
@@ -181,8 +192,8 @@ def test_cached_and_fresh_problems_agree_for_iterative_and_switched_methods(meth
     for seed in (0, 1):
         fam = random_family(seed, n=2, m=1, r=2)
         problem_cache.clear()
-        fresh = design(fam, n_drop=2, method=method, max_iter=10)
-        cached = design(fam, n_drop=2, method=method, max_iter=10)
+        fresh = design(fam, n_drop=2, method=method, max_iter=10, solver="CLARABEL")  # the cvxpy cache
+        cached = design(fam, n_drop=2, method=method, max_iter=10, solver="CLARABEL")
         assert cached.timings["cached"] and not fresh.timings["cached"]
         assert fresh.outcome == cached.outcome
         if fresh.gains is not None:
