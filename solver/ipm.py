@@ -659,10 +659,11 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         if not problem.with_t:
             # A general objective fixes the multipliers' scale (A^*(X) = -b): start X = xi I with
             # xi fitted to it, not at the max-t form's 1/N (which stalls the dual steps).
-            g = adj(np.broadcast_to(np.eye(problem.k), problem.C.shape))
+            g = adj(np.broadcast_to(np.eye(problem.k), problem.C.shape))  # A^*(I)
             gg = float(g @ g)
-            xi = -float(b_ @ g) / gg if (gg > 0 and (b_ := problem.b) is not None) else 0.0
-            x_start = max(xi, float(np.linalg.norm(problem.b)) / np.sqrt(gg) if gg > 0 else 1.0, 1.0 / (problem.nb * problem.k))
+            x_start = 1.0 / (problem.nb * problem.k)
+            if gg > 0:  # least-squares xi for A^*(xi I) = -b, at least |b| / |A^*(I)|
+                x_start = max(x_start, -float(problem.b @ g) / gg, float(np.linalg.norm(problem.b)) / np.sqrt(gg))
         core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, feasible_start=not problem.with_t,
                          x_start=x_start)
         x = problem.full(core.y)
