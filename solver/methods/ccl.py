@@ -14,6 +14,11 @@ LMI with the gains fixed.  The iteration cap bounds the loop.
 
 Step 1 is always feasible (``P = Q = c I`` with c large), so CCL can never
 prove that no design exists: where none does it ends ``not_converged``.
+
+``solver="IPM"`` solves every SDP with the structured interior-point solver
+(:func:`ipm_problem`, started at that ``P = Q = c I``, gains 0); its Step 1 is
+always the min-trace start (``ccl_start`` is ignored), since a zero-objective
+feasibility SDP has no unique answer.  The certify path is the same.
 """
 
 from __future__ import annotations
