@@ -4,7 +4,9 @@
 (``bench/service_bench.py``: the real server over HTTP, SQLite and PostgreSQL;
 ``python -m bench service --help``).  ``python -m bench ipm [--grid]`` compares the
 structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py``);
-``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``).
+``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``);
+``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
+``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``).
 
 Options::
 
@@ -60,6 +62,14 @@ def main(argv=None) -> int:
         from . import ipm_bench
 
         return ipm_bench.main(argv[1:])
+    if argv and argv[0] == "ccl":
+        from . import ccl_bench
+
+        return ccl_bench.main(argv[1:])
+    if argv and argv[0] == "ccl-check":
+        from . import ccl_check
+
+        return ccl_check.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

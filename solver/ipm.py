@@ -184,20 +184,27 @@ class BlockLMI:
     variables: list
     V0: list
     equality: np.ndarray | None = None
+    #: ``None``: ``max t`` as above.  Otherwise coefficients ``c`` (row-major concatenation of the
+    #: variables): the problem is ``min <c, vec V>`` s.t. ``C_b + sum terms_b(V) >= 0`` -- no ``t``,
+    #: and ``V0`` must be strictly feasible (``C`` positive definite), since the start is ``y = 0``.
+    objective: np.ndarray | None = None
 
     def __post_init__(self):
         self.nb, self.k = self.C.shape[0], self.C.shape[1]
         offsets = np.cumsum([0] + [v.size for v in self.variables])
         self.slices = [slice(int(offsets[i]), int(offsets[i + 1])) for i in range(len(self.variables))]
         self.n_full = int(offsets[-1]) + 1  # + t, the last entry
+        self.with_t = self.objective is None
         key = (tuple((v.shape, v.sym_block) for v in self.variables),
-               None if self.equality is None else self.equality.tobytes())
+               None if self.equality is None else self.equality.tobytes(), self.with_t)
         if key not in _BASIS_CACHE:
             if len(_BASIS_CACHE) > 64:
                 _BASIS_CACHE.clear()
             T = self._basis()
             _BASIS_CACHE[key] = (T, np.asarray(T[-1, :].todense()).ravel(), None)
         self.T, self.b, _ = _BASIS_CACHE[key]
+        if not self.with_t:
+            self.b = -(self.T.T @ np.append(np.asarray(self.objective, dtype=np.float64), 0.0))
         self.p = self.T.shape[1]
         self._key = key
 
@@ -221,8 +228,9 @@ class BlockLMI:
                             if i != j:
                                 rows.append(base + (blk * q + j) * c + i), cols.append(col), vals.append(1.0)
                             col += 1
-        rows.append(self.n_full - 1), cols.append(col), vals.append(1.0)  # t
-        col += 1
+        if self.with_t:
+            rows.append(self.n_full - 1), cols.append(col), vals.append(1.0)  # t
+            col += 1
         T = sp.csr_matrix((vals, (rows, cols)), shape=(self.n_full, col))
         if self.equality is None:
             return T
@@ -524,7 +532,8 @@ class _Core:
     timings: dict
 
 
-def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
+def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_start: bool = False,
+              x_start: float | None = None) -> _Core:
     """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S = C + A(y) >= 0``.
 
     The ``y`` iterates stay feasible: ``S`` is recomputed as ``C + A(y)`` (no
@@ -538,9 +547,12 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float) -> _Core:
     eye = np.eye(k)
     y = np.zeros(b.shape[0])
     # t far enough below every block's smallest eigenvalue: S = C - t I > 0.
-    y[-1] = np.linalg.eigvalsh(C)[:, 0].min() - max(1.0, float(np.abs(C).max()))
+    # (feasible_start: C itself is positive definite and y = 0 is the start; no t coordinate.)
+    if not feasible_start:
+        y[-1] = np.linalg.eigvalsh(C)[:, 0].min() - max(1.0, float(np.abs(C).max()))
     S = C + op(y)
-    X = np.broadcast_to(eye / N, (nb, k, k)).copy()
+    # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
+    X = np.broadcast_to(eye * (1.0 / N if x_start is None else x_start), (nb, k, k)).copy()
     normb = 1.0 + np.linalg.norm(b)
     status = "max_iterations"
     best = None
@@ -690,7 +702,17 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
             op, adj, schur = _dense_ops(problem.dense_operator())
         else:
             op, adj, schur = problem.op, problem.adj, problem.schur
-        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start)
+        x_start = None
+        if not problem.with_t:
+            # A general objective fixes the multipliers' scale (A^*(X) = -b): start X = xi I with
+            # xi fitted to it, not at the max-t form's 1/N (which stalls the dual steps).
+            g = adj(np.broadcast_to(np.eye(problem.k), problem.C.shape))  # A^*(I)
+            gg = float(g @ g)
+            x_start = 1.0 / (problem.nb * problem.k)
+            if gg > 0:  # least-squares xi for A^*(xi I) = -b, at least |b| / |A^*(I)|
+                x_start = max(x_start, -float(problem.b @ g) / gg, float(np.linalg.norm(problem.b)) / np.sqrt(gg))
+        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, feasible_start=not problem.with_t,
+                         x_start=x_start)
         x = problem.full(core.y)
         V = [v0 + x[sl].reshape(var.shape) for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0)]
         nu = 0.0
