@@ -14,7 +14,7 @@ from .conftest import assert_problem, running_client, wait_for
 # n = 12, r = 6, n_drop = 8 (LMI size 1152, inside the size limits): its SDP needs a few hundred MB.
 _F = (np.eye(12) * 0.9 + 0.01 * np.ones((12, 12))).tolist()
 BIG = {"plant": {"kind": "discrete", "F": [_F] * 6, "G": [np.ones((12, 3)).tolist()] * 6},
-       "n_drop": 8, "method": "lmi"}
+       "n_drop": 8, "method": "lmi", "options": {"solver": "CLARABEL"}}  # Clarabel's dense KKT is what outgrows the cap
 ANALYSIS = {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01}
 
 
@@ -28,13 +28,15 @@ def test_design_over_the_worker_memory_cap_fails_with_a_clear_reason(db_url):
 
 
 def test_analysis_over_the_memory_cap_is_a_422_and_the_pool_goes_on(db_url):
-    # n = 20, r = 20 modes, n_drop = 4: the product enumeration would hold ~200k 20x20 matrices (640 MB).
+    # n = 20, r = 20 modes, n_drop = 4: 80 interval modes; allowing 10^6 products lets the enumeration reach
+    # length 3 (512,000 products of 20x20 matrices, ~1.6 GB), far over the 150 MB cap whatever the LMI solver.
     n, r = 20, 20
     F = [(np.eye(n) * 0.5).tolist()] * r
     G = [np.ones((n, 1)).tolist()] * r
     body = {"plant": {"kind": "discrete", "F": F, "G": G}, "n_drop": 4, "gains": [np.zeros((1, n)).tolist()] * 4,
             "max_product_length": 8}
-    with running_client(db_url, run_dispatcher=False, worker_memory_mb=150, max_lmi_size=100_000) as c:
+    with running_client(db_url, run_dispatcher=False, worker_memory_mb=150, max_lmi_size=100_000,
+                        max_analysis_products=1_000_000) as c:
         problem = assert_problem(c.post("/v1/analyses", json=body), 422)  # without the cap: 30 s, then 503
         assert "memory limit exceeded" in problem["detail"] and "NCS_WORKER_MEMORY_MB" in problem["detail"]
         assert c.post("/v1/analyses", json=ANALYSIS).json()["stable"] is True
