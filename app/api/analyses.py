@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Depends, Request
 
 from app.api import validation
-from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
+from app.api.deps import SYNC_RESPONSES, V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import ANALYSIS_EXAMPLES
 from app.api.problems import invalid
 from app.api.schemas import AnalysisReport
@@ -15,7 +15,6 @@ from app.compute.requests import AnalysisRequest
 from app.settings import Settings
 
 router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
-PROBLEM = {"content": {"application/problem+json": {}}}
 
 
 @router.post(
@@ -23,15 +22,13 @@ PROBLEM = {"content": {"application/problem+json": {}}}
     description="Runs synchronously (the family and the mode products are bounded by the size limits). "
                 "`stable` is true (certified by a re-checked Lyapunov certificate), false (a mode product is "
                 "unstable) or null (unknown).",
-    responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
+    responses=SYNC_RESPONSES,
 )
 async def run_analysis(request: Request,
                    body: Annotated[AnalysisRequest, Body(openapi_examples=ANALYSIS_EXAMPLES)],
                    settings: Settings = Depends(get_settings)):
     errors: list = []
-    shape = validation.plant_shape(body.plant, settings, errors)
-    if body.n_drop is not None:
-        validation.check_n_drop(body.n_drop, settings, errors)
+    shape = validation.check_family_request(body, settings, errors)
     req = body.model_dump(mode="json")
     if shape is not None:
         n_drop = validation.check_gains(body.gains, body.n_drop, shape, errors)

@@ -18,14 +18,19 @@ _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
 _bearer = HTTPBearer(auto_error=False, description="`Authorization: Bearer <key>`, same keys as X-API-Key")
 
 
+# The OpenAPI content entry of every error answer (RFC 9457 problem details).
+PROBLEM = {"content": {"application/problem+json": {}}}
+
 # Documented on every /v1 operation (problem+json; the 401 is only answered when keys are configured).
 V1_RESPONSES = {
-    401: {"description": "Missing or unknown API key (only when NCS_API_KEYS is set)",
-          "content": {"application/problem+json": {}}},
+    401: {"description": "Missing or unknown API key (only when NCS_API_KEYS is set)", **PROBLEM},
     503: {"description": "Database unavailable (full, read-only or unreachable): nothing was changed; retry after "
-                         "`Retry-After` seconds", "content": {"application/problem+json": {}},
+                         "`Retry-After` seconds", **PROBLEM,
           "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}},
 }
+
+# The extra answers of the synchronous operations (analyses, simulations), which run on the sync pool.
+SYNC_RESPONSES = {422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}}
 
 
 def get_settings(request: Request) -> Settings:

@@ -13,14 +13,13 @@ from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from app.api.deps import V1_RESPONSES, get_database, require_api_key
+from app.api.deps import PROBLEM, V1_RESPONSES, get_database, require_api_key
 from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
 from app.jobs.database import Database
 from app.jobs.model import FINISHED
 
-PROBLEM = {"content": {"application/problem+json": {}}}
 ERRORS = {
     404: {"description": "Unknown job id", **PROBLEM},
     422: {"description": "Invalid request (problem+json naming the field)", **PROBLEM},

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Depends, Request
 
 from app.api import validation
-from app.api.deps import V1_RESPONSES, get_settings, require_api_key, run_sync
+from app.api.deps import SYNC_RESPONSES, V1_RESPONSES, get_settings, require_api_key, run_sync
 from app.examples import SIMULATION_EXAMPLES
 from app.api.problems import invalid
 from app.api.schemas import Simulation
@@ -15,7 +15,6 @@ from app.compute.requests import SimulationRequest
 from app.settings import Settings
 
 router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
-PROBLEM = {"content": {"application/problem+json": {}}}
 
 
 @router.post(
@@ -23,15 +22,13 @@ PROBLEM = {"content": {"application/problem+json": {}}}
     description="Seeded simulation of the networked loop with the given gains: packet losses (sensor and "
                 "control), plant switching and the predictive buffer. Returns t, x, u, mode, sensor_arrived, "
                 "control_arrived, effective, eta, ...",
-    responses={422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}},
+    responses=SYNC_RESPONSES,
 )
 async def run_simulation(request: Request,
                    body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
                    settings: Settings = Depends(get_settings)):
     errors: list = []
-    shape = validation.plant_shape(body.plant, settings, errors)
-    if body.n_drop is not None:
-        validation.check_n_drop(body.n_drop, settings, errors)
+    shape = validation.check_family_request(body, settings, errors)
     validation.check_steps(body.steps, settings, errors, ["body", "steps"])
     if shape is not None:
         validation.check_gains(body.gains, body.n_drop, shape, errors)

@@ -123,6 +123,14 @@ def check_n_drop(n_drop: int, settings: Settings, errors: list) -> None:
                                   f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
 
 
+def check_family_request(body: Any, settings: Settings, errors: list) -> Shape | None:
+    """The checks every request carrying a plant family and an optional ``n_drop`` starts with."""
+    shape = plant_shape(body.plant, settings, errors)
+    if body.n_drop is not None:
+        check_n_drop(body.n_drop, settings, errors)
+    return shape
+
+
 def check_design(req: Any, settings: Settings) -> Shape:
     errors: list = []
     shape = plant_shape(req.plant, settings, errors)
