@@ -73,6 +73,18 @@ def wait_for(client, job_id: str, statuses=TERMINAL, timeout: float = 60.0) -> d
         time.sleep(0.05)
 
 
+def worker_pid_of(client, job_id: str, timeout: float = 30.0) -> int:
+    """The pid of the process running ``job_id`` (a local worker or a Dask worker), once it started."""
+    disp = client.app.state.dispatcher
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        pid = disp.worker_pid(job_id)
+        if pid:
+            return pid
+        time.sleep(0.02)
+    raise AssertionError(f"job {job_id} never started within {timeout} s")
+
+
 def assert_problem(resp, status: int, pointer: str | None = None) -> dict:
     assert resp.status_code == status, resp.text
     assert resp.headers["content-type"].startswith("application/problem+json"), resp.headers
