@@ -27,7 +27,7 @@ from app.examples import PAPER_PLANT  # noqa: E402
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 FAST = {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}           # ~0.1 s
-SLOW = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}           # ~2 s
+SLOW = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}           # ~2 s
 
 
 def free_port() -> int:

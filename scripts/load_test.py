@@ -163,7 +163,7 @@ def back_pressure(url: str, workdir: Path, depth: int = 20, burst: int = 200, cl
         with httpx.Client(base_url=server.base, timeout=60,
                           limits=httpx.Limits(max_connections=clients)) as c:
             def submit(_):
-                r = c.post("/v1/designs", json={**FAST, "method": "ccl", "n_drop": 4})  # ~0.5-1 s each
+                r = c.post("/v1/designs", json={**FAST, "method": "ccl", "n_drop": 4, "options": {"solver": "CLARABEL"}})  # ~0.5-1 s each
                 with lock:
                     codes[r.status_code] += 1
                     if r.status_code == 202:

@@ -24,22 +24,37 @@ from .errors import InvalidInput, SolverFailed
 
 #: Solvers a user may pick.  "AUTO" (the default) is the fastest one that gives the same verdicts,
 #: per problem (:func:`resolve_solver`).  "IPM" is the structured interior-point solver
-#: (solver/ipm.py) for the lmi and switched designs and the common fixed-gain certificate LMI; every
-#: other compiled problem (ccl, the switched fixed-gain LMI) falls back to Clarabel under both names.
+#: (solver/ipm.py) for the lmi, switched and ccl designs and the common fixed-gain certificate LMI;
+#: the switched fixed-gain LMI falls back to Clarabel under both names.
 #: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
 SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
 
-def resolve_solver(solver: str, problem: str, n_modes: int = 1) -> str:
-    """The solver that runs ``problem`` ("lmi", "switched", "common_lmi", or any other) for ``solver``.
+#: Largest CCL block side ``2 n n_drop`` that "AUTO" leaves to Clarabel when the default
+#: ``ccl_start="feasibility"`` is asked for: the paper's example (n = 2, n_drop = 3) sits here, where
+#: Clarabel takes a fraction of a second and its Step 1 reproduces the paper's gains (eq. 23/24).
+#: Above it the IPM is 4x to 50x faster (docs/performance.md, "CCL on the IPM").
+CCL_FEASIBILITY_SIDE = 12
+
+
+def resolve_solver(solver: str, problem: str, n_modes: int = 1, *, ccl_side: int | None = None,
+                   ccl_start: str = "feasibility") -> str:
+    """The solver that runs ``problem`` ("lmi", "switched", "common_lmi", "ccl", or any other) for ``solver``.
 
     "AUTO" picks the structured IPM for the lmi and switched designs (every decay-rate bisection step
     too) and the common fixed-gain LMI, where it was measured faster with identical verdicts
-    (bench/ipm_check.py, docs/performance.md), and Clarabel everywhere else (ccl, the switched
-    fixed-gain LMI).  ``n_modes`` is kept for a size-dependent choice (none is needed today).
+    (bench/ipm_check.py, docs/performance.md).  For ``ccl`` (block side ``ccl_side = 2 n n_drop``) it
+    picks the IPM too, whose Step 1 is always the min-trace start, except where the feasibility start
+    is asked for and the problem is paper-sized (``ccl_side <= CCL_FEASIBILITY_SIDE``): there Clarabel
+    runs, since a pure feasibility Step 1 has no unique answer and Clarabel's is the one that
+    reproduces the paper's gains.  Clarabel runs everything else (the switched fixed-gain LMI).
+    ``n_modes`` is kept for a size-dependent choice (none is needed today).
     """
     name = str(solver).upper()
     if name != "AUTO":
         return name
+    if problem == "ccl":
+        paper_sized = ccl_side is not None and ccl_side <= CCL_FEASIBILITY_SIDE
+        return "CLARABEL" if ccl_start == "feasibility" and paper_sized else "IPM"
     return "IPM" if problem in ("lmi", "switched", "common_lmi") else "CLARABEL"
 
 _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)

@@ -78,7 +78,9 @@ def design(
         Conic solver.  ``"AUTO"`` (default): the fastest with the same verdicts, per problem
         (:func:`solver.compiled.resolve_solver`): the structured interior-point solver
         (solver/ipm.py) for ``lmi``, every decay-rate bisection step, ``switched`` and the common
-        fixed-gain certificate LMI; Clarabel for ``ccl`` and the switched fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel
+        fixed-gain certificate LMI, and ``ccl`` except a paper-sized problem (block side
+        ``2 n n_drop <= 12``) with ``ccl_start="feasibility"``; Clarabel there and for the switched
+        fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel
         elsewhere); ``"CLARABEL"`` and ``"SCS"`` (first order) run through cvxpy.
     margin : float
         Strictness margin of the LMIs (normalized; must exceed the solver

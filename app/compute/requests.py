@@ -143,8 +143,8 @@ Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(
 class DesignOptions(_Strict):
     solver: Literal["AUTO", "IPM", "CLARABEL", "SCS"] = Field(
         "AUTO", description="SDP solver. `AUTO`: the fastest with the same verdicts per problem (the structured "
-        "interior-point solver `IPM` for `lmi`, decay-rate bisections, `switched` and the common "
-        "fixed-gain LMI; Clarabel elsewhere). `IPM`, `CLARABEL` (via cvxpy) or `SCS` (first order) force one.")
+        "interior-point solver `IPM` for `lmi`, decay-rate bisections, `switched`, the common "
+        "fixed-gain LMI and `ccl` above the paper's size (block side 2 n n_drop > 12); Clarabel elsewhere). `IPM`, `CLARABEL` (via cvxpy) or `SCS` (first order) force one.")
     margin: Number = Field(1e-6, gt=0, le=1, description="Strictness margin of the LMIs.")
     max_iter: Int = Field(50, ge=1, le=1000, description="Iteration cap of iterative methods (ccl).")
     decay_rate: Annotated[Number, Field(gt=0, le=1)] | Literal["max"] | None = Field(

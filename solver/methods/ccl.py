@@ -19,6 +19,8 @@ prove that no design exists: where none does it ends ``not_converged``.
 (:func:`ipm_problem`, started at that ``P = Q = c I``, gains 0); its Step 1 is
 always the min-trace start (``ccl_start`` is ignored), since a zero-objective
 feasibility SDP has no unique answer.  The certify path is the same.
+``solver="AUTO"`` takes the IPM except for a paper-sized problem with the
+feasibility start (:func:`solver.compiled.resolve_solver`).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import cvxpy as cp
 import numpy as np
 
 from .. import ipm
-from ..compiled import CompiledProblem, block, check_memory, schur_block
+from ..compiled import CompiledProblem, block, check_memory, resolve_solver, schur_block
 from ..errors import SolverFailed
 from ..network import ModeSet, augmented_matrices
 from ..result import DesignResult, IterationRecord
@@ -170,8 +172,9 @@ def _check_ipm_memory(modes: ModeSet, size: int) -> None:
 
 
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
-    use_ipm = options.solver == "IPM"
     size = modes.n_states * modes.n_drop
+    solver = resolve_solver(options.solver, "ccl", ccl_side=2 * size, ccl_start=options.ccl_start)
+    use_ipm = solver == "IPM"
     if use_ipm:  # structured IPM: the Schur complement over the symmetric P, Q and the gains, dense
         _check_ipm_memory(modes, size)
     else:
@@ -207,7 +210,7 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
                 info, P, Q, theta, _ = _solve_ipm(modes, dict(values, start_weight=1.0) if k == 0 else values,
                                                   n_drop, remaining)
             else:
-                info = compiled.solve(values, solver=options.solver, time_limit=remaining)
+                info = compiled.solve(values, solver=solver, time_limit=remaining)
                 P = compiled.value("P")
                 Q = compiled.value("Q")
                 theta = np.stack(compiled.value("theta"))
@@ -245,4 +248,4 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
         values["start_weight"] = 0.0
     if outcome != "stabilized":
         cert = None
-    return finish(modes, "ccl", outcome, gains, cert, A, clock, options.solver, status, message, history, options)
+    return finish(modes, "ccl", outcome, gains, cert, A, clock, solver, status, message, history, options)

@@ -25,7 +25,7 @@ from .conftest import REPO, free_port, running_client, wait_for
 pytest.importorskip("distributed")
 
 DASK = str(Path(sys.executable).with_name("dask"))
-MEDIUM = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}  # a couple of seconds each
+MEDIUM = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}  # a couple of seconds each
 
 
 class DaskProcesses:

@@ -16,7 +16,7 @@ PAPER_LMI = DESIGN_EXAMPLES["paper_lmi"]["value"]
 PAPER_CCL = DESIGN_EXAMPLES["paper_ccl"]["value"]
 # The paper's plant with n_drop = 6 and CCL: its first iteration alone takes several seconds,
 # a reliably slow job for the cancel tests.
-SLOW = {"plant": PAPER_PLANT, "n_drop": 6, "method": "ccl", "options": {"max_iter": 50}}
+SLOW = {"plant": PAPER_PLANT, "n_drop": 6, "method": "ccl", "options": {"max_iter": 50, "solver": "CLARABEL"}}
 
 
 @pytest.fixture(scope="module")
@@ -197,7 +197,7 @@ def test_cancel_queued_job_never_starts(client):
 
 def test_cancel_running_ccl_stops_between_iterations(client):
     # A CCL run with several iterations: the solver callback sees the cancel.
-    payload = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}
+    payload = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}
     job_id = client.post("/v1/designs", json=payload).json()["id"]
     wait_for(client, job_id, ("running",) + ("succeeded",), timeout=30)
     t0 = time.monotonic()

@@ -84,7 +84,7 @@ def test_grid_job_and_cancellation(client):
     done = wait_job(client, f"/v1/margins/{client.post('/v1/margins', json=grid).json()['id']}")
     assert [(p["sampling_period"], p["n_drop"]) for p in done["result"]["curve"]] == [(0.1, 3), (0.2, 3), (0.5, 6)]
     # a long grid (fresh shapes each point) cancelled while running ends cancelled quickly
-    long = {"plant": PAPER_PLANT, "search": "grid", "method": "ccl",
+    long = {"plant": PAPER_PLANT, "search": "grid", "method": "ccl", "options": {"solver": "CLARABEL"},
             "points": [{"sampling_period": 0.05 * (i + 1), "n_drop": 6} for i in range(30)]}
     job = client.post("/v1/margins", json=long).json()
     deadline = time.monotonic() + 60

@@ -13,21 +13,10 @@ from app.jobs.database import Database
 from app.examples import PAPER_PLANT
 from app.jobs.model import Job, utcnow
 
-from .conftest import running_client, wait_for
+from .conftest import running_client, wait_for, worker_pid_of
 
-SLOW = {"plant": PAPER_PLANT, "n_drop": 6, "method": "ccl"}
+SLOW = {"plant": PAPER_PLANT, "n_drop": 6, "method": "ccl", "options": {"solver": "CLARABEL"}}
 FAST = {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}
-
-
-def worker_pid_of(client, job_id: str, timeout: float = 30.0) -> int:
-    disp = client.app.state.dispatcher
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        pid = disp.worker_pid(job_id)
-        if pid:
-            return pid
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} never started")
 
 
 def test_dead_worker_is_replaced_and_job_retried_then_failed(db_url):
@@ -58,7 +47,7 @@ def test_dead_worker_is_replaced_and_job_retried_then_failed(db_url):
 
 def test_worker_death_retry_succeeds(db_url):
     with running_client(db_url, workers=1, max_attempts=3) as client:
-        slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}
+        slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}
         job_id = client.post("/v1/designs", json=slow).json()["id"]
         os.kill(worker_pid_of(client, job_id), signal.SIGKILL)
         job = wait_for(client, job_id, timeout=90)
@@ -70,7 +59,7 @@ def test_time_limit_fails_the_job_with_a_clear_reason(db_url):
     # 4 s, not less: the next job runs on a freshly started worker, whose first design (cold caches) took
     # over 1.5 s at load ~10 on this 2-core machine. The slow job runs 20 s and more (1000 CCL iterations).
     with running_client(db_url, workers=1, job_time_limit=4.0) as client:
-        job_id = client.post("/v1/designs", json={**SLOW, "options": {"max_iter": 1000}}).json()["id"]
+        job_id = client.post("/v1/designs", json={**SLOW, "options": {"max_iter": 1000, "solver": "CLARABEL"}}).json()["id"]
         job = wait_for(client, job_id, timeout=60)
         assert job["status"] == "failed"
         assert "time limit" in job["error"] and "4 s" in job["error"]

@@ -79,7 +79,7 @@ def _worker_pids(server_pid: int) -> list[int]:
 def test_sigkill_with_jobs_queued_and_running_then_restart_finishes_all(db_url, start_server):
     env = dict(NCS_WORKERS=2, NCS_LEASE_SECONDS=2, NCS_POLL_INTERVAL=0.05)
     server = start_server(db_url, **env)
-    slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}  # ~2 s each
+    slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}  # ~2 s each
     with httpx.Client(base_url=server.base, timeout=10) as c:
         ids = [c.post("/v1/designs", json=slow).json()["id"] for _ in range(2)]
         ids += [c.post("/v1/designs", json=PAPER_LMI).json()["id"] for _ in range(6)]
@@ -148,7 +148,7 @@ def test_concurrent_requests_with_one_idempotency_key_make_one_job(db_url, start
 def test_sigterm_gives_running_jobs_back_without_using_an_attempt(db_url, start_server):
     env = dict(NCS_WORKERS=1)
     server = start_server(db_url, **env)
-    slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl"}
+    slow = {"plant": PAPER_PLANT, "n_drop": 5, "method": "ccl", "options": {"solver": "CLARABEL"}}
     with httpx.Client(base_url=server.base, timeout=10) as c:
         job_id = c.post("/v1/designs", json=slow).json()["id"]
         deadline = time.monotonic() + 30

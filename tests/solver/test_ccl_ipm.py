@@ -24,7 +24,7 @@ def test_ccl_ipm_paper_example(h, paper_gains):
     assert res.solver == "IPM"
     # The IPM path's Step 1 is the min-trace start (a feasibility SDP has no unique answer), so it
     # must agree with the Clarabel path on that same start ...
-    ref = design(fam, n_drop=3, method="ccl", ccl_start="min_trace")
+    ref = design(fam, n_drop=3, method="ccl", ccl_start="min_trace", solver="CLARABEL")
     assert len(res.history) == len(ref.history)
     # (the later gains K_2, K_3 act only after drops and are weakly determined: 0.02 apart)
     np.testing.assert_allclose(res.gains[0], ref.gains[0], atol=2e-3)
@@ -59,10 +59,23 @@ def test_ccl_ipm_sdp_matches_cvxpy():
 def test_ccl_ipm_same_verdicts_on_random_families():
     for seed in range(6):
         fam = random_family(seed)
-        a = design(fam, n_drop=3, method="ccl", max_iter=8, ccl_start="min_trace")
+        a = design(fam, n_drop=3, method="ccl", max_iter=8, ccl_start="min_trace", solver="CLARABEL")
         b = design(fam, n_drop=3, method="ccl", max_iter=8, solver="IPM")
         assert a.outcome == b.outcome, seed
         if b.outcome == "stabilized":
             assert_certified(fam, b)
         else:
             assert b.certificate is None
+
+
+def test_auto_picks_the_ipm_for_ccl_except_the_paper_sized_feasibility_start():
+    fam = PlantFamily.paper_example(0.1)
+    # paper-sized (side 2 n n_drop = 12) with the default feasibility start: Clarabel (the paper's Step 1)
+    assert design(fam, n_drop=3, method="ccl").solver == "CLARABEL"
+    # the min-trace start, or a larger problem: the IPM, certified as always
+    for kw in ({"n_drop": 3, "ccl_start": "min_trace"}, {"n_drop": 4}):
+        res = design(fam, method="ccl", **kw)
+        assert res.solver == "IPM" and res.outcome == "stabilized", kw
+        assert_certified(fam, res)
+    # an explicit choice is kept
+    assert design(fam, n_drop=4, method="ccl", solver="CLARABEL", max_iter=3).solver == "CLARABEL"
