@@ -408,8 +408,23 @@ class BlockLMI:
         if T is None:
             T = self.T.toarray()
             _BASIS_CACHE[self._key] = _BASIS_CACHE[self._key][:2] + (T,)
-        p, k = self.p, self.k
-        out = np.zeros((p, self.nb, k, k))
+        p, k, nb = self.p, self.k, self.nb
+        if not any(len(term) > 3 for var in self.variables for term in var.terms):
+            # Each full coordinate's matrices (unit entry E_ab of a variable: sym(c L E_ab R) = c
+            # L[:, a] R[b, :] + transpose, or c L[:, a] L[:, b]^T), then one GEMM with the basis.
+            full = np.zeros((self.n_full, nb, k, k))
+            full[-1] = -np.eye(k)
+            for var, sl in zip(self.variables, self.slices):
+                acc = full[sl].reshape(var.shape[0], var.shape[1], nb, k, k)
+                for L, R, coef in var.terms:
+                    Lt = L.transpose(2, 0, 1)[:, None, :, :, None]  # (r, 1, nb, k, 1)
+                    if R is None:
+                        acc += coef * (Lt * L.transpose(2, 0, 1)[None, :, :, None, :])
+                    else:
+                        P = Lt * R.transpose(1, 0, 2)[None, :, :, None, :]
+                        acc += coef * (P + P.transpose(0, 1, 2, 4, 3))
+            return (T.T @ full.reshape(self.n_full, -1)).reshape(p, nb, k, k)
+        out = np.zeros((p, nb, k, k))
         out -= T[-1][:, None, None, None] * np.eye(k)
         for var, sl in zip(self.variables, self.slices):
             for L, R, coef, *sel in var.terms:
@@ -530,6 +545,10 @@ def _cholesky(Z: np.ndarray) -> np.ndarray:
                     out[i] = np.nan
             return out
     return _chol(Z)
+
+
+if _chol is not np.linalg.cholesky:
+    _cholesky = _chol  # noqa: F811 - the gufunc itself already returns NaNs for a failed block
 
 
 #: Block side from which the step lengths come from Cholesky trials (:func:`_steps_chol`) instead of
@@ -697,9 +716,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
         t1 = perf()
         tim["assembly"] += t1 - t0
         d = M.diagonal()
-        dead = d <= 1e-14 * d.max()
-        anydead = bool(dead.any())
+        dmax = float(d.max())
+        anydead = float(d.min()) <= 1e-14 * dmax
         if anydead:
+            dead = d <= 1e-14 * dmax
             # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
             # instead of regularizing all of M, which stalls the residuals.
             M = M.copy()
@@ -726,7 +746,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
         t3 = perf()
         ap, ad = steps(Z if chol_steps else Li, np.concatenate([dX, dS]), nb, 1.0, 0.1)
         tim["line_search"] += perf() - t3
-        mu_aff = float(np.vdot(X + ap * dX, S + ad * dS)) / N
+        Sf, dXf, dSf = S.reshape(-1), dX.reshape(-1), dS.reshape(-1)
+        mu_aff = (XS + ad * float(Xf @ dSf) + ap * float(dXf @ Sf) + ap * ad * float(dXf @ dSf)) / N
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
         RcG = sigma * mu * G - X - dX @ dS @ G
