@@ -161,6 +161,57 @@ class MatrixVariable:
         return self.shape[0] * self.shape[1]
 
 
+class _Sel:
+    """A 0/1 selection matrix that is the same for every block (``[0; I]``, ``[I 0]``, ...), as a factor.
+
+    Stands for the stack ``E`` (nb, m, q) with ``E_b = I_m[:, idx]`` (``t=False``) or its
+    transpose ``I_m[idx, :]`` (``t=True``): a product with it is an index (no arithmetic).
+    The Schur assembly multiplies every term's ``L``, ``R`` with ``X_b``, ``S_b^{-1}`` and with
+    each other; in the design families most of these factors are such selectors, so most of
+    those batched products become slices.
+    """
+
+    __array_ufunc__ = None  # ndarray @ _Sel defers to __rmatmul__
+
+    def __init__(self, idx: np.ndarray, m: int, t: bool):
+        self.idx, self.m, self.t = idx, m, t
+        q = len(idx)
+        self.shape = (1, q, m) if t else (1, m, q)
+        r = np.arange(idx[0], idx[0] + q) if q else idx
+        self._ix = slice(int(idx[0]), int(idx[0]) + q) if q and np.array_equal(idx, r) else idx
+
+    def swapaxes(self, a, b):
+        return _Sel(self.idx, self.m, not self.t)
+
+    def __rmatmul__(self, Z):  # Z @ E
+        if not self.t:
+            return Z[..., self._ix]
+        out = np.zeros(Z.shape[:-1] + (self.m,))
+        out[..., self._ix] = Z
+        return out
+
+    def __matmul__(self, Z):  # E @ Z
+        if self.t:
+            return Z[..., self._ix, :]
+        out = np.zeros(Z.shape[:-2] + (self.m, Z.shape[-1]))
+        out[..., self._ix, :] = Z
+        return out
+
+    @staticmethod
+    def of(M):
+        """``M`` (nb, a, b) as a :class:`_Sel` if it is one 0/1 selector broadcast over the blocks, else ``M``."""
+        if not isinstance(M, np.ndarray) or M.ndim != 3 or (M.shape[0] > 1 and M.strides[0] != 0):
+            return M
+        E = M[0]
+        if E.size == 0 or not np.all((E == 0.0) | (E == 1.0)):
+            return M
+        if np.all(E.sum(axis=0) == 1.0):
+            return _Sel(np.argmax(E, axis=0), E.shape[0], False)
+        if np.all(E.sum(axis=1) == 1.0):
+            return _Sel(np.argmax(E, axis=1), E.shape[1], True)
+        return M
+
+
 #: Basis matrices T per variable structure (they depend on shapes only, not on the plant data).
 _BASIS_CACHE: dict = {}
 
@@ -209,6 +260,15 @@ class BlockLMI:
         self.p = self.T.shape[1]
         self._key = key
 
+    @property
+    def sel_terms(self) -> list:
+        """Every variable's terms with block-constant selector factors as :class:`_Sel` (built once)."""
+        terms = self.__dict__.get("_sel_terms")
+        if terms is None:
+            terms = self._sel_terms = [[(_Sel.of(t[0]), _Sel.of(t[1]), *t[2:]) for t in var.terms]
+                                       for var in self.variables]
+        return terms
+
     def _basis(self) -> sp.csr_matrix:
         """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
         rows, cols, vals = [], [], []
@@ -252,9 +312,9 @@ class BlockLMI:
         """``A(y)``: the blocks' change for a step ``y``, shape (nb, k, k)."""
         x = self.T @ y
         out = np.multiply(-x[-1], np.eye(self.k))[None].repeat(self.nb, axis=0)
-        for var, sl in zip(self.variables, self.slices):
+        for var, sl, terms in zip(self.variables, self.slices, self.sel_terms):
             V = x[sl].reshape(var.shape)
-            for L, R, coef, *sel in var.terms:
+            for L, R, coef, *sel in terms:
                 Vb = V.reshape(-1, L.shape[2], var.shape[1])[sel[0]] if sel else V
                 if R is None:
                     out += coef * (L @ Vb @ np.swapaxes(L, 1, 2))
@@ -263,14 +323,18 @@ class BlockLMI:
                     out += coef * (LVR + np.swapaxes(LVR, 1, 2))
         return out
 
-    def adj_full(self, U: np.ndarray) -> np.ndarray:
-        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric)."""
+    def adj_full(self, U: np.ndarray, plain: bool = False) -> np.ndarray:
+        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric).
+
+        ``plain``: with the terms as given (no selector detection; a one-off call).
+        """
         Us = U + np.swapaxes(U, 1, 2)
         Ut = np.swapaxes(U, 1, 2)
         g = np.empty(self.n_full)
-        for var, sl in zip(self.variables, self.slices):
+        all_terms = [var.terms for var in self.variables] if plain else self.sel_terms
+        for var, sl, terms in zip(self.variables, self.slices, all_terms):
             acc = np.zeros(var.shape)
-            for L, R, coef, *sel in var.terms:
+            for L, R, coef, *sel in terms:
                 Lt = np.swapaxes(L, 1, 2)
                 if R is None:  # tr(L E_ab L^T U) = (L^T U^T L)_ab
                     per = Lt @ Ut @ L
@@ -374,7 +438,7 @@ class BlockLMI:
         """
         nf = self.n_full
         M = np.empty((nf, nf))
-        cache = [[self._pieces(*term[:3], X, G, *term[3:]) for term in var.terms] for var in self.variables]
+        cache = [[self._pieces(*term[:3], X, G, *term[3:]) for term in var_terms] for var_terms in self.sel_terms]
         nb = self.nb
         for i, (vi, si) in enumerate(zip(self.variables, self.slices)):
             for j in range(i, len(self.variables)):
@@ -840,7 +904,7 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         nu = 0.0
         if problem.equality is not None:
             a = problem.equality
-            nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
+            nu = float(a @ problem.adj_full(core.X, plain=dense)[:-1] / (a @ a))
         return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
                            status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
                            dual_residual=0.0, gap=core.gap, timings=core.timings)
