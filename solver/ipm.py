@@ -326,7 +326,7 @@ class BlockLMI:
     def adj_full(self, U: np.ndarray, plain: bool = False) -> np.ndarray:
         """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric).
 
-        ``plain``: with the terms as given (no selector detection; a one-off call).
+        ``plain``: with the terms as given (no selector detection).
         """
         Us = U + np.swapaxes(U, 1, 2)
         Ut = np.swapaxes(U, 1, 2)
@@ -487,6 +487,8 @@ class BlockLMI:
                     else:
                         P = Lt * R.transpose(1, 0, 2)[None, :, :, None, :]
                         acc += coef * (P + P.transpose(0, 1, 2, 4, 3))
+            if self.equality is not None:  # the equality's direction, for its multiplier (solve_block_lmi)
+                self._eq_dir = (self.equality @ full[:-1].reshape(self.n_full - 1, -1)).reshape(nb, k, k)
             return (T.T @ full.reshape(self.n_full, -1)).reshape(p, nb, k, k)
         out = np.zeros((p, nb, k, k))
         out -= T[-1][:, None, None, None] * np.eye(k)
@@ -904,7 +906,11 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         nu = 0.0
         if problem.equality is not None:
             a = problem.equality
-            nu = float(a @ problem.adj_full(core.X, plain=dense)[:-1] / (a @ a))
+            eq_dir = problem.__dict__.get("_eq_dir")
+            if eq_dir is not None:  # a . A_full^*(X) = <A_full(a), X>
+                nu = float(eq_dir.reshape(-1) @ core.X.reshape(-1)) / float(a @ a)
+            else:
+                nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
         return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
                            status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
                            dual_residual=0.0, gap=core.gap, timings=core.timings)
@@ -948,27 +954,52 @@ def lmi_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = 
     coef = np.asarray(coef, dtype=np.float64)
     S, n, _ = free.shape
     J, m = coef.shape[1], coef.shape[3]
-    P1, P2 = _selectors(n)
-    sq = np.ones(S) if rho is None else np.sqrt(np.asarray(rho, dtype=np.float64))
-    Rleft = np.broadcast_to(P1.T, (S, n, 2 * n))
+    P2, Rleft, Lbot, C0, a, V0, LF0 = _lmi_consts(S, n, J * m)
     # sym([[rho/2 W], [F W]] [I 0]) = [[rho W, (F W)^T], [F W, 0]] (no cancellation for huge F),
     # plus the sym-kind term [0; I] W [0, I] (one Kronecker product per pair instead of four).
-    LF = np.concatenate([(0.5 * sq**2)[:, None, None] * np.eye(n)[None], free], axis=1)  # (S, 2n, n)
-    Lbot = np.broadcast_to(P2, (S, 2 * n, n))
+    LF = LF0.copy()  # (S, 2n, n): [I/2; 0] per mode
+    LF[:, n:] = free
+    C = C0.copy()  # [[I, 0], [0, I]] per mode
+    C[:, n:, :n] = free
+    C[:, :n, n:] = free.transpose(0, 2, 1)
+    if rho is not None:
+        sq2 = np.asarray(rho, dtype=np.float64)  # sqrt(rho)^2
+        LF[:, :n] *= sq2[:, None, None]
+        C[:, :n, :n] *= sq2[:, None, None]
     W = MatrixVariable("W", (n, n), n, [(LF, Rleft, 1.0), (Lbot, None, 1.0)])
     variables = [W]
     if J * m > 0:
-        LY = P2[None] @ _gain_L(coef, active)
+        LY = np.zeros((S, 2 * n, J * m))
+        LY[:, n:] = _gain_L(coef, active)  # [0; coef_s]
         variables.append(MatrixVariable("Y", (J * m, n), None, [(LY, Rleft, 1.0)]))
-    C = np.zeros((S, 2 * n, 2 * n))
-    C[:, :n, :n] = (sq**2)[:, None, None] * np.eye(n)
-    C[:, n:, n:] = np.eye(n)
-    C[:, n:, :n] = free
-    C[:, :n, n:] = np.swapaxes(free, 1, 2)
-    a = np.zeros(sum(v.size for v in variables))
-    a[: n * n: n + 1] = 1.0  # trace W
-    V0 = [np.eye(n)] + ([np.zeros((J * m, n))] if J * m > 0 else [])
     return BlockLMI(C=C, variables=variables, V0=V0, equality=a)
+
+
+#: Shape-only pieces of :func:`lmi_problem` (selectors, identities, the trace normalization), read-only.
+_LMI_CONSTS: dict = {}
+
+
+def _lmi_consts(S: int, n: int, Jm: int):
+    key = (S, n, Jm)
+    c = _LMI_CONSTS.get(key)
+    if c is None:
+        if len(_LMI_CONSTS) > 64:
+            _LMI_CONSTS.clear()
+        P1, P2 = _selectors(n)
+        eye = np.eye(n)
+        C0 = np.zeros((S, 2 * n, 2 * n))
+        C0[:, :n, :n] = eye
+        C0[:, n:, n:] = eye
+        LF0 = np.zeros((S, 2 * n, n))
+        LF0[:, :n] = 0.5 * eye
+        a = np.zeros(n * n + Jm * n)
+        a[: n * n: n + 1] = 1.0  # trace W
+        V0 = [eye] + ([np.zeros((Jm, n))] if Jm > 0 else [])
+        c = (P2, np.broadcast_to(P1.T, (S, n, 2 * n)), np.broadcast_to(P2, (S, 2 * n, n)), C0, a, V0, LF0)
+        for arr in (P2, eye, C0, LF0, a, *V0):
+            arr.flags.writeable = False
+        _LMI_CONSTS[key] = c
+    return c
 
 
 def switched_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = None,
