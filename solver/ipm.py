@@ -173,15 +173,21 @@ class _Sel:
 
     __array_ufunc__ = None  # ndarray @ _Sel defers to __rmatmul__
 
-    def __init__(self, idx: np.ndarray, m: int, t: bool):
+    def __init__(self, idx: np.ndarray, m: int, t: bool, _ix=None):
         self.idx, self.m, self.t = idx, m, t
         q = len(idx)
         self.shape = (1, q, m) if t else (1, m, q)
-        r = np.arange(idx[0], idx[0] + q) if q else idx
-        self._ix = slice(int(idx[0]), int(idx[0]) + q) if q and np.array_equal(idx, r) else idx
+        if _ix is None:
+            r = np.arange(idx[0], idx[0] + q) if q else idx
+            _ix = slice(int(idx[0]), int(idx[0]) + q) if q and np.array_equal(idx, r) else idx
+        self._ix = _ix
+        self._T = None
 
     def swapaxes(self, a, b):
-        return _Sel(self.idx, self.m, not self.t)
+        if self._T is None:
+            self._T = _Sel(self.idx, self.m, not self.t, self._ix)
+            self._T._T = self
+        return self._T
 
     def __rmatmul__(self, Z):  # Z @ E
         if not self.t:
@@ -269,6 +275,14 @@ class BlockLMI:
                                        for var in self.variables]
         return terms
 
+    @property
+    def Tt(self) -> sp.csr_matrix:
+        """``T^T`` as CSR (kept: a sparse transpose per call cost as much as the product)."""
+        Tt = self.__dict__.get("_Tt")
+        if Tt is None:
+            Tt = self._Tt = self.T.T.tocsr()
+        return Tt
+
     def _basis(self) -> sp.csr_matrix:
         """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
         rows, cols, vals = [], [], []
@@ -350,7 +364,7 @@ class BlockLMI:
         return g
 
     def adj(self, U: np.ndarray) -> np.ndarray:
-        return self.T.T @ self.adj_full(U)
+        return self.Tt @ self.adj_full(U)
 
     # ----------------------------------------------------------------- Schur complement (HKM)
     @staticmethod
@@ -463,8 +477,8 @@ class BlockLMI:
         col[-1] = np.einsum("bij,bji->", X, G)
         M[-1, :] = col
         M[:, -1] = col
-        TtM = np.asarray(self.T.T @ M)
-        return np.asarray(self.T.T @ TtM.T)
+        Tt = self.Tt
+        return np.asarray(Tt @ np.asarray(Tt @ M).T)
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
