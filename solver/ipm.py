@@ -807,11 +807,15 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
             M[:, dead] = 0.0
             M[dead, dead] = 1.0
         fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
-        if info != 0:
-            fac, info = _potrf(M + np.diag(d * 1e-12 + 1e-300), lower=1, clean=0)
-            if info != 0:
-                status = "numerical_error"
+        for reg in (1e-12, 1e-10, 1e-8):
+            # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
+            # a growing diagonal shift still gives a descent direction (the residuals decide).
+            if info == 0:
                 break
+            fac, info = _potrf(M + np.diag(d * reg + 1e-300), lower=1, clean=0)
+        if info != 0:
+            status = "numerical_error"
+            break
         tim["factorization"] += perf() - t1
 
         def direction(h, RcG):
