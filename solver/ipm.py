@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -160,6 +161,63 @@ class MatrixVariable:
         return self.shape[0] * self.shape[1]
 
 
+class _Sel:
+    """A 0/1 selection matrix that is the same for every block (``[0; I]``, ``[I 0]``, ...), as a factor.
+
+    Stands for the stack ``E`` (nb, m, q) with ``E_b = I_m[:, idx]`` (``t=False``) or its
+    transpose ``I_m[idx, :]`` (``t=True``): a product with it is an index (no arithmetic).
+    The Schur assembly multiplies every term's ``L``, ``R`` with ``X_b``, ``S_b^{-1}`` and with
+    each other; in the design families most of these factors are such selectors, so most of
+    those batched products become slices.
+    """
+
+    __array_ufunc__ = None  # ndarray @ _Sel defers to __rmatmul__
+
+    def __init__(self, idx: np.ndarray, m: int, t: bool, _ix=None):
+        self.idx, self.m, self.t = idx, m, t
+        q = len(idx)
+        self.shape = (1, q, m) if t else (1, m, q)
+        if _ix is None:
+            r = np.arange(idx[0], idx[0] + q) if q else idx
+            _ix = slice(int(idx[0]), int(idx[0]) + q) if q and np.array_equal(idx, r) else idx
+        self._ix = _ix
+        self._T = None
+
+    def swapaxes(self, a, b):
+        if self._T is None:
+            self._T = _Sel(self.idx, self.m, not self.t, self._ix)
+            self._T._T = self
+        return self._T
+
+    def __rmatmul__(self, Z):  # Z @ E
+        if not self.t:
+            return Z[..., self._ix]
+        out = np.zeros(Z.shape[:-1] + (self.m,))
+        out[..., self._ix] = Z
+        return out
+
+    def __matmul__(self, Z):  # E @ Z
+        if self.t:
+            return Z[..., self._ix, :]
+        out = np.zeros(Z.shape[:-2] + (self.m, Z.shape[-1]))
+        out[..., self._ix, :] = Z
+        return out
+
+    @staticmethod
+    def of(M):
+        """``M`` (nb, a, b) as a :class:`_Sel` if it is one 0/1 selector broadcast over the blocks, else ``M``."""
+        if not isinstance(M, np.ndarray) or M.ndim != 3 or (M.shape[0] > 1 and M.strides[0] != 0):
+            return M
+        E = M[0]
+        if E.size == 0 or not np.all((E == 0.0) | (E == 1.0)):
+            return M
+        if np.all(E.sum(axis=0) == 1.0):
+            return _Sel(np.argmax(E, axis=0), E.shape[0], False)
+        if np.all(E.sum(axis=1) == 1.0):
+            return _Sel(np.argmax(E, axis=1), E.shape[1], True)
+        return M
+
+
 #: Basis matrices T per variable structure (they depend on shapes only, not on the plant data).
 _BASIS_CACHE: dict = {}
 
@@ -208,6 +266,23 @@ class BlockLMI:
         self.p = self.T.shape[1]
         self._key = key
 
+    @property
+    def sel_terms(self) -> list:
+        """Every variable's terms with block-constant selector factors as :class:`_Sel` (built once)."""
+        terms = self.__dict__.get("_sel_terms")
+        if terms is None:
+            terms = self._sel_terms = [[(_Sel.of(t[0]), _Sel.of(t[1]), *t[2:]) for t in var.terms]
+                                       for var in self.variables]
+        return terms
+
+    @property
+    def Tt(self) -> sp.csr_matrix:
+        """``T^T`` as CSR (kept: a sparse transpose per call cost as much as the product)."""
+        Tt = self.__dict__.get("_Tt")
+        if Tt is None:
+            Tt = self._Tt = self.T.T.tocsr()
+        return Tt
+
     def _basis(self) -> sp.csr_matrix:
         """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
         rows, cols, vals = [], [], []
@@ -251,9 +326,9 @@ class BlockLMI:
         """``A(y)``: the blocks' change for a step ``y``, shape (nb, k, k)."""
         x = self.T @ y
         out = np.multiply(-x[-1], np.eye(self.k))[None].repeat(self.nb, axis=0)
-        for var, sl in zip(self.variables, self.slices):
+        for var, sl, terms in zip(self.variables, self.slices, self.sel_terms):
             V = x[sl].reshape(var.shape)
-            for L, R, coef, *sel in var.terms:
+            for L, R, coef, *sel in terms:
                 Vb = V.reshape(-1, L.shape[2], var.shape[1])[sel[0]] if sel else V
                 if R is None:
                     out += coef * (L @ Vb @ np.swapaxes(L, 1, 2))
@@ -262,14 +337,18 @@ class BlockLMI:
                     out += coef * (LVR + np.swapaxes(LVR, 1, 2))
         return out
 
-    def adj_full(self, U: np.ndarray) -> np.ndarray:
-        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric)."""
+    def adj_full(self, U: np.ndarray, plain: bool = False) -> np.ndarray:
+        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric).
+
+        ``plain``: with the terms as given (no selector detection).
+        """
         Us = U + np.swapaxes(U, 1, 2)
         Ut = np.swapaxes(U, 1, 2)
         g = np.empty(self.n_full)
-        for var, sl in zip(self.variables, self.slices):
+        all_terms = [var.terms for var in self.variables] if plain else self.sel_terms
+        for var, sl, terms in zip(self.variables, self.slices, all_terms):
             acc = np.zeros(var.shape)
-            for L, R, coef, *sel in var.terms:
+            for L, R, coef, *sel in terms:
                 Lt = np.swapaxes(L, 1, 2)
                 if R is None:  # tr(L E_ab L^T U) = (L^T U^T L)_ab
                     per = Lt @ Ut @ L
@@ -285,7 +364,7 @@ class BlockLMI:
         return g
 
     def adj(self, U: np.ndarray) -> np.ndarray:
-        return self.T.T @ self.adj_full(U)
+        return self.Tt @ self.adj_full(U)
 
     # ----------------------------------------------------------------- Schur complement (HKM)
     @staticmethod
@@ -373,7 +452,7 @@ class BlockLMI:
         """
         nf = self.n_full
         M = np.empty((nf, nf))
-        cache = [[self._pieces(*term[:3], X, G, *term[3:]) for term in var.terms] for var in self.variables]
+        cache = [[self._pieces(*term[:3], X, G, *term[3:]) for term in var_terms] for var_terms in self.sel_terms]
         nb = self.nb
         for i, (vi, si) in enumerate(zip(self.variables, self.slices)):
             for j in range(i, len(self.variables)):
@@ -398,8 +477,8 @@ class BlockLMI:
         col[-1] = np.einsum("bij,bji->", X, G)
         M[-1, :] = col
         M[:, -1] = col
-        TtM = np.asarray(self.T.T @ M)
-        return np.asarray(self.T.T @ TtM.T)
+        Tt = self.Tt
+        return np.asarray(Tt @ np.asarray(Tt @ M).T)
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
@@ -407,8 +486,25 @@ class BlockLMI:
         if T is None:
             T = self.T.toarray()
             _BASIS_CACHE[self._key] = _BASIS_CACHE[self._key][:2] + (T,)
-        p, k = self.p, self.k
-        out = np.zeros((p, self.nb, k, k))
+        p, k, nb = self.p, self.k, self.nb
+        if not any(len(term) > 3 for var in self.variables for term in var.terms):
+            # Each full coordinate's matrices (unit entry E_ab of a variable: sym(c L E_ab R) = c
+            # L[:, a] R[b, :] + transpose, or c L[:, a] L[:, b]^T), then one GEMM with the basis.
+            full = np.zeros((self.n_full, nb, k, k))
+            full[-1] = -np.eye(k)
+            for var, sl in zip(self.variables, self.slices):
+                acc = full[sl].reshape(var.shape[0], var.shape[1], nb, k, k)
+                for L, R, coef in var.terms:
+                    Lt = L.transpose(2, 0, 1)[:, None, :, :, None]  # (r, 1, nb, k, 1)
+                    if R is None:
+                        acc += coef * (Lt * L.transpose(2, 0, 1)[None, :, :, None, :])
+                    else:
+                        P = Lt * R.transpose(1, 0, 2)[None, :, :, None, :]
+                        acc += coef * (P + P.transpose(0, 1, 2, 4, 3))
+            if self.equality is not None:  # the equality's direction, for its multiplier (solve_block_lmi)
+                self._eq_dir = (self.equality @ full[:-1].reshape(self.n_full - 1, -1)).reshape(nb, k, k)
+            return (T.T @ full.reshape(self.n_full, -1)).reshape(p, nb, k, k)
+        out = np.zeros((p, nb, k, k))
         out -= T[-1][:, None, None, None] * np.eye(k)
         for var, sl in zip(self.variables, self.slices):
             for L, R, coef, *sel in var.terms:
@@ -507,15 +603,98 @@ def _onehot(index: np.ndarray, n: int) -> sp.csr_matrix:
 _potrf = scipy.linalg.lapack.dpotrf
 _potrs = scipy.linalg.lapack.dpotrs
 
+try:  # the gufuncs behind np.linalg, without its per-call wrapper (type checks, errstate): ~5-20 us per call saved
+    from numpy.linalg import _umath_linalg as _ul
 
-def _steps(Li: np.ndarray, dZ: np.ndarray, nb: int) -> tuple[float, float]:
-    """Largest alphas with ``Z + alpha dZ >= 0`` for the two stacked halves (X's blocks, then S's).
+    _chol, _inv, _eigvalsh = _ul.cholesky_lo, _ul.inv, _ul.eigvalsh_lo
+except (ImportError, AttributeError):  # pragma: no cover - other numpy layouts
+    _chol, _inv, _eigvalsh = np.linalg.cholesky, np.linalg.inv, np.linalg.eigvalsh
 
-    ``Li`` holds the inverse Cholesky factors of both; one batched eigvalsh call serves both.
+
+def _cholesky(Z: np.ndarray) -> np.ndarray:
+    """Batched lower Cholesky factors; a block that is not positive definite comes back as NaNs."""
+    if _chol is np.linalg.cholesky:  # pragma: no cover
+        try:
+            return _chol(Z)
+        except np.linalg.LinAlgError:
+            out = np.empty_like(Z)
+            for i in range(Z.shape[0]):
+                try:
+                    out[i] = _chol(Z[i])
+                except np.linalg.LinAlgError:
+                    out[i] = np.nan
+            return out
+    return _chol(Z)
+
+
+if _chol is not np.linalg.cholesky:
+    _cholesky = _chol  # noqa: F811 - the gufunc itself already returns NaNs for a failed block
+
+
+#: Block side from which the step lengths come from Cholesky trials (:func:`_steps_chol`) instead of
+#: eigenvalues: a batched eigvalsh costs 6-15 Cholesky factorizations of the same blocks (measured: 18 blocks
+#: of side 4, 45 us vs 8 us; 100 of side 24, 4.7 ms vs 0.06-0.5 ms), and the bisection needs about 6-9
+#: trials on a shrinking set of candidate blocks.
+_CHOL_STEPS_FROM = 10
+
+
+def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
+    """``min(cap, alpha*)`` per half, ``alpha*`` the largest alpha with ``Z + alpha dZ >= 0``.
+
+    ``Li`` holds the inverse Cholesky factors of both halves (X's blocks, then S's); one batched
+    eigvalsh call serves both.
     """
-    lam = np.linalg.eigvalsh(Li @ dZ @ np.swapaxes(Li, 1, 2))[:, 0]
-    lx, ls = lam[:nb].min(), lam[nb:].min()
-    return (np.inf if lx >= 0 else -1.0 / lx), (np.inf if ls >= 0 else -1.0 / ls)
+    lam = _eigvalsh(Li @ dZ @ Li.transpose(0, 2, 1))[:, 0]
+    lx, ls = float(lam[:nb].min()), float(lam[nb:].min())
+    ax = cap if not lx < -1.0 / cap else -1.0 / lx  # NaN (a broken direction) gives cap; caught by the caller
+    as_ = cap if not ls < -1.0 / cap else -1.0 / ls
+    return ax, as_
+
+
+def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
+    """``min(cap, alpha*)`` per half from below, to within a factor ``1 + rtol``, by Cholesky trials.
+
+    ``alpha*`` is the largest alpha with ``Z + alpha dZ >= 0`` over the blocks of a half (X's
+    blocks ``[:nb]``, S's ``[nb:]``). A bisection on ``log alpha``: a trial factors ``Z_b + beta_h
+    dZ_b`` of the candidate blocks; a failure sets ``hi``, and the blocks that passed at that beta
+    (their own ``alpha*_b > beta >= alpha*``) leave the candidates for good; a pass sets ``lo``.
+    The returned ``lo`` passed the test, so every step ``<= lo`` keeps the blocks positive definite.
+    """
+    n2 = Z.shape[0]
+    lo = [0.0, 0.0]
+    hi = [cap, cap]
+    beta = [cap, cap]
+    cand = np.arange(n2)
+    side = cand >= nb  # half of each candidate (False: X, True: S)
+    active = [True, True]
+    for _ in range(64):
+        bvec = np.where(side, beta[1], beta[0])
+        if len(cand) == n2:
+            T = Z + bvec[:, None, None] * dZ
+        else:
+            T = Z[cand] + bvec[:, None, None] * dZ[cand]
+        bad = np.isnan(_cholesky(T)[:, -1, -1])
+        keep = np.zeros(len(cand), dtype=bool)
+        for h in (0, 1):
+            if not active[h]:
+                continue
+            mine = side == bool(h)
+            fail = bad & mine
+            if fail.any():
+                hi[h] = beta[h]
+                keep |= fail
+            else:
+                lo[h] = beta[h]
+                keep |= mine
+            if lo[h] == cap or (lo[h] > 0.0 and hi[h] <= lo[h] * (1.0 + rtol)) or hi[h] < 1e-14 * cap:
+                active[h] = False
+                keep &= ~mine
+            else:
+                beta[h] = hi[h] * 0.25 if lo[h] == 0.0 else (lo[h] * hi[h]) ** 0.5
+        if not (active[0] or active[1]):
+            break
+        cand, side = cand[keep], side[keep]
+    return lo[0], lo[1]
 
 
 @dataclass
@@ -541,27 +720,38 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
     is just ``b``; ``X`` starts infeasible (``A^*(X) + b != 0``) and its
     residual is driven to zero by the Newton steps.
     """
+    with np.errstate(invalid="ignore"):  # a failed Cholesky factor is NaNs (checked), not a warning
+        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start)
+
+
+def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Core:
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
+    perf = time.perf_counter
     nb, k = C.shape[0], C.shape[1]
     N = nb * k
+    # Step lengths: eigenvalues for small blocks (one batched call), Cholesky trials for larger ones.
+    chol_steps = k >= _CHOL_STEPS_FROM
+    steps = _steps_chol if chol_steps else _steps_eig
+    cap = 1.0 / o.step
     eye = np.eye(k)
+    Cf = C.reshape(-1)
     y = np.zeros(b.shape[0])
     # t far enough below every block's smallest eigenvalue: S = C - t I > 0.
     # (feasible_start: C itself is positive definite and y = 0 is the start; no t coordinate.)
     if not feasible_start:
-        y[-1] = np.linalg.eigvalsh(C)[:, 0].min() - max(1.0, float(np.abs(C).max()))
+        y[-1] = float(_eigvalsh(C)[:, 0].min()) - max(1.0, float(np.abs(C).max()))
     S = C + op(y)
     # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
     X = np.broadcast_to(eye * (1.0 / N if x_start is None else x_start), (nb, k, k)).copy()
-    normb = 1.0 + np.linalg.norm(b)
+    normb = 1.0 + math.sqrt(float(b @ b))
     status = "max_iterations"
     best = None
     it = 0
     ad = 0.0
     for it in range(o.max_iter + 1):
-        try:
-            LL = np.linalg.cholesky(np.concatenate([X, S]))
-        except np.linalg.LinAlgError:
+        Z = np.concatenate([X, S])
+        LL = _cholesky(Z)
+        if np.isnan(LL[:, -1, -1]).any():
             # Rounding made the new S (recomputed from y) or X singular: shorten the last step.
             if best is None or ad < 1e-12:
                 status = "numerical_error"
@@ -571,15 +761,20 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
             S = C + op(y)
             X = X_prev + ad * dX if ap > ad else X
             continue
-        Li = np.linalg.inv(LL)
-        LSi = Li[nb:]
-        G = np.swapaxes(LSi, 1, 2) @ LSi
+        if chol_steps:
+            Li = None
+            LSi = _inv(LL[nb:])
+        else:
+            Li = _inv(LL)
+            LSi = Li[nb:]
+        G = LSi.transpose(0, 2, 1) @ LSi
         r_p = -b - adj(X)
-        pobj = float(np.vdot(C, X))
+        Xf = X.reshape(-1)
+        pobj = float(Cf @ Xf)
         dobj = float(b @ y)
-        XS = float(np.vdot(X, S))
+        XS = float(Xf @ S.reshape(-1))
         mu = XS / N
-        rp = np.linalg.norm(r_p) / normb
+        rp = math.sqrt(float(r_p @ r_p)) / normb
         denom = 1.0 + abs(pobj) + abs(dobj)
         gap = max(abs(pobj - dobj), XS) / denom
         score = max(rp, gap)
@@ -593,16 +788,18 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
             break
         if it == o.max_iter:
             break
-        if o.time_limit is not None and time.perf_counter() - t_start > o.time_limit:
+        if o.time_limit is not None and perf() - t_start > o.time_limit:
             status = "time_limit"
             break
-        t0 = time.perf_counter()
+        t0 = perf()
         M = schur(X, G)
-        t1 = time.perf_counter()
+        t1 = perf()
         tim["assembly"] += t1 - t0
-        d = np.diag(M)
-        dead = d <= 1e-14 * d.max()
-        if dead.any():
+        d = M.diagonal()
+        dmax = float(d.max())
+        anydead = float(d.min()) <= 1e-14 * dmax
+        if anydead:
+            dead = d <= 1e-14 * dmax
             # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
             # instead of regularizing all of M, which stalls the residuals.
             M = M.copy()
@@ -610,45 +807,47 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
             M[:, dead] = 0.0
             M[dead, dead] = 1.0
         fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
-        if info != 0:
-            fac, info = _potrf(M + np.diag(d * 1e-12 + 1e-300), lower=1, clean=0)
-            if info != 0:
-                status = "numerical_error"
+        for reg in (1e-12, 1e-10, 1e-8):
+            # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
+            # a growing diagonal shift still gives a descent direction (the residuals decide).
+            if info == 0:
                 break
-        tim["factorization"] += time.perf_counter() - t1
+            fac, info = _potrf(M + np.diag(d * reg + 1e-300), lower=1, clean=0)
+        if info != 0:
+            status = "numerical_error"
+            break
+        tim["factorization"] += perf() - t1
 
         def direction(h, RcG):
             dy = _potrs(fac, h, lower=1)[0]
             dS = op(dy)
             W = RcG - X @ dS @ G
-            return dy, dS, 0.5 * (W + np.swapaxes(W, 1, 2))
+            return dy, dS, 0.5 * (W + W.transpose(0, 2, 1))
 
         # Predictor (affine scaling), R_c = -X S: the right-hand side adj(R_c G) - r_p is b.
-        hb = b
-        if dead.any():
-            hb = np.where(dead, 0.0, b)
+        hb = np.where(dead, 0.0, b) if anydead else b
         dy, dS, dX = direction(hb, -X)
-        t3 = time.perf_counter()
-        ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
-        ap, ad = min(1.0, ap), min(1.0, ad)
-        tim["line_search"] += time.perf_counter() - t3
-        mu_aff = float(np.vdot(X + ap * dX, S + ad * dS)) / N
+        t3 = perf()
+        ap, ad = steps(Z if chol_steps else Li, np.concatenate([dX, dS]), nb, 1.0, 0.1)
+        tim["line_search"] += perf() - t3
+        Sf, dXf, dSf = S.reshape(-1), dX.reshape(-1), dS.reshape(-1)
+        mu_aff = (XS + ad * float(Xf @ dSf) + ap * float(dXf @ Sf) + ap * ad * float(dXf @ dSf)) / N
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
         RcG = sigma * mu * G - X - dX @ dS @ G
         h = adj(RcG) - r_p
-        if dead.any():
+        if anydead:
             h[dead] = 0.0
         dy, dS, dX = direction(h, RcG)
-        t4 = time.perf_counter()
-        ap, ad = _steps(Li, np.concatenate([dX, dS]), nb)
+        t4 = perf()
+        ap, ad = steps(Z if chol_steps else Li, np.concatenate([dX, dS]), nb, cap, 0.02)
         ap, ad = min(1.0, o.step * ap), min(1.0, o.step * ad)
-        tim["line_search"] += time.perf_counter() - t4
+        tim["line_search"] += perf() - t4
         y_prev, X_prev = y, X
         X = X + ap * dX
         y = y + ad * dy
         S = C + op(y)
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(X))):
+        if not math.isfinite(float(y.sum()) + float(X.sum())):
             status = "numerical_error"
             break
     if status != "optimal" and best is not None:
@@ -656,7 +855,7 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
         if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
             # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
             status = "inaccurate"
-    tim["total"] = time.perf_counter() - t_start
+    tim["total"] = perf() - t_start
     tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
     return _Core(y=y, X=X, status=status, iterations=it, primal_residual=float(rp), gap=float(gap),
                  upper=float(np.vdot(C, X)), timings=tim)
@@ -664,17 +863,24 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
 
 def _dense_ops(Aop: np.ndarray):
     """``op``, ``adj``, ``schur`` from the explicit basis matrices (p, nb, k, k): few numpy calls."""
-    p = Aop.shape[0]
+    p, nb, k = Aop.shape[0], Aop.shape[1], Aop.shape[2]
     Aflat = Aop.reshape(p, -1)
+    Ab = np.ascontiguousarray(Aop.reshape(p, nb, k * k).transpose(1, 0, 2))  # (nb, p, k^2)
+    AflatT = Aflat.T
+    shape = Aop.shape[1:]
 
     def op(y):
-        return (y @ Aflat).reshape(Aop.shape[1:])
+        return (y @ Aflat).reshape(shape)
 
     def adj(U):
         return Aflat @ U.reshape(-1)  # A_i symmetric: tr(A_i U) = <A_i, U> for any U
 
     def schur(X, G):
-        return Aflat @ (X @ Aop @ G).reshape(p, -1).T
+        # M_ij = sum_b tr(A_ib X_b A_jb G_b) = sum_b vec(A_ib)^T K_b vec(A_jb) with
+        # K_b[(a, c), (d, e)] = G_b[a, e] X_b[c, d]: one broadcast product, one batched and one plain GEMM
+        # (instead of two batched products over all p * nb basis matrices).
+        K = (G[:, :, None, None, :] * X[:, None, :, :, None]).reshape(nb, k * k, k * k)
+        return (Ab @ K).transpose(1, 0, 2).reshape(p, -1) @ AflatT
 
     return op, adj, schur
 
@@ -718,7 +924,11 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         nu = 0.0
         if problem.equality is not None:
             a = problem.equality
-            nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
+            eq_dir = problem.__dict__.get("_eq_dir")
+            if eq_dir is not None:  # a . A_full^*(X) = <A_full(a), X>
+                nu = float(eq_dir.reshape(-1) @ core.X.reshape(-1)) / float(a @ a)
+            else:
+                nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
         return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
                            status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
                            dual_residual=0.0, gap=core.gap, timings=core.timings)
@@ -762,27 +972,52 @@ def lmi_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = 
     coef = np.asarray(coef, dtype=np.float64)
     S, n, _ = free.shape
     J, m = coef.shape[1], coef.shape[3]
-    P1, P2 = _selectors(n)
-    sq = np.ones(S) if rho is None else np.sqrt(np.asarray(rho, dtype=np.float64))
-    Rleft = np.broadcast_to(P1.T, (S, n, 2 * n))
+    P2, Rleft, Lbot, C0, a, V0, LF0 = _lmi_consts(S, n, J * m)
     # sym([[rho/2 W], [F W]] [I 0]) = [[rho W, (F W)^T], [F W, 0]] (no cancellation for huge F),
     # plus the sym-kind term [0; I] W [0, I] (one Kronecker product per pair instead of four).
-    LF = np.concatenate([(0.5 * sq**2)[:, None, None] * np.eye(n)[None], free], axis=1)  # (S, 2n, n)
-    Lbot = np.broadcast_to(P2, (S, 2 * n, n))
+    LF = LF0.copy()  # (S, 2n, n): [I/2; 0] per mode
+    LF[:, n:] = free
+    C = C0.copy()  # [[I, 0], [0, I]] per mode
+    C[:, n:, :n] = free
+    C[:, :n, n:] = free.transpose(0, 2, 1)
+    if rho is not None:
+        sq2 = np.asarray(rho, dtype=np.float64)  # sqrt(rho)^2
+        LF[:, :n] *= sq2[:, None, None]
+        C[:, :n, :n] *= sq2[:, None, None]
     W = MatrixVariable("W", (n, n), n, [(LF, Rleft, 1.0), (Lbot, None, 1.0)])
     variables = [W]
     if J * m > 0:
-        LY = P2[None] @ _gain_L(coef, active)
+        LY = np.zeros((S, 2 * n, J * m))
+        LY[:, n:] = _gain_L(coef, active)  # [0; coef_s]
         variables.append(MatrixVariable("Y", (J * m, n), None, [(LY, Rleft, 1.0)]))
-    C = np.zeros((S, 2 * n, 2 * n))
-    C[:, :n, :n] = (sq**2)[:, None, None] * np.eye(n)
-    C[:, n:, n:] = np.eye(n)
-    C[:, n:, :n] = free
-    C[:, :n, n:] = np.swapaxes(free, 1, 2)
-    a = np.zeros(sum(v.size for v in variables))
-    a[: n * n: n + 1] = 1.0  # trace W
-    V0 = [np.eye(n)] + ([np.zeros((J * m, n))] if J * m > 0 else [])
     return BlockLMI(C=C, variables=variables, V0=V0, equality=a)
+
+
+#: Shape-only pieces of :func:`lmi_problem` (selectors, identities, the trace normalization), read-only.
+_LMI_CONSTS: dict = {}
+
+
+def _lmi_consts(S: int, n: int, Jm: int):
+    key = (S, n, Jm)
+    c = _LMI_CONSTS.get(key)
+    if c is None:
+        if len(_LMI_CONSTS) > 64:
+            _LMI_CONSTS.clear()
+        P1, P2 = _selectors(n)
+        eye = np.eye(n)
+        C0 = np.zeros((S, 2 * n, 2 * n))
+        C0[:, :n, :n] = eye
+        C0[:, n:, n:] = eye
+        LF0 = np.zeros((S, 2 * n, n))
+        LF0[:, :n] = 0.5 * eye
+        a = np.zeros(n * n + Jm * n)
+        a[: n * n: n + 1] = 1.0  # trace W
+        V0 = [eye] + ([np.zeros((Jm, n))] if Jm > 0 else [])
+        c = (P2, np.broadcast_to(P1.T, (S, n, 2 * n)), np.broadcast_to(P2, (S, 2 * n, n)), C0, a, V0, LF0)
+        for arr in (P2, eye, C0, LF0, a, *V0):
+            arr.flags.writeable = False
+        _LMI_CONSTS[key] = c
+    return c
 
 
 def switched_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = None,
