@@ -1080,8 +1080,34 @@ def _gain_scale(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return coef / s[None, :, None, None], s
 
 
-@dataclass
-class LMISolution:
+@dataclass(kw_only=True)
+class _DesignSolution:
+    """The fields every design SDP's result shares (see :class:`LMISolution`)."""
+
+    t: float
+    Y: np.ndarray
+    duals: np.ndarray
+    trace_multiplier: float
+    upper: float
+    status: str
+    iterations: int
+    primal_residual: float
+    dual_residual: float
+    gap: float
+    timings: dict
+
+    @staticmethod
+    def shared(sol: IPMSolution, t0: float, setup: float) -> dict:
+        """The status, residual and timing fields from the core's solution (``t0``: start of the call)."""
+        timings = dict(sol.timings, setup=setup)
+        timings["total"] = time.perf_counter() - t0
+        return dict(t=sol.t, duals=sol.X, upper=sol.upper, status=sol.status, iterations=sol.iterations,
+                    primal_residual=sol.primal_residual, dual_residual=sol.dual_residual, gap=sol.gap,
+                    timings=timings)
+
+
+@dataclass(kw_only=True)
+class LMISolution(_DesignSolution):
     """Result of :func:`solve_lmi` (primal and dual solutions of the ``lmi`` SDP).
 
     Attributes
@@ -1113,22 +1139,11 @@ class LMISolution:
         ``line_search``, ``other``, ``total``.
     """
 
-    t: float
     W: np.ndarray
-    Y: np.ndarray
-    duals: np.ndarray
-    trace_multiplier: float
-    upper: float
-    status: str
-    iterations: int
-    primal_residual: float
-    dual_residual: float
-    gap: float
-    timings: dict
 
 
-@dataclass
-class SwitchedSolution:
+@dataclass(kw_only=True)
+class SwitchedSolution(_DesignSolution):
     """Result of :func:`solve_switched`.
 
     Attributes
@@ -1146,19 +1161,8 @@ class SwitchedSolution:
         As in :class:`LMISolution`.
     """
 
-    t: float
     Z: np.ndarray
     S: np.ndarray
-    Y: np.ndarray
-    duals: np.ndarray
-    trace_multiplier: float
-    upper: float
-    status: str
-    iterations: int
-    primal_residual: float
-    dual_residual: float
-    gap: float
-    timings: dict
 
 
 def _check_data(free, coef, active):
@@ -1206,11 +1210,8 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
     W = sol.V[0]
     W = 0.5 * (W + W.T)
     Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n, gscale)
-    tim = dict(sol.timings, setup=setup)
-    tim["total"] = time.perf_counter() - t0
-    return LMISolution(t=sol.t, W=W, Y=Y, duals=sol.X, trace_multiplier=sol.equality_multiplier, upper=sol.upper,
-                       status=sol.status, iterations=sol.iterations, primal_residual=sol.primal_residual,
-                       dual_residual=sol.dual_residual, gap=sol.gap, timings=tim)
+    return LMISolution(W=W, Y=Y, trace_multiplier=sol.equality_multiplier,
+                       **_DesignSolution.shared(sol, t0, setup))
 
 
 def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> SwitchedSolution:
@@ -1228,12 +1229,8 @@ def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None
     Sm = sol.V[1].reshape(S, n, n)
     Sm = 0.5 * (Sm + np.swapaxes(Sm, 1, 2))
     Y = _split_Y(sol.V[2] if len(sol.V) > 2 else None, J, m, n, gscale)
-    tim = dict(sol.timings, setup=setup)
-    tim["total"] = time.perf_counter() - t0
-    return SwitchedSolution(t=sol.t, Z=sol.V[0], S=Sm, Y=Y, duals=sol.X, trace_multiplier=0.5 * sol.equality_multiplier,
-                            upper=sol.upper, status=sol.status, iterations=sol.iterations,
-                            primal_residual=sol.primal_residual, dual_residual=sol.dual_residual, gap=sol.gap,
-                            timings=tim)
+    return SwitchedSolution(Z=sol.V[0], S=Sm, Y=Y, trace_multiplier=0.5 * sol.equality_multiplier,
+                            **_DesignSolution.shared(sol, t0, setup))
 
 
 def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> LMISolution:
