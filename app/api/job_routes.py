@@ -70,8 +70,13 @@ def requested_wait(prefer: str | None) -> float | None:
     return min(float(match.group(1)), MAX_WAIT_SECONDS)
 
 
-async def wait_for_end(request: Request, job_id: str, seconds: float) -> None:
-    await request.app.state.job_watch.wait(job_id, seconds)
+async def wait_for_end(request: Request, db: Database, kind: str, job_id: str, owner: str | None, seconds: float):
+    """The job once it is finished, or as it is after ``seconds``. A job this process finished comes as its
+    dispatcher's finishing write returned it (no read); otherwise it is read again."""
+    finished, record = await request.app.state.job_watch.wait(job_id, seconds)
+    if finished and record is not None:
+        return record
+    return await run_in_threadpool(store.get, db, kind, job_id, owner)
 
 
 async def submit(request: Request, response: Response, kind: str, req: dict, n_drop: int,
@@ -96,8 +101,7 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
         return full(row)
     response.headers["Preference-Applied"] = f"wait={wait:g}"
     if row.status not in FINISHED:
-        await wait_for_end(request, row.id, wait)
-        row = await run_in_threadpool(store.get, db, kind, row.id, owner)
+        row = await wait_for_end(request, db, kind, row.id, owner, wait)
     if row.status in FINISHED:
         response.status_code = 201
     return full(row)
@@ -136,8 +140,7 @@ def job_router(kind: str) -> APIRouter:
         if wait is not None:
             response.headers["Preference-Applied"] = f"wait={wait:g}"
             if row.status not in FINISHED:
-                await wait_for_end(request, job_id, wait)
-                row = await run_in_threadpool(store.get, db, kind, job_id, owner)
+                row = await wait_for_end(request, db, kind, job_id, owner, wait)
         return full(row)
 
     @router.post(
@@ -154,7 +157,7 @@ def job_router(kind: str) -> APIRouter:
         outcome = store.cancel(db, kind, job_id, owner)
         if outcome.at_once:
             response.status_code = 200
-            request.app.state.job_watch.finished(job_id)
+            request.app.state.job_watch.finished(job_id, outcome.job)
         elif getattr(request.app.state, "dispatcher", None) is not None:
             request.app.state.dispatcher.notify()
         return full(outcome.job)

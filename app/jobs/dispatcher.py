@@ -26,6 +26,7 @@ import os
 import threading
 import time
 import uuid
+from collections import deque
 from multiprocessing.connection import wait as mp_wait
 from typing import Any, Callable
 
@@ -35,7 +36,7 @@ from app.compute.messages import Cancelled, ExecutorEvent, Failed, Lost, Progres
 from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
-from app.jobs.model import Status
+from app.jobs.model import JobRecord, Status
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
@@ -55,22 +56,30 @@ class _Running:
         self.cancel_sent: float | None = None
         self.progress: dict[str, Any] | None = None
         self.progress_dirty = False
-        self.progress_written = 0.0
+        # Progress is first written once the job has run PROGRESS_WRITE_EVERY: a short job's progress is
+        # written only with its end.
+        self.progress_written = time.monotonic()
 
 
 class Dispatcher:
     def __init__(self, db: Database, settings: Settings, executor: Executor,
-                 on_finished: Callable[[str], None] | None = None):
+                 on_finished: Callable[[str, JobRecord | None], None] | None = None):
         self.db = db
         self.settings = settings
         self.executor = executor
-        # Told the id of every job this dispatcher finished, once its end is recorded (Prefer: wait).
-        self.on_finished = on_finished or (lambda job_id: None)
+        # Told every job this dispatcher finished, once its end is recorded (Prefer: wait): its id and the
+        # job as the finishing write left it (None when this dispatcher no longer held it).
+        self.on_finished = on_finished or (lambda job_id, record=None: None)
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.running: dict[str, _Running] = {}
-        # Finished jobs whose final write failed (database full, read-only or unreachable): kept here and
-        # written again every tick until it succeeds, so a result is never lost and never half-written.
-        self.pending: dict[str, tuple[str, dict[str, Any]]] = {}
+        # Finished jobs whose end is not written yet: written at the end of the tick that saw them end, in
+        # one transaction with the next claim; while that write fails (database full, read-only or
+        # unreachable) they stay here and it is tried again every tick, so a result is never lost and
+        # never half-written.
+        self.pending: dict[str, jobs.Ending] = {}
+        # The executor's messages not handled yet: a tick that fails half-way (database down) leaves the
+        # rest here for the next one instead of dropping them.
+        self._events: deque[ExecutorEvent] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
@@ -170,10 +179,13 @@ class Dispatcher:
     def _tick(self) -> None:
         st = self.settings
         now = time.monotonic()
-        self._flush_pending()
+        if self.pending:  # left by a tick whose write failed: written before anything new is taken on
+            self._flush_pending()
         self.executor.maintain(now)
-        for event in self.executor.poll():
-            self._handle(event)
+        self._events.extend(self.executor.poll())
+        while self._events:
+            self._handle(self._events[0])
+            self._events.popleft()
         self._check_limits(now)
         self._flush_progress(now)
         if now - self._last_heartbeat >= st.lease_seconds / 3:
@@ -186,21 +198,47 @@ class Dispatcher:
         if now - self._last_cancel_check >= st.poll_interval * 0.8:
             self._check_cancels(now)
             self._last_cancel_check = now
-        self._fill()
+        self._write_and_fill()
 
     # -- finishing -------------------------------------------------------------
     def _finish(self, job_id: str, status: str, **values: Any) -> None:
-        """Record a job's end; if the write fails, keep it pending and retry next tick."""
+        """A job ended: its end is written at the end of this tick (:meth:`_write_and_fill`), kept pending
+        and retried every tick while the write fails."""
         self.running.pop(job_id, None)
-        self.pending[job_id] = (status, values)
-        self._flush_pending()
+        self.pending[job_id] = jobs.Ending(job_id, status, **values)
 
     def _flush_pending(self) -> None:
-        for job_id in list(self.pending):
-            status, values = self.pending[job_id]
-            jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
-            del self.pending[job_id]
-            self.on_finished(job_id)
+        self._write_and_fill(claim=False)
+
+    def _write_and_fill(self, claim: bool = True) -> None:
+        """Write the pending ends and claim a queued job for every free slot of the executor, in one
+        transaction; then wake the waiters of the ended jobs and hand the claimed ones to the executor."""
+        free = self.executor.free_slots() if claim else []
+        # A claim is tried when a job may be waiting: after a submission here (notify) or a claim that filled
+        # every slot, or when the ends are written anyway (the claim then costs one more statement, not a
+        # transaction). Otherwise a cheap read comes first, so an idle dispatcher does not take SQLite's write
+        # lock every poll interval.
+        if free and not (self._queue_maybe_nonempty or self.pending or jobs.has_queued(self.db)):
+            free = []
+        if not free and not self.pending:
+            return
+        endings = list(self.pending.values())
+        ended, claimed = jobs.finish_and_claim(self.db, self.owner, endings, self.settings.lease_seconds,
+                                               [s.pid for s in free])  # raises while the database is down
+        for end, record in zip(endings, ended):
+            del self.pending[end.job_id]
+            self.on_finished(end.job_id, record)
+        if free:
+            self._queue_maybe_nonempty = len(claimed) == len(free)
+        for slot, job in zip(free, claimed):
+            try:
+                handle = self.executor.submit(slot, job)
+            except Exception as exc:  # e.g. the Dask client lost its scheduler just now
+                log.exception("could not hand job %s to the executor", job.id)
+                self.running[job.id] = _Running(job.id, None, slot.pid)
+                self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
+                continue
+            self.running[job.id] = _Running(job.id, handle, slot.pid)
 
     def _retry_or_fail(self, job_id: str, reason: str) -> None:
         self.running.pop(job_id, None)
@@ -291,23 +329,6 @@ class Dispatcher:
                 running.progress_dirty = False
                 running.progress_written = now
 
-    def _fill(self) -> None:
-        free = self.executor.free_slots()
-        if not free or not (self._queue_maybe_nonempty or jobs.has_queued(self.db)):
-            return
-        # One transaction claims a job for every free slot (and records the worker pids known now).
-        claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [s.pid for s in free])
-        self._queue_maybe_nonempty = len(claimed) == len(free)
-        for slot, job in zip(free, claimed):
-            try:
-                handle = self.executor.submit(slot, job)
-            except Exception as exc:  # e.g. the Dask client lost its scheduler just now
-                log.exception("could not hand job %s to the executor", job.id)
-                self.running[job.id] = _Running(job.id, None, slot.pid)
-                self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
-                continue
-            self.running[job.id] = _Running(job.id, handle, slot.pid)
-
     def _shutdown(self) -> None:
         try:
             self._flush_pending()
@@ -324,7 +345,7 @@ class Dispatcher:
 
 
 def make_dispatcher(db: Database, settings: Settings,
-                    on_finished: Callable[[str], None] | None = None) -> Dispatcher:
+                    on_finished: Callable[[str, JobRecord | None], None] | None = None) -> Dispatcher:
     """The dispatcher on the local process pool, or on Dask when ``NCS_DASK_SCHEDULER`` is set."""
     executor: Executor
     if settings.dask_scheduler:
