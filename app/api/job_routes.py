@@ -85,17 +85,23 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
     ``Prefer: wait=N`` answer 201 with the finished job if it ends within N seconds."""
     settings = request.app.state.settings
     db: Database = request.app.state.db
-    submitted = await run_in_threadpool(
-        store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
-        max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+    dispatcher = getattr(request.app.state, "dispatcher", None)
+    # The dispatcher of this process writes it with its own next transaction; without one, the store does.
+    taken = None
+    if dispatcher is not None:
+        taken = dispatcher.take(store.prepare(kind, req, n_drop, idempotency_key=idempotency_key, owner=owner))
+    if taken is not None:
+        submitted = await taken
+    else:
+        submitted = await run_in_threadpool(
+            store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
+            max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+        if not submitted.replayed and dispatcher is not None:
+            dispatcher.notify()
     row = submitted.job
     response.headers["Location"] = f"/v1/{kind}s/{row.id}"
     if submitted.replayed:
         response.headers["Idempotent-Replayed"] = "true"
-    else:
-        dispatcher = getattr(request.app.state, "dispatcher", None)
-        if dispatcher is not None:
-            dispatcher.notify()
     wait = requested_wait(prefer)
     if wait is None:
         return full(row)

@@ -21,6 +21,8 @@ from datetime import timedelta
 from typing import Any
 
 from sqlalchemy import and_, bindparam, func, select, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 
@@ -110,22 +112,27 @@ _FINISH_VALUES = dict(status=bindparam("b_status", type_=_C.status.type),
                       result=bindparam("b_result", type_=_C.result.type),
                       error=bindparam("b_error", type_=_C.error.type))
 _FINISH_WHERE = (_C.id == bindparam("b_id"), _C.status == _RUNNING, _C.lease_owner == bindparam("b_owner"))
+# The job as the finishing write left it, but for the two JSON documents the caller already holds (the
+# result it writes, the request it claimed): read back they would only be decoded again.
+_FINISHED_COLUMNS = [c for c in _C if c.name not in ("request", "result")]
 # Two constant statements: the progress column is left as it is when the outcome brings none.
-_FINISH = update(_T).where(*_FINISH_WHERE).values(**_FINISH_VALUES).returning(*_C)
+_FINISH = update(_T).where(*_FINISH_WHERE).values(**_FINISH_VALUES).returning(*_FINISHED_COLUMNS)
 _FINISH_WITH_PROGRESS = (update(_T).where(*_FINISH_WHERE)
                          .values(**_FINISH_VALUES, progress=bindparam("b_progress", type_=_C.progress.type))
-                         .returning(*_C))
+                         .returning(*_FINISHED_COLUMNS))
 
 
 @dataclass
 class Ending:
-    """A job's end, as the dispatcher records it."""
+    """A job's end, as the dispatcher records it; ``request`` is the job's request as claimed (it completes
+    the returned record; not written)."""
 
     job_id: str
     status: str
     result: dict[str, Any] | None = None
     error: str | None = None
     progress: dict[str, Any] | None = None
+    request: dict[str, Any] | None = None
 
 
 def _finish(c: Connection, owner: str, end: Ending) -> JobRecord | None:
@@ -135,7 +142,13 @@ def _finish(c: Connection, owner: str, end: Ending) -> JobRecord | None:
     if end.progress is not None:
         params["b_progress"] = end.progress
     row = c.execute(_FINISH_WITH_PROGRESS if end.progress is not None else _FINISH, params).first()
-    return _record(row) if row is not None else None
+    if row is None:
+        return None
+    if end.request is None:  # not known here: read it
+        request = c.execute(select(_C.request).where(_C.id == end.job_id)).scalar_one()
+    else:
+        request = end.request
+    return JobRecord(**row._mapping, request=request, result=end.result)
 
 
 def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[str, Any] | None = None,
@@ -311,6 +324,40 @@ _QUEUED_COUNT = select(func.count()).select_from(_T).where(_C.status == _QUEUED)
 _EXISTS = select(_C.id).where(_C.id == bindparam("b_id"))
 
 
+@dataclass
+class Submission:
+    """A validated job ready to be inserted: the record the submitter is answered with, and the row."""
+
+    row: JobRecord
+    values: dict[str, Any]
+
+    def replay(self, existing: JobRecord) -> Submitted:
+        """The answer when the Idempotency-Key is taken by ``existing``."""
+        if existing.request_hash != self.row.request_hash:
+            raise IdempotencyKeyReused()
+        return Submitted(existing, replayed=True)
+
+
+def prepare(kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key: str | None = None,
+            owner: str | None = None) -> Submission:
+    digest = hashlib.sha256(canonical_json(request).encode()).hexdigest()
+    stored_key = scoped_idempotency_key(idempotency_key, owner)
+    now = utcnow()
+    row = JobRecord(id=new_id(), kind=kind, status=_QUEUED, method=request["method"], n_drop=n_drop,
+                    request=request, request_hash=digest, idempotency_key=stored_key, progress=None, result=None,
+                    error=None, attempts=0, cancel_requested=False, lease_owner=None, lease_expires_at=None,
+                    worker_pid=None, created_at=now, started_at=None, finished_at=None, updated_at=now, owner=owner)
+    values = dict(id=row.id, kind=kind, status=_QUEUED, method=row.method, n_drop=n_drop, request=request,
+                  request_hash=digest, idempotency_key=stored_key, attempts=0, cancel_requested=False,
+                  created_at=now, updated_at=now, owner=owner)
+    return Submission(row, values)
+
+
+def _lookup(c: Connection, stored_key: str) -> JobRecord | None:
+    found = c.execute(_BY_IDEMPOTENCY_KEY, {"b_key": stored_key}).first()
+    return _record(found) if found is not None else None
+
+
 def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key: str | None = None,
            owner: str | None = None, max_queue_depth: int | None = None, retry_after: int = 5) -> Submitted:
     """Queue a validated job, or return the one an earlier submission with the same Idempotency-Key made.
@@ -319,28 +366,14 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
     ``max_queue_depth`` jobs waiting). One short write transaction (the queue-depth count and the INSERT);
     a connection lost on the way is retried once. An Idempotency-Key is looked up only when the INSERT
     finds it taken (the key is unique) or the queue is full: a new key, the usual case, costs no read.
+    (A running dispatcher batches submissions instead: :func:`write_batch`.)
     """
-    digest = hashlib.sha256(canonical_json(request).encode()).hexdigest()
-    stored_key = scoped_idempotency_key(idempotency_key, owner)
-
-    def replay(row: JobRecord) -> Submitted:
-        if row.request_hash != digest:
-            raise IdempotencyKeyReused()
-        return Submitted(row, replayed=True)
+    sub = prepare(kind, request, n_drop, idempotency_key=idempotency_key, owner=owner)
+    stored_key = sub.row.idempotency_key
 
     def lookup() -> JobRecord | None:
         with db.read_conn() as c:
-            found = c.execute(_BY_IDEMPOTENCY_KEY, {"b_key": stored_key}).first()
-        return _record(found) if found is not None else None
-
-    now = utcnow()
-    row = JobRecord(id=new_id(), kind=kind, status=Status.QUEUED.value, method=request["method"], n_drop=n_drop,
-                    request=request, request_hash=digest, idempotency_key=stored_key, progress=None, result=None,
-                    error=None, attempts=0, cancel_requested=False, lease_owner=None, lease_expires_at=None,
-                    worker_pid=None, created_at=now, started_at=None, finished_at=None, updated_at=now, owner=owner)
-    values = dict(id=row.id, kind=kind, status=row.status, method=row.method, n_drop=n_drop, request=request,
-                  request_hash=digest, idempotency_key=stored_key, attempts=0, cancel_requested=False,
-                  created_at=now, updated_at=now, owner=owner)
+            return _lookup(c, stored_key)
 
     def insert() -> None:
         # The back-pressure count and the INSERT share one write transaction (one connection checkout and
@@ -350,7 +383,7 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
                 queued = c.execute(_QUEUED_COUNT).scalar_one()
                 if queued >= max_queue_depth:
                     raise QueueFull(queued, max_queue_depth, retry_after)
-            c.execute(_INSERT, values)
+            c.execute(_INSERT, sub.values)
 
     try:
         db.retry_on_disconnect(insert)
@@ -358,19 +391,76 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
         existing = db.retry_on_disconnect(lookup) if stored_key is not None else None
         if existing is None:
             raise
-        return replay(existing)  # a retried submission is answered even when the queue is full
+        return sub.replay(existing)  # a retried submission is answered even when the queue is full
     except IntegrityError:
         def committed() -> bool:
             with db.read_conn() as c:
-                return c.execute(_EXISTS, {"b_id": row.id}).first() is not None
+                return c.execute(_EXISTS, {"b_id": sub.row.id}).first() is not None
 
         if db.retry_on_disconnect(committed):  # the lost connection had committed it after all
-            return Submitted(row, replayed=False)
+            return Submitted(sub.row, replayed=False)
         existing = db.retry_on_disconnect(lookup) if stored_key is not None else None
         if existing is None:  # not a race on the idempotency key: a bug
             raise
-        return replay(existing)  # the key is taken: an earlier (or concurrent) request with it
-    return Submitted(row, replayed=False)
+        return sub.replay(existing)  # the key is taken: an earlier (or concurrent) request with it
+    return Submitted(sub.row, replayed=False)
+
+
+#: INSERT ... ON CONFLICT DO NOTHING: in a batch, a taken Idempotency-Key must not abort the transaction.
+_INSERT_NEW = {"sqlite": sqlite_insert(_T).on_conflict_do_nothing(),
+               "postgresql": pg_insert(_T).on_conflict_do_nothing()}
+
+
+def batches_submissions(db: Database) -> bool:
+    """Whether :func:`write_batch` can insert submissions on this database."""
+    return db.engine.dialect.name in _INSERT_NEW
+
+
+def _insert_many(c: Connection, subs: list[Submission], max_queue_depth: int | None,
+                 retry_after: int) -> list[Submitted | Exception]:
+    """Each submission in turn, as :func:`submit` would answer it one after the other (Submitted, or the
+    QueueFull / IdempotencyKeyReused it raises), inside the caller's transaction."""
+    insert = _INSERT_NEW[c.dialect.name]
+    queued = c.execute(_QUEUED_COUNT).scalar_one() if max_queue_depth is not None else 0
+    out: list[Submitted | Exception] = []
+    for sub in subs:
+        key = sub.row.idempotency_key
+        try:
+            if max_queue_depth is not None and queued >= max_queue_depth:
+                existing = _lookup(c, key) if key is not None else None
+                if existing is None:
+                    raise QueueFull(queued, max_queue_depth, retry_after)
+                out.append(sub.replay(existing))
+            elif c.execute(insert, sub.values).rowcount == 1:
+                queued += 1
+                out.append(Submitted(sub.row, replayed=False))
+            elif c.execute(_EXISTS, {"b_id": sub.row.id}).first() is not None:
+                out.append(Submitted(sub.row, replayed=False))  # a retried transaction: the first one committed
+            else:
+                existing = _lookup(c, key) if key is not None else None
+                if existing is None:  # pragma: no cover - no other unique column
+                    raise RuntimeError(f"job {sub.row.id} conflicts with a row that is not its idempotency key")
+                out.append(sub.replay(existing))
+        except (QueueFull, IdempotencyKeyReused, RuntimeError) as exc:
+            out.append(exc)
+    return out
+
+
+def write_batch(db: Database, owner: str, submissions: list[Submission], endings: list[Ending],
+                lease_seconds: float, pids: list[int | None], max_queue_depth: int | None = None,
+                retry_after: int = 5) -> tuple[list[Submitted | Exception], list[JobRecord | None], list[Claimed]]:
+    """One dispatcher write: insert ``submissions`` (answered per submission as :func:`submit` answers, an
+    error as the exception it would raise), record ``endings`` and claim up to ``len(pids)`` queued jobs
+    (as :func:`finish_and_claim`), all in one transaction; retried once on a connection found dead (every
+    step is safe to repeat). Nothing is written if it raises."""
+    def run():
+        with db.write_conn() as c:
+            answers = _insert_many(c, submissions, max_queue_depth, retry_after) if submissions else []
+            ended = [_finish(c, owner, end) for end in endings]
+            claimed = _claim(c, owner, lease_seconds, pids) if pids else []
+        return answers, ended, claimed
+
+    return db.retry_on_disconnect(run)
 
 
 def queue_depth(db: Database) -> int:

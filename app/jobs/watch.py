@@ -48,20 +48,28 @@ class JobWatch:
     def finished(self, job_id: str, record: Any = None) -> None:
         """Called from any thread when a job ended; ``record`` is the finished job when the caller has it
         (the dispatcher's finishing write returns it), handed to the waiters."""
+        self.finished_many([(job_id, record)])
+
+    def finished_many(self, ended: list[tuple[str, Any]]) -> None:
+        """:meth:`finished` for several jobs: one wake-up per event loop, not one per waiter (waking a loop
+        from another thread is a system call that, under load, costs more than the rest of the hand-over)."""
+        by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
         with self._lock:
-            waiters = self._waiters.pop(job_id, ())
-            self._recent[job_id] = None
-            if len(self._recent) > self.RECENT:
-                self._recent.popitem(last=False)
-            if record is not None:
-                self._recent_records[job_id] = record
-                if len(self._recent_records) > self.RECENT_RECORDS:
-                    self._recent_records.popitem(last=False)
-            else:
-                self._recent_records.pop(job_id, None)
-        for loop, fut in waiters:
+            for job_id, record in ended:
+                for loop, fut in self._waiters.pop(job_id, ()):
+                    by_loop.setdefault(loop, []).append((fut, record))
+                self._recent[job_id] = None
+                if len(self._recent) > self.RECENT:
+                    self._recent.popitem(last=False)
+                if record is not None:
+                    self._recent_records[job_id] = record
+                    if len(self._recent_records) > self.RECENT_RECORDS:
+                        self._recent_records.popitem(last=False)
+                else:
+                    self._recent_records.pop(job_id, None)
+        for loop, resolved in by_loop.items():
             try:
-                loop.call_soon_threadsafe(_resolve, fut, record)
+                loop.call_soon_threadsafe(_resolve_all, resolved)
             except RuntimeError:  # pragma: no cover - that loop is closed
                 pass
 
@@ -110,10 +118,10 @@ class JobWatch:
                 except Exception as exc:  # database down: the waits time out and their reads say why
                     log.debug("job watch: %s: %s", type(exc).__name__, exc)
                     continue
-                for job_id in done:
-                    self.finished(job_id)
+                self.finished_many([(job_id, None) for job_id in done])
 
 
-def _resolve(fut: asyncio.Future, record: Any) -> None:
-    if not fut.done():
-        fut.set_result(record)
+def _resolve_all(resolved: list[tuple[asyncio.Future, Any]]) -> None:
+    for fut, record in resolved:
+        if not fut.done():
+            fut.set_result(record)
