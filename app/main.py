@@ -104,7 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        settings.worker_memory_mb)
         app.state.dispatcher = None
         if settings.run_dispatcher:
-            app.state.dispatcher = make_dispatcher(db, settings, on_finished=app.state.job_watch.finished)
+            app.state.dispatcher = make_dispatcher(db, settings, on_finished=app.state.job_watch.finished_many)
             app.state.dispatcher.start()
         try:
             yield

@@ -69,8 +69,13 @@ def requested_wait(prefer: str | None) -> float | None:
     return min(float(match.group(1)), MAX_WAIT_SECONDS)
 
 
-async def wait_for_end(request: Request, job_id: str, seconds: float) -> None:
-    await request.app.state.job_watch.wait(job_id, seconds)
+async def wait_for_end(request: Request, db: Database, kind: str, job_id: str, owner: str | None, seconds: float):
+    """The job once it is finished, or as it is after ``seconds``. A job this process finished comes as its
+    dispatcher's finishing write returned it (no read); otherwise it is read again."""
+    finished, record = await request.app.state.job_watch.wait(job_id, seconds)
+    if finished and record is not None:
+        return record
+    return await run_in_threadpool(store.get, db, kind, job_id, owner)
 
 
 async def submit(request: Request, response: Response, kind: str, req: dict, n_drop: int,
@@ -79,24 +84,29 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
     ``Prefer: wait=N`` answer 201 with the finished job if it ends within N seconds."""
     settings = request.app.state.settings
     db: Database = request.app.state.db
-    submitted = await run_in_threadpool(
-        store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
-        max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+    dispatcher = getattr(request.app.state, "dispatcher", None)
+    # The dispatcher of this process writes it with its own next transaction; without one, the store does.
+    taken = None
+    if dispatcher is not None:
+        taken = dispatcher.take(store.prepare(kind, req, n_drop, idempotency_key=idempotency_key, owner=owner))
+    if taken is not None:
+        submitted = await taken
+    else:
+        submitted = await run_in_threadpool(
+            store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
+            max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+        if not submitted.replayed and dispatcher is not None:
+            dispatcher.notify()
     row = submitted.job
     response.headers["Location"] = f"/v1/{kind}s/{row.id}"
     if submitted.replayed:
         response.headers["Idempotent-Replayed"] = "true"
-    else:
-        dispatcher = getattr(request.app.state, "dispatcher", None)
-        if dispatcher is not None:
-            dispatcher.notify()
     wait = requested_wait(prefer)
     if wait is None:
         return full(row)
     response.headers["Preference-Applied"] = f"wait={wait:g}"
     if row.status not in FINISHED:
-        await wait_for_end(request, row.id, wait)
-        row = await run_in_threadpool(store.get, db, kind, row.id, owner)
+        row = await wait_for_end(request, db, kind, row.id, owner, wait)
     if row.status in FINISHED:
         response.status_code = 201
     return full(row)
@@ -135,8 +145,7 @@ def job_router(kind: str) -> APIRouter:
         if wait is not None:
             response.headers["Preference-Applied"] = f"wait={wait:g}"
             if row.status not in FINISHED:
-                await wait_for_end(request, job_id, wait)
-                row = await run_in_threadpool(store.get, db, kind, job_id, owner)
+                row = await wait_for_end(request, db, kind, job_id, owner, wait)
         return full(row)
 
     @router.post(
@@ -153,7 +162,7 @@ def job_router(kind: str) -> APIRouter:
         outcome = store.cancel(db, kind, job_id, owner)
         if outcome.at_once:
             response.status_code = 200
-            request.app.state.job_watch.finished(job_id)
+            request.app.state.job_watch.finished(job_id, outcome.job)
         elif getattr(request.app.state, "dispatcher", None) is not None:
             request.app.state.dispatcher.notify()
         return full(outcome.job)

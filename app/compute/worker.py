@@ -10,14 +10,20 @@ takes too long.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import signal
+import time
 
 from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Progress, Ready, Run, Stop, Succeeded)
 from app.compute.process import apply_memory_limit, die_with_parent, limit_blas_threads, memory_message
 
 log = logging.getLogger("app.compute.worker")
+
+#: Seconds between the Progress messages of one job (the dispatcher writes progress at most every 0.2 s);
+#: the last record travels with the outcome, so a job shorter than this sends none.
+PROGRESS_EVERY = 0.1
 
 
 def failure_reason(exc: BaseException) -> str:
@@ -70,20 +76,26 @@ def worker_main(conn, parent_pid: int, memory_mb: int = 0) -> None:
         if not isinstance(msg, Run):
             continue  # a late cancel for a finished job
         job_id = msg.job_id
-        state = {"cancel": False}
+        state = {"cancel": False, "last": None, "sent": time.monotonic()}
 
         def callback(record, job_id=job_id, state=state):
+            state["last"] = record
             try:
                 while conn.poll():
                     m = conn.recv()
                     if isinstance(m, Stop) or (isinstance(m, Cancel) and m.job_id == job_id):
                         state["cancel"] = True
-                conn.send(Progress(job_id, tasks.record_to_dict(record)))
+                now = time.monotonic()
+                if now - state["sent"] >= PROGRESS_EVERY:
+                    state["sent"] = now
+                    conn.send(Progress(job_id, tasks.record_to_dict(record)))
             except (EOFError, OSError):
                 os._exit(0)  # the service is gone
             return state["cancel"]
 
         reply = execute(job_id, msg.request, callback, lambda state=state: state["cancel"], memory_mb)
+        if state["last"] is not None:
+            reply = dataclasses.replace(reply, progress=tasks.record_to_dict(state["last"]))
         try:
             conn.send(reply)
         except (EOFError, OSError):

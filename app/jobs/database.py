@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from sqlalchemy import create_engine, event, text
-from sqlalchemy.engine import Engine
+from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -71,15 +71,17 @@ def database_reason(exc: BaseException) -> str:
 
 
 class Database:
-    """Engine plus two session factories: ``read()`` and ``write()``."""
+    """Engine plus two session factories, ``read()`` and ``write()``, and the same two as plain Core
+    connections, ``read_conn()`` and ``write_conn()``, for the store's hot paths (a constant Core statement
+    with bound parameters is compiled once; the ORM's unit of work and its per-call statement building cost
+    more than the query)."""
 
     def __init__(self, url: str):
         self.url = url
         self.engine = make_engine(url)
+        self._write_engine = self.engine.execution_options(ncs_write=True)
         self._read = sessionmaker(self.engine, expire_on_commit=False)
-        self._write = sessionmaker(
-            self.engine.execution_options(ncs_write=True), expire_on_commit=False
-        )
+        self._write = sessionmaker(self._write_engine, expire_on_commit=False)
 
     @property
     def sqlite(self) -> bool:
@@ -91,6 +93,28 @@ class Database:
         with self._write() as session:
             with session.begin():
                 yield session
+
+    @contextmanager
+    def write_conn(self) -> Iterator[Connection]:
+        """A short write transaction on a Core connection (``BEGIN IMMEDIATE`` on SQLite): commits on
+        success, rolls back on error."""
+        with self._write_engine.begin() as conn:
+            yield conn
+
+    @contextmanager
+    def read_conn(self) -> Iterator[Connection]:
+        """A read on a Core connection, ended like :meth:`end_read` ends a session: a connection that died
+        after the answer was read is discarded, not raised."""
+        conn = self.engine.connect()
+        try:
+            yield conn
+        finally:
+            try:
+                conn.rollback()
+            except DBAPIError:
+                conn.invalidate()
+            finally:
+                conn.close()
 
     @contextmanager
     def read(self) -> Iterator[Session]:

@@ -21,11 +21,13 @@ so it reacts immediately to results, deaths and new submissions.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import threading
 import time
 import uuid
+from collections import deque
 from multiprocessing.connection import wait as mp_wait
 from typing import Any, Callable
 
@@ -35,7 +37,7 @@ from app.compute.messages import Cancelled, ExecutorEvent, Failed, Lost, Progres
 from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
-from app.jobs.model import Status
+from app.jobs.model import JobRecord, Status
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
@@ -46,31 +48,46 @@ PROGRESS_WRITE_EVERY = 0.2  # seconds between progress writes of one job
 class _Running:
     """A job this dispatcher claimed and handed to its executor."""
 
-    def __init__(self, job_id: str, handle: Any, pid: int | None):
+    def __init__(self, job_id: str, handle: Any, pid: int | None, request: dict[str, Any] | None = None):
         self.job_id = job_id
         self.handle = handle
+        self.request = request              # as claimed: completes the finished job's record
         self.pid = pid                      # recorded with the claim, or by the first Started
         self.address = ""                   # the Dask worker it runs on
         self.started: float | None = None   # monotonic; the time limit counts from the real start
         self.cancel_sent: float | None = None
         self.progress: dict[str, Any] | None = None
         self.progress_dirty = False
-        self.progress_written = 0.0
+        # Progress is first written once the job has run PROGRESS_WRITE_EVERY: a short job's progress is
+        # written only with its end.
+        self.progress_written = time.monotonic()
 
 
 class Dispatcher:
     def __init__(self, db: Database, settings: Settings, executor: Executor,
-                 on_finished: Callable[[str], None] | None = None):
+                 on_finished: Callable[[list[tuple[str, JobRecord | None]]], None] | None = None):
         self.db = db
         self.settings = settings
         self.executor = executor
-        # Told the id of every job this dispatcher finished, once its end is recorded (Prefer: wait).
-        self.on_finished = on_finished or (lambda job_id: None)
+        # Told the jobs this dispatcher finished, once their ends are recorded (Prefer: wait): a list of
+        # their ids and the jobs as the finishing write left them (None when this dispatcher no longer held it).
+        self.on_finished = on_finished or (lambda ended: None)
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.running: dict[str, _Running] = {}
-        # Finished jobs whose final write failed (database full, read-only or unreachable): kept here and
-        # written again every tick until it succeeds, so a result is never lost and never half-written.
-        self.pending: dict[str, tuple[str, dict[str, Any]]] = {}
+        # Finished jobs whose end is not written yet: written at the end of the tick that saw them end, in
+        # one transaction with the next claim; while that write fails (database full, read-only or
+        # unreachable) they stay here and it is tried again every tick, so a result is never lost and
+        # never half-written.
+        self.pending: dict[str, jobs.Ending] = {}
+        # The executor's messages not handled yet: a tick that fails half-way (database down) leaves the
+        # rest here for the next one instead of dropping them.
+        self._events: deque[ExecutorEvent] = deque()
+        # Submissions handed over by request handlers (:meth:`submit`): inserted by the next tick's write,
+        # in one transaction with the ends and the claim, each answered through its future.
+        self._submissions: list[tuple[jobs.Submission, asyncio.AbstractEventLoop, asyncio.Future]] = []
+        self._submissions_lock = threading.Lock()
+        self._closed = False  # the thread has ended: submissions go to the store directly
+        self._batches = jobs.batches_submissions(db)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
@@ -101,6 +118,21 @@ class Dispatcher:
                 os.close(fd)
             except OSError:
                 pass
+
+    def take(self, sub: jobs.Submission) -> asyncio.Future | None:
+        """Queue a job as :func:`app.jobs.store.submit` does (same answers and errors, through the returned
+        future of the calling event loop), written by this dispatcher's thread together with its own next
+        write (ends, claim): under load one commit serves many submissions, a request handler needs no
+        thread-pool hop, and a free worker claims the job in the transaction that inserts it. None when this
+        dispatcher cannot take it (stopped, or a database without ON CONFLICT): use the store directly."""
+        loop = asyncio.get_running_loop()
+        fut = loop.create_future()
+        with self._submissions_lock:
+            if self._closed or not self._batches or not self.thread_alive():
+                return None
+            self._submissions.append((sub, loop, fut))
+        self.notify()
+        return fut
 
     def notify(self) -> None:
         """A job was queued or asked to cancel: look at the table now."""
@@ -144,16 +176,37 @@ class Dispatcher:
                 except DBAPIError as exc:  # database full, read-only or unreachable: back off, go on
                     self.tick_error = f"database unavailable: {database_reason(exc)}"
                     log.warning("dispatcher: %s (%s); retrying in 1 s", self.tick_error, type(exc).__name__)
+                    self._refuse_submissions(exc)
                     self._stop.wait(1.0)
                     continue
                 except Exception as exc:  # anything else: log it whole, back off, go on
                     self.tick_error = f"{type(exc).__name__}: {exc}"
                     log.exception("dispatcher tick failed")
+                    self._refuse_submissions(exc)
                     self._stop.wait(1.0)
                     continue
                 self._sleep()
         finally:
             self._shutdown()
+
+    def _refuse_submissions(self, exc: BaseException) -> None:
+        """A tick failed (``exc``) before it wrote the submissions handed over. A request must not wait for the
+        database to come back: they are written now on their own, as the store would write them (a connection
+        found dead is retried once: a terminated backend costs a retry, not an error), and hear ``exc`` or
+        that write's error only if it fails too (nothing of theirs was written then)."""
+        with self._submissions_lock:
+            subs, self._submissions = self._submissions, []
+        if not subs:
+            return
+        st = self.settings
+        try:
+            answers, _, _ = jobs.write_batch(self.db, self.owner, [s for s, _, _ in subs], [], st.lease_seconds, [],
+                                             st.max_queue_depth, st.retry_after)
+        except BaseException as again:
+            _answer_all([(loop, fut, again) for _, loop, fut in subs])
+            return
+        self._queue_maybe_nonempty = True
+        _answer_all([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
 
     def _sleep(self) -> None:
         try:
@@ -170,10 +223,13 @@ class Dispatcher:
     def _tick(self) -> None:
         st = self.settings
         now = time.monotonic()
-        self._flush_pending()
+        if self.pending:  # left by a tick whose write failed: written before anything new is taken on
+            self._flush_pending()
         self.executor.maintain(now)
-        for event in self.executor.poll():
-            self._handle(event)
+        self._events.extend(self.executor.poll())
+        while self._events:
+            self._handle(self._events[0])
+            self._events.popleft()
         self._check_limits(now)
         self._flush_progress(now)
         if now - self._last_heartbeat >= st.lease_seconds / 3:
@@ -186,28 +242,64 @@ class Dispatcher:
         if now - self._last_cancel_check >= st.poll_interval * 0.8:
             self._check_cancels(now)
             self._last_cancel_check = now
-        self._fill()
+        self._write_and_fill()
 
     # -- finishing -------------------------------------------------------------
     def _finish(self, job_id: str, status: str, **values: Any) -> None:
-        """Record a job's end; if the write fails, keep it pending and retry next tick."""
-        self.running.pop(job_id, None)
-        self.pending[job_id] = (status, values)
-        self._flush_pending()
+        """A job ended: its end is written at the end of this tick (:meth:`_write_and_fill`), kept pending
+        and retried every tick while the write fails."""
+        running = self.running.pop(job_id, None)
+        self.pending[job_id] = jobs.Ending(job_id, status, request=running.request if running else None, **values)
 
     def _flush_pending(self) -> None:
-        for job_id in list(self.pending):
-            status, values = self.pending[job_id]
-            jobs.finish(self.db, job_id, self.owner, status, **values)  # raises while the database is down
-            del self.pending[job_id]
-            self.on_finished(job_id)
+        self._write_and_fill(claim=False)
+
+    def _write_and_fill(self, claim: bool = True) -> None:
+        """Write the pending ends and claim a queued job for every free slot of the executor, in one
+        transaction; then wake the waiters of the ended jobs and hand the claimed ones to the executor."""
+        free = self.executor.free_slots() if claim else []
+        with self._submissions_lock:
+            subs, self._submissions = self._submissions, []
+        # A claim is tried when a job may be waiting: after a submission (notify) or a claim that filled
+        # every slot, or when something is written anyway (the claim then costs one more statement, not a
+        # transaction). Otherwise a cheap read comes first, so an idle dispatcher does not take SQLite's write
+        # lock every poll interval.
+        if free and not (self._queue_maybe_nonempty or self.pending or subs or jobs.has_queued(self.db)):
+            free = []
+        if not free and not self.pending and not subs:
+            return
+        endings = list(self.pending.values())
+        st = self.settings
+        try:
+            answers, ended, claimed = jobs.write_batch(self.db, self.owner, [s for s, _, _ in subs], endings,
+                                                       st.lease_seconds, [s.pid for s in free],
+                                                       st.max_queue_depth, st.retry_after)
+        except BaseException as exc:  # the database is down: nothing was written; the submitters hear why
+            _answer_all([(loop, fut, exc) for _, loop, fut in subs])
+            raise
+        if free:
+            self._queue_maybe_nonempty = len(claimed) == len(free)
+        for slot, job in zip(free, claimed):  # first: the workers start while the answers go out
+            try:
+                handle = self.executor.submit(slot, job)
+            except Exception as exc:  # e.g. the Dask client lost its scheduler just now
+                log.exception("could not hand job %s to the executor", job.id)
+                self.running[job.id] = _Running(job.id, None, slot.pid)
+                self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
+                continue
+            self.running[job.id] = _Running(job.id, handle, slot.pid, job.request)
+        _answer_all([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
+        for end in endings:
+            del self.pending[end.job_id]
+        if endings:
+            self.on_finished([(end.job_id, record) for end, record in zip(endings, ended)])
 
     def _retry_or_fail(self, job_id: str, reason: str) -> None:
         self.running.pop(job_id, None)
         outcome = jobs.retry_or_fail(self.db, job_id, self.owner, reason, self.settings.max_attempts)
         log.warning("job %s: %s -> %s", job_id, reason, outcome)
         if outcome is not None and Status(outcome).finished:
-            self.on_finished(job_id)
+            self.on_finished([(job_id, None)])
         self.notify()  # a re-queued job can be claimed at once
 
     # -- the executor's messages --------------------------------------------------
@@ -244,7 +336,7 @@ class Dispatcher:
                 self.running.pop(running.job_id, None)
                 self.executor.stop(running.handle, interrupt=False)
                 if outcome is not None and Status(outcome).finished:
-                    self.on_finished(running.job_id)
+                    self.on_finished([(running.job_id, None)])
                 return
         running.pid, running.address = msg.pid, msg.address
         jobs.set_worker_pid(self.db, running.job_id, self.owner, msg.pid)
@@ -291,26 +383,11 @@ class Dispatcher:
                 running.progress_dirty = False
                 running.progress_written = now
 
-    def _fill(self) -> None:
-        free = self.executor.free_slots()
-        if not free or not (self._queue_maybe_nonempty or jobs.has_queued(self.db)):
-            return
-        # One transaction claims a job for every free slot (and records the worker pids known now).
-        claimed = jobs.claim_many(self.db, self.owner, self.settings.lease_seconds, [s.pid for s in free])
-        self._queue_maybe_nonempty = len(claimed) == len(free)
-        for slot, job in zip(free, claimed):
-            try:
-                handle = self.executor.submit(slot, job)
-            except Exception as exc:  # e.g. the Dask client lost its scheduler just now
-                log.exception("could not hand job %s to the executor", job.id)
-                self.running[job.id] = _Running(job.id, None, slot.pid)
-                self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
-                continue
-            self.running[job.id] = _Running(job.id, handle, slot.pid)
-
     def _shutdown(self) -> None:
+        with self._submissions_lock:
+            self._closed = True  # later submissions go to the store directly
         try:
-            self._flush_pending()
+            self._flush_pending()  # also inserts the submissions handed over last
         except Exception:  # pragma: no cover - the lease expires and the job runs again
             log.exception("could not record the end of jobs %s", list(self.pending))
         for job_id, running in list(self.running.items()):
@@ -323,8 +400,31 @@ class Dispatcher:
         self.executor.shutdown()
 
 
+def _answer_all(answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]]) -> None:
+    """Resolve submitters' futures from this thread (a result, or the exception it raises): one wake-up per
+    event loop."""
+    by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
+    for loop, fut, answer in answers:
+        by_loop.setdefault(loop, []).append((fut, answer))
+    for loop, items in by_loop.items():
+        try:
+            loop.call_soon_threadsafe(_resolve_answers, items)
+        except RuntimeError:  # pragma: no cover - that loop is closed
+            pass
+
+
+def _resolve_answers(items: list[tuple[asyncio.Future, Any]]) -> None:
+    for fut, answer in items:
+        if fut.done():  # the request went away
+            continue
+        if isinstance(answer, BaseException):
+            fut.set_exception(answer)
+        else:
+            fut.set_result(answer)
+
+
 def make_dispatcher(db: Database, settings: Settings,
-                    on_finished: Callable[[str], None] | None = None) -> Dispatcher:
+                    on_finished: Callable[[list[tuple[str, JobRecord | None]]], None] | None = None) -> Dispatcher:
     """The dispatcher on the local process pool, or on Dask when ``NCS_DASK_SCHEDULER`` is set."""
     executor: Executor
     if settings.dask_scheduler:

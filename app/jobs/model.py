@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import uuid
+from dataclasses import dataclass
 from enum import StrEnum
 from datetime import datetime, timezone
 from typing import Any
@@ -70,3 +71,32 @@ class Job(Base):
         Index("ix_jobs_created", "created_at"),
         Index("ix_jobs_owner_created", "owner", "created_at"),
     )
+
+
+@dataclass(slots=True)
+class JobRecord:
+    """One job as read (or as just written) by the store: a plain snapshot of its row, attached to no
+    session. The store's hot paths build these from Core rows (``JobRecord(**row._mapping)``); they cost a
+    fraction of an ORM instance and carry the same attributes."""
+
+    id: str
+    kind: str
+    status: str
+    method: str
+    n_drop: int
+    request: dict[str, Any]
+    request_hash: str
+    idempotency_key: str | None
+    progress: dict[str, Any] | None
+    result: dict[str, Any] | None
+    error: str | None
+    attempts: int
+    cancel_requested: bool
+    lease_owner: str | None
+    lease_expires_at: datetime | None
+    worker_pid: int | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    updated_at: datetime
+    owner: str | None

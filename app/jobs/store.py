@@ -4,6 +4,11 @@ dispatcher (claim, lease, progress, finish, retry, release).
 Every state change is one short transaction guarded by the job's current
 status (and, for running jobs, by the lease owner), so two dispatchers or a
 dispatcher and a cancel request can never both win.
+
+The paths every job takes (submit, claim, finish, get, the waiters' "which are finished") are constant
+Core statements with bound parameters on a plain connection: SQLAlchemy compiles each once, and a job
+costs a few statements' worth of driver work instead of the ORM's per-call statement building and unit
+of work. They answer with :class:`~app.jobs.model.JobRecord` snapshots.
 """
 
 from __future__ import annotations
@@ -15,13 +20,23 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import and_, case, func, select, update
-from sqlalchemy import insert as insert_stmt
+from sqlalchemy import and_, bindparam, func, select, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 
 from app.jobs.database import Database
 from app.jobs.errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, QueueFull
-from app.jobs.model import Job, Status, new_id, utcnow
+from app.jobs.model import Job, JobRecord, Status, new_id, utcnow
+
+_T = Job.__table__
+_C = _T.c
+_QUEUED, _RUNNING = Status.QUEUED.value, Status.RUNNING.value
+
+
+def _record(row) -> JobRecord:
+    return JobRecord(**row._mapping)
 
 
 @dataclass
@@ -31,41 +46,50 @@ class Claimed:
     attempts: int
 
 
+_HAS_QUEUED = select(_C.id).where(_C.status == _QUEUED).limit(1)
+
+
 def has_queued(db: Database) -> bool:
-    with db.read() as s:
-        return s.execute(select(Job.id).where(Job.status == Status.QUEUED).limit(1)).first() is not None
+    with db.read_conn() as c:
+        return c.execute(_HAS_QUEUED).first() is not None
+
+
+_CLAIM_IDS = (select(_C.id).where(_C.status == _QUEUED).order_by(_C.created_at, _C.id)
+              .limit(bindparam("b_n")).with_for_update(skip_locked=True))
+_CLAIM_ONE = (
+    update(_T).where(_C.id == bindparam("b_id"), _C.status == _QUEUED)
+    .values(status=_RUNNING, lease_owner=bindparam("b_owner", type_=_C.lease_owner.type),
+            lease_expires_at=bindparam("b_lease", type_=_C.lease_expires_at.type), attempts=_C.attempts + 1,
+            started_at=bindparam("b_now", type_=_C.started_at.type), updated_at=bindparam("b_now"),
+            worker_pid=bindparam("b_pid", type_=_C.worker_pid.type))
+    .returning(_C.request, _C.attempts)
+)
+
+
+def _claim(c: Connection, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
+    ids = [r[0] for r in c.execute(_CLAIM_IDS, {"b_n": len(pids)})]
+    if not ids:
+        return []
+    now = utcnow()
+    lease = now + timedelta(seconds=lease_seconds)
+    out = []
+    for job_id, pid in zip(ids, pids):
+        row = c.execute(_CLAIM_ONE, {"b_id": job_id, "b_owner": owner, "b_lease": lease, "b_now": now,
+                                     "b_pid": pid or None}).first()
+        if row is not None:
+            out.append(Claimed(job_id, row.request, row.attempts))
+    return out
 
 
 def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
-    """Claim up to ``len(pids)`` of the oldest queued jobs in one transaction (two statements).
+    """Claim up to ``len(pids)`` of the oldest queued jobs in one transaction.
 
     The i-th claimed job records ``pids[i]`` as its worker pid (``None``/0: not known yet).
     On PostgreSQL ``FOR UPDATE SKIP LOCKED`` lets several dispatchers claim at once without
     waiting for or double-claiming each other; SQLite serializes the write transactions.
     """
-    with db.write() as s:
-        ids = [r.id for r in s.execute(
-            select(Job.id)
-            .where(Job.status == Status.QUEUED)
-            .order_by(Job.created_at, Job.id)
-            .limit(len(pids))
-            .with_for_update(skip_locked=True)
-        ).all()]
-        if not ids:
-            return []
-        now = utcnow()
-        known = {i: p for i, p in zip(ids, pids) if p}
-        rows = s.execute(
-            update(Job)
-            .where(Job.id.in_(ids), Job.status == Status.QUEUED)
-            .values(status=Status.RUNNING, lease_owner=owner, lease_expires_at=now + timedelta(seconds=lease_seconds),
-                    attempts=Job.attempts + 1, started_at=now, updated_at=now,
-                    worker_pid=case(known, value=Job.id, else_=None) if known else None)
-            .returning(Job.id, Job.request, Job.attempts)
-            .execution_options(synchronize_session=False)
-        ).all()
-    by_id = {r.id: r for r in rows}
-    return [Claimed(i, by_id[i].request, by_id[i].attempts) for i in ids if i in by_id]
+    with db.write_conn() as c:
+        return _claim(c, owner, lease_seconds, pids)
 
 
 def _running_owned(job_id: str, owner: str):
@@ -82,16 +106,68 @@ def update_progress(db: Database, job_id: str, owner: str, progress: dict[str, A
         s.execute(update(Job).where(_running_owned(job_id, owner)).values(progress=progress, updated_at=utcnow()))
 
 
+_FINISH_VALUES = dict(status=bindparam("b_status", type_=_C.status.type),
+                      finished_at=bindparam("b_now", type_=_C.finished_at.type), updated_at=bindparam("b_now"),
+                      lease_owner=None, lease_expires_at=None,
+                      result=bindparam("b_result", type_=_C.result.type),
+                      error=bindparam("b_error", type_=_C.error.type))
+_FINISH_WHERE = (_C.id == bindparam("b_id"), _C.status == _RUNNING, _C.lease_owner == bindparam("b_owner"))
+# The job as the finishing write left it, but for the two JSON documents the caller already holds (the
+# result it writes, the request it claimed): read back they would only be decoded again.
+_FINISHED_COLUMNS = [c for c in _C if c.name not in ("request", "result")]
+# Two constant statements: the progress column is left as it is when the outcome brings none.
+_FINISH = update(_T).where(*_FINISH_WHERE).values(**_FINISH_VALUES).returning(*_FINISHED_COLUMNS)
+_FINISH_WITH_PROGRESS = (update(_T).where(*_FINISH_WHERE)
+                         .values(**_FINISH_VALUES, progress=bindparam("b_progress", type_=_C.progress.type))
+                         .returning(*_FINISHED_COLUMNS))
+
+
+@dataclass
+class Ending:
+    """A job's end, as the dispatcher records it; ``request`` is the job's request as claimed (it completes
+    the returned record; not written)."""
+
+    job_id: str
+    status: str
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    progress: dict[str, Any] | None = None
+    request: dict[str, Any] | None = None
+
+
+def _finish(c: Connection, owner: str, end: Ending) -> JobRecord | None:
+    assert end.status in (Status.SUCCEEDED, Status.FAILED, Status.CANCELLED)
+    params = {"b_id": end.job_id, "b_owner": owner, "b_status": str(end.status), "b_now": utcnow(),
+              "b_result": end.result, "b_error": end.error}
+    if end.progress is not None:
+        params["b_progress"] = end.progress
+    row = c.execute(_FINISH_WITH_PROGRESS if end.progress is not None else _FINISH, params).first()
+    if row is None:
+        return None
+    if end.request is None:  # not known here: read it
+        request = c.execute(select(_C.request).where(_C.id == end.job_id)).scalar_one()
+    else:
+        request = end.request
+    return JobRecord(**row._mapping, request=request, result=end.result)
+
+
 def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[str, Any] | None = None,
            error: str | None = None, progress: dict[str, Any] | None = None) -> bool:
-    assert status in (Status.SUCCEEDED, Status.FAILED, Status.CANCELLED)
-    now = utcnow()
-    values: dict[str, Any] = dict(status=status, finished_at=now, updated_at=now, lease_owner=None,
-                                  lease_expires_at=None, result=result, error=error)
-    if progress is not None:
-        values["progress"] = progress
-    with db.write() as s:
-        return s.execute(update(Job).where(_running_owned(job_id, owner)).values(**values)).rowcount == 1
+    with db.write_conn() as c:
+        return _finish(c, owner, Ending(job_id, status, result, error, progress)) is not None
+
+
+def finish_and_claim(db: Database, owner: str, endings: list[Ending], lease_seconds: float,
+                     pids: list[int | None]) -> tuple[list[JobRecord | None], list[Claimed]]:
+    """Record the ends of ``endings`` and claim up to ``len(pids)`` queued jobs (as :func:`claim_many`), all
+    in one transaction: a worker that just finished a job takes the next one without a second commit.
+
+    Returns, per ending, the job as it now is (None when this owner no longer held it: its lease was lost
+    or it was cancelled meanwhile), and the claimed jobs. Nothing is written if it raises."""
+    with db.write_conn() as c:
+        ended = [_finish(c, owner, end) for end in endings]
+        claimed = _claim(c, owner, lease_seconds, pids) if pids else []
+    return ended, claimed
 
 
 #: A lost attempt with attempts left: back to the queue, lease dropped.
@@ -176,12 +252,15 @@ def recover_expired(db: Database, max_attempts: int) -> list[str]:
     return recovered
 
 
+_CANCEL_REQUESTED = select(_C.id).where(_C.id.in_(bindparam("b_ids", expanding=True)),
+                                        _C.cancel_requested.is_(True))
+
+
 def cancel_requested_among(db: Database, job_ids: list[str]) -> set[str]:
     if not job_ids:
         return set()
-    with db.read() as s:
-        rows = s.execute(select(Job.id).where(Job.id.in_(job_ids), Job.cancel_requested.is_(True))).all()
-    return {r[0] for r in rows}
+    with db.read_conn() as c:
+        return {r[0] for r in c.execute(_CANCEL_REQUESTED, {"b_ids": list(job_ids)})}
 
 
 # -- the request side: submit, read, list, cancel ---------------------------------------------------
@@ -207,17 +286,18 @@ def _visible(row: Job | None, kind: str, owner: str | None) -> bool:
     return row is not None and row.kind == kind and (owner is None or row.owner == owner)
 
 
-def get(db: Database, kind: str, job_id: str, owner: str | None = None) -> Job:
-    """The job (detached from its session); JobNotFound when it does not exist or is not the caller's."""
+_GET = select(_T).where(_C.id == bindparam("b_id"))
+
+
+def get(db: Database, kind: str, job_id: str, owner: str | None = None) -> JobRecord:
+    """The job as it is now; JobNotFound when it does not exist or is not the caller's."""
     if not _is_uuid(job_id):
         raise JobNotFound(kind, job_id)
 
-    def read() -> Job | None:
-        with db.read() as s:
-            row = s.get(Job, job_id)
-            if row is not None:
-                s.expunge(row)
-            return row
+    def read() -> JobRecord | None:
+        with db.read_conn() as c:
+            row = c.execute(_GET, {"b_id": job_id}).first()
+        return _record(row) if row is not None else None
 
     row = db.retry_on_disconnect(read)
     if not _visible(row, kind, owner):
@@ -227,7 +307,7 @@ def get(db: Database, kind: str, job_id: str, owner: str | None = None) -> Job:
 
 @dataclass
 class Submitted:
-    job: Job
+    job: JobRecord
     replayed: bool  # an Idempotency-Key seen before with the same body: the existing job
 
 
@@ -238,71 +318,154 @@ def scoped_idempotency_key(key: str | None, owner: str | None) -> str | None:
     return "o:" + hashlib.sha256(f"{owner}:{key}".encode("utf-8", "surrogatepass")).hexdigest()
 
 
+_BY_IDEMPOTENCY_KEY = select(_T).where(_C.idempotency_key == bindparam("b_key"))
+_INSERT = _T.insert()
+_QUEUED_COUNT = select(func.count()).select_from(_T).where(_C.status == _QUEUED)
+_EXISTS = select(_C.id).where(_C.id == bindparam("b_id"))
+
+
+@dataclass
+class Submission:
+    """A validated job ready to be inserted: the record the submitter is answered with, and the row."""
+
+    row: JobRecord
+    values: dict[str, Any]
+
+    def replay(self, existing: JobRecord) -> Submitted:
+        """The answer when the Idempotency-Key is taken by ``existing``."""
+        if existing.request_hash != self.row.request_hash:
+            raise IdempotencyKeyReused()
+        return Submitted(existing, replayed=True)
+
+
+def prepare(kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key: str | None = None,
+            owner: str | None = None) -> Submission:
+    digest = hashlib.sha256(canonical_json(request).encode()).hexdigest()
+    stored_key = scoped_idempotency_key(idempotency_key, owner)
+    now = utcnow()
+    row = JobRecord(id=new_id(), kind=kind, status=_QUEUED, method=request["method"], n_drop=n_drop,
+                    request=request, request_hash=digest, idempotency_key=stored_key, progress=None, result=None,
+                    error=None, attempts=0, cancel_requested=False, lease_owner=None, lease_expires_at=None,
+                    worker_pid=None, created_at=now, started_at=None, finished_at=None, updated_at=now, owner=owner)
+    values = dict(id=row.id, kind=kind, status=_QUEUED, method=row.method, n_drop=n_drop, request=request,
+                  request_hash=digest, idempotency_key=stored_key, attempts=0, cancel_requested=False,
+                  created_at=now, updated_at=now, owner=owner)
+    return Submission(row, values)
+
+
+def _lookup(c: Connection, stored_key: str) -> JobRecord | None:
+    found = c.execute(_BY_IDEMPOTENCY_KEY, {"b_key": stored_key}).first()
+    return _record(found) if found is not None else None
+
+
 def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key: str | None = None,
            owner: str | None = None, max_queue_depth: int | None = None, retry_after: int = 5) -> Submitted:
     """Queue a validated job, or return the one an earlier submission with the same Idempotency-Key made.
 
     Raises IdempotencyKeyReused (same key, other body) and QueueFull (back-pressure: more than
-    ``max_queue_depth`` jobs waiting). One short INSERT; a connection lost on the way is retried once.
+    ``max_queue_depth`` jobs waiting). One short write transaction (the queue-depth count and the INSERT);
+    a connection lost on the way is retried once. An Idempotency-Key is looked up only when the INSERT
+    finds it taken (the key is unique) or the queue is full: a new key, the usual case, costs no read.
+    (A running dispatcher batches submissions instead: :func:`write_batch`.)
     """
-    digest = hashlib.sha256(canonical_json(request).encode()).hexdigest()
-    stored_key = scoped_idempotency_key(idempotency_key, owner)
+    sub = prepare(kind, request, n_drop, idempotency_key=idempotency_key, owner=owner)
+    stored_key = sub.row.idempotency_key
 
-    def replay(row: Job) -> Submitted:
-        if row.request_hash != digest:
-            raise IdempotencyKeyReused()
-        return Submitted(row, replayed=True)
-
-    def lookup() -> Job | None:
-        with db.read() as s:
-            found = s.execute(select(Job).where(Job.idempotency_key == stored_key)).scalar_one_or_none()
-            if found is not None:
-                s.expunge(found)
-            return found
-
-    if stored_key is not None:
-        existing = db.retry_on_disconnect(lookup)
-        if existing is not None:
-            return replay(existing)
-    now = utcnow()
-    values = dict(id=new_id(), kind=kind, status=Status.QUEUED.value, method=request["method"], n_drop=n_drop,
-                  request=request, request_hash=digest, idempotency_key=stored_key, attempts=0,
-                  cancel_requested=False, created_at=now, updated_at=now, owner=owner)
-    row = Job(**values)  # the answer; never attached to a session
+    def lookup() -> JobRecord | None:
+        with db.read_conn() as c:
+            return _lookup(c, stored_key)
 
     def insert() -> None:
         # The back-pressure count and the INSERT share one write transaction (one connection checkout and
-        # commit per submission, and the count cannot go stale before the insert); a Core INSERT, not the
-        # ORM's unit of work, on this hot path.
-        with db.write() as s:
+        # commit per submission, and the count cannot go stale before the insert).
+        with db.write_conn() as c:
             if max_queue_depth is not None:
-                queued = s.execute(_QUEUED_COUNT).scalar_one()
+                queued = c.execute(_QUEUED_COUNT).scalar_one()
                 if queued >= max_queue_depth:
                     raise QueueFull(queued, max_queue_depth, retry_after)
-            s.execute(insert_stmt(Job).values(**values))
+            c.execute(_INSERT, sub.values)
 
     try:
         db.retry_on_disconnect(insert)
+    except QueueFull:
+        existing = db.retry_on_disconnect(lookup) if stored_key is not None else None
+        if existing is None:
+            raise
+        return sub.replay(existing)  # a retried submission is answered even when the queue is full
     except IntegrityError:
         def committed() -> bool:
-            with db.read() as s:
-                return s.get(Job, row.id) is not None
+            with db.read_conn() as c:
+                return c.execute(_EXISTS, {"b_id": sub.row.id}).first() is not None
 
         if db.retry_on_disconnect(committed):  # the lost connection had committed it after all
-            return Submitted(row, replayed=False)
+            return Submitted(sub.row, replayed=False)
         existing = db.retry_on_disconnect(lookup) if stored_key is not None else None
         if existing is None:  # not a race on the idempotency key: a bug
             raise
-        return replay(existing)  # a concurrent request with the same key won the race
-    return Submitted(row, replayed=False)
+        return sub.replay(existing)  # the key is taken: an earlier (or concurrent) request with it
+    return Submitted(sub.row, replayed=False)
 
 
-_QUEUED_COUNT = select(func.count()).select_from(Job).where(Job.status == Status.QUEUED)
+#: INSERT ... ON CONFLICT DO NOTHING: in a batch, a taken Idempotency-Key must not abort the transaction.
+_INSERT_NEW = {"sqlite": sqlite_insert(_T).on_conflict_do_nothing(),
+               "postgresql": pg_insert(_T).on_conflict_do_nothing()}
+
+
+def batches_submissions(db: Database) -> bool:
+    """Whether :func:`write_batch` can insert submissions on this database."""
+    return db.engine.dialect.name in _INSERT_NEW
+
+
+def _insert_many(c: Connection, subs: list[Submission], max_queue_depth: int | None,
+                 retry_after: int) -> list[Submitted | Exception]:
+    """Each submission in turn, as :func:`submit` would answer it one after the other (Submitted, or the
+    QueueFull / IdempotencyKeyReused it raises), inside the caller's transaction."""
+    insert = _INSERT_NEW[c.dialect.name]
+    queued = c.execute(_QUEUED_COUNT).scalar_one() if max_queue_depth is not None else 0
+    out: list[Submitted | Exception] = []
+    for sub in subs:
+        key = sub.row.idempotency_key
+        try:
+            if max_queue_depth is not None and queued >= max_queue_depth:
+                existing = _lookup(c, key) if key is not None else None
+                if existing is None:
+                    raise QueueFull(queued, max_queue_depth, retry_after)
+                out.append(sub.replay(existing))
+            elif c.execute(insert, sub.values).rowcount == 1:
+                queued += 1
+                out.append(Submitted(sub.row, replayed=False))
+            elif c.execute(_EXISTS, {"b_id": sub.row.id}).first() is not None:
+                out.append(Submitted(sub.row, replayed=False))  # a retried transaction: the first one committed
+            else:
+                existing = _lookup(c, key) if key is not None else None
+                if existing is None:  # pragma: no cover - no other unique column
+                    raise RuntimeError(f"job {sub.row.id} conflicts with a row that is not its idempotency key")
+                out.append(sub.replay(existing))
+        except (QueueFull, IdempotencyKeyReused, RuntimeError) as exc:
+            out.append(exc)
+    return out
+
+
+def write_batch(db: Database, owner: str, submissions: list[Submission], endings: list[Ending],
+                lease_seconds: float, pids: list[int | None], max_queue_depth: int | None = None,
+                retry_after: int = 5) -> tuple[list[Submitted | Exception], list[JobRecord | None], list[Claimed]]:
+    """One dispatcher write: insert ``submissions`` (answered per submission as :func:`submit` answers, an
+    error as the exception it would raise), record ``endings`` and claim up to ``len(pids)`` queued jobs
+    (as :func:`finish_and_claim`), all in one transaction; retried once on a connection found dead (every
+    step is safe to repeat). Nothing is written if it raises."""
+    def run():
+        with db.write_conn() as c:
+            answers = _insert_many(c, submissions, max_queue_depth, retry_after) if submissions else []
+            ended = [_finish(c, owner, end) for end in endings]
+            claimed = _claim(c, owner, lease_seconds, pids) if pids else []
+        return answers, ended, claimed
+
+    return db.retry_on_disconnect(run)
 
 
 def queue_depth(db: Database) -> int:
-    with db.read() as s:
-        return s.execute(_QUEUED_COUNT).scalar_one()
+    with db.read_conn() as c:
+        return c.execute(_QUEUED_COUNT).scalar_one()
 
 
 def list_jobs(db: Database, kind: str, status: str | None, limit: int, offset: int,
@@ -358,11 +521,14 @@ def cancel(db: Database, kind: str, job_id: str, owner: str | None = None) -> Ca
     return CancelOutcome(row, at_once)
 
 
+_STATUSES = select(_C.id, _C.status).where(_C.id.in_(bindparam("b_ids", expanding=True)))
+
+
 def finished_among(db: Database, job_ids: list[str]) -> set[str]:
     """Those of ``job_ids`` that are finished, or gone (deleted): nobody should wait for them."""
     def read() -> set[str]:
-        with db.read() as s:
-            rows = s.execute(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all()
+        with db.read_conn() as c:
+            rows = c.execute(_STATUSES, {"b_ids": list(job_ids)}).all()
         unfinished = {r.id for r in rows if not Status(r.status).finished}
         return set(job_ids) - unfinished
 

@@ -1,7 +1,8 @@
 """Wake-ups for requests that wait for a job to finish (``Prefer: wait=N``).
 
-The dispatcher of this process calls :meth:`JobWatch.finished` right after it recorded a job's end, so a
-waiting request answers within a loop iteration instead of a poll interval. A job finished by another
+The dispatcher of this process calls :meth:`JobWatch.finished` right after it recorded a job's end, with
+the job as that write left it, so a waiting request answers within a loop iteration instead of a poll
+interval, and from that record instead of reading the job again. A job finished by another
 replica is not seen that way: one reader thread per process asks the database which of all the
 waited-on jobs are finished, every ``poll_interval`` seconds while anyone waits. One query for all
 waiters, not one per waiter: at 100 designs/s with 16 waiting clients the per-waiter re-reads cost
@@ -16,6 +17,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
+from typing import Any
 
 log = logging.getLogger("app.jobs.watch")
 
@@ -27,6 +29,8 @@ class JobWatch:
     #: How many recently finished job ids are remembered: a job that ends between the caller's read and its
     #: registration here is found in them, without a database read on every wait.
     RECENT = 4096
+    #: Of those, how many keep the finished job's record (a result is a few kB).
+    RECENT_RECORDS = 256
 
     def __init__(self, finished_among: Callable[[list[str]], Iterable[str]] | None = None,
                  poll_interval: float = 0.05):
@@ -36,39 +40,55 @@ class JobWatch:
         self.poll_interval = poll_interval
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Future]]] = {}
         self._recent: OrderedDict[str, None] = OrderedDict()
+        self._recent_records: OrderedDict[str, Any] = OrderedDict()
         self._lock = threading.Lock()
         self._someone_waits = threading.Event()
         self._reader: threading.Thread | None = None
 
-    def finished(self, job_id: str) -> None:
-        """Called from any thread when a job ended."""
+    def finished(self, job_id: str, record: Any = None) -> None:
+        """Called from any thread when a job ended; ``record`` is the finished job when the caller has it
+        (the dispatcher's finishing write returns it), handed to the waiters."""
+        self.finished_many([(job_id, record)])
+
+    def finished_many(self, ended: list[tuple[str, Any]]) -> None:
+        """:meth:`finished` for several jobs: one wake-up per event loop, not one per waiter (waking a loop
+        from another thread is a system call that, under load, costs more than the rest of the hand-over)."""
+        by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
         with self._lock:
-            waiters = self._waiters.pop(job_id, ())
-            self._recent[job_id] = None
-            if len(self._recent) > self.RECENT:
-                self._recent.popitem(last=False)
-        for loop, fut in waiters:
+            for job_id, record in ended:
+                for loop, fut in self._waiters.pop(job_id, ()):
+                    by_loop.setdefault(loop, []).append((fut, record))
+                self._recent[job_id] = None
+                if len(self._recent) > self.RECENT:
+                    self._recent.popitem(last=False)
+                if record is not None:
+                    self._recent_records[job_id] = record
+                    if len(self._recent_records) > self.RECENT_RECORDS:
+                        self._recent_records.popitem(last=False)
+                else:
+                    self._recent_records.pop(job_id, None)
+        for loop, resolved in by_loop.items():
             try:
-                loop.call_soon_threadsafe(_resolve, fut)
+                loop.call_soon_threadsafe(_resolve_all, resolved)
             except RuntimeError:  # pragma: no cover - that loop is closed
                 pass
 
-    async def wait(self, job_id: str, timeout: float) -> bool:
-        """Wait until the job is finished (True) or ``timeout`` seconds passed (False)."""
+    async def wait(self, job_id: str, timeout: float) -> tuple[bool, Any]:
+        """Wait until the job is finished or ``timeout`` seconds passed: (finished, the finished job's record
+        when this process finished it, else None: read it)."""
         loop = asyncio.get_running_loop()
         fut = loop.create_future()
         entry = (loop, fut)
         with self._lock:
             if job_id in self._recent:  # it ended between the caller's read and now
-                return True
+                return True, self._recent_records.get(job_id)
             self._waiters.setdefault(job_id, set()).add(entry)
             self._start_reader()
         self._someone_waits.set()
         try:
-            await asyncio.wait_for(fut, timeout)
-            return True
+            return True, await asyncio.wait_for(fut, timeout)
         except asyncio.TimeoutError:
-            return False
+            return False, None
         finally:
             with self._lock:
                 waiters = self._waiters.get(job_id)
@@ -98,10 +118,10 @@ class JobWatch:
                 except Exception as exc:  # database down: the waits time out and their reads say why
                     log.debug("job watch: %s: %s", type(exc).__name__, exc)
                     continue
-                for job_id in done:
-                    self.finished(job_id)
+                self.finished_many([(job_id, None) for job_id in done])
 
 
-def _resolve(fut: asyncio.Future) -> None:
-    if not fut.done():
-        fut.set_result(None)
+def _resolve_all(resolved: list[tuple[asyncio.Future, Any]]) -> None:
+    for fut, record in resolved:
+        if not fut.done():
+            fut.set_result(record)
