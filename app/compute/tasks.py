@@ -16,11 +16,36 @@ import numpy as np
 from solver.result import jsonable
 
 
+_families: OrderedDict[str, Any] = OrderedDict()  # digest of the plant JSON -> its (read-only) family
+_families_lock = threading.Lock()
+FAMILIES_REMEMBERED = 64
+
+
 def build_family(plant: dict[str, Any]):
+    """The family of a plant JSON, remembered by digest: a worker that designs the same plant again
+    skips its discretization (a matrix exponential per mode, ~0.4 ms of the paper example's ~8 ms job).
+    The remembered family's matrices are read-only, so no caller can change what the next one gets."""
+    import hashlib
+    import json
+
+    key = hashlib.sha256(json.dumps(plant, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    with _families_lock:
+        fam = _families.get(key)
+        if fam is not None:
+            _families.move_to_end(key)
+            return fam
     # A family that overflows when discretized is reported by the solver as InvalidInput;
     # numpy's overflow warnings on the way there would only clutter the service log.
     with np.errstate(over="ignore", invalid="ignore"):
-        return _build_family(plant)
+        fam = _build_family(plant)
+    for matrix in (fam.F, fam.G):
+        if isinstance(matrix, np.ndarray):
+            matrix.flags.writeable = False
+    with _families_lock:
+        _families[key] = fam
+        while len(_families) > FAMILIES_REMEMBERED:
+            _families.popitem(last=False)
+    return fam
 
 
 def _build_family(plant: dict[str, Any]):
