@@ -553,8 +553,20 @@ class IPMOptions:
     threads: int | None = 1
 
 
-@dataclass
-class IPMSolution:
+@dataclass(kw_only=True)
+class _SolveStatus:
+    """How a solve ended: the fields the raw and the design results share."""
+
+    status: str
+    iterations: int
+    primal_residual: float
+    dual_residual: float
+    gap: float
+    timings: dict
+
+
+@dataclass(kw_only=True)
+class IPMSolution(_SolveStatus):
     """Raw result of :func:`solve_block_lmi` in the solver's own coordinates.
 
     Attributes
@@ -586,12 +598,6 @@ class IPMSolution:
     V: list
     X: np.ndarray
     equality_multiplier: float
-    status: str
-    iterations: int
-    primal_residual: float
-    dual_residual: float
-    gap: float
-    timings: dict
 
 
 def _onehot(index: np.ndarray, n: int) -> sp.csr_matrix:
@@ -1081,7 +1087,7 @@ def _gain_scale(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(kw_only=True)
-class _DesignSolution:
+class _DesignSolution(_SolveStatus):
     """The fields every design SDP's result shares (see :class:`LMISolution`)."""
 
     t: float
@@ -1089,12 +1095,6 @@ class _DesignSolution:
     duals: np.ndarray
     trace_multiplier: float
     upper: float
-    status: str
-    iterations: int
-    primal_residual: float
-    dual_residual: float
-    gap: float
-    timings: dict
 
     @staticmethod
     def shared(sol: IPMSolution, t0: float, setup: float) -> dict:
