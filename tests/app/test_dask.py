@@ -44,6 +44,20 @@ def client(cluster, module_db):
         yield c
 
 
+def wait_for_the_whole_cluster(client, timeout: float = 90.0) -> None:
+    """Both workers registered and ready. A job stopped for a time limit or a cancel restarts its worker
+    (``Client.restart_workers``); killing the other worker while that restart is still under way makes
+    Dask close both nannies, and the cluster never comes back. The kill tests start from a whole cluster."""
+    deadline = time.monotonic() + timeout
+    while True:
+        resp = client.get("/readyz")
+        workers = resp.json().get("workers", {})
+        if resp.status_code == 200 and workers.get("alive") == 2 and workers.get("ready") == 2:
+            return
+        assert time.monotonic() < deadline, resp.json()
+        time.sleep(0.1)
+
+
 def test_readyz_reports_the_cluster(client):
     body = client.get("/readyz").json()
     assert body["workers"]["alive"] == 2 and body["workers"]["ready"] == 2, body
@@ -92,6 +106,7 @@ def test_cancel_a_running_job_cooperatively(client):
 
 
 def test_killed_dask_worker_mid_job_is_retried_and_the_job_finishes(client):
+    wait_for_the_whole_cluster(client)
     job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
     first = worker_pid_of(client, job_id, timeout=60)
     os.kill(first, signal.SIGKILL)
@@ -120,10 +135,7 @@ def test_time_limit_on_the_cluster(cluster, db_url):
 
 def test_killed_dask_worker_with_no_attempts_left_fails_the_job_with_the_reason(cluster, db_url):
     with running_client(db_url, dask_scheduler=cluster.scheduler_address, max_attempts=1) as client:
-        deadline = time.monotonic() + 60
-        while client.get("/readyz").status_code != 200:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
+        wait_for_the_whole_cluster(client)
         job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
         os.kill(worker_pid_of(client, job_id, timeout=60), signal.SIGKILL)
         job = wait_for(client, job_id, timeout=60)
