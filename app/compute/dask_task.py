@@ -3,68 +3,191 @@
 Kept lean on purpose: it imports no web framework and needs no database access;
 a Dask worker only needs this package installed (``pip install ncs-design``).
 
-* :func:`run_job` is the task. It reports ``Started`` (worker address and pid) and
-  throttled ``Progress`` through Dask's structured events (``Worker.log_event``:
-  fire-and-forget, batched, forwarded by the scheduler to the subscribed service;
-  the messages travel as plain dicts, ``messages.to_event``),
-  and returns the same outcome as a local worker process (``app.compute.worker.execute``)
-  carrying the last progress record.
-* :func:`request_cancel` is run on the worker by the service (``Client.run``) to
-  cancel a running job cooperatively: it sets a flag that the solver callback reads
-  at its next iteration, which costs nothing per iteration (no scheduler round trip).
+* :func:`run_job` is the task. The job itself runs in a *job process*: a child of the Dask
+  worker, one per worker thread, started on the thread's first job and kept for the next
+  ones. It is the local executor's worker process (``app.compute.worker.worker_main``:
+  the same messages, one BLAS thread, the memory cap, death with its parent), so a job
+  behaves the same on both executors. The task reports ``Started`` (worker address and
+  the job process's pid) and throttled ``Progress`` through Dask's structured events
+  (``Worker.log_event``: fire-and-forget, batched, forwarded by the scheduler to the
+  subscribed service; the messages travel as plain dicts, ``messages.to_event``), and
+  returns the job process's outcome: ``Succeeded``, ``Cancelled``, ``Failed``, or ``Lost``
+  when the job process died under it.
+* :func:`request_cancel`, run on the worker by the service (``Client.run``), cancels a
+  running job cooperatively: the task passes it to the job process, whose solver callback
+  stops at its next iteration.
+* :func:`stop_job` stops a job now (time limit, or a cancel not honoured within the grace):
+  it kills the job process, not the Dask worker. Restarting a whole worker through its
+  nanny (``Client.restart_workers``) would also end the jobs of the worker's other threads,
+  and on ``distributed`` 2026.8 a worker restarted while another one of the cluster died
+  sometimes never came back (reproduced on a ``LocalCluster``, see docs/design.md §6).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import signal
+import socket
+import subprocess
+import sys
 import threading
 import time
+from multiprocessing.connection import Connection
 from typing import Any
 
-from app.compute.messages import JobOutcome, Progress, Started, to_event
+from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Lost, Progress, Ready, Run, Started,
+                                  Succeeded, to_event)
 
 START_TOPIC = "ncs-design-start"
 PROGRESS_TOPIC = "ncs-design-progress"
 PROGRESS_EVERY = 0.1  # seconds between progress events of one job
+START_TIMEOUT = 120.0  # seconds a new job process may take to import the solver and report Ready
+POLL_EVERY = 0.05  # seconds between the task's checks for a cancel while it waits on its job process
 
-_cancelled: set[str] = set()
 _lock = threading.Lock()
+_cancelled: set[str] = set()  # jobs asked to stop cooperatively
+_stopped: set[str] = set()  # jobs whose job process was killed on purpose
+_running: dict[str, "JobProcess"] = {}  # job id -> the job process running it
+_processes: dict[int, "JobProcess"] = {}  # worker thread id -> its job process
 
 
-def request_cancel(job_id: str) -> bool:
+async def request_cancel(job_id: str) -> bool:
+    """Cooperative cancel, run on the worker's event loop (``Client.run``, which can only skip waiting for
+    a coroutine function's answer)."""
     with _lock:
         _cancelled.add(job_id)
     return True
 
 
-def _is_cancelled(job_id: str) -> bool:
+async def stop_job(job_id: str) -> bool:
+    """Kill the job process running ``job_id`` (SIGKILL); the worker and its other threads go on. Returns
+    whether this worker was running the job."""
     with _lock:
-        return job_id in _cancelled
+        process = _running.get(job_id)
+        if process is None:
+            return False
+        _stopped.add(job_id)
+    process.kill()
+    return True
 
 
-def run_job(job_id: str, key: str, request: dict[str, Any]) -> JobOutcome:
+class JobProcess:
+    """A child process running ``worker_main``, talking over a socket pair (``multiprocessing`` cannot start
+    children of a Dask worker, a daemonic process)."""
+
+    def __init__(self, memory_mb: int):
+        parent_sock, child_sock = socket.socketpair()
+        code = ("import sys; from app.compute.dask_task import job_process_main; "
+                "job_process_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))")
+        try:
+            self.popen = subprocess.Popen(
+                [sys.executable, "-c", code, str(child_sock.fileno()), str(os.getpid()), str(memory_mb)],
+                pass_fds=(child_sock.fileno(),), stdin=subprocess.DEVNULL)
+        finally:
+            child_sock.close()
+        self.conn = Connection(parent_sock.detach())
+        self.pid = self.popen.pid
+        self.memory_mb = memory_mb
+        self.ready = False
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait for the job process's Ready (it imports the solver first); False if it died or took too long."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if self.conn.poll(0.2) and isinstance(self.conn.recv(), Ready):
+                    self.ready = True
+                    return True
+            except (EOFError, OSError):
+                return False
+            if self.popen.poll() is not None:
+                return False
+        return False
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def kill(self) -> None:
+        try:
+            self.popen.send_signal(signal.SIGKILL)
+        except OSError:  # pragma: no cover - already gone
+            pass
+
+    def close(self) -> None:
+        self.kill()
+        try:
+            self.popen.wait(5)
+        except subprocess.TimeoutExpired:  # pragma: no cover - a killed process that lingers
+            pass
+        self.conn.close()
+
+
+def job_process_main(fd: int, parent_pid: int, memory_mb: int) -> None:
+    """Entry point of a job process (see :class:`JobProcess`)."""
+    from app.compute.worker import worker_main
+
+    worker_main(Connection(fd), parent_pid, memory_mb)
+
+
+def _job_process(memory_mb: int) -> JobProcess | None:
+    """This worker thread's job process, started (and awaited) if it has none, it died, or it has another
+    memory cap (replicas may differ); None if it could not start."""
+    thread = threading.get_ident()
+    process = _processes.get(thread)
+    if process is not None and process.alive() and process.memory_mb == memory_mb:
+        return process
+    if process is not None:
+        process.close()
+    process = JobProcess(memory_mb)
+    if not process.wait_ready(START_TIMEOUT):
+        process.close()
+        _processes.pop(thread, None)
+        return None
+    _processes[thread] = process
+    return process
+
+
+def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) -> JobOutcome | Lost:
+    """The Dask task: run one job in this worker thread's job process (see the module docstring)."""
     from distributed import get_worker
 
-    from app.compute import tasks
-    from app.compute.worker import execute
+    from app.compute.worker import outcome_of_death
 
     worker = get_worker()
-    worker.log_event(START_TOPIC, to_event(key, Started(job_id, os.getpid(), worker.address)))
-    state: dict[str, Any] = {"last": None, "sent": 0.0}
-
-    def callback(record) -> bool:
-        progress = tasks.record_to_dict(record)
-        state["last"] = progress
-        now = time.monotonic()
-        if now - state["sent"] >= PROGRESS_EVERY:
-            state["sent"] = now
-            worker.log_event(PROGRESS_TOPIC, to_event(key, Progress(job_id, progress)))
-        return _is_cancelled(job_id)
-
+    process = _job_process(memory_mb)
+    if process is None:
+        return Lost(job_id, f"the job process on Dask worker {worker.address} could not start")
+    with _lock:
+        _running[job_id] = process
+    worker.log_event(START_TOPIC, to_event(key, Started(job_id, process.pid, worker.address)))
+    last: dict[str, Any] | None = None
+    sent = 0.0
+    cancel_sent = False
     try:
-        reply = execute(job_id, request, callback, lambda: _is_cancelled(job_id))
+        process.conn.send(Run(job_id, request))
+        while True:
+            if not cancel_sent and job_id in _cancelled:
+                process.conn.send(Cancel(job_id))
+                cancel_sent = True
+            if not process.conn.poll(POLL_EVERY):
+                continue
+            msg = process.conn.recv()
+            if isinstance(msg, Progress) and msg.job_id == job_id:
+                last = msg.record
+                now = time.monotonic()
+                if now - sent >= PROGRESS_EVERY:
+                    sent = now
+                    worker.log_event(PROGRESS_TOPIC, to_event(key, msg))
+            elif isinstance(msg, (Succeeded, Cancelled, Failed)) and msg.job_id == job_id:
+                return msg if msg.progress is not None else dataclasses.replace(msg, progress=last)
+    except (EOFError, OSError):
+        code = process.popen.wait()
+        if job_id in _stopped:
+            return Cancelled(job_id, progress=last)  # the service stopped it and no longer waits for it
+        return outcome_of_death(job_id, process.pid, code, memory_mb)
     finally:
         with _lock:
+            _running.pop(job_id, None)
             _cancelled.discard(job_id)
-    return dataclasses.replace(reply, progress=state["last"])
+            _stopped.discard(job_id)

@@ -16,7 +16,8 @@ import os
 import signal
 import time
 
-from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Progress, Ready, Run, Stop, Succeeded)
+from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Lost, Progress, Ready, Run, Stop,
+                                  Succeeded)
 from app.compute.process import apply_memory_limit, die_with_parent, limit_blas_threads, memory_message
 
 log = logging.getLogger("app.compute.worker")
@@ -52,6 +53,20 @@ def execute(job_id: str, request: dict, callback, cancelled, memory_mb: int = 0)
         log.exception("job %s failed", job_id)
         return Failed(job_id, failure_reason(exc))
     return Cancelled(job_id) if cancelled() else Succeeded(job_id, result)
+
+
+def outcome_of_death(job_id: str, pid: int | None, exitcode: int | None, memory_mb: int) -> Failed | Lost:
+    """What a worker process that died running ``job_id`` means for the job (both executors).
+
+    SIGABRT under a memory cap is a native allocation that failed (e.g. the solver's KKT system): it would
+    fail the same way again, so the job ends now, saying why. Any other death may be the machine's or an
+    operator's doing: the job is ``Lost`` and may run again."""
+    if exitcode == -signal.SIGABRT and memory_mb > 0:
+        log.warning("worker process %s aborted running job %s (memory limit)", pid, job_id)
+        return Failed(job_id, f"memory limit exceeded: the worker process aborted (exit code {exitcode}) when "
+                              f"an allocation over the {memory_mb} MB a job may use (NCS_WORKER_MEMORY_MB) failed")
+    log.warning("worker process %s died (exit %s) running job %s", pid, exitcode, job_id)
+    return Lost(job_id, f"worker process died (exit code {exitcode})")
 
 
 def worker_main(conn, parent_pid: int, memory_mb: int = 0) -> None:

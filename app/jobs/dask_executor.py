@@ -16,12 +16,19 @@ How the usual guarantees map onto Dask:
   turned back into the dataclasses here (``messages.from_event``). The service
   subscribes to the topic (``Client.subscribe_topic``). No database access on the
   cluster, no per-iteration round trip.
+* **Where a job runs**: in a *job process*, a child of the Dask worker (one per worker
+  thread, kept between jobs; ``app.compute.dask_task``), with the local workers' memory cap
+  (``NCS_WORKER_MEMORY_MB``). Its pid is the job's ``worker_pid``.
 * **Cooperative cancel**: ``Client.run(request_cancel, job_id, workers=[addr])`` sets
-  a flag in the worker process that the solver callback reads. A job that has not
-  started yet is simply ``Future.cancel``-led. Dask cannot interrupt a running task
-  (``Future.cancel`` only forgets it), so a job that ignores the cancel for
-  ``NCS_CANCEL_GRACE`` seconds, or runs over ``NCS_JOB_TIME_LIMIT``, is stopped by
-  restarting its worker (``Client.restart_workers``, needs the worker's nanny).
+  a flag in the worker process; the task passes it to the job process, whose solver
+  callback stops at its next iteration. A job that has not started yet is simply
+  ``Future.cancel``-led. A job that ignores the cancel for ``NCS_CANCEL_GRACE`` seconds,
+  or runs over ``NCS_JOB_TIME_LIMIT``, is stopped by killing its job process
+  (``Client.run(stop_job, ...)``): the Dask worker and the jobs of its other threads go on.
+  (Restarting the worker through its nanny, ``Client.restart_workers``, sometimes lost the
+  worker for good on ``distributed`` 2026.8.) A job process that dies is replaced at the
+  thread's next job; the job it ran is ``Lost``, or ``Failed`` if it aborted under the
+  memory cap, as with the local executor.
 * **A worker dies mid-job**: the scheduler re-runs the task on another worker. The
   task's ``Started`` then comes from a new pid: the dispatcher counts one more attempt, and
   past ``NCS_MAX_ATTEMPTS`` the job ends ``failed`` with the reason. If Dask gives up first
@@ -65,6 +72,7 @@ class _Task:
 class DaskExecutor(Executor):
     def __init__(self, settings: Settings):
         self.address = settings.dask_scheduler
+        self.memory_mb = settings.worker_memory_mb
         self.client: Any = None
         self._wake: Callable[[], None] = lambda: None
         # Filled by Dask's threads (event subscriptions, done callbacks), drained by poll().
@@ -109,8 +117,8 @@ class DaskExecutor(Executor):
 
         task = _Task(job.id, f"ncs-design-{job.id}-{job.attempts}")
         self._tasks[task.key] = task
-        task.future = self.client.submit(run_job, job.id, task.key, job.request, key=task.key, pure=False,
-                                         retries=0)
+        task.future = self.client.submit(run_job, job.id, task.key, job.request, self.memory_mb, key=task.key,
+                                         pure=False, retries=0)
         task.future.add_done_callback(lambda f: self._post("done", f))
         return task
 
@@ -145,18 +153,14 @@ class DaskExecutor(Executor):
                 fut.cancel()
             except Exception:  # pragma: no cover
                 pass
-        if interrupt and address and self.client is not None:
-            # Dask cannot interrupt a running task (Future.cancel only forgets it): restart the worker
-            # process via its nanny, off the dispatcher thread.
-            client = self.client
+        if interrupt and address and self._connected():
+            from app.compute.dask_task import stop_job
 
-            def restart_worker() -> None:
-                try:
-                    client.restart_workers([address], timeout=60, raise_for_error=False)
-                except Exception:  # pragma: no cover - best effort
-                    log.exception("could not restart Dask worker %s", address)
-
-            threading.Thread(target=restart_worker, name="ncs-dask-restart", daemon=True).start()
+            # Dask cannot interrupt a running task (Future.cancel only forgets it): kill its job process.
+            try:
+                self.client.run(stop_job, handle.job_id, workers=[address], wait=False)
+            except Exception:  # pragma: no cover - the worker is gone, and the job process with it
+                log.exception("could not stop job %s on Dask worker %s", handle.job_id, address)
 
     def shutdown(self) -> None:
         if self.client is not None:
@@ -252,7 +256,7 @@ class DaskExecutor(Executor):
             except Exception as exc:  # pragma: no cover - the result could not be fetched
                 err = exc
             else:
-                if isinstance(reply, (Succeeded, Cancelled, Failed)) and reply.job_id == task.job_id:
+                if isinstance(reply, (Succeeded, Cancelled, Failed, Lost)) and reply.job_id == task.job_id:
                     self._tasks.pop(task.key, None)
                     self._events.append(reply)
                     return

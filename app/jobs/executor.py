@@ -63,8 +63,8 @@ class Executor(ABC):
     @abstractmethod
     def stop(self, handle: Any, interrupt: bool = True) -> None:
         """Stop caring about the job: no message about it follows. ``interrupt`` also stops a running
-        computation where that costs more than dropping it (Dask restarts the worker; a local worker
-        process is always killed, it cannot take another job otherwise)."""
+        computation where that costs more than dropping it (the Dask executor kills the job's process on its
+        worker; a local worker process is always killed, it cannot take another job otherwise)."""
 
     @abstractmethod
     def shutdown(self) -> None:

@@ -14,8 +14,9 @@ import os
 import time
 from typing import Any, Callable
 
-from app.compute.messages import (Cancel, Cancelled, ExecutorEvent, Failed, Lost, Progress, Ready, Run, Started,
+from app.compute.messages import (Cancel, Cancelled, ExecutorEvent, Failed, Progress, Ready, Run, Started,
                                   Stop, Succeeded)
+from app.compute.worker import outcome_of_death
 from app.jobs.executor import Executor, FreeSlot
 from app.jobs.store import Claimed
 from app.settings import Settings
@@ -200,15 +201,6 @@ class LocalExecutor(Executor):
         job_id, worker.job_id = worker.job_id, None
         if job_id is None:
             log.warning("idle worker %s died (exit %s); replacing it", worker.pid, code)
-        elif code == -6 and self.settings.worker_memory_mb > 0:
-            # SIGABRT under a memory cap: a native allocation failed (e.g. the solver's KKT system).
-            # It would fail the same way again, so the job ends now, saying why.
-            mb = self.settings.worker_memory_mb
-            log.warning("worker %s aborted running job %s (memory limit)", worker.pid, job_id)
-            self._events.append(Failed(job_id, f"memory limit exceeded: the worker process aborted (exit code "
-                                               f"{code}) when an allocation over the {mb} MB a job may use "
-                                               f"(NCS_WORKER_MEMORY_MB) failed"))
         else:
-            log.warning("worker %s died (exit %s) running job %s", worker.pid, code, job_id)
-            self._events.append(Lost(job_id, f"worker process died (exit code {code})"))
+            self._events.append(outcome_of_death(job_id, worker.pid, code, self.settings.worker_memory_mb))
         self._respawn(worker)

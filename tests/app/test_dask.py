@@ -40,7 +40,8 @@ def cluster():
 
 @pytest.fixture(scope="module")
 def client(cluster, module_db):
-    with running_client(module_db, dask_scheduler=cluster.scheduler_address, cancel_grace=1.0,
+    # A long cancel grace: the cancel test checks that the job stops cooperatively, not by the grace's kill.
+    with running_client(module_db, dask_scheduler=cluster.scheduler_address, cancel_grace=60.0,
                         job_time_limit=60.0) as c:
         deadline = time.monotonic() + 60
         while c.get("/readyz").status_code != 200:
@@ -50,9 +51,8 @@ def client(cluster, module_db):
 
 
 def wait_for_the_whole_cluster(client, timeout: float = 90.0) -> None:
-    """Both workers registered and ready. A job stopped for a time limit or a cancel restarts its worker
-    (``Client.restart_workers``); killing the other worker while that restart is still under way makes
-    Dask close both nannies, and the cluster never comes back. The kill tests start from a whole cluster."""
+    """Both workers registered and ready: a test that killed a Dask worker leaves its nanny restarting it,
+    and the next kill test starts from a whole cluster."""
     deadline = time.monotonic() + timeout
     while True:
         resp = client.get("/readyz")
@@ -89,8 +89,9 @@ def test_paper_example_on_the_cluster_matches_the_solver(client, cluster, method
     with db.read() as s:
         pid = s.get(Job, job_id).worker_pid
     db.dispose()
+    # ... in a job process of one of the cluster's workers, kept for the worker thread's next job.
     with distributed.Client(cluster.scheduler_address, set_as_default=False) as dc:
-        assert pid in set(dc.run(os.getpid).values())
+        assert parent_pid(pid) in set(dc.run(os.getpid).values())
 
 
 def test_many_jobs_fill_both_workers(client):
@@ -100,21 +101,57 @@ def test_many_jobs_fill_both_workers(client):
     assert all(j["attempts"] == 1 for j in jobs)
 
 
-def test_cancel_a_running_job_cooperatively(client):
+def parent_pid(pid: int) -> int:
+    with open(f"/proc/{pid}/stat") as f:
+        return int(f.read().rsplit(")", 1)[1].split()[1])
+
+
+def is_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def dask_worker_pids(cluster) -> set[int]:
+    with distributed.Client(cluster.scheduler_address, set_as_default=False) as dc:
+        return set(dc.run(os.getpid).values())
+
+
+def test_cancel_a_running_job_cooperatively(client, cluster):
+    workers = dask_worker_pids(cluster)
     job_id = client.post("/v1/designs", json=SLOW).json()["id"]
-    worker_pid_of(client, job_id, timeout=60)
+    pid = worker_pid_of(client, job_id, timeout=60)
     wait_for(client, job_id, statuses=("running",))
     resp = client.post(f"/v1/designs/{job_id}/cancel")
     assert resp.status_code in (200, 202), resp.text
-    job = wait_for(client, job_id, timeout=60)
+    job = wait_for(client, job_id, timeout=50)  # well within the 60 s grace after which it would be killed
     assert job["status"] == "cancelled", job
+    # The solver stopped at its callback: its job process and the Dask workers all live on.
+    assert is_alive(pid) and dask_worker_pids(cluster) == workers
 
 
-def test_killed_dask_worker_mid_job_is_retried_and_the_job_finishes(client):
+def test_killed_job_process_mid_job_is_retried_and_the_worker_goes_on(client, cluster):
     wait_for_the_whole_cluster(client)
+    workers = dask_worker_pids(cluster)
     job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
     first = worker_pid_of(client, job_id, timeout=60)
     os.kill(first, signal.SIGKILL)
+    job = wait_for(client, job_id, timeout=120)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["outcome"] == "stabilized"
+    assert job["attempts"] == 2, job  # the run in the killed job process counted as an attempt
+    assert not is_alive(first)
+    assert dask_worker_pids(cluster) == workers
+
+
+def test_killed_dask_worker_mid_job_is_retried_and_the_job_finishes(client, cluster):
+    wait_for_the_whole_cluster(client)
+    job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
+    job_process = worker_pid_of(client, job_id, timeout=60)
+    os.kill(parent_pid(job_process), signal.SIGKILL)  # the Dask worker; its job process dies with it
     job = wait_for(client, job_id, timeout=120)
     assert job["status"] == "succeeded", job
     assert job["result"]["outcome"] == "stabilized"
@@ -124,22 +161,24 @@ def test_killed_dask_worker_mid_job_is_retried_and_the_job_finishes(client):
     assert nxt["status"] == "succeeded"
 
 
-def test_time_limit_on_the_cluster(db_url):
-    # A cluster of its own: the stop restarts the worker (Client.restart_workers), and in two CI runs on
-    # distributed 2026.8 that worker had not come back 90 s later, which left the module's cluster, and the
-    # kill test after this one, with a single worker.
-    with local_cluster() as cluster, \
-            running_client(db_url, dask_scheduler=cluster.scheduler_address, job_time_limit=1.5) as client:
-        deadline = time.monotonic() + 60
-        while client.get("/readyz").status_code != 200:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
+def test_time_limit_on_the_cluster_kills_the_job_process_not_the_worker(cluster, db_url):
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address, job_time_limit=1.5) as client:
+        wait_for_the_whole_cluster(client)
+        workers = dask_worker_pids(cluster)
         job_id = client.post("/v1/designs", json=SLOW).json()["id"]
+        pid = worker_pid_of(client, job_id, timeout=60)
         job = wait_for(client, job_id, timeout=60)
         assert job["status"] == "failed" and "time limit" in job["error"] and "1.5 s" in job["error"], job
         assert job["attempts"] == 1
-        nxt = wait_for(client, client.post("/v1/designs", json=PAPER_LMI).json()["id"], timeout=90)
-        assert nxt["status"] == "succeeded", nxt
+        deadline = time.monotonic() + 30
+        while is_alive(pid):
+            assert time.monotonic() < deadline, "the job process outlived its time limit"
+            time.sleep(0.05)
+        # Both workers are the ones from before, and both still take jobs (the stopped thread with a new
+        # job process).
+        ids = [client.post("/v1/designs", json=PAPER_LMI).json()["id"] for _ in range(6)]
+        assert {wait_for(client, i, timeout=90)["status"] for i in ids} == {"succeeded"}
+        assert dask_worker_pids(cluster) == workers
 
 
 def test_killed_dask_worker_with_no_attempts_left_fails_the_job_with_the_reason(cluster, db_url):
@@ -151,3 +190,17 @@ def test_killed_dask_worker_with_no_attempts_left_fails_the_job_with_the_reason(
         assert job["status"] == "failed", job
         assert "died" in job["error"] and "1 of 1 attempts" in job["error"], job["error"]
         assert job["attempts"] == 1
+
+
+def test_design_over_the_memory_cap_on_the_cluster_fails_with_the_setting_named(cluster, db_url):
+    from .test_limits import BIG
+
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address, worker_memory_mb=60,
+                        max_attempts=3) as client:
+        wait_for_the_whole_cluster(client)
+        workers = dask_worker_pids(cluster)
+        job = wait_for(client, client.post("/v1/designs", json=BIG).json()["id"], timeout=120)
+        assert job["status"] == "failed", job
+        assert "memory limit exceeded" in job["error"] and "NCS_WORKER_MEMORY_MB" in job["error"], job["error"]
+        assert job["attempts"] == 1  # not retried: it would fail the same way
+        assert dask_worker_pids(cluster) == workers
