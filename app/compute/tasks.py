@@ -16,24 +16,50 @@ import numpy as np
 from solver.result import jsonable
 
 
-_families: OrderedDict[str, Any] = OrderedDict()  # digest of the plant JSON -> its (read-only) family
-_families_lock = threading.Lock()
-FAMILIES_REMEMBERED = 64
+class DigestMemo:
+    """The last ``size`` values by the digest of their inputs (least recently used first out), shared by the
+    threads of one process. Keyed by digest, not by the inputs, which may be large."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._values: OrderedDict[str, Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def digest(text: str) -> str:
+        import hashlib
+
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def get(self, key: str, default: Any = None) -> Any:
+        with self._lock:
+            if key not in self._values:
+                return default
+            self._values.move_to_end(key)
+            return self._values[key]
+
+    def put(self, key: str, value: Any) -> None:
+        with self._lock:
+            self._values[key] = value
+            self._values.move_to_end(key)
+            while len(self._values) > self.size:
+                self._values.popitem(last=False)
+
+
+_families = DigestMemo(64)  # digest of the plant JSON -> its (read-only) family
+_checked = DigestMemo(256)  # digests of inputs that passed check_design_inputs
 
 
 def build_family(plant: dict[str, Any]):
     """The family of a plant JSON, remembered by digest: a worker that designs the same plant again
     skips its discretization (a matrix exponential per mode, ~0.4 ms of the paper example's ~8 ms job).
     The remembered family's matrices are read-only, so no caller can change what the next one gets."""
-    import hashlib
     import json
 
-    key = hashlib.sha256(json.dumps(plant, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-    with _families_lock:
-        fam = _families.get(key)
-        if fam is not None:
-            _families.move_to_end(key)
-            return fam
+    key = _families.digest(json.dumps(plant, sort_keys=True, separators=(",", ":")))
+    fam = _families.get(key)
+    if fam is not None:
+        return fam
     # A family that overflows when discretized is reported by the solver as InvalidInput;
     # numpy's overflow warnings on the way there would only clutter the service log.
     with np.errstate(over="ignore", invalid="ignore"):
@@ -41,10 +67,7 @@ def build_family(plant: dict[str, Any]):
     for matrix in (fam.F, fam.G):
         if isinstance(matrix, np.ndarray):
             matrix.flags.writeable = False
-    with _families_lock:
-        _families[key] = fam
-        while len(_families) > FAMILIES_REMEMBERED:
-            _families.popitem(last=False)
+    _families.put(key, fam)
     return fam
 
 
@@ -259,31 +282,20 @@ def warm_up() -> None:
     import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
 
 
-_checked: OrderedDict[str, None] = OrderedDict()  # digests of inputs that passed check_design_inputs
-_checked_lock = threading.Lock()
-CHECKED_REMEMBERED = 256
-
-
 def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:
     """Build the family and (given ``n_drop``) its closed-loop modes as a design would; raises the solver's
     InvalidInput. Inputs that passed are remembered by digest (not by their JSON, which may be large): a
     sweep submits the same plant many times, and building it costs ~3 ms of the request thread. A
     rejection is not remembered (it raises every time)."""
-    import hashlib
     import json
 
     from solver.network import ModeSet
 
-    key = hashlib.sha256(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}".encode()).hexdigest()
-    with _checked_lock:
-        if key in _checked:
-            _checked.move_to_end(key)
-            return
+    key = _checked.digest(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}")
+    if _checked.get(key, False):
+        return
     fam = build_family(json.loads(plant_json))
     if n_drop is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             ModeSet.from_family(fam, n_drop, plant_switching, scheme)
-    with _checked_lock:
-        _checked[key] = None
-        while len(_checked) > CHECKED_REMEMBERED:
-            _checked.popitem(last=False)
+    _checked.put(key, True)
