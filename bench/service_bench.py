@@ -62,6 +62,29 @@ def _paper_lmi() -> bytes:
     return json.dumps({"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}).encode()
 
 
+def machine_reference(jobs: int = 200) -> str:
+    """How fast this machine runs the workers' job: ``run_design`` of the paper example in a child process
+    with one BLAS thread, as the service's workers run it (median wall time, after a warm-up). Service
+    figures taken on different machines compare through it: on one 2-core machine this was 5.5 ms, on
+    another 2.2 ms, and the service's CPU per design moved by the same factor."""
+    code = ("import json, statistics, sys, time; from app.examples import PAPER_PLANT; "
+            "from app.compute.tasks import run_design; "
+            "req = {'plant': PAPER_PLANT, 'n_drop': 3, 'method': 'lmi'}; [run_design(req) for _ in range(30)]; "
+            "ts = []\nfor _ in range(int(sys.argv[1])):\n t = time.perf_counter(); run_design(req); "
+            "ts.append(time.perf_counter() - t)\nprint(json.dumps(statistics.median(ts) * 1e3))")
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    out = subprocess.run([sys.executable, "-c", code, str(jobs)], capture_output=True, text=True, env=env,
+                         cwd=REPO, check=True).stdout
+    cpu = "?"
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), "?")
+    except OSError:
+        pass
+    return f"cpu {cpu}; the workers' job in one process (run_design, paper example): {float(out):.2f} ms median"
+
+
 def pct(values: list[float], q: float) -> float:
     if not values:
         return float("nan")
@@ -482,6 +505,7 @@ def main(argv=None) -> int:
         rev = "?"
     print(f"service benchmark: commit {rev}, python {sys.version.split()[0]}, {os.cpu_count()} cpus, "
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; paper example, lmi, n_drop = 3", flush=True)
+    print(f"machine: {machine_reference()}", flush=True)
     results: list[tuple[str, dict[str, str]]] = []
     t0 = time.perf_counter()
     try:
