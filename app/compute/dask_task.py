@@ -15,7 +15,9 @@ a Dask worker only needs this package installed (``pip install ncs-design``).
   when the job process died under it.
 * :func:`request_cancel`, run on the worker by the service (``Client.run``), cancels a
   running job cooperatively: the task passes it to the job process, whose solver callback
-  stops at its next iteration.
+  stops at its next iteration. A task whose future the service cancelled (a job given up,
+  or released by a replica that shuts down) kills its job process: its result would be
+  dropped.
 * :func:`stop_job` stops a job now (time limit, or a cancel not honoured within the grace):
   it kills the job process, not the Dask worker. Restarting a whole worker through its
   nanny (``Client.restart_workers``) would also end the jobs of the worker's other threads,
@@ -46,29 +48,33 @@ START_TIMEOUT = 120.0  # seconds a new job process may take to import the solver
 POLL_EVERY = 0.05  # seconds between the task's checks for a cancel while it waits on its job process
 
 _lock = threading.Lock()
-_cancelled: set[str] = set()  # jobs asked to stop cooperatively
-_stopped: set[str] = set()  # jobs whose job process was killed on purpose
-_running: dict[str, "JobProcess"] = {}  # job id -> the job process running it
+# By task key (job id and attempt, unique per submission): two attempts of one job can run on one worker at
+# once (a crashed replica's task goes on while another replica re-submits the job).
+_running: dict[str, "JobProcess"] = {}  # task key -> the job process running it
+_cancelled: set[str] = set()  # tasks asked to stop cooperatively
+_stopped: set[str] = set()  # tasks whose job process was killed on purpose
 _processes: dict[int, "JobProcess"] = {}  # worker thread id -> its job process
 
 
-async def request_cancel(job_id: str) -> bool:
-    """Cooperative cancel, run on the worker's event loop (``Client.run``, which can only skip waiting for
-    a coroutine function's answer)."""
+async def request_cancel(key: str) -> bool:
+    """Cooperative cancel of the task ``key``, run on the worker's event loop (``Client.run``, which can only
+    skip waiting for a coroutine function's answer). Returns whether this worker is running the task."""
     with _lock:
-        _cancelled.add(job_id)
+        if key not in _running:
+            return False
+        _cancelled.add(key)
     return True
 
 
-async def stop_job(job_id: str) -> bool:
-    """Kill the job process running ``job_id`` (SIGKILL); the worker and its other threads go on. Returns
-    whether this worker was running the job."""
-    with _lock:
-        process = _running.get(job_id)
+async def stop_job(key: str) -> bool:
+    """Kill the job process running the task ``key`` (SIGKILL); the worker and its other threads go on.
+    Returns whether this worker was running the task."""
+    with _lock:  # held while killing: the task cannot hand its process to the thread's next job meanwhile
+        process = _running.get(key)
         if process is None:
             return False
-        _stopped.add(job_id)
-    process.kill()
+        _stopped.add(key)
+        process.kill()
     return True
 
 
@@ -84,6 +90,9 @@ class JobProcess:
             self.popen = subprocess.Popen(
                 [sys.executable, "-c", code, str(child_sock.fileno()), str(os.getpid()), str(memory_mb)],
                 pass_fds=(child_sock.fileno(),), stdin=subprocess.DEVNULL)
+        except BaseException:
+            parent_sock.close()
+            raise
         finally:
             child_sock.close()
         self.conn = Connection(parent_sock.detach())
@@ -114,12 +123,17 @@ class JobProcess:
         except OSError:  # pragma: no cover - already gone
             pass
 
+    def reap(self) -> int | None:
+        """Wait for the (dying or killed) process to exit; its exit code (None if it lingers)."""
+        try:
+            return self.popen.wait(5)
+        except subprocess.TimeoutExpired:  # pragma: no cover - a killed process in uninterruptible I/O
+            self.kill()
+            return None
+
     def close(self) -> None:
         self.kill()
-        try:
-            self.popen.wait(5)
-        except subprocess.TimeoutExpired:  # pragma: no cover - a killed process that lingers
-            pass
+        self.reap()
         self.conn.close()
 
 
@@ -139,13 +153,33 @@ def _job_process(memory_mb: int) -> JobProcess | None:
         return process
     if process is not None:
         process.close()
-    process = JobProcess(memory_mb)
+        _processes.pop(thread, None)
+    _forget_exited_threads()
+    try:
+        process = JobProcess(memory_mb)
+    except OSError:  # no process could be started (file descriptors, memory): the job may run elsewhere
+        return None
     if not process.wait_ready(START_TIMEOUT):
         process.close()
-        _processes.pop(thread, None)
         return None
     _processes[thread] = process
     return process
+
+
+def _forget_exited_threads() -> None:
+    """Close the job processes of worker threads that exited (Dask's pool retires a thread that rejoins after
+    ``secede``). The process got SIGKILL with its thread (PR_SET_PDEATHSIG follows the thread that started
+    it); what is left is to reap it and close its socket."""
+    alive = {t.ident for t in threading.enumerate()}
+    for thread in [t for t in _processes if t not in alive]:
+        _processes.pop(thread).close()
+
+
+def _released(worker: Any, key: str) -> bool:
+    """Whether the scheduler no longer wants the task: the service cancelled its future (a job given up,
+    a cancel before the job started, a replica shutting down), so its result would be dropped."""
+    ts = worker.state.tasks.get(key)
+    return ts is None or ts.state in ("cancelled", "released", "forgotten")
 
 
 def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) -> JobOutcome | Lost:
@@ -158,8 +192,10 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
     process = _job_process(memory_mb)
     if process is None:
         return Lost(job_id, f"the job process on Dask worker {worker.address} could not start")
+    if _released(worker, key):
+        return Cancelled(job_id)  # given up while the job process started: nobody waits for this job
     with _lock:
-        _running[job_id] = process
+        _running[key] = process
     worker.log_event(START_TOPIC, to_event(key, Started(job_id, process.pid, worker.address)))
     last: dict[str, Any] | None = None
     sent = 0.0
@@ -167,10 +203,16 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
     try:
         process.conn.send(Run(job_id, request))
         while True:
-            if not cancel_sent and job_id in _cancelled:
+            if not cancel_sent and key in _cancelled:
                 process.conn.send(Cancel(job_id))
                 cancel_sent = True
             if not process.conn.poll(POLL_EVERY):
+                if _released(worker, key):
+                    # Given up by the service (e.g. a replica released it on shutdown; it runs again
+                    # elsewhere): finishing it would only hold this thread.
+                    with _lock:
+                        _stopped.add(key)
+                        process.kill()
                 continue
             msg = process.conn.recv()
             if isinstance(msg, Progress) and msg.job_id == job_id:
@@ -182,12 +224,12 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
             elif isinstance(msg, (Succeeded, Cancelled, Failed)) and msg.job_id == job_id:
                 return msg if msg.progress is not None else dataclasses.replace(msg, progress=last)
     except (EOFError, OSError):
-        code = process.popen.wait()
-        if job_id in _stopped:
+        code = process.reap()
+        if key in _stopped:
             return Cancelled(job_id, progress=last)  # the service stopped it and no longer waits for it
         return outcome_of_death(job_id, process.pid, code, memory_mb)
     finally:
         with _lock:
-            _running.pop(job_id, None)
-            _cancelled.discard(job_id)
-            _stopped.discard(job_id)
+            _running.pop(key, None)
+            _cancelled.discard(key)
+            _stopped.discard(key)

@@ -46,6 +46,7 @@ import logging
 import queue
 import threading
 import time
+import uuid
 from typing import Any, Callable
 
 from app.compute.messages import (Cancelled, ExecutorEvent, Failed, Lost, MalformedEvent, Started, Succeeded,
@@ -115,7 +116,9 @@ class DaskExecutor(Executor):
     def submit(self, slot: FreeSlot, job: Claimed) -> _Task:
         from app.compute.dask_task import run_job
 
-        task = _Task(job.id, f"ncs-design-{job.id}-{job.attempts}")
+        # Unique per submission: a job released by a stopping replica comes back with the same attempt count,
+        # and Dask would resume the old, cancelled task under the same key instead of starting this one.
+        task = _Task(job.id, f"ncs-design-{job.id}-{job.attempts}-{uuid.uuid4().hex[:8]}")
         self._tasks[task.key] = task
         task.future = self.client.submit(run_job, job.id, task.key, job.request, self.memory_mb, key=task.key,
                                          pure=False, retries=0)
@@ -140,27 +143,34 @@ class DaskExecutor(Executor):
 
         if handle.address is None or not self._connected():
             return  # not started (the dispatcher drops it) or no scheduler: the grace timeout handles it
-        try:
-            self.client.run(request_cancel, handle.job_id, workers=[handle.address], wait=False)
-        except Exception:  # pragma: no cover - the worker is gone; the grace timeout handles it
-            log.exception("could not send cancel for job %s", handle.job_id)
+        self._run_on_worker(request_cancel, handle)
 
     def stop(self, handle: _Task, interrupt: bool = True) -> None:
         self._tasks.pop(handle.key, None)
         fut, address, handle.future = handle.future, handle.address, None
         if fut is not None:
             try:
-                fut.cancel()
+                fut.cancel()  # the task sees it is released and stops its job process (dask_task.run_job)
             except Exception:  # pragma: no cover
                 pass
         if interrupt and address and self._connected():
             from app.compute.dask_task import stop_job
 
-            # Dask cannot interrupt a running task (Future.cancel only forgets it): kill its job process.
+            # Dask cannot interrupt a running task (Future.cancel only forgets it): kill its job process now.
+            self._run_on_worker(stop_job, handle)
+
+    def _run_on_worker(self, fn: Callable[[str], Any], handle: _Task) -> None:
+        """``fn(task key)`` on the task's worker, off the dispatcher thread: delivering it waits for the
+        connection to the worker, up to Dask's connect timeout (30 s) when the worker is gone."""
+        client, address, key = self.client, handle.address, handle.key
+
+        def send() -> None:
             try:
-                self.client.run(stop_job, handle.job_id, workers=[address], wait=False)
-            except Exception:  # pragma: no cover - the worker is gone, and the job process with it
-                log.exception("could not stop job %s on Dask worker %s", handle.job_id, address)
+                client.run(fn, key, workers=[address], wait=False)
+            except Exception as exc:  # the worker is gone, and the job process with it
+                log.warning("could not run %s for task %s on Dask worker %s: %s", fn.__name__, key, address, exc)
+
+        threading.Thread(target=send, name=f"ncs-dask-{fn.__name__}", daemon=True).start()
 
     def shutdown(self) -> None:
         if self.client is not None:

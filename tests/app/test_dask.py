@@ -204,3 +204,22 @@ def test_design_over_the_memory_cap_on_the_cluster_fails_with_the_setting_named(
         assert "memory limit exceeded" in job["error"] and "NCS_WORKER_MEMORY_MB" in job["error"], job["error"]
         assert job["attempts"] == 1  # not retried: it would fail the same way
         assert dask_worker_pids(cluster) == workers
+
+
+def test_a_replica_that_stops_releases_its_running_job_and_the_job_process_stops(cluster, db_url):
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address) as client:
+        wait_for_the_whole_cluster(client)
+        workers = dask_worker_pids(cluster)
+        job_id = client.post("/v1/designs", json=SLOW).json()["id"]
+        pid = worker_pid_of(client, job_id, timeout=60)
+        wait_for(client, job_id, statuses=("running",))
+    # The replica put the job back in the queue and cancelled its future; nobody would read the result, so
+    # the task kills its job process rather than finish the job.
+    deadline = time.monotonic() + 10
+    while is_alive(pid):
+        assert time.monotonic() < deadline, "the released job kept running"
+        time.sleep(0.05)
+    assert dask_worker_pids(cluster) == workers
+    with running_client(db_url, dask_scheduler=cluster.scheduler_address) as client:
+        job = wait_for(client, job_id, timeout=120)  # the next replica runs it again
+        assert job["status"] == "succeeded" and job["attempts"] == 1, job
