@@ -43,7 +43,6 @@ from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Lost, P
 
 START_TOPIC = "ncs-design-start"
 PROGRESS_TOPIC = "ncs-design-progress"
-PROGRESS_EVERY = 0.1  # seconds between progress events of one job
 START_TIMEOUT = 120.0  # seconds a new job process may take to import the solver and report Ready
 POLL_EVERY = 0.05  # seconds between the task's checks for a cancel while it waits on its job process
 
@@ -69,6 +68,10 @@ async def request_cancel(key: str) -> bool:
 async def stop_job(key: str) -> bool:
     """Kill the job process running the task ``key`` (SIGKILL); the worker and its other threads go on.
     Returns whether this worker was running the task."""
+    return _stop(key)
+
+
+def _stop(key: str) -> bool:
     with _lock:  # held while killing: the task cannot hand its process to the thread's next job meanwhile
         process = _running.get(key)
         if process is None:
@@ -98,7 +101,6 @@ class JobProcess:
         self.conn = Connection(parent_sock.detach())
         self.pid = self.popen.pid
         self.memory_mb = memory_mb
-        self.ready = False
 
     def wait_ready(self, timeout: float) -> bool:
         """Wait for the job process's Ready (it imports the solver first); False if it died or took too long."""
@@ -106,7 +108,6 @@ class JobProcess:
         while time.monotonic() < deadline:
             try:
                 if self.conn.poll(0.2) and isinstance(self.conn.recv(), Ready):
-                    self.ready = True
                     return True
             except (EOFError, OSError):
                 return False
@@ -198,7 +199,6 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
         _running[key] = process
     worker.log_event(START_TOPIC, to_event(key, Started(job_id, process.pid, worker.address)))
     last: dict[str, Any] | None = None
-    sent = 0.0
     cancel_sent = False
     try:
         process.conn.send(Run(job_id, request))
@@ -210,17 +210,12 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
                 if _released(worker, key):
                     # Given up by the service (e.g. a replica released it on shutdown; it runs again
                     # elsewhere): finishing it would only hold this thread.
-                    with _lock:
-                        _stopped.add(key)
-                        process.kill()
+                    _stop(key)
                 continue
             msg = process.conn.recv()
             if isinstance(msg, Progress) and msg.job_id == job_id:
-                last = msg.record
-                now = time.monotonic()
-                if now - sent >= PROGRESS_EVERY:
-                    sent = now
-                    worker.log_event(PROGRESS_TOPIC, to_event(key, msg))
+                last = msg.record  # at most one every worker.PROGRESS_EVERY seconds
+                worker.log_event(PROGRESS_TOPIC, to_event(key, msg))
             elif isinstance(msg, (Succeeded, Cancelled, Failed)) and msg.job_id == job_id:
                 return msg if msg.progress is not None else dataclasses.replace(msg, progress=last)
     except (EOFError, OSError):
