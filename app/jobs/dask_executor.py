@@ -19,7 +19,7 @@ How the usual guarantees map onto Dask:
 * **Where a job runs**: in a *job process*, a child of the Dask worker (one per worker
   thread, kept between jobs; ``app.compute.dask_task``), with the local workers' memory cap
   (``NCS_WORKER_MEMORY_MB``). Its pid is the job's ``worker_pid``.
-* **Cooperative cancel**: ``Client.run(request_cancel, job_id, workers=[addr])`` sets
+* **Cooperative cancel**: ``Client.run(request_cancel, task_key, workers=[addr])`` sets
   a flag in the worker process; the task passes it to the job process, whose solver
   callback stops at its next iteration. A job that has not started yet is simply
   ``Future.cancel``-led. A job that ignores the cancel for ``NCS_CANCEL_GRACE`` seconds,
