@@ -67,6 +67,12 @@ _CLAIM_ONE = (
 
 
 def _claim(c: Connection, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
+    """Claim up to ``len(pids)`` of the oldest queued jobs, inside the caller's transaction.
+
+    The i-th claimed job records ``pids[i]`` as its worker pid (``None``/0: not known yet).
+    On PostgreSQL ``FOR UPDATE SKIP LOCKED`` lets several dispatchers claim at once without
+    waiting for or double-claiming each other; SQLite serializes the write transactions.
+    """
     ids = [r[0] for r in c.execute(_CLAIM_IDS, {"b_n": len(pids)})]
     if not ids:
         return []
@@ -79,17 +85,6 @@ def _claim(c: Connection, owner: str, lease_seconds: float, pids: list[int | Non
         if row is not None:
             out.append(Claimed(job_id, row.request, row.attempts))
     return out
-
-
-def claim_many(db: Database, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
-    """Claim up to ``len(pids)`` of the oldest queued jobs in one transaction.
-
-    The i-th claimed job records ``pids[i]`` as its worker pid (``None``/0: not known yet).
-    On PostgreSQL ``FOR UPDATE SKIP LOCKED`` lets several dispatchers claim at once without
-    waiting for or double-claiming each other; SQLite serializes the write transactions.
-    """
-    with db.write_conn() as c:
-        return _claim(c, owner, lease_seconds, pids)
 
 
 def _running_owned(job_id: str, owner: str):
@@ -149,25 +144,6 @@ def _finish(c: Connection, owner: str, end: Ending) -> JobRecord | None:
     else:
         request = end.request
     return JobRecord(**row._mapping, request=request, result=end.result)
-
-
-def finish(db: Database, job_id: str, owner: str, status: str, *, result: dict[str, Any] | None = None,
-           error: str | None = None, progress: dict[str, Any] | None = None) -> bool:
-    with db.write_conn() as c:
-        return _finish(c, owner, Ending(job_id, status, result, error, progress)) is not None
-
-
-def finish_and_claim(db: Database, owner: str, endings: list[Ending], lease_seconds: float,
-                     pids: list[int | None]) -> tuple[list[JobRecord | None], list[Claimed]]:
-    """Record the ends of ``endings`` and claim up to ``len(pids)`` queued jobs (as :func:`claim_many`), all
-    in one transaction: a worker that just finished a job takes the next one without a second commit.
-
-    Returns, per ending, the job as it now is (None when this owner no longer held it: its lease was lost
-    or it was cancelled meanwhile), and the claimed jobs. Nothing is written if it raises."""
-    with db.write_conn() as c:
-        ended = [_finish(c, owner, end) for end in endings]
-        claimed = _claim(c, owner, lease_seconds, pids) if pids else []
-    return ended, claimed
 
 
 #: A lost attempt with attempts left: back to the queue, lease dropped.
@@ -450,9 +426,12 @@ def write_batch(db: Database, owner: str, submissions: list[Submission], endings
                 lease_seconds: float, pids: list[int | None], max_queue_depth: int | None = None,
                 retry_after: int = 5) -> tuple[list[Submitted | Exception], list[JobRecord | None], list[Claimed]]:
     """One dispatcher write: insert ``submissions`` (answered per submission as :func:`submit` answers, an
-    error as the exception it would raise), record ``endings`` and claim up to ``len(pids)`` queued jobs
-    (as :func:`finish_and_claim`), all in one transaction; retried once on a connection found dead (every
-    step is safe to repeat). Nothing is written if it raises."""
+    error as the exception it would raise), record ``endings`` and claim up to ``len(pids)`` queued jobs, all
+    in one transaction: a worker that just finished a job takes the next one without a second commit.
+    Retried once on a connection found dead (every step is safe to repeat). Nothing is written if it raises.
+
+    Returns the answers, per ending the job as it now is (None when this owner no longer held it: its lease
+    was lost or it was cancelled meanwhile), and the claimed jobs."""
     def run():
         with db.write_conn() as c:
             answers = _insert_many(c, submissions, max_queue_depth, retry_after) if submissions else []
