@@ -300,6 +300,11 @@ _QUEUED_COUNT = select(func.count()).select_from(_T).where(_C.status == _QUEUED)
 _EXISTS = select(_C.id).where(_C.id == bindparam("b_id"))
 
 
+#: The columns a new job's INSERT sets; the others start NULL.
+_INSERTED = ("id", "kind", "status", "method", "n_drop", "request", "request_hash", "idempotency_key", "attempts",
+             "cancel_requested", "created_at", "updated_at", "owner")
+
+
 @dataclass
 class Submission:
     """A validated job ready to be inserted: the record the submitter is answered with, and the row."""
@@ -323,10 +328,7 @@ def prepare(kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key:
                     request=request, request_hash=digest, idempotency_key=stored_key, progress=None, result=None,
                     error=None, attempts=0, cancel_requested=False, lease_owner=None, lease_expires_at=None,
                     worker_pid=None, created_at=now, started_at=None, finished_at=None, updated_at=now, owner=owner)
-    values = dict(id=row.id, kind=kind, status=_QUEUED, method=row.method, n_drop=n_drop, request=request,
-                  request_hash=digest, idempotency_key=stored_key, attempts=0, cancel_requested=False,
-                  created_at=now, updated_at=now, owner=owner)
-    return Submission(row, values)
+    return Submission(row, {name: getattr(row, name) for name in _INSERTED})
 
 
 def _lookup(c: Connection, stored_key: str) -> JobRecord | None:
