@@ -38,6 +38,7 @@ from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
 from app.jobs.model import JobRecord, Status
+from app.jobs.watch import resolve_from_thread
 from app.settings import Settings
 
 log = logging.getLogger("app.dispatcher")
@@ -203,10 +204,10 @@ class Dispatcher:
             answers, _, _ = jobs.write_batch(self.db, self.owner, [s for s, _, _ in subs], [], st.lease_seconds, [],
                                              st.max_queue_depth, st.retry_after)
         except BaseException as again:
-            _answer_all([(loop, fut, again) for _, loop, fut in subs])
+            resolve_from_thread([(loop, fut, again) for _, loop, fut in subs])
             return
         self._queue_maybe_nonempty = True
-        _answer_all([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
+        resolve_from_thread([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
 
     def _sleep(self) -> None:
         try:
@@ -275,7 +276,7 @@ class Dispatcher:
                                                        st.lease_seconds, [s.pid for s in free],
                                                        st.max_queue_depth, st.retry_after)
         except BaseException as exc:  # the database is down: nothing was written; the submitters hear why
-            _answer_all([(loop, fut, exc) for _, loop, fut in subs])
+            resolve_from_thread([(loop, fut, exc) for _, loop, fut in subs])
             raise
         if free:
             self._queue_maybe_nonempty = len(claimed) == len(free)
@@ -288,7 +289,7 @@ class Dispatcher:
                 self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
                 continue
             self.running[job.id] = _Running(job.id, handle, slot.pid, job.request)
-        _answer_all([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
+        resolve_from_thread([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
         for end in endings:
             del self.pending[end.job_id]
         if endings:
@@ -398,29 +399,6 @@ class Dispatcher:
                 log.exception("could not release job %s", job_id)
         self.running.clear()
         self.executor.shutdown()
-
-
-def _answer_all(answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]]) -> None:
-    """Resolve submitters' futures from this thread (a result, or the exception it raises): one wake-up per
-    event loop."""
-    by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
-    for loop, fut, answer in answers:
-        by_loop.setdefault(loop, []).append((fut, answer))
-    for loop, items in by_loop.items():
-        try:
-            loop.call_soon_threadsafe(_resolve_answers, items)
-        except RuntimeError:  # pragma: no cover - that loop is closed
-            pass
-
-
-def _resolve_answers(items: list[tuple[asyncio.Future, Any]]) -> None:
-    for fut, answer in items:
-        if fut.done():  # the request went away
-            continue
-        if isinstance(answer, BaseException):
-            fut.set_exception(answer)
-        else:
-            fut.set_result(answer)
 
 
 def make_dispatcher(db: Database, settings: Settings,

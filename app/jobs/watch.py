@@ -53,11 +53,11 @@ class JobWatch:
     def finished_many(self, ended: list[tuple[str, Any]]) -> None:
         """:meth:`finished` for several jobs: one wake-up per event loop, not one per waiter (waking a loop
         from another thread is a system call that, under load, costs more than the rest of the hand-over)."""
-        by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
+        answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = []
         with self._lock:
             for job_id, record in ended:
                 for loop, fut in self._waiters.pop(job_id, ()):
-                    by_loop.setdefault(loop, []).append((fut, record))
+                    answers.append((loop, fut, record))
                 self._recent[job_id] = None
                 if len(self._recent) > self.RECENT:
                     self._recent.popitem(last=False)
@@ -67,11 +67,7 @@ class JobWatch:
                         self._recent_records.popitem(last=False)
                 else:
                     self._recent_records.pop(job_id, None)
-        for loop, resolved in by_loop.items():
-            try:
-                loop.call_soon_threadsafe(_resolve_all, resolved)
-            except RuntimeError:  # pragma: no cover - that loop is closed
-                pass
+        resolve_from_thread(answers)
 
     async def wait(self, job_id: str, timeout: float) -> tuple[bool, Any]:
         """Wait until the job is finished or ``timeout`` seconds passed: (finished, the finished job's record
@@ -121,7 +117,26 @@ class JobWatch:
                 self.finished_many([(job_id, None) for job_id in done])
 
 
-def _resolve_all(resolved: list[tuple[asyncio.Future, Any]]) -> None:
-    for fut, record in resolved:
-        if not fut.done():
-            fut.set_result(record)
+def resolve_from_thread(answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]]) -> None:
+    """Resolve futures of event loops from another thread, each with its answer (a result, or the exception
+    it raises): one wake-up per event loop, not one per future (waking a loop from another thread is a system
+    call that, under load, costs more than the rest of the hand-over). A future already done (its request
+    went away) is left alone."""
+    by_loop: dict[asyncio.AbstractEventLoop, list[tuple[asyncio.Future, Any]]] = {}
+    for loop, fut, answer in answers:
+        by_loop.setdefault(loop, []).append((fut, answer))
+    for loop, items in by_loop.items():
+        try:
+            loop.call_soon_threadsafe(_resolve, items)
+        except RuntimeError:  # pragma: no cover - that loop is closed
+            pass
+
+
+def _resolve(items: list[tuple[asyncio.Future, Any]]) -> None:
+    for fut, answer in items:
+        if fut.done():
+            continue
+        if isinstance(answer, BaseException):
+            fut.set_exception(answer)
+        else:
+            fut.set_result(answer)
