@@ -6,7 +6,8 @@
 structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py``);
 ``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``);
 ``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
-``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``).
+``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``);
+``python -m bench methods`` measures which method when (``bench/methods_bench.py``).
 
 Options::
 
@@ -70,6 +71,10 @@ def main(argv=None) -> int:
         from . import ccl_check
 
         return ccl_check.main(argv[1:])
+    if argv and argv[0] == "methods":
+        from . import methods_bench
+
+        return methods_bench.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

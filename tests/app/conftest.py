@@ -9,6 +9,7 @@ creates its own throw-away database on that server instead.
 from __future__ import annotations
 
 import os
+import re
 import time
 import warnings
 from contextlib import contextmanager
@@ -28,6 +29,24 @@ from bench.harness import Server, free_port, fresh_database  # noqa: E402,F401 (
 PG_URL = os.environ.get("NCS_TEST_DATABASE_URL") or None
 REPO = Path(__file__).resolve().parents[2]
 TERMINAL = ("succeeded", "failed", "cancelled")
+
+
+def doc_block(name: str, fence: str) -> tuple[str, str]:
+    """(file name, code) of the block fenced ```<fence> between ``<!-- name: start -->`` and ``<!-- name: end -->``.
+
+    The markers may sit in README.md or any docs/*.md (docs move; the examples they mark must keep running), but in
+    exactly one place.
+    """
+    found = []
+    for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        text = path.read_text()
+        for section in text.split(f"<!-- {name}: start -->")[1:]:
+            body = section.split(f"<!-- {name}: end -->", 1)[0]
+            match = re.search(rf"```{fence}\n(.*?)```", body, re.S)
+            assert match, f"no ```{fence} block between the {name} markers of {path.name}"
+            found.append((str(path.relative_to(REPO)), match.group(1)))
+    assert len(found) == 1, f"the {name} example must be in exactly one place, found {[f for f, _ in found]}"
+    return found[0]
 
 
 @contextmanager

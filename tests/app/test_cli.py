@@ -13,6 +13,8 @@ import scipy.io
 
 from solver import PlantFamily, design
 
+from .conftest import doc_block
+
 MOTOR = {"kind": "dc_motor", "inertias": [0.03, 0.05], "sampling_period": 0.1}
 
 
@@ -117,12 +119,6 @@ def test_design_against_a_server(workdir, gain_files, db_url, start_server):
     assert out.returncode == 2 and "422" in out.stderr and "Traceback" not in out.stderr
 
 
-def _readme_block(name: str, fence: str) -> str:
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    section = readme.split(f"<!-- {name}: start -->", 1)[1].split(f"<!-- {name}: end -->", 1)[0]
-    return re.search(rf"```{fence}\n(.*?)```", section, re.S).group(1)
-
-
 def test_readme_cli_example_runs(tmp_path):
     bindir = tmp_path / "bin"  # `ncs-design` on PATH, from this checkout
     bindir.mkdir()
@@ -130,7 +126,7 @@ def test_readme_cli_example_runs(tmp_path):
     (bindir / "ncs-design").chmod(0o755)
     env = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
     env.update(PATH=f"{bindir}:{env['PATH']}", PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    out = subprocess.run(["bash", "-euo", "pipefail", "-c", _readme_block("cli-example", "bash")], cwd=tmp_path,
+    out = subprocess.run(["bash", "-euo", "pipefail", "-c", doc_block("cli-example", "bash")[1]], cwd=tmp_path,
                          capture_output=True, text=True, timeout=300, env=env)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "stabilized" in out.stdout and "stable (certified)" in out.stdout and "ncs-design " in out.stdout
@@ -142,7 +138,8 @@ def test_readme_client_example_runs(db_url, start_server, capsys, monkeypatch):
     server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
     monkeypatch.setenv("NCS_URL", server.base)
     monkeypatch.delenv("NCS_API_KEY", raising=False)
-    exec(compile(_readme_block("client-example", "py"), "README.md", "exec"), {})
+    path, code = doc_block("client-example", "py")
+    exec(compile(code, path, "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed[:3] == ["stabilized (3, 1, 2)", "True", "(51, 2) 2"]
     assert printed[3] == "422 /plant/F", printed[3]  # a single matrix: one error saying how to wrap it

@@ -105,12 +105,13 @@ def test_per_second_rates_next_to_per_sample_ones(client):
 
 
 def test_readme_typed_http_example_runs(db_url, start_server, capsys, monkeypatch):
-    from .test_cli import _readme_block
+    from .conftest import doc_block
 
     server = start_server(db_url, NCS_WORKERS=1, NCS_SYNC_WORKERS=1)
     monkeypatch.setenv("NCS_URL", server.base)
     monkeypatch.delenv("NCS_API_KEY", raising=False)
-    exec(compile(_readme_block("http-typed-example", "py"), "README.md", "exec"), {})
+    path, code = doc_block("http-typed-example", "py")
+    exec(compile(code, path, "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed == ["['current', 'speed'] rad/s", "0.9 0.3487", "(3, 1, 2) True", "['K', 'K1', 'K2', 'K3', 'F']",
                        "rig A 2 2 stabilized", "True True", "1 F must be a list of n x n matrices, one per",

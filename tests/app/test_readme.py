@@ -1,4 +1,4 @@
-"""The README's service examples really run, and its settings table is complete."""
+"""The service examples of README and docs/service.md really run, and README's settings table is complete."""
 
 from __future__ import annotations
 
@@ -8,30 +8,35 @@ import shutil
 import subprocess
 
 import pytest
+import scipy.io
 
 from app.settings import Settings
 
-from .conftest import REPO
+from .conftest import REPO, doc_block
 
 README = (REPO / "README.md").read_text()
 
 
-def _example_block() -> str:
-    section = README.split("<!-- readme-example: start -->", 1)[1].split("<!-- readme-example: end -->", 1)[0]
-    match = re.search(r"```bash\n(.*?)```", section, re.S)
-    assert match, "no bash block between the readme-example markers"
-    return match.group(1)
-
-
-@pytest.mark.skipif(shutil.which("curl") is None, reason="curl is not installed")
-def test_readme_curl_examples_run(db_url, start_server, tmp_path):
-    server = start_server(db_url, NCS_WORKERS=1)
+def _run(block: str, server, tmp_path) -> str:
     script = tmp_path / "example.sh"
-    script.write_text("set -euo pipefail\n" + _example_block())
+    script.write_text("set -euo pipefail\n" + block)
     env = {**os.environ, "BASE": server.base}
     out = subprocess.run(["bash", str(script)], capture_output=True, text=True, timeout=180, env=env, cwd=tmp_path)
     assert out.returncode == 0, out.stdout + out.stderr
-    text = out.stdout
+    return out.stdout
+
+
+@pytest.mark.skipif(shutil.which("curl") is None, reason="curl is not installed")
+def test_readme_and_service_curl_examples_run(db_url, start_server, tmp_path):
+    server = start_server(db_url, NCS_WORKERS=1)
+    # README, "A first design / Over HTTP"
+    text = _run(doc_block("readme-example", "bash")[1], server, tmp_path)
+    assert "HTTP 201" in text
+    assert re.search(r"^succeeded stabilized \w+ K_1 = \[\[", text, re.M), text
+    assert "PNG: True MAT: b'MATLAB'" in text
+    assert scipy.io.loadmat(tmp_path / "gains.mat")["K"].shape == (3, 1, 2)
+    # docs/service.md, "Example session"
+    text = _run(doc_block("service-example", "bash")[1], server, tmp_path)
     assert "202 Accepted" in text
     assert "201 Created" in text and "preference-applied: wait=30" in text
     assert "event: end" in text
