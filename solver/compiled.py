@@ -32,7 +32,7 @@ SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SC
 #: Largest CCL block side ``2 n n_drop`` that "AUTO" leaves to Clarabel when the default
 #: ``ccl_start="feasibility"`` is asked for: the paper's example (n = 2, n_drop = 3) sits here, where
 #: Clarabel takes a fraction of a second and its Step 1 reproduces the paper's gains (eq. 23/24).
-#: Above it the IPM is 4x to 50x faster (docs/performance.md, "CCL on the IPM").
+#: Above it the IPM is 4x to 50x faster (docs/performance.md, "`ccl`").
 CCL_FEASIBILITY_SIDE = 12
 
 

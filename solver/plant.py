@@ -17,7 +17,7 @@ import scipy.linalg
 from .errors import InvalidInput
 
 # Eq. 19 of the paper (the matrices its eq. 20 and its results are built on).
-# Table I's parameters give a different A for J = 0.03 (see README): the paper
+# Table I's parameters give a different A for J = 0.03 (see docs/methods.md): the paper
 # example reproduces the paper, the DC motor builder follows the physics.
 _PAPER_A = (
     [[-4.0, -0.03], [0.5, -6.667]],

@@ -1,6 +1,6 @@
 """Short variants of scripts/load_test.py (the same code): concurrent clients submitting, polling and asking for
 traces get no error at all, nothing is lost; a burst over NCS_MAX_QUEUE_DEPTH gets 429 + Retry-After and the
-queue stays bounded. The README's figures come from the full run (1,000 submissions from 50 clients)."""
+queue stays bounded. The figures in docs/service.md come from the full run (1,000 submissions from 50 clients)."""
 
 from __future__ import annotations
 
