@@ -14,6 +14,8 @@ Options::
 
     --repeats N     timed designs per cell (default 5; median)
     --cases a,b     subset of the case names below
+    --calls         instead: whole design and analyze calls on the paper example under
+                    ``solver="AUTO"`` and ``solver="CLARABEL"``, median wall [process CPU]
 """
 
 from __future__ import annotations
@@ -128,7 +130,14 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench methods", description=__doc__.split("\n\n")[0])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--cases", default=",".join(CASES))
+    p.add_argument("--calls", action="store_true")
     args = p.parse_args(argv)
+    if args.calls:
+        print(f"paper example, h = 0.1 s, n_drop = 3: median of {args.repeats * 4} calls, wall [process CPU], "
+              f"load average {', '.join(f'{x:.1f}' for x in os.getloadavg())}\n")
+        print(calls_table(args.repeats * 4))
+        print(f"\nload average at the end {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        return 0
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"which method when: median process CPU of {args.repeats} designs (ccl: 1), load average {load}\n")
     rows = []
@@ -137,3 +146,29 @@ def main(argv=None) -> int:
     print(table(rows))
     print(f"\nload average at the end {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
     return 0
+
+
+def calls_table(repeats: int) -> str:
+    """Whole calls on the paper example under ``solver="AUTO"`` and ``solver="CLARABEL"``: median wall [CPU]."""
+    family = PlantFamily.paper_example(0.1)
+    gains = design(family, 3).gains
+    calls = [
+        ("`design(fam, 3)` (`lmi`)", lambda s: design(family, 3, solver=s)),
+        ('`design(fam, 3, decay_rate="max")`', lambda s: design(family, 3, decay_rate="max", solver=s)),
+        ('`design(fam, 3, method="switched")`', lambda s: design(family, 3, method="switched", solver=s)),
+        ("`analyze(fam, gains, 3)`", lambda s: analyze(family, gains, 3, solver=s)),
+    ]
+    out = ["| call | `AUTO` | `solver=\"CLARABEL\"` |", "|---|---|---|"]
+    for label, call in calls:
+        cells = []
+        for solver in ("AUTO", "CLARABEL"):
+            call(solver)  # warm-up: compiled problems and caches
+            walls, cpus = [], []
+            for _ in range(repeats):
+                w0, c0 = time.perf_counter(), time.process_time()
+                call(solver)
+                walls.append(time.perf_counter() - w0)
+                cpus.append(time.process_time() - c0)
+            cells.append(f"{_fmt_time(statistics.median(walls))} [{_fmt_time(statistics.median(cpus))}]")
+        out.append(f"| {label} | {cells[0]} | {cells[1]} |")
+    return "\n".join(out)
