@@ -12,6 +12,7 @@ In and out: ``PlantFamily.from_statespace`` / ``solver.control_interop`` (python
 """
 
 from .analysis import AnalysisReport, analyze
+from .codegen import export_c
 from .certificates import FarkasCertificate, UncontrollableCertificate
 from .design import METHODS, design
 from .errors import InvalidInput, SolverFailed
@@ -25,6 +26,7 @@ __all__ = [
     "design",
     "analyze",
     "simulate",
+    "export_c",
     "METHODS",
     "DesignResult",
     "IterationRecord",
