@@ -20,6 +20,7 @@ from .lyapunov import Certificate
 from .plant import PlantFamily
 from .result import DesignResult, IterationRecord
 from .simulate import SimulationResult, simulate
+from .sdpa import export_sdpa
 
 __all__ = [
     "PlantFamily",
@@ -27,6 +28,7 @@ __all__ = [
     "analyze",
     "simulate",
     "export_c",
+    "export_sdpa",
     "METHODS",
     "DesignResult",
     "IterationRecord",
