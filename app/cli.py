@@ -17,7 +17,7 @@ import sys
 
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
-TOOL_COMMANDS = ("design", "analyze", "simulate")
+TOOL_COMMANDS = ("design", "analyze", "simulate", "codegen", "export-sdpa")
 
 
 def package_version() -> str:
@@ -86,6 +86,23 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--mode", type=int, default=None, help="fixed plant mode (0-based) with --plant-switching none")
     m.add_argument("--plot", default=None, metavar="FILE", help="draw the run: .png or .svg")
     m.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the run as JSON")
+    g = sub.add_parser("codegen", help="C99 code of the controller and the actuator's buffer for given gains")
+    g.add_argument("result", metavar="RESULT", help="gains: a JSON design result (of `design -o` or a job) or "
+                   "list (n_drop x m x n), or a .mat with K or K1..KN")
+    g.add_argument("--out", required=True, metavar="DIR", help="directory to write <prefix>_controller.h/.c to")
+    g.add_argument("--n-drop", type=int, default=None, help="drop bound (default: the number of gains)")
+    g.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
+                   help="input once the newest packet is n_drop or more samples old (default hold)")
+    g.add_argument("--prefix", default="ncs", help="prefix of the C names and files (default ncs)")
+
+    x = sub.add_parser("export-sdpa", help="the SDP that design solves, in SDPA sparse format (.dat-s)")
+    plant_args(x)
+    x.add_argument("--n-drop", type=int, required=True, help="at most n_drop - 1 consecutive losses")
+    x.add_argument("--method", default="lmi", help="lmi (default) or switched")
+    x.add_argument("--decay-rate", default=None, metavar="LAMBDA", help="the SDP at this decay rate in (0, 1]")
+    x.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
+    x.add_argument("--scheme", choices=("predictive", "hold", "zero"), default=None)
+    x.add_argument("--output", "-o", default=None, metavar="FILE.dat-s", help="write here (default: stdout)")
     return parser
 
 

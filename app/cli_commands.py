@@ -243,7 +243,50 @@ def cmd_simulate(args) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"design": cmd_design, "analyze": cmd_analyze, "simulate": cmd_simulate}
+def cmd_codegen(args) -> int:
+    from solver import export_c
+
+    gains = load_gains(args.result)
+    n_drop = args.n_drop or len(gains)
+    metadata = {"file": Path(args.result).name}
+    if Path(args.result).suffix.lower() == ".json":
+        data = _read_json(Path(args.result))
+        if isinstance(data, dict):
+            job = data
+            result = data["result"] if isinstance(data.get("result"), dict) else data
+            cert = result.get("certificate") or {}
+            metadata.update({k: v for k, v in (("id", job.get("id")), ("method", result.get("method")),
+                                               ("outcome", result.get("outcome")),
+                                               ("certificate", cert.get("kind"))) if v is not None})
+    files = export_c(gains, n_drop, exhausted=args.exhausted, prefix=args.prefix, metadata=metadata)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (out / name).write_text(text)
+        print(f"wrote {out / name}")
+    return EXIT_OK
+
+
+def cmd_export_sdpa(args) -> int:
+    if args.server:
+        raise UsageError("export-sdpa runs in-process; a service's design has GET /v1/designs/{id}/problem.dat-s")
+    fam = load_plant(args.plant, args.sampling_period)
+    decay_rate = _parse_decay_rate(args.decay_rate)
+    options = {k: v for k, v in (("decay_rate", decay_rate), ("plant_switching", args.plant_switching),
+                                 ("scheme", args.scheme)) if v is not None}
+    from solver import export_sdpa
+
+    text = export_sdpa(fam, args.n_drop, method=args.method, **options)
+    if args.output:
+        Path(args.output).write_text(text)
+        print(f"wrote {args.output}: its optimum is -t*, t* = the design's history[-1].objective")
+    else:
+        sys.stdout.write(text)
+    return EXIT_OK
+
+
+COMMANDS = {"design": cmd_design, "analyze": cmd_analyze, "simulate": cmd_simulate, "codegen": cmd_codegen,
+            "export-sdpa": cmd_export_sdpa}
 
 
 def run_command(args) -> int:

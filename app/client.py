@@ -571,6 +571,17 @@ class Client:
             raise ValueError('fmt must be "mat" or "m"')
         return self._request("GET", f"/v1/designs/{job_id}/gains.{fmt}").content
 
+    def controller_zip(self, job_id: str, *, exhausted: str = "hold", prefix: str = "ncs") -> bytes:
+        """A succeeded design's C controller and actuator buffer (``GET /v1/designs/{id}/controller.zip``):
+        a zip of ``<prefix>_controller.h`` and ``.c`` (see :func:`solver.export_c`)."""
+        return self._request("GET", f"/v1/designs/{job_id}/controller.zip",
+                             params={"exhausted": exhausted, "prefix": prefix}).content
+
+    def problem_sdpa(self, job_id: str) -> str:
+        """The design's SDP in SDPA sparse format (``GET /v1/designs/{id}/problem.dat-s``, see
+        :func:`solver.export_sdpa`); its optimum is ``-result.history[-1].objective``."""
+        return self._request("GET", f"/v1/designs/{job_id}/problem.dat-s").text
+
     # -- margins
     def margins(self, plant, search: str, method: str = "lmi", *, wait: bool | float = True,
                 sampling_period: float | None = None, label: str | None = None,

@@ -232,3 +232,83 @@ async def design_gains_mat(job_id: str, request: Request, db: Database = Depends
 async def design_gains_m(job_id: str, request: Request, db: Database = Depends(get_database),
                          owner: str | None = Depends(require_api_key)):
     return await _gains_file(request, job_id, "m", db, owner)
+
+
+@router.get(
+    "/{job_id}/controller.zip", summary="C99 code of the controller and the actuator's buffer",
+    description="A zip of `<prefix>_controller.h` and `<prefix>_controller.c` (`solver.export_c`): "
+                "`<prefix>_packet` computes the packet `[K_1 x, ..., K_N x]` on the controller; "
+                "`<prefix>_buffer_receive(b, packet, stamp)` and `<prefix>_buffer_output(b, u)` run the "
+                "actuator's buffer (newest stamp wins, `u = K_(d+1) x(stamp)` with `d = now - stamp` while "
+                "`d < N`, then `exhausted`). C99, no dynamic memory, no global state. 409 until the design "
+                "has gains.",
+    response_class=Response,
+    responses={200: {"description": "The zip (Content-Disposition: attachment)",
+                     "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}}},
+               404: ERRORS[404], 409: _NO_GAINS, 422: ERRORS[422]},
+)
+async def design_controller_zip(
+    job_id: str,
+    request: Request,
+    exhausted: Annotated[Literal["hold", "zero"], Query(description="Input once the newest packet is N or more "
+                                                        "samples old: hold K_N x(stamp), or zero")] = "hold",
+    prefix: Annotated[str, Query(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,30}$",
+                                 description="Prefix of the C names and files")] = "ncs",
+    db: Database = Depends(get_database),
+    owner: str | None = Depends(require_api_key),
+):
+    row = await run_in_threadpool(store.get, db, "design", job_id, owner)
+    result = row.result or {}
+    if row.status != Status.SUCCEEDED or not result.get("gains"):
+        why = f"status {row.status!r}" if row.status != Status.SUCCEEDED else f"outcome {result.get('outcome')!r}"
+        raise ProblemException(409, f"design {job_id} has no gains to generate code from ({why})", title="Conflict")
+    cert = result.get("certificate") or {}
+    metadata = {"id": job_id, "method": row.request.get("method"), "outcome": result.get("outcome"),
+                "certificate": cert.get("kind")}
+    key = (job_id, "controller", exhausted, prefix)
+    body = request.app.state.trace_cache.get(key)
+    if body is None:
+        body = await run_sync(request, "controller_zip", result, row.request["n_drop"], exhausted, prefix, metadata,
+                              loc=["query"], plant=None)
+        request.app.state.trace_cache.put(key, body)
+    response = etag_response(request, "application/zip", body)
+    response.headers["Content-Disposition"] = f'attachment; filename="{prefix.lower()}-controller-{job_id}.zip"'
+    return response
+
+
+@router.get(
+    "/{job_id}/problem.dat-s", summary="The design's SDP in SDPA sparse format, to re-solve elsewhere",
+    description="The SDP `design` solves for this request (`solver.export_sdpa`), in the coordinates it solves "
+                "it in, with a comment header naming the variables; its optimum is `-t*` with "
+                "`t* = result.history[-1].objective`. Methods `lmi` and `switched` (`ccl` solves a sequence of "
+                "SDPs: 409). With `decay_rate: \"max\"`, the SDP at the certified rate once the design has one.",
+    response_class=Response,
+    responses={200: {"description": "SDPA sparse text (Content-Disposition: attachment)",
+                     "content": {"text/plain": {"schema": {"type": "string"}}}},
+               404: ERRORS[404], 409: {"description": "No single SDP for this design (ccl, or a decay-rate "
+                                                      "search without a certified rate yet)",
+                                       "content": {"application/problem+json": {}}}},
+)
+async def design_problem_sdpa(job_id: str, request: Request, db: Database = Depends(get_database),
+                              owner: str | None = Depends(require_api_key)):
+    row = await run_in_threadpool(store.get, db, "design", job_id, owner)
+    req = row.request
+    if req.get("method") == "ccl":
+        raise ProblemException(409, "ccl solves a sequence of SDPs, each built from the previous iterate: there is "
+                                    "no single SDP to export (methods lmi and switched have one)", title="Conflict")
+    options = dict(req.get("options") or {})
+    if options.get("decay_rate") == "max":
+        rate = (row.result or {}).get("decay_rate") if row.status == Status.SUCCEEDED else None
+        if rate is None:
+            raise ProblemException(409, f"design {job_id} searches the decay rate (a bisection over many SDPs) "
+                                        "and has no certified rate yet to export the SDP at", title="Conflict")
+        options["decay_rate"] = rate
+    key = (job_id, "sdpa", canonical_json(options))
+    body = request.app.state.trace_cache.get(key)
+    if body is None:
+        body = await run_sync(request, "problem_sdpa", req["plant"], req["n_drop"], req.get("method", "lmi"),
+                              options, loc=["path"], plant=req["plant"])
+        request.app.state.trace_cache.put(key, body)
+    response = etag_response(request, "text/plain; charset=utf-8", body)
+    response.headers["Content-Disposition"] = f'attachment; filename="ncs-design-{job_id}.dat-s"'
+    return response

@@ -273,6 +273,35 @@ def run_gains_file(result: dict[str, Any], fmt: str, name: str) -> bytes:
     return m_script(result, name=name).encode()
 
 
+def run_controller_zip(result: dict[str, Any], n_drop: int, exhausted: str, prefix: str,
+                       metadata: dict[str, Any]) -> bytes:
+    """The C controller and actuator buffer of a design's gains (``solver.export_c``), zipped."""
+    import io
+    import zipfile
+
+    from solver import export_c
+
+    files = export_c(_gains_array(result["gains"]), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata)
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+        for name in sorted(files):
+            # a fixed date: the same design gives byte-identical archives (ETags, caches)
+            z.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), files[name])
+    return out.getvalue()
+
+
+#: Design options that decide which SDP is solved (the rest say how it is solved).
+SDP_OPTIONS = ("decay_rate", "plant_switching", "scheme")
+
+
+def run_problem_sdpa(plant: dict[str, Any], n_drop: int, method: str, options: dict[str, Any]) -> bytes:
+    """The SDP a design solves, in SDPA sparse format (``solver.export_sdpa``)."""
+    from solver import export_sdpa
+
+    kwargs = {k: options[k] for k in SDP_OPTIONS if options.get(k) is not None}
+    return export_sdpa(build_family(plant), n_drop, method, **kwargs).encode()
+
+
 def warm_up() -> None:
     """Import the heavy libraries once so the first job does not pay for it."""
     import solver  # noqa: F401

@@ -1,0 +1,113 @@
+"""Deployment exports over HTTP, the client and the CLI: controller.zip (compiled with gcc and driven) and
+problem.dat-s (re-solved with cvxpy through the SDPA reader of tests/solver/test_sdpa.py)."""
+
+from __future__ import annotations
+
+import io
+import json
+import uuid
+import zipfile
+
+import numpy as np
+import pytest
+
+from app.client import Client
+from solver import PlantFamily, export_sdpa
+
+from ..solver.test_codegen import CBuffer, build
+from ..solver.test_sdpa import resolve
+from .conftest import assert_problem, running_client
+from .test_cli import MOTOR, ncs
+
+WAIT = {"Prefer": "wait=60"}
+
+
+@pytest.fixture(scope="module")
+def client(module_db):
+    with running_client(module_db, workers=1) as c:
+        yield c
+
+
+def submit(client, body):
+    job = client.post("/v1/designs", json=body, headers=WAIT).json()
+    assert job["status"] == "succeeded", job
+    return job
+
+
+@pytest.fixture(scope="module")
+def motor(client):
+    return submit(client, {"plant": MOTOR, "n_drop": 3})
+
+
+def test_controller_zip_compiles_and_computes_the_designs_packets(client, motor, tmp_path):
+    resp = client.get(f"/v1/designs/{motor['id']}/controller.zip")
+    assert resp.status_code == 200 and resp.headers["content-type"] == "application/zip"
+    files = {i.filename: zipfile.ZipFile(io.BytesIO(resp.content)).read(i).decode()
+             for i in zipfile.ZipFile(io.BytesIO(resp.content)).infolist()}
+    assert set(files) == {"ncs_controller.h", "ncs_controller.c"}
+    head = files["ncs_controller.h"]
+    cert = motor["result"]["certificate"]["kind"]
+    assert f"id: {motor['id']}" in head and "method: lmi" in head and f"certificate: {cert}" in head
+    K = np.array(motor["result"]["gains"])
+    c = CBuffer(build(tmp_path, files), "ncs", K.shape[1], 3)
+    x = np.array([0.3, -1.2])
+    np.testing.assert_allclose(c.packet(x).reshape(3, -1), K @ x, rtol=1e-13, atol=1e-13)
+    again = client.get(f"/v1/designs/{motor['id']}/controller.zip", headers={"If-None-Match": resp.headers["etag"]})
+    assert again.status_code == 304
+
+
+def test_controller_zip_options_and_refusals(client, motor):
+    resp = client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"exhausted": "zero", "prefix": "Pump"})
+    names = zipfile.ZipFile(io.BytesIO(resp.content)).namelist()
+    assert sorted(names) == ["pump_controller.c", "pump_controller.h"]
+    assert 'exhausted policy "zero"' in zipfile.ZipFile(io.BytesIO(resp.content)).read("pump_controller.h").decode()
+    assert_problem(client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"prefix": "9x"}), 422,
+                   "/prefix")
+    assert_problem(client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"exhausted": "last"}), 422,
+                   "/exhausted")
+    assert_problem(client.get(f"/v1/designs/{uuid.uuid4()}/controller.zip"), 404)
+    infeasible = submit(client, {"plant": {"kind": "discrete", "F": [[[2.0]]], "G": [[[0.0]]]}, "n_drop": 2})
+    assert infeasible["result"]["outcome"] == "infeasible"
+    assert_problem(client.get(f"/v1/designs/{infeasible['id']}/controller.zip"), 409)
+
+
+@pytest.mark.parametrize("method, options", [("lmi", {}), ("lmi", {"decay_rate": 0.95}),
+                                             ("switched", {"scheme": "hold"}), ("lmi", {"decay_rate": "max"})])
+def test_problem_sdpa_resolves_to_minus_the_objective(client, method, options):
+    job = submit(client, {"plant": MOTOR, "n_drop": 2, "method": method, "options": options})
+    resp = client.get(f"/v1/designs/{job['id']}/problem.dat-s")
+    assert resp.status_code == 200 and resp.headers["content-type"].startswith("text/plain")
+    t_star = job["result"]["history"][-1]["objective"]
+    assert resolve(resp.text) == pytest.approx(-t_star, rel=1e-5, abs=1e-6)
+
+
+def test_problem_sdpa_refuses_ccl(client):
+    job = submit(client, {"plant": MOTOR, "n_drop": 2, "method": "ccl"})
+    body = assert_problem(client.get(f"/v1/designs/{job['id']}/problem.dat-s"), 409)
+    assert "sequence of SDPs" in body["detail"]
+
+
+def test_client_methods(client, motor):
+    c = Client("http://testserver", http_client=client, poll_interval=0.05)
+    data = c.controller_zip(motor["id"], exhausted="zero")
+    assert "ncs_controller.c" in zipfile.ZipFile(io.BytesIO(data)).namelist()
+    text = c.problem_sdpa(motor["id"])
+    assert text == export_sdpa(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3)
+
+
+def test_cli_codegen_and_export_sdpa(tmp_path):
+    (tmp_path / "motor.json").write_text(json.dumps(MOTOR))
+    out = ncs("design", "motor.json", "--n-drop", 3, "--output", "res.json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    out = ncs("codegen", "res.json", "--out", "c", "--exhausted", "zero", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    head = (tmp_path / "c" / "ncs_controller.h").read_text()
+    assert "method: lmi" in head and "#define NCS_N_DROP 3" in head and '"zero"' in head
+    out = ncs("export-sdpa", "motor.json", "--n-drop", 3, "-o", "p.dat-s", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    t_star = json.loads((tmp_path / "res.json").read_text())["history"][-1]["objective"]
+    assert resolve((tmp_path / "p.dat-s").read_text()) == pytest.approx(-t_star, rel=1e-5, abs=1e-6)
+    out = ncs("export-sdpa", "motor.json", "--n-drop", 3, "--method", "ccl", cwd=tmp_path)
+    assert out.returncode == 2 and "sequence of SDPs" in out.stderr
+    out = ncs("codegen", "res.json", "--out", "c", "--prefix", "9", cwd=tmp_path)
+    assert out.returncode == 2 and "prefix" in out.stderr
