@@ -17,8 +17,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PATH=/opt/venv/bin:$PATH \
     NCS_DATABASE_URL=sqlite:////data/ncs.db \
     NCS_HOST=0.0.0.0 \
-    NCS_PORT=8000 \
-    NCS_ALEMBIC_DIR=/srv/ncs/alembic
+    NCS_PORT=8000
 
 WORKDIR /srv/ncs
 
@@ -36,8 +35,9 @@ RUN python3 -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.tom
     && pip install -r /tmp/requirements.txt \
     && rm /tmp/requirements.txt
 
-# Then the code (no dependency resolution any more).
-COPY README.md alembic.ini ./
+# Then the code (no dependency resolution any more). The migrations travel in the wheel (setup.py maps
+# alembic/ to app/migrations): the service finds them without NCS_ALEMBIC_DIR.
+COPY README.md alembic.ini setup.py ./
 COPY alembic ./alembic
 COPY solver ./solver
 COPY app ./app

@@ -156,10 +156,15 @@ class Database:
 
 
 def find_alembic_dir(configured: Path | None = None) -> Path:
+    """The migration environment: ``configured`` (NCS_ALEMBIC_DIR), else the installed package's
+    ``app/migrations`` (setup.py maps the repository's ``alembic/`` there), else the source tree's
+    ``alembic/``, else ``./alembic``."""
     candidates = []
     if configured is not None:
         candidates.append(Path(configured))
-    candidates.append(Path(__file__).resolve().parent.parent / "alembic")
+    package = Path(__file__).resolve().parent.parent  # app/
+    candidates.append(package / "migrations")
+    candidates.append(package.parent / "alembic")
     candidates.append(Path.cwd() / "alembic")
     for c in candidates:
         if (c / "env.py").is_file():

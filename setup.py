@@ -1,0 +1,15 @@
+"""Packaging beyond what pyproject.toml can say: the Alembic migrations travel in the wheel.
+
+The migration environment stays at the top of the repository (``alembic/``, used as is by
+``alembic upgrade head`` from a clone) and is installed as ``app/migrations`` (no ``__init__.py``
+on purpose: ``./alembic`` must never shadow the alembic library); ``app.jobs.database`` finds it there.
+"""
+
+from setuptools import find_packages, setup
+
+setup(
+    packages=find_packages(include=["solver", "solver.*", "app", "app.*"]) + ["app.migrations",
+                                                                              "app.migrations.versions"],
+    package_dir={"app.migrations": "alembic"},
+    package_data={"app.migrations": ["script.py.mako"]},
+)
