@@ -31,6 +31,10 @@ class Settings(BaseSettings):
         description="SQLAlchemy URL of the job database. Default: an SQLite file `ncs.db` in the "
         "working directory. PostgreSQL: `postgresql+psycopg://user@host:5432/db`.",
     )
+    database_busy_timeout: float = Field(
+        30.0, gt=0, le=600, description="SQLite: seconds a write waits for the database's write lock (held by "
+        "another writer) before giving up with 503 \"locked\". A submission is answered within this plus 5 s.",
+    )
     workers: int = Field(
         default_factory=_default_workers, ge=1, le=256,
         description="Number of design worker processes (default: CPU count).",

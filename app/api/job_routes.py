@@ -19,7 +19,6 @@ from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
 from app.jobs.database import Database
-from app.jobs.dispatcher import SUBMIT_WAIT_BOUND
 from app.jobs.model import FINISHED
 
 ERRORS = {
@@ -116,17 +115,18 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
 
 
 async def _bounded(dispatcher, taken: asyncio.Future):
-    """The answer of a submission handed to the dispatcher, within SUBMIT_WAIT_BOUND: one the dispatcher has
-    not begun to write by then (it is stuck waiting for the database) is withdrawn, never written, and
-    answered 503 with the database's current trouble."""
+    """The answer of a submission handed to the dispatcher, within its ``submit_wait_bound``: one the
+    dispatcher has not begun to write by then (it is stuck waiting for the database) is withdrawn, never
+    written, and answered 503 with the database's current trouble."""
+    bound = dispatcher.submit_wait_bound
     try:
-        return await asyncio.wait_for(asyncio.shield(taken), SUBMIT_WAIT_BOUND)
+        return await asyncio.wait_for(asyncio.shield(taken), bound)
     except asyncio.TimeoutError:
         if not dispatcher.withdraw(taken):
             return await taken  # in a write whose lock wait is bounded by what was left: answered soon
         cause = dispatcher.tick_error or "database is locked"
         raise OperationalError(None, None, Exception(
-            f"{cause} (the submission waited {SUBMIT_WAIT_BOUND:g} s)")) from None
+            f"{cause} (the submission waited {bound:g} s)")) from None
 
 
 def job_router(kind: str) -> APIRouter:

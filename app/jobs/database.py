@@ -34,11 +34,11 @@ def is_sqlite(url: str) -> bool:
     return url.startswith("sqlite")
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS) -> Engine:
     if is_sqlite(url):
         engine = create_engine(
             url,
-            connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000, "check_same_thread": False},
+            connect_args={"timeout": busy_timeout_ms / 1000, "check_same_thread": False},
             pool_size=20,
             max_overflow=40,
             pool_timeout=60,
@@ -50,7 +50,7 @@ def make_engine(url: str) -> Engine:
             dbapi_conn.isolation_level = None
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
-            cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+            cur.execute(f"PRAGMA busy_timeout={busy_timeout_ms}")
             cur.execute("PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.close()
@@ -61,9 +61,9 @@ def make_engine(url: str) -> Engine:
             if options.get("ncs_write"):
                 # A write transaction whose submitters have less than the busy timeout left waits only that
                 # long for the write lock (then "database is locked"): no submission waits past its bound.
-                busy_ms = options.get("ncs_busy_ms") or SQLITE_BUSY_TIMEOUT_MS
+                busy_ms = options.get("ncs_busy_ms") or busy_timeout_ms
                 info = conn.connection.info  # kept with the DBAPI connection in the pool
-                if info.get("ncs_busy_ms", SQLITE_BUSY_TIMEOUT_MS) != busy_ms:
+                if info.get("ncs_busy_ms", busy_timeout_ms) != busy_ms:
                     conn.exec_driver_sql(f"PRAGMA busy_timeout={int(busy_ms)}")
                     info["ncs_busy_ms"] = busy_ms
                 conn.exec_driver_sql("BEGIN IMMEDIATE")
@@ -115,9 +115,11 @@ class Database:
     with bound parameters is compiled once; the ORM's unit of work and its per-call statement building cost
     more than the query)."""
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, busy_timeout: float = SQLITE_BUSY_TIMEOUT_MS / 1000):
         self.url = url
-        self.engine = make_engine(url)
+        #: SQLite: how long a write waits for the write lock before "database is locked" (s).
+        self.busy_timeout = busy_timeout
+        self.engine = make_engine(url, int(busy_timeout * 1000))
         self._write_engine = self.engine.execution_options(ncs_write=True)
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(self._write_engine, expire_on_commit=False)
@@ -155,11 +157,11 @@ class Database:
     def write_conn(self, busy_timeout: float | None = None) -> Iterator[Connection]:
         """A short write transaction on a Core connection (``BEGIN IMMEDIATE`` on SQLite): commits on
         success, rolls back on error. ``busy_timeout`` (s, SQLite): wait at most this long for the write lock
-        (default :data:`SQLITE_BUSY_TIMEOUT_MS`)."""
+        (default: the database's ``busy_timeout``)."""
         self.guard()
         engine = self._write_engine
         if busy_timeout is not None and self.sqlite:
-            engine = engine.execution_options(ncs_busy_ms=max(1, min(SQLITE_BUSY_TIMEOUT_MS,
+            engine = engine.execution_options(ncs_busy_ms=max(1, min(int(self.busy_timeout * 1000),
                                                                      int(busy_timeout * 1000))))
         with engine.begin() as conn:
             yield conn

@@ -35,7 +35,7 @@ from sqlalchemy.exc import DBAPIError
 
 from app.compute.messages import Cancelled, ExecutorEvent, Failed, Lost, Progress, Started, Succeeded
 from app.jobs import store as jobs
-from app.jobs.database import SQLITE_BUSY_TIMEOUT_MS, Database, database_reason
+from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
 from app.jobs.model import JobRecord, Status
 from app.jobs.watch import resolve_from_thread
@@ -44,11 +44,10 @@ from app.settings import Settings
 log = logging.getLogger("app.dispatcher")
 
 PROGRESS_WRITE_EVERY = 0.2  # seconds between progress writes of one job
-#: A submission handed to the dispatcher waits at most this long for the write lock (SQLite's busy timeout) ...
-SUBMIT_LOCK_WAIT = SQLITE_BUSY_TIMEOUT_MS / 1000
-#: ... and is answered within this bound: the lock wait plus a margin for the write itself. A submission the
-#: dispatcher has not taken by then (stuck in another write) is withdrawn and answered 503 with the cause.
-SUBMIT_WAIT_BOUND = SUBMIT_LOCK_WAIT + 5.0
+#: A submission handed to the dispatcher waits at most NCS_DATABASE_BUSY_TIMEOUT for the write lock, and is
+#: answered within that plus this margin (for the write itself): one the dispatcher has not taken by then
+#: (stuck in another write) is withdrawn and answered 503 with the cause.
+SUBMIT_WAIT_MARGIN = 5.0
 
 
 class _Running:
@@ -154,14 +153,18 @@ class Dispatcher:
                     return True
         return False
 
-    @staticmethod
-    def _lock_budget(subs: list) -> float | None:
+    @property
+    def submit_wait_bound(self) -> float:
+        """The longest a submission handed to this dispatcher waits for its answer (s)."""
+        return self.db.busy_timeout + SUBMIT_WAIT_MARGIN
+
+    def _lock_budget(self, subs: list) -> float | None:
         """How long this write may wait for the lock: what is left of its oldest submission's
-        :data:`SUBMIT_LOCK_WAIT` (None without submissions: the database's own busy timeout)."""
+        lock wait, the database's busy timeout (None without submissions: the whole busy timeout)."""
         if not subs:
             return None
         oldest = min(s.handed_at for s, _, _ in subs)
-        return max(0.05, oldest + SUBMIT_LOCK_WAIT - time.monotonic())
+        return max(0.05, oldest + self.db.busy_timeout - time.monotonic())
 
     def notify(self) -> None:
         """A job was queued or asked to cancel: look at the table now."""
@@ -228,7 +231,7 @@ class Dispatcher:
         if not subs:
             return
         st = self.settings
-        if min(s.handed_at for s, _, _ in subs) + SUBMIT_LOCK_WAIT <= time.monotonic():
+        if min(s.handed_at for s, _, _ in subs) + self.db.busy_timeout <= time.monotonic():
             # They waited for the lock as long as they may: answered with the cause now, not after another wait.
             resolve_from_thread([(loop, fut, exc) for _, loop, fut in subs])
             return
