@@ -248,6 +248,48 @@ class Database:
         self.engine.dispose()
 
 
+class DatabaseSettingError(Exception):
+    """NCS_DATABASE_URL names no usable database; the message is one line naming the setting and the cause."""
+
+
+def check_database_url(url: str, alembic_dir: Path | None = None) -> None:
+    """Connect to the database of ``url`` and migrate it, or raise :class:`DatabaseSettingError` saying in one
+    line why not (bad scheme, unreachable server, missing database, unwritable SQLite file), never the
+    password."""
+    try:
+        shown = make_url(url).render_as_string(hide_password=True)
+    except Exception:  # noqa: BLE001 - not a URL at all
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={url!r} is not a database URL (e.g. sqlite:///./ncs.db or "
+                                   "postgresql+psycopg://user@host:5432/db)") from None
+    try:
+        engine = make_engine(url)
+    except Exception as exc:  # noqa: BLE001 - unknown dialect or driver
+        cause = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={shown}: unsupported database URL ({cause}); use "
+                                   "sqlite:///path or postgresql+psycopg://user@host:5432/db") from None
+    try:
+        raw = engine.raw_connection()
+        try:
+            cur = raw.cursor()
+            if is_sqlite(url):
+                cur.execute("BEGIN IMMEDIATE")  # the file must take writes, not only open
+                cur.execute("ROLLBACK")
+            else:
+                cur.execute("SELECT 1")
+            cur.close()
+        finally:
+            raw.close()
+        run_migrations(url, alembic_dir)
+    except (DBAPIError, engine.dialect.loaded_dbapi.Error) as exc:
+        orig = getattr(exc, "orig", None) or exc
+        cause = str(orig).strip().splitlines()
+        cause = " ".join(line.strip() for line in cause[:2]) if cause else type(orig).__name__
+        hint = " (does the directory exist, and is it writable?)" if is_sqlite(url) else ""
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={shown}: cannot use the database: {cause}{hint}") from None
+    finally:
+        engine.dispose()
+
+
 def find_alembic_dir(configured: Path | None = None) -> Path:
     candidates = []
     if configured is not None:
