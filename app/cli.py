@@ -132,10 +132,14 @@ def main(argv: list[str] | None = None) -> int:
     from app.settings import Settings
 
     settings = Settings()
-    if args.command == "migrate":
-        from app.jobs.database import run_migrations
+    from app.jobs.database import DatabaseSettingError, check_database_url
 
-        run_migrations(settings.database_url, settings.alembic_dir)
+    try:  # a wrong NCS_DATABASE_URL is one line naming the setting and the cause, not a traceback
+        check_database_url(settings.database_url, settings.alembic_dir)
+    except DatabaseSettingError as exc:
+        print(f"ncs-design {args.command}: {exc}", file=sys.stderr)
+        return 2
+    if args.command == "migrate":
         print(f"database at {settings.database_url} is up to date")
         return 0
 

@@ -98,7 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         run_migrations(settings.database_url, settings.alembic_dir)
-        db = Database(settings.database_url)
+        db = Database(settings.database_url, settings.database_busy_timeout)
         app.state.db = db
         app.state.sync_pool = SyncPool(settings.sync_workers, settings.sync_time_limit,
                                        settings.worker_memory_mb)

@@ -31,6 +31,10 @@ class Settings(BaseSettings):
         description="SQLAlchemy URL of the job database. Default: an SQLite file `ncs.db` in the "
         "working directory. PostgreSQL: `postgresql+psycopg://user@host:5432/db`.",
     )
+    database_busy_timeout: float = Field(
+        30.0, gt=0, le=600, description="SQLite: seconds a write waits for the database's write lock (held by "
+        "another writer) before giving up with 503 \"locked\". A submission is answered within this plus 5 s.",
+    )
     workers: int = Field(
         default_factory=_default_workers, ge=1, le=256,
         description="Number of design worker processes (default: CPU count).",
@@ -91,6 +95,22 @@ class Settings(BaseSettings):
     max_queue_depth: int = Field(
         10_000, ge=1, description="Back-pressure: a design submitted while this many jobs are queued is "
         "refused with 429 and `Retry-After` instead of growing the queue without bound.",
+    )
+    max_queued_per_owner: int = Field(
+        1_000, ge=1, description="Per-owner quota: a job submitted while its API key (or, without keys, the "
+        "service's one anonymous owner) has this many jobs queued is refused with 429 naming this limit; other "
+        "keys still get in. Keep `NCS_MAX_QUEUE_DEPTH` at least keys x this quota so one key cannot fill the "
+        "global queue.",
+    )
+    max_running_per_owner: int | None = Field(
+        None, ge=1, description="Optional cap on the jobs of one API key running at a time over every service "
+        "on the database (at most one claim batch more per replica while several claim at once). Empty: no "
+        "cap; a key may use every idle worker.",
+    )
+    fair_scheduling: bool = Field(
+        True, description="Claim queued jobs owner by owner in turn (round-robin over the API keys with "
+        "queued work, weight 1 each, each key's oldest first). False: oldest first over all keys (one key's "
+        "backlog delays everyone).",
     )
     retry_after: int = Field(
         5, ge=1, description="Seconds sent in `Retry-After` with a 429 (queue full) or a 503 (database "

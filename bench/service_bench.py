@@ -474,6 +474,9 @@ def main(argv=None) -> int:
     p.add_argument("--open-seconds", type=float, default=10.0)
     p.add_argument("--time-limit", type=float, default=120.0, help="cap of each loaded run, seconds")
     p.add_argument("--quick", action="store_true", help="fewer jobs (about 30 s per database)")
+    p.add_argument("--compare-fairness", action="store_true",
+                   help="measure each database twice in this run: claims oldest first over all owners "
+                        "(NCS_FAIR_SCHEDULING=false) and owner by owner in turn (the default)")
     p.add_argument("--dask", action="store_true",
                    help="also measure the Dask backend: a LocalCluster (worker processes, as many as the "
                         "default pool, 1 thread each) and the server with NCS_DASK_SCHEDULER, on SQLite")
@@ -509,8 +512,16 @@ def main(argv=None) -> int:
     results: list[tuple[str, dict[str, str]]] = []
     t0 = time.perf_counter()
     try:
-        for label, url, _ in dbs:
-            results.append((label, measure(label, url, a)))
+        for label, url, pg in dbs:
+            if not a.compare_fairness:
+                results.append((label, measure(label, url, a)))
+                continue
+            for fair in ("false", "true"):
+                run_url = url
+                if pg is None:  # a fresh SQLite file per run; PostgreSQL: the same database, emptied by the run
+                    run_url = f"sqlite:///{tempfile.mkdtemp(prefix='ncs-bench-db-')}/ncs.db"
+                results.append((f"{label}, {'fair' if fair == 'true' else 'FIFO'}",
+                                measure(label, run_url, a, {"NCS_FAIR_SCHEDULING": fair})))
         if a.dask:
             from distributed import LocalCluster
 

@@ -195,6 +195,21 @@ def _prove_product(family: PlantFamily, K: np.ndarray, modes: ModeSet, seq: tupl
     return bound, unstable, note
 
 
+def _check_products_fit_float64(A: np.ndarray, max_product_length: int) -> None:
+    """Products of up to ``max_product_length`` closed loops must be representable in float64, else no bound
+    can be computed from them. The infinity norm is submultiplicative and bounds every entry, so products
+    stay finite when ``max_s ||A_s||_inf ** max_product_length`` does (with room for the eigenvalue routine).
+    Gains that large are an input error, named as such."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = float(np.max(np.sum(np.abs(A), axis=-1)))
+    if not np.isfinite(norm) or (norm > 1.0 and max_product_length * np.log10(norm) > 300.0):
+        shown = f"{norm:.3g}" if np.isfinite(norm) else "infinite"
+        raise InvalidInput(
+            f"the gains are too large to analyze in float64: the closed-loop matrices have norm {shown}, so "
+            f"their products of length up to {max_product_length} overflow (scale the gains down or use a "
+            "shorter max_product_length)", ("gains",))
+
+
 def analyze(
     family: PlantFamily,
     gains,
@@ -264,6 +279,7 @@ def analyze(
         raise InvalidInput("bounds must be 'quadratic', 'all' or 'none'", ("bounds",))
     solver = check_solver(solver)
     A = modes.closed_loops(K)
+    _check_products_fit_float64(A, max_product_length)
     radii = spectral_radii(A)
     estimate, seq, checked = product_lower_bound(A, max_product_length, max_products)
     worst = [modes.label(s) for s in seq]

@@ -17,19 +17,23 @@ def healthz():
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="Readiness: database reachable and workers alive", response_model=Readiness,
+@router.get("/readyz", summary="Readiness: the database takes writes and workers are alive",
+            response_model=Readiness,
+            description="200 when a write transaction can begin on the database (a probe that changes nothing, "
+                        "its answer reused for 1 s) and workers are ready. 503 problem+json with `checks` "
+                        "otherwise; `checks.database` names the cause (locked, read-only, unreachable, full).",
             responses={503: {"description": "Not ready (problem+json with `checks`)",
                              "content": {"application/problem+json": {}}}})
 async def readyz(request: Request):
     state = request.app.state
     checks: dict = {}
     ok = True
-    try:
-        await run_in_threadpool(state.db.ping)
+    problem = await run_in_threadpool(state.db.write_problem)
+    if problem is None:
         checks["database"] = "ok"
-    except Exception as exc:
+    else:
         ok = False
-        checks["database"] = f"unreachable: {type(exc).__name__}"
+        checks["database"] = f"cannot take writes: {problem}"
     disp = getattr(state, "dispatcher", None)
     if disp is None:
         checks["workers"] = {"dispatcher": "disabled"}

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
+from sqlalchemy.exc import OperationalError
 
 from app.api.deps import PROBLEM, V1_RESPONSES, get_database, require_api_key
 from app.api.schemas import JOB_MODELS, JobList, JobSummary
@@ -90,11 +91,12 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
     if dispatcher is not None:
         taken = dispatcher.take(store.prepare(kind, req, n_drop, idempotency_key=idempotency_key, owner=owner))
     if taken is not None:
-        submitted = await taken
+        submitted = await _bounded(dispatcher, taken)
     else:
         submitted = await run_in_threadpool(
             store.submit, db, kind, req, n_drop, idempotency_key=idempotency_key, owner=owner,
-            max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after)
+            max_queue_depth=settings.max_queue_depth, retry_after=settings.retry_after,
+            max_queued_per_owner=settings.max_queued_per_owner)
         if not submitted.replayed and dispatcher is not None:
             dispatcher.notify()
     row = submitted.job
@@ -110,6 +112,21 @@ async def submit(request: Request, response: Response, kind: str, req: dict, n_d
     if row.status in FINISHED:
         response.status_code = 201
     return full(row)
+
+
+async def _bounded(dispatcher, taken: asyncio.Future):
+    """The answer of a submission handed to the dispatcher, within its ``submit_wait_bound``: one the
+    dispatcher has not begun to write by then (it is stuck waiting for the database) is withdrawn, never
+    written, and answered 503 with the database's current trouble."""
+    bound = dispatcher.submit_wait_bound
+    try:
+        return await asyncio.wait_for(asyncio.shield(taken), bound)
+    except asyncio.TimeoutError:
+        if not dispatcher.withdraw(taken):
+            return await taken  # in a write whose lock wait is bounded by what was left: answered soon
+        cause = dispatcher.tick_error or "database is locked"
+        raise OperationalError(None, None, Exception(
+            f"{cause} (the submission waited {bound:g} s)")) from None
 
 
 def job_router(kind: str) -> APIRouter:

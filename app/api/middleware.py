@@ -84,14 +84,16 @@ class JsonBodiesOnly:
                     if not _is_json(content_type):
                         return await self._reject(scope, send, content_type)
                     break
+            else:  # no Content-Type at all: FastAPI would not parse the body as JSON either
+                return await self._reject(scope, send, None)
         return await self.app(scope, receive, send)
 
-    async def _reject(self, scope, send, content_type: str):
-        shown = content_type.split(";", 1)[0].strip()[:100]
+    async def _reject(self, scope, send, content_type: str | None):
+        got = "no Content-Type" if content_type is None else repr(content_type.split(";", 1)[0].strip()[:100])
         body = json.dumps({
             "type": problem_type(Request(scope), "unsupported-media-type"), "title": "Unsupported Media Type",
             "status": 415,
-            "detail": f"the request body must be JSON: send Content-Type: application/json (got {shown!r})",
+            "detail": f"the request body must be JSON: send Content-Type: application/json (got {got})",
             "instance": scope.get("path", ""),
             "errors": [{"loc": ["header", "Content-Type"], "pointer": "", "type": "unsupported_media_type",
                         "msg": "Content-Type must be application/json"}],

@@ -14,7 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.jobs.database import database_reason
 from app.jobs.errors import (ComputeFailed, ComputeTimeLimit, IdempotencyKeyReused, JobAlreadyFinished, JobNotFound,
-                             MemoryLimitExceeded, QueueFull, WorkerDied)
+                             MemoryLimitExceeded, OwnerQueueFull, QueueFull, WorkerDied)
 
 log = logging.getLogger("app")
 
@@ -74,9 +74,16 @@ PROBLEM_TYPES: dict[str, tuple[str, str, str]] = {
         "Too Many Requests",
         "More jobs are waiting than the service queues (NCS_MAX_QUEUE_DEPTH).",
         "Retry after the `Retry-After` seconds; the client (`app.client.Client`) does so by itself."),
+    "owner-quota": (
+        "Too Many Requests",
+        "Your API key already has as many jobs queued as one key may (NCS_MAX_QUEUED_PER_OWNER). The limit is "
+        "per key: other keys are not affected, and your queued jobs keep their places.",
+        "Retry after the `Retry-After` seconds, once some of your queued jobs have started; or cancel queued "
+        "jobs you no longer need."),
     "database-unavailable": (
         "Database unavailable",
-        "The job database is full, read-only or unreachable. Nothing was changed.",
+        "The job database cannot take a write: it is full, read-only, locked by another writer, or unreachable "
+        "(the `detail` says which). Nothing was changed.",
         "Retry after the `Retry-After` seconds; if it persists, tell the operator."),
     "time-limit": (
         "Time limit exceeded",
@@ -232,6 +239,7 @@ def _parse_failure(cause: BaseException | None) -> str:
 DOMAIN_ERRORS = {
     JobNotFound: (404, "Not Found", "not-found"),
     JobAlreadyFinished: (409, "Conflict", "conflict"),
+    OwnerQueueFull: (429, "Too Many Requests", "owner-quota"),
     QueueFull: (429, "Too Many Requests", "queue-full"),
     MemoryLimitExceeded: (422, "Resource limit exceeded", "limit-exceeded"),
     ComputeTimeLimit: (503, "Time limit exceeded", "time-limit"),

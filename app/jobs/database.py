@@ -9,27 +9,36 @@ busy timeout). PostgreSQL uses the same code with its default isolation.
 
 from __future__ import annotations
 
+import os
+import sqlite3
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from sqlalchemy import create_engine, event, text
-from sqlalchemy.engine import Connection, Engine
-from sqlalchemy.exc import DBAPIError
+from sqlalchemy.engine import Connection, Engine, make_url
+from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+#: How long a PostgreSQL connection attempt may take before the server counts as unreachable (s).
+PG_CONNECT_TIMEOUT = 10
+#: How long the readiness write probe waits for the write lock (s), and how long its answer is reused.
+PROBE_TIMEOUT = 0.5
+PROBE_EVERY = 1.0
 
 
 def is_sqlite(url: str) -> bool:
     return url.startswith("sqlite")
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS) -> Engine:
     if is_sqlite(url):
         engine = create_engine(
             url,
-            connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000, "check_same_thread": False},
+            connect_args={"timeout": busy_timeout_ms / 1000, "check_same_thread": False},
             pool_size=20,
             max_overflow=40,
             pool_timeout=60,
@@ -41,20 +50,48 @@ def make_engine(url: str) -> Engine:
             dbapi_conn.isolation_level = None
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
-            cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+            cur.execute(f"PRAGMA busy_timeout={busy_timeout_ms}")
             cur.execute("PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.close()
 
         @event.listens_for(engine, "begin")
         def _on_begin(conn):
-            if conn.get_execution_options().get("ncs_write"):
+            options = conn.get_execution_options()
+            if options.get("ncs_write"):
+                # A write transaction whose submitters have less than the busy timeout left waits only that
+                # long for the write lock (then "database is locked"): no submission waits past its bound.
+                busy_ms = options.get("ncs_busy_ms") or busy_timeout_ms
+                info = conn.connection.info  # kept with the DBAPI connection in the pool
+                if info.get("ncs_busy_ms", busy_timeout_ms) != busy_ms:
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={int(busy_ms)}")
+                    info["ncs_busy_ms"] = busy_ms
                 conn.exec_driver_sql("BEGIN IMMEDIATE")
             else:
                 conn.exec_driver_sql("BEGIN")
 
         return engine
-    return create_engine(url, pool_size=10, max_overflow=40, pool_pre_ping=True, pool_timeout=60)
+    connect_args = {"connect_timeout": PG_CONNECT_TIMEOUT} if "psycopg" in url.split(":", 1)[0] else {}
+    return create_engine(url, pool_size=10, max_overflow=40, pool_pre_ping=True, pool_timeout=60,
+                         connect_args=connect_args)
+
+
+def sqlite_files(url: str) -> list[Path]:
+    """The files of an SQLite database (the database, its WAL and its WAL index): [] for a memory database."""
+    database = make_url(url).database
+    if not database or database == ":memory:" or database.startswith("file:"):
+        return []
+    path = Path(database)
+    return [path, Path(f"{path}-wal"), Path(f"{path}-shm")]
+
+
+def unwritable_file(files: list[Path]) -> Path | None:
+    """The first existing file of ``files`` this process cannot write (read-only mode, or immutable: the
+    kernel refuses writes to an immutable file even to root, and ``access(W_OK)`` says so), else None."""
+    for f in files:
+        if not os.access(f, os.W_OK) and f.exists():
+            return f
+    return None
 
 
 def database_reason(exc: BaseException) -> str:
@@ -65,9 +102,11 @@ def database_reason(exc: BaseException) -> str:
         return "the database is full (no space left for writes)"
     if "readonly" in low or "read-only" in low or "read only" in low or "permission" in low:
         return "the database is read-only"
-    if "locked" in low or "timeout" in low or "timed out" in low:
-        return "the database is busy"
-    return "the database connection failed"
+    if "locked" in low or "busy" in low:
+        return "the database is locked (another writer holds it)"
+    if "timeout" in low or "timed out" in low:
+        return "the database is busy (timed out)"
+    return "the database is unreachable (connection failed)"
 
 
 class Database:
@@ -76,35 +115,62 @@ class Database:
     with bound parameters is compiled once; the ORM's unit of work and its per-call statement building cost
     more than the query)."""
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, busy_timeout: float = SQLITE_BUSY_TIMEOUT_MS / 1000):
         self.url = url
-        self.engine = make_engine(url)
+        #: SQLite: how long a write waits for the write lock before "database is locked" (s).
+        self.busy_timeout = busy_timeout
+        self.engine = make_engine(url, int(busy_timeout * 1000))
         self._write_engine = self.engine.execution_options(ncs_write=True)
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(self._write_engine, expire_on_commit=False)
+        self._files = sqlite_files(url) if is_sqlite(url) else []
+        self._probe_lock = threading.Lock()
+        self._probe: tuple[float, str | None] = (-1e9, None)
 
     @property
     def sqlite(self) -> bool:
         return is_sqlite(self.url)
 
+    def guard(self) -> None:
+        """Refuse to touch the database while an SQLite file cannot be written (read-only or immutable).
+
+        SQLite maps its WAL index (``-shm``) into memory and writes to it even to read; a write to the
+        mapping of a file that became immutable is a SIGBUS that ends the process. So no connection is used
+        (nor closed: closing checkpoints) until the files are writable again; every caller gets a
+        "read-only" OperationalError instead, a 503. Three ``access`` calls, a few microseconds."""
+        if self._files:
+            bad = unwritable_file(self._files)
+            if bad is not None:
+                orig = sqlite3.OperationalError(f"attempt to write a readonly database ({bad.name} is read-only "
+                                                "or immutable)")
+                raise OperationalError(None, None, orig)
+
     @contextmanager
     def write(self) -> Iterator[Session]:
         """A short write transaction: commits on success, rolls back on error."""
+        self.guard()
         with self._write() as session:
             with session.begin():
                 yield session
 
     @contextmanager
-    def write_conn(self) -> Iterator[Connection]:
+    def write_conn(self, busy_timeout: float | None = None) -> Iterator[Connection]:
         """A short write transaction on a Core connection (``BEGIN IMMEDIATE`` on SQLite): commits on
-        success, rolls back on error."""
-        with self._write_engine.begin() as conn:
+        success, rolls back on error. ``busy_timeout`` (s, SQLite): wait at most this long for the write lock
+        (default: the database's ``busy_timeout``)."""
+        self.guard()
+        engine = self._write_engine
+        if busy_timeout is not None and self.sqlite:
+            engine = engine.execution_options(ncs_busy_ms=max(1, min(int(self.busy_timeout * 1000),
+                                                                     int(busy_timeout * 1000))))
+        with engine.begin() as conn:
             yield conn
 
     @contextmanager
     def read_conn(self) -> Iterator[Connection]:
         """A read on a Core connection, ended like :meth:`end_read` ends a session: a connection that died
         after the answer was read is discarded, not raised."""
+        self.guard()
         conn = self.engine.connect()
         try:
             yield conn
@@ -118,6 +184,7 @@ class Database:
 
     @contextmanager
     def read(self) -> Iterator[Session]:
+        self.guard()
         session = self._read()
         try:
             yield session
@@ -147,12 +214,80 @@ class Database:
                     raise
 
     def ping(self) -> None:
+        self.guard()
         with self.engine.connect() as conn:
             conn.execute(text("SELECT 1"))
             conn.rollback()
 
+    def write_problem(self) -> str | None:
+        """Why the database cannot take a write now (:func:`database_reason`: locked, read-only, unreachable,
+        ...), or None when it can. A real write transaction that changes nothing: the write lock within
+        :data:`PROBE_TIMEOUT` on SQLite, an UPDATE that a read-only PostgreSQL refuses. The answer is reused
+        for :data:`PROBE_EVERY` s, so a load balancer polling ``/readyz`` does not add to a contended lock."""
+        with self._probe_lock:
+            at, answer = self._probe
+            if time.monotonic() - at < PROBE_EVERY:
+                return answer
+            try:
+                def probe() -> None:
+                    with self.write_conn(PROBE_TIMEOUT) as conn:
+                        if not self.sqlite:
+                            conn.exec_driver_sql(f"SET LOCAL statement_timeout = {int(PROBE_TIMEOUT * 1000)}")
+                        conn.exec_driver_sql("UPDATE jobs SET id = id WHERE 1 = 0")
+
+                self.retry_on_disconnect(probe)
+                answer = None
+            except Exception as exc:  # noqa: BLE001 - every failure is a reason not to be ready
+                answer = database_reason(exc)
+            self._probe = (time.monotonic(), answer)
+            return answer
+
     def dispose(self) -> None:
+        if self._files and unwritable_file(self._files) is not None:
+            return  # closing would checkpoint into files that refuse writes (SIGBUS): the OS closes them
         self.engine.dispose()
+
+
+class DatabaseSettingError(Exception):
+    """NCS_DATABASE_URL names no usable database; the message is one line naming the setting and the cause."""
+
+
+def check_database_url(url: str, alembic_dir: Path | None = None) -> None:
+    """Connect to the database of ``url`` and migrate it, or raise :class:`DatabaseSettingError` saying in one
+    line why not (bad scheme, unreachable server, missing database, unwritable SQLite file), never the
+    password."""
+    try:
+        shown = make_url(url).render_as_string(hide_password=True)
+    except Exception:  # noqa: BLE001 - not a URL at all
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={url!r} is not a database URL (e.g. sqlite:///./ncs.db or "
+                                   "postgresql+psycopg://user@host:5432/db)") from None
+    try:
+        engine = make_engine(url)
+    except Exception as exc:  # noqa: BLE001 - unknown dialect or driver
+        cause = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={shown}: unsupported database URL ({cause}); use "
+                                   "sqlite:///path or postgresql+psycopg://user@host:5432/db") from None
+    try:
+        raw = engine.raw_connection()
+        try:
+            cur = raw.cursor()
+            if is_sqlite(url):
+                cur.execute("BEGIN IMMEDIATE")  # the file must take writes, not only open
+                cur.execute("ROLLBACK")
+            else:
+                cur.execute("SELECT 1")
+            cur.close()
+        finally:
+            raw.close()
+        run_migrations(url, alembic_dir)
+    except (DBAPIError, engine.dialect.loaded_dbapi.Error) as exc:
+        orig = getattr(exc, "orig", None) or exc
+        cause = str(orig).strip().splitlines()
+        cause = " ".join(line.strip() for line in cause[:2]) if cause else type(orig).__name__
+        hint = " (does the directory exist, and is it writable?)" if is_sqlite(url) else ""
+        raise DatabaseSettingError(f"NCS_DATABASE_URL={shown}: cannot use the database: {cause}{hint}") from None
+    finally:
+        engine.dispose()
 
 
 def find_alembic_dir(configured: Path | None = None) -> Path:

@@ -44,6 +44,10 @@ from app.settings import Settings
 log = logging.getLogger("app.dispatcher")
 
 PROGRESS_WRITE_EVERY = 0.2  # seconds between progress writes of one job
+#: A submission handed to the dispatcher waits at most NCS_DATABASE_BUSY_TIMEOUT for the write lock, and is
+#: answered within that plus this margin (for the write itself): one the dispatcher has not taken by then
+#: (stuck in another write) is withdrawn and answered 503 with the cause.
+SUBMIT_WAIT_MARGIN = 5.0
 
 
 class _Running:
@@ -89,6 +93,9 @@ class Dispatcher:
         self._submissions_lock = threading.Lock()
         self._closed = False  # the thread has ended: submissions go to the store directly
         self._batches = jobs.batches_submissions(db)
+        # How jobs are claimed: owner by owner in turn (NCS_FAIR_SCHEDULING), with an optional running cap.
+        self.policy = jobs.ClaimPolicy(jobs.OwnerTurns() if settings.fair_scheduling else None,
+                                       settings.max_running_per_owner)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
@@ -131,9 +138,33 @@ class Dispatcher:
         with self._submissions_lock:
             if self._closed or not self._batches or not self.thread_alive():
                 return None
+            sub.handed_at = time.monotonic()
             self._submissions.append((sub, loop, fut))
         self.notify()
         return fut
+
+    def withdraw(self, fut: asyncio.Future) -> bool:
+        """Take back a submission the dispatcher has not started to write (True): its submitter answers
+        without it, and it is never written. False once it is in a write (its answer comes soon)."""
+        with self._submissions_lock:
+            for i, (_, _, f) in enumerate(self._submissions):
+                if f is fut:
+                    del self._submissions[i]
+                    return True
+        return False
+
+    @property
+    def submit_wait_bound(self) -> float:
+        """The longest a submission handed to this dispatcher waits for its answer (s)."""
+        return self.db.busy_timeout + SUBMIT_WAIT_MARGIN
+
+    def _lock_budget(self, subs: list) -> float | None:
+        """How long this write may wait for the lock: what is left of its oldest submission's
+        lock wait, the database's busy timeout (None without submissions: the whole busy timeout)."""
+        if not subs:
+            return None
+        oldest = min(s.handed_at for s, _, _ in subs)
+        return max(0.05, oldest + self.db.busy_timeout - time.monotonic())
 
     def notify(self) -> None:
         """A job was queued or asked to cancel: look at the table now."""
@@ -200,9 +231,15 @@ class Dispatcher:
         if not subs:
             return
         st = self.settings
+        if min(s.handed_at for s, _, _ in subs) + self.db.busy_timeout <= time.monotonic():
+            # They waited for the lock as long as they may: answered with the cause now, not after another wait.
+            resolve_from_thread([(loop, fut, exc) for _, loop, fut in subs])
+            return
         try:
             answers, _, _ = jobs.write_batch(self.db, self.owner, [s for s, _, _ in subs], [], st.lease_seconds, [],
-                                             st.max_queue_depth, st.retry_after)
+                                             st.max_queue_depth, st.retry_after,
+                                             max_queued_per_owner=st.max_queued_per_owner,
+                                             busy_timeout=self._lock_budget(subs))
         except BaseException as again:
             resolve_from_thread([(loop, fut, again) for _, loop, fut in subs])
             return
@@ -274,7 +311,9 @@ class Dispatcher:
         try:
             answers, ended, claimed = jobs.write_batch(self.db, self.owner, [s for s, _, _ in subs], endings,
                                                        st.lease_seconds, [s.pid for s in free],
-                                                       st.max_queue_depth, st.retry_after)
+                                                       st.max_queue_depth, st.retry_after,
+                                                       max_queued_per_owner=st.max_queued_per_owner,
+                                                       policy=self.policy, busy_timeout=self._lock_budget(subs))
         except BaseException as exc:  # the database is down: nothing was written; the submitters hear why
             resolve_from_thread([(loop, fut, exc) for _, loop, fut in subs])
             raise

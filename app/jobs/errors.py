@@ -27,6 +27,17 @@ class QueueFull(JobError):
         self.retry_after = retry_after
 
 
+class OwnerQueueFull(QueueFull):
+    """This caller's own quota of queued jobs is used up (other API keys are not affected)."""
+
+    def __init__(self, queued: int, limit: int, retry_after: int):
+        JobError.__init__(self, f"your API key has {queued} jobs queued, its limit is {limit} "
+                          f"(NCS_MAX_QUEUED_PER_OWNER); other keys are not affected; retry after {retry_after} s, "
+                          f"when some of your jobs have started")
+        self.retry_after = retry_after
+        self.queued, self.limit = queued, limit
+
+
 class IdempotencyKeyReused(JobError):
     def __init__(self) -> None:
         super().__init__("this Idempotency-Key was already used with a different request body")

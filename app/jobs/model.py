@@ -70,6 +70,9 @@ class Job(Base):
         Index("ix_jobs_status_created", "status", "created_at"),
         Index("ix_jobs_created", "created_at"),
         Index("ix_jobs_owner_created", "owner", "created_at"),
+        # Fair claims and per-owner quotas (app.jobs.store): the owners with queued jobs, each one's oldest
+        # queued job and its queued count are index seeks and range counts.
+        Index("ix_jobs_status_owner_created", "status", "owner", "created_at", "id"),
     )
 
 

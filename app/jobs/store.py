@@ -20,14 +20,14 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import and_, bindparam, func, select, update
+from sqlalchemy import and_, bindparam, func, select, text, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 
 from app.jobs.database import Database
-from app.jobs.errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, QueueFull
+from app.jobs.errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, OwnerQueueFull, QueueFull
 from app.jobs.model import Job, JobRecord, Status, new_id, utcnow
 
 _T = Job.__table__
@@ -65,15 +65,98 @@ _CLAIM_ONE = (
     .returning(_C.request, _C.attempts)
 )
 
+# -- fair claims: one turn per owner with queued work -------------------------------------------------------
+# The owners with queued jobs, found by a skip scan of ix_jobs_status_owner_created: one index seek per owner,
+# whatever the length of the queue (a GROUP BY would read every queued row).
+_QUEUED_OWNERS = text(
+    "WITH RECURSIVE o(owner) AS ("
+    " SELECT (SELECT owner FROM jobs WHERE status = 'queued' AND owner IS NOT NULL ORDER BY owner LIMIT 1)"
+    " UNION ALL"
+    " SELECT (SELECT j.owner FROM jobs j WHERE j.status = 'queued' AND j.owner > o.owner ORDER BY j.owner LIMIT 1)"
+    " FROM o WHERE o.owner IS NOT NULL)"
+    " SELECT owner FROM o WHERE owner IS NOT NULL")
+_HAS_QUEUED_UNOWNED = select(_C.id).where(_C.status == _QUEUED, _C.owner.is_(None)).limit(1)
+_OLDEST_OF_OWNER = (select(_C.id).where(_C.status == _QUEUED, _C.owner == bindparam("b_qowner"))
+                    .order_by(_C.created_at, _C.id).limit(bindparam("b_n")).with_for_update(skip_locked=True))
+_OLDEST_UNOWNED = (select(_C.id).where(_C.status == _QUEUED, _C.owner.is_(None))
+                   .order_by(_C.created_at, _C.id).limit(bindparam("b_n")).with_for_update(skip_locked=True))
+_RUNNING_PER_OWNER = select(_C.owner, func.count()).where(_C.status == _RUNNING).group_by(_C.owner)
 
-def _claim(c: Connection, owner: str, lease_seconds: float, pids: list[int | None]) -> list[Claimed]:
-    """Claim up to ``len(pids)`` of the oldest queued jobs, inside the caller's transaction.
+
+class OwnerTurns:
+    """Which owner (API key) a dispatcher served last: the order of the next fair claim.
+
+    Claims go round-robin over the owners with queued work, least recently served first, every owner with
+    weight 1: a key's next job waits for at most one job of every other key with queued work, however many
+    jobs those keys have queued. Kept per dispatcher (no shared row to lock on every claim); with several
+    replicas each one alternates, so the order holds globally up to one job per replica.
+    """
+
+    def __init__(self) -> None:
+        self._last: dict[str | None, int] = {}
+        self._clock = 0
+
+    def order(self, owners: list[str | None]) -> list[str | None]:
+        return sorted(owners, key=lambda o: self._last.get(o, -1))
+
+    def served(self, owner: str | None) -> None:
+        self._clock += 1
+        self._last[owner] = self._clock
+
+
+@dataclass
+class ClaimPolicy:
+    """How a dispatcher claims: ``turns`` None is oldest first over all owners (no fairness);
+    ``max_running_per_owner`` caps the running jobs of one owner over every dispatcher on the database."""
+
+    turns: OwnerTurns | None = None
+    max_running_per_owner: int | None = None
+
+
+def _fair_pick(c: Connection, n: int, policy: ClaimPolicy) -> list[str]:
+    """The ids of up to ``n`` queued jobs, one per owner in turn (see :class:`OwnerTurns`), each owner's
+    oldest first, skipping owners at their running cap. Rows locked (SKIP LOCKED) until the commit."""
+    turns = policy.turns or OwnerTurns()
+    owners: list[str | None] = [r[0] for r in c.execute(_QUEUED_OWNERS)]
+    if c.execute(_HAS_QUEUED_UNOWNED).first() is not None:
+        owners.append(None)
+    room = {o: n for o in owners}
+    if policy.max_running_per_owner is not None and owners:
+        running = {o: k for o, k in c.execute(_RUNNING_PER_OWNER)}
+        room = {o: min(n, policy.max_running_per_owner - running.get(o, 0)) for o in owners}
+    lists = []
+    for o in turns.order([o for o in owners if room[o] > 0]):
+        if o is None:
+            ids = [r[0] for r in c.execute(_OLDEST_UNOWNED, {"b_n": room[o]})]
+        else:
+            ids = [r[0] for r in c.execute(_OLDEST_OF_OWNER, {"b_qowner": o, "b_n": room[o]})]
+        if ids:
+            lists.append((o, ids))
+    picked: list[str] = []
+    depth = 0
+    while len(picked) < n and lists:
+        for o, ids in lists:
+            if depth < len(ids) and len(picked) < n:
+                picked.append(ids[depth])
+                turns.served(o)
+        lists = [(o, ids) for o, ids in lists if len(ids) > depth + 1]
+        depth += 1
+    return picked
+
+
+def _claim(c: Connection, owner: str, lease_seconds: float, pids: list[int | None],
+           policy: ClaimPolicy | None = None) -> list[Claimed]:
+    """Claim up to ``len(pids)`` queued jobs, inside the caller's transaction: owner by owner in turn
+    (:func:`_fair_pick`), or the oldest over all owners when ``policy`` asks for neither turns nor a cap.
 
     The i-th claimed job records ``pids[i]`` as its worker pid (``None``/0: not known yet).
     On PostgreSQL ``FOR UPDATE SKIP LOCKED`` lets several dispatchers claim at once without
     waiting for or double-claiming each other; SQLite serializes the write transactions.
     """
-    ids = [r[0] for r in c.execute(_CLAIM_IDS, {"b_n": len(pids)})]
+    if policy is None or (policy.turns is None and policy.max_running_per_owner is None):
+        ids = [r[0] for r in c.execute(_CLAIM_IDS, {"b_n": len(pids)})]
+    else:
+        ids = _fair_pick(c, len(pids), policy)
     if not ids:
         return []
     now = utcnow()
@@ -297,6 +380,15 @@ def scoped_idempotency_key(key: str | None, owner: str | None) -> str | None:
 _BY_IDEMPOTENCY_KEY = select(_T).where(_C.idempotency_key == bindparam("b_key"))
 _INSERT = _T.insert()
 _QUEUED_COUNT = select(func.count()).select_from(_T).where(_C.status == _QUEUED)
+_QUEUED_OF_OWNER = select(func.count()).select_from(_T).where(_C.status == _QUEUED, _C.owner == bindparam("b_qowner"))
+_QUEUED_UNOWNED = select(func.count()).select_from(_T).where(_C.status == _QUEUED, _C.owner.is_(None))
+
+
+def _queued_of(c: Connection, owner: str | None) -> int:
+    """How many jobs ``owner`` has queued (an index range count on ix_jobs_status_owner_created)."""
+    if owner is None:
+        return c.execute(_QUEUED_UNOWNED).scalar_one()
+    return c.execute(_QUEUED_OF_OWNER, {"b_qowner": owner}).scalar_one()
 _EXISTS = select(_C.id).where(_C.id == bindparam("b_id"))
 
 
@@ -311,6 +403,8 @@ class Submission:
 
     row: JobRecord
     values: dict[str, Any]
+    #: When the request handler handed it to the dispatcher (time.monotonic()): its wait is bounded from here.
+    handed_at: float = 0.0
 
     def replay(self, existing: JobRecord) -> Submitted:
         """The answer when the Idempotency-Key is taken by ``existing``."""
@@ -337,11 +431,13 @@ def _lookup(c: Connection, stored_key: str) -> JobRecord | None:
 
 
 def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, idempotency_key: str | None = None,
-           owner: str | None = None, max_queue_depth: int | None = None, retry_after: int = 5) -> Submitted:
+           owner: str | None = None, max_queue_depth: int | None = None, retry_after: int = 5,
+           max_queued_per_owner: int | None = None) -> Submitted:
     """Queue a validated job, or return the one an earlier submission with the same Idempotency-Key made.
 
     Raises IdempotencyKeyReused (same key, other body) and QueueFull (back-pressure: more than
-    ``max_queue_depth`` jobs waiting). One short write transaction (the queue-depth count and the INSERT);
+    ``max_queue_depth`` jobs waiting; :class:`OwnerQueueFull` when ``owner`` has ``max_queued_per_owner``
+    queued). One short write transaction (the queue-depth counts and the INSERT);
     a connection lost on the way is retried once. An Idempotency-Key is looked up only when the INSERT
     finds it taken (the key is unique) or the queue is full: a new key, the usual case, costs no read.
     (A running dispatcher batches submissions instead: :func:`write_batch`.)
@@ -357,6 +453,10 @@ def submit(db: Database, kind: str, request: dict[str, Any], n_drop: int, *, ide
         # The back-pressure count and the INSERT share one write transaction (one connection checkout and
         # commit per submission, and the count cannot go stale before the insert).
         with db.write_conn() as c:
+            if max_queued_per_owner is not None:
+                mine = _queued_of(c, owner)
+                if mine >= max_queued_per_owner:
+                    raise OwnerQueueFull(mine, max_queued_per_owner, retry_after)
             if max_queue_depth is not None:
                 queued = c.execute(_QUEUED_COUNT).scalar_one()
                 if queued >= max_queue_depth:
@@ -395,22 +495,34 @@ def batches_submissions(db: Database) -> bool:
 
 
 def _insert_many(c: Connection, subs: list[Submission], max_queue_depth: int | None,
-                 retry_after: int) -> list[Submitted | Exception]:
+                 retry_after: int, max_queued_per_owner: int | None = None) -> list[Submitted | Exception]:
     """Each submission in turn, as :func:`submit` would answer it one after the other (Submitted, or the
-    QueueFull / IdempotencyKeyReused it raises), inside the caller's transaction."""
+    QueueFull / OwnerQueueFull / IdempotencyKeyReused it raises), inside the caller's transaction."""
     insert = _INSERT_NEW[c.dialect.name]
     queued = c.execute(_QUEUED_COUNT).scalar_one() if max_queue_depth is not None else 0
+    mine: dict[str | None, int] = {}  # per owner in this batch: its queued jobs, counted once
     out: list[Submitted | Exception] = []
     for sub in subs:
         key = sub.row.idempotency_key
+        owner = sub.row.owner
         try:
-            if max_queue_depth is not None and queued >= max_queue_depth:
+            full = None
+            if max_queued_per_owner is not None:
+                if owner not in mine:
+                    mine[owner] = _queued_of(c, owner)
+                if mine[owner] >= max_queued_per_owner:
+                    full = OwnerQueueFull(mine[owner], max_queued_per_owner, retry_after)
+            if full is None and max_queue_depth is not None and queued >= max_queue_depth:
+                full = QueueFull(queued, max_queue_depth, retry_after)
+            if full is not None:
                 existing = _lookup(c, key) if key is not None else None
                 if existing is None:
-                    raise QueueFull(queued, max_queue_depth, retry_after)
+                    raise full
                 out.append(sub.replay(existing))
             elif c.execute(insert, sub.values).rowcount == 1:
                 queued += 1
+                if owner in mine:
+                    mine[owner] += 1
                 out.append(Submitted(sub.row, replayed=False))
             elif c.execute(_EXISTS, {"b_id": sub.row.id}).first() is not None:
                 out.append(Submitted(sub.row, replayed=False))  # a retried transaction: the first one committed
@@ -426,19 +538,25 @@ def _insert_many(c: Connection, subs: list[Submission], max_queue_depth: int | N
 
 def write_batch(db: Database, owner: str, submissions: list[Submission], endings: list[Ending],
                 lease_seconds: float, pids: list[int | None], max_queue_depth: int | None = None,
-                retry_after: int = 5) -> tuple[list[Submitted | Exception], list[JobRecord | None], list[Claimed]]:
+                retry_after: int = 5, *, max_queued_per_owner: int | None = None, policy: ClaimPolicy | None = None,
+                busy_timeout: float | None = None,
+                ) -> tuple[list[Submitted | Exception], list[JobRecord | None], list[Claimed]]:
     """One dispatcher write: insert ``submissions`` (answered per submission as :func:`submit` answers, an
     error as the exception it would raise), record ``endings`` and claim up to ``len(pids)`` queued jobs, all
     in one transaction: a worker that just finished a job takes the next one without a second commit.
     Retried once on a connection found dead (every step is safe to repeat). Nothing is written if it raises.
 
+    ``busy_timeout`` (s, SQLite) bounds the wait for the write lock of this transaction (the submitters'
+    remaining wait); ``policy`` is how jobs are claimed (:class:`ClaimPolicy`).
+
     Returns the answers, per ending the job as it now is (None when this owner no longer held it: its lease
     was lost or it was cancelled meanwhile), and the claimed jobs."""
     def run():
-        with db.write_conn() as c:
-            answers = _insert_many(c, submissions, max_queue_depth, retry_after) if submissions else []
+        with db.write_conn(busy_timeout) as c:
+            answers = (_insert_many(c, submissions, max_queue_depth, retry_after, max_queued_per_owner)
+                       if submissions else [])
             ended = [_finish(c, owner, end) for end in endings]
-            claimed = _claim(c, owner, lease_seconds, pids) if pids else []
+            claimed = _claim(c, owner, lease_seconds, pids, policy) if pids else []
         return answers, ended, claimed
 
     return db.retry_on_disconnect(run)

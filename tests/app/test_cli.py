@@ -143,3 +143,33 @@ def test_readme_client_example_runs(db_url, start_server, capsys, monkeypatch):
     printed = capsys.readouterr().out.splitlines()
     assert printed[:3] == ["stabilized (3, 1, 2)", "True", "(51, 2) 2"]
     assert printed[3] == "422 /plant/F", printed[3]  # a single matrix: one error saying how to wrap it
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("url,cause", [
+    (f"postgresql+psycopg://postgres:secret@127.0.0.1:{_free_port()}/ncs", "Connection refused"),
+    ("postgresql+psycopg://postgres:secret@127.0.0.1:5432/no_such_database_ncs", "does not exist"),
+    ("mysqlx://user@host/db", "unsupported database URL"),
+    ("not a url", "is not a database URL"),
+    ("sqlite:////proc/no/such/dir/ncs.db", "unable to open database file"),
+])
+def test_wrong_database_url_exits_with_one_line_naming_the_setting(tmp_path, url, cause):
+    """Issue 20: a wrong NCS_DATABASE_URL was a 75-154-line traceback."""
+    if "5432" in url and not os.environ.get("NCS_TEST_DATABASE_URL"):
+        pytest.skip("needs the PostgreSQL server of NCS_TEST_DATABASE_URL")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NCS_")}
+    proc = subprocess.run([sys.executable, "-m", "app.cli", "serve", "--port", str(_free_port())], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60,
+                          env={**env, "PYTHONPATH": os.getcwd(), "NCS_DATABASE_URL": url})
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("ncs-design serve: NCS_DATABASE_URL") and cause in lines[0], lines
+    assert "secret" not in proc.stderr and "Traceback" not in proc.stderr

@@ -156,6 +156,23 @@ def test_bad_analysis_and_simulation(client, path, payload, pointer):
     assert_problem(client.post(path, json=payload), 422, pointer)
 
 
+@pytest.mark.parametrize("scale", [1e100, 1e200, 1.5e308])
+def test_analysis_with_huge_finite_gains_is_a_422_naming_gains(client, scale):
+    """Issue 20: finite gains of 1e100 or more overflowed the mode products (500 "Solver error")."""
+    gains = [[[scale, 0.0]], [[0.0, 0.0]], [[0.0, 0.0]]]
+    body = assert_problem(client.post("/v1/analyses", json={**ANALYSIS, "gains": gains}), 422, "/gains")
+    assert "too large" in body["detail"], body
+
+
+@pytest.mark.parametrize("path", ["/v1/designs", "/v1/analyses", "/v1/simulations", "/v1/margins"])
+def test_json_body_without_content_type_is_415(client, path):
+    """Issue 20: a JSON body sent with no Content-Type at all got 422 "Input should be a valid dictionary"."""
+    resp = client.post(path, content=json.dumps(body()).encode())
+    assert "content-type" not in resp.request.headers
+    problem = assert_problem(resp, 415)
+    assert "no Content-Type" in problem["detail"] and "application/json" in problem["detail"], problem
+
+
 def test_no_job_row_was_left_behind(client):
     # Runs last in this module: all the bad requests above created nothing.
     listing = client.get("/v1/designs").json()
