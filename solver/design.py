@@ -12,7 +12,8 @@ from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
-from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
+from .ipm import blas_threads
+from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, ModeSet
 from .plant import PlantFamily
 from .result import DesignResult
@@ -155,11 +156,13 @@ def design(
         decay_rate=None if decay_rate in (None, "max") else float(decay_rate),
     )
     scale = balance(family) if scaling == "auto" else None
-    if scale is not None and not scale.is_identity:
-        scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
-                                           scheme=scheme, max_modes=max_modes)
-        return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
-    return _best(method, modes, options, decay_rate, rate_tol)
+    # one BLAS thread: the re-checks and proofs are many small LAPACK calls that 2 threads only slow down
+    with blas_threads(1):
+        if scale is not None and not scale.is_identity:
+            scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
+                                               scheme=scheme, max_modes=max_modes)
+            return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+        return _best(method, modes, options, decay_rate, rate_tol)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
@@ -327,13 +330,10 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     rho = None if cert.decay_rate is None else cert.decay_rate ** (2.0 * modes.eta)
     if cert.kind == "switched":
         original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source, rho=rho)
+    elif cert.X is not None:  # the reduced form in the user's coordinates (the rate too), lifted afresh
+        original = recheck_lifted(scale.quadratic_back(cert.X), A, modes.n_drop, cert.source, rho=rho)
     else:
-        X = None if cert.X is None else scale.quadratic_back(cert.X)
-        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
-        if not original.verified and X is not None:  # lift X afresh in the user's coordinates
-            original = recheck_common(lift(X, A, modes.n_drop), A, modes.n_drop, cert.source, X=X)
-        if original.verified and rho is not None:  # the rate, too, in the user's coordinates
-            original.verified = recheck_common_reduced(X, A, rho, cert.source).verified
+        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source)
     if original.verified:
         original.decay_rate = cert.decay_rate
         res.certificate = original

@@ -11,7 +11,7 @@ import numpy as np
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
 from ..compiled import SolveInfo, resolve_solver
 from ..errors import SolverFailed
-from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
+from ..lyapunov import Certificate, certify, recheck_common, recheck_lifted, recheck_switched
 from ..network import ModeSet, spectral_radii
 from ..result import DesignResult, IterationRecord
 
@@ -94,10 +94,8 @@ def certify_gains(
             cert = recheck_switched(candidate, A, candidate_source, rho=rho)
         elif candidate_kind == "augmented":
             cert = recheck_common(candidate, A, n_drop, candidate_source)
-        else:
-            cert = recheck_common(lift(candidate, A, n_drop), A, n_drop, candidate_source, X=candidate)
-            if cert.verified and options.decay_rate is not None:
-                cert.verified = recheck_common_reduced(candidate, A, rho, candidate_source).verified
+        else:  # one re-check, on the reduced form (exact equivalent of the augmented one)
+            cert = recheck_lifted(candidate, A, n_drop, candidate_source, rho=rho)
         if cert.verified:
             cert.decay_rate = options.decay_rate
             return cert, A
