@@ -219,9 +219,12 @@ class FarkasCertificate:
         ``lmi``: shape (S, 2n, 2n), ``Z_s`` in the order of the result's ``mode_labels``.
         ``switched``: shape (S, S, 2n, 2n), ``Z_{s,u}`` for the pair (s, u).
     gain_bound : float
-        No design with ``sqrt(sum_j ||Theta_j||_2^2) < gain_bound`` exists (``Theta_j``
-        the scheme's free gains; ``K_q`` for the predictive scheme); ``inf`` when
+        No design with relative margin ``margin`` and ``sqrt(sum_j ||Theta_j||_2^2) < gain_bound``
+        exists (``Theta_j`` the scheme's free gains; ``K_q`` for the predictive scheme); ``inf`` when
         ``E`` vanishes exactly.
+    gain_bound_any_margin : float
+        The same bound for designs of any margin (> 0 only when ``delta > 0``; see
+        :attr:`any_margin`).
     delta : float
         Proven lower bound of ``-lambda_max(Q)`` less the PSD shifts.
     e_norm : float
@@ -250,14 +253,31 @@ class FarkasCertificate:
     kind: str = "farkas"
     margin: float = 0.0
     source: str = "sdp_dual"
+    gain_bound_any_margin: float = 0.0
+
+    @property
+    def any_margin(self) -> bool:
+        """Whether designs of *every* margin (down to 0) are excluded below ``gain_bound_any_margin``.
+
+        True when the multipliers alone contradict the LMIs (``delta > 0``: the outcome
+        "infeasible"); False when only the margin makes the room (the outcome "marginal": designs
+        with relative margin below ``margin`` may exist).
+        """
+        return self.gain_bound_any_margin > 0
 
     def statement(self) -> str:
         what = ("common quadratic Lyapunov design" if self.method == "lmi"
                 else "switched-Lyapunov design with a common slack (||Z||_F <= trace(Z + Z^T)/2)")
         rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
-        bound = "of any gain norm" if np.isinf(self.gain_bound) else f"with gain norm < {self.gain_bound:.3g}"
-        strict = "" if not self.margin else f", relative margin >= {self.margin:.3g}"
-        return f"no {what} {bound}{strict}{rate} (Farkas certificate re-checked in float64)"
+        if not self.any_margin:
+            return (f"marginal: no {what} with relative margin >= {self.margin:.3g} and gain norm < "
+                    f"{self.gain_bound:.3g}{rate}; designs with a smaller margin are not excluded "
+                    "(Farkas certificate re-checked in float64)")
+        bound = ("of any gain norm" if np.isinf(self.gain_bound_any_margin)
+                 else f"with gain norm < {self.gain_bound_any_margin:.3g}")
+        strict = "" if not self.margin or self.gain_bound <= 1.01 * self.gain_bound_any_margin else (
+            f" (< {self.gain_bound:.3g} with relative margin >= {self.margin:.3g})")
+        return f"no {what} of any margin {bound}{strict}{rate} (Farkas certificate re-checked in float64)"
 
     def to_dict(self) -> dict:
         return {
@@ -266,6 +286,8 @@ class FarkasCertificate:
             "verified": self.verified,
             "gain_bound": float(self.gain_bound),  # JSON: null when unbounded (see gain_bound_unbounded)
             "gain_bound_unbounded": bool(np.isinf(self.gain_bound)),
+            "gain_bound_any_margin": float(self.gain_bound_any_margin),
+            "any_margin": self.any_margin,
             "delta": self.delta,
             "margin": self.margin,
             "e_norm": self.e_norm,
@@ -312,14 +334,22 @@ def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, df
 def _retry_exact(check, *args):
     """Run ``check`` with floating-point bounds; retry in exact arithmetic only when that could change the verdict.
 
-    The exact bounds are at least as tight as the float ones; they can flip the verdict only when the
-    float ``room`` falls short by less than the accumulated float slack.
+    The exact bounds are at least as tight as the float ones; they can change the verdict (no proof ->
+    proof, or a margin-only proof -> a proof for every margin) only when the float room falls short by
+    less than the accumulated float slack.
     """
     cert, room, prover = check(*args, Prover(exact=False))
     side = np.asarray(args[0]).shape[-1]
-    if cert.verified or not np.isfinite(room) or side > EXACT_MAX_SIDE or room + 4 * prover.slack <= 0:
+    if not np.isfinite(room) or side > EXACT_MAX_SIDE or cert.any_margin:
         return cert
-    return check(*args, Prover(exact=True))[0]
+    window = 4 * prover.slack
+    if cert.verified:  # "marginal": could exact bounds make it a proof for every margin?
+        if cert.delta - cert.skew_norm + window <= 0:
+            return cert
+    elif room + window <= 0:
+        return cert
+    again = check(*args, Prover(exact=True))[0]
+    return again if again.verified and (again.any_margin or not cert.verified) else cert
 
 
 def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prover):
@@ -353,14 +383,18 @@ def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prove
     room = (margin * T * (1 - 4 * U) + delta)
     exact_zero = not np.any(E) and not np.any(errE)
     e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
+    bound, bound_any = _gain_bound(room, e_norm, exact_zero), _gain_bound(delta, e_norm, exact_zero)
+    return FarkasCertificate(Z, bound, float(delta), e_norm, bool(room > 0), decay_rate=decay_rate,
+                             margin=margin, gain_bound_any_margin=bound_any), room, prover
+
+
+def _gain_bound(room: float, e_norm: float, exact_zero: bool) -> float:
+    """``room / ||E||`` rounded down: designs with a smaller gain norm are excluded (0: none is)."""
     if room <= 0:
-        bound = 0.0
-    elif exact_zero:
-        bound = np.inf
-    else:
-        bound = room / e_norm * (1 - 4 * U)
-    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), decay_rate=decay_rate,
-                             margin=margin), room, prover
+        return 0.0
+    if exact_zero:
+        return np.inf
+    return float(room / e_norm * (1 - 4 * U))
 
 
 def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, dfree=None, dcoef=None,
@@ -419,14 +453,10 @@ def _farkas_switched(multipliers, free, coef, dfree, dcoef, decay_rate, margin, 
     e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
     # ||Z||_F <= tr H and ||Z - H||_F <= ||Z||_F: delta > skew + e_norm kappa excludes the design.
     room = margin * T * (1 - 4 * U) + delta - skew
-    if room <= 0:
-        bound = 0.0
-    elif exact_zero:
-        bound = np.inf
-    else:
-        bound = room / e_norm * (1 - 4 * U)
-    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), method="switched",
-                             skew_norm=skew, decay_rate=decay_rate, margin=margin), room, prover
+    bound, bound_any = _gain_bound(room, e_norm, exact_zero), _gain_bound(delta - skew, e_norm, exact_zero)
+    return FarkasCertificate(Z, bound, float(delta), e_norm, bool(room > 0), method="switched",
+                             skew_norm=skew, decay_rate=decay_rate, margin=margin,
+                             gain_bound_any_margin=bound_any), room, prover
 
 
 # ------------------------------------------------------------------ uncontrollable unstable modes

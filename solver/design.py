@@ -11,7 +11,7 @@ import numpy as np
 from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
-from .methods.common import DesignOptions
+from .methods.common import NEGATIVE, DesignOptions, proof_outcome
 from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, ModeSet
@@ -225,7 +225,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
         return res
 
-    lo, lo_proven = 0.0, True
+    lo, lo_proven, lo_proof, lo_margin = 0.0, True, "infeasible", None
     if upper is not None and upper.outcome == "stabilized" and upper.decay_rate is not None:
         best, hi = upper, float(upper.decay_rate)
         best.method = method
@@ -248,12 +248,17 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             hi, best = mid, res
         else:
             lo, lo_proven = mid, res.outcome == "infeasible"
+            lo_proof = res.outcome if res.outcome in NEGATIVE else None
+            lo_margin = res.certificate.margin if lo_proof == "marginal" else None
     A = modes.closed_loops(best.gains)
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
-    best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven),
-                         "loop_spectral_rate": loop, "relative_tolerance": tol}
-    proven = ("proven: no design with the relative margin, Farkas" if lo_proven
-              else "not proven: a step ended without a verdict")
+    if lo == 0.0:
+        lo_proof = None  # no step below the upper end failed: the lower end 0 is vacuous
+    best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven), "lower_proof": lo_proof,
+                         "lower_margin": lo_margin, "loop_spectral_rate": loop, "relative_tolerance": tol}
+    proven = ("proven: no design of any margin (infeasible)" if lo_proven
+              else f"marginal: only designs with relative margin >= {lo_margin:.3g} are excluded"
+              if lo_proof == "marginal" else "not proven: a step ended without a verdict")
     best.message += (f"; smallest certified decay rate {hi:.6g}, bracket [{lo:.6g}, {hi:.6g}] (lower end {proven}; "
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
@@ -298,7 +303,7 @@ def _proof_back(cert, scale: Scaling, modes: ModeSet):
                                              scale=congruent_scale(modes, cert.decay_rate))
     check = check_farkas_switched if cert.method == "switched" else check_farkas
     mine = check(Z, free, coef, dfree, dcoef, cert.decay_rate, margin=cert.margin)
-    if mine.verified:
+    if mine.verified and (mine.any_margin or not cert.any_margin):  # never weaker than the scaled proof
         return mine
     cert.scaled = True
     return cert
@@ -317,6 +322,7 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     if cert is not None and cert.kind in ("farkas", "uncontrollable"):
         before = cert.statement()
         res.certificate = _proof_back(cert, scale, modes)
+        res.outcome = proof_outcome(res.certificate)
         if res.message.startswith(before):  # say what the returned (user-coordinate) certificate proves
             res.message = res.certificate.statement() + res.message[len(before):]
         if getattr(res.certificate, "scaled", False):

@@ -162,6 +162,20 @@ def is_time_limit(err: SolverFailed, options: DesignOptions, clock: RunClock) ->
     return "limit" in str(err.status or "").lower() or clock.elapsed >= options.time_limit
 
 
+#: Outcomes proven by a negative certificate (no gains are reported).
+NEGATIVE = ("infeasible", "marginal")
+
+
+def proof_outcome(proof) -> str:
+    """What a negative certificate proves (docs/design.md, "infeasible or marginal").
+
+    "infeasible": no design of any margin (Farkas with ``delta > 0``, up to its gain bound, or an
+    uncontrollable unstable mode: no gains at all); "marginal": the Farkas multipliers exclude only
+    designs whose relative margin reaches ``proof.margin``.
+    """
+    return "marginal" if proof.kind == "farkas" and not proof.any_margin else "infeasible"
+
+
 def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate: float | None,
                      margin: float = 0.0):
     """A solver-independent proof that no design of ``method`` exists at ``rate``, or ``(None, reason)``.
@@ -230,7 +244,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     )
 
     def result(outcome, message, certificate=cert):
-        keep = outcome != "infeasible"  # a proven-infeasible design has no gains to report
+        keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
         return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
                       info.solver, info.status, message, [record], options)
 
@@ -241,7 +255,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
                                     f"(relative margin {cert.margin:.3g}){rate_txt}")
     proof, reason = prove_infeasible(modes, method, sol.duals, rate, options.margin)
     if proof is not None:
-        return result("infeasible", f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
+        return result(proof_outcome(proof), f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
     if np.isfinite(t) and t > 0:
         return result("not_converged", f"the SDP reported margin t* = {t:.3g} but no certificate passed the "
                                        f"float64 re-check{rate_txt}, and {reason}")
