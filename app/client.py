@@ -138,7 +138,7 @@ class DesignResult:
 
     Attributes
     ----------
-    outcome : {"stabilized", "infeasible", "not_converged"}
+    outcome : {"stabilized", "infeasible", "marginal", "not_converged"}
         ``stabilized`` only with a certificate that passed the service's float64 re-check.
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``: after an effective packet at ``i_m`` the buffer plays

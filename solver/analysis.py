@@ -123,7 +123,8 @@ class AnalysisReport:
         }
 
 
-def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int) -> tuple[float, tuple, int]:
+def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int,
+                        per_length: list | None = None) -> tuple[float, tuple, int]:
     """Largest ``rho(A_{s_k} ... A_{s_1})^(1/k)`` over all mode sequences up to a length.
 
     Parameters
@@ -140,11 +141,16 @@ def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int)
     sequence : tuple of int
         Mode indices in the order applied.
     length_checked : int
+    per_length : list, optional
+        Filled with ``(estimate, sequence)``, the best product of every length checked: a float
+        estimate of a long product can outrank a shorter product that exact arithmetic proves.
     """
     S = A_modes.shape[0]
     rho = spectral_radii(A_modes)
     best = int(np.argmax(rho))
     bound, sequence = float(rho[best]), (best,)
+    if per_length is not None:
+        per_length.append((bound, sequence))
     products = A_modes
     checked = 1
     for k in range(2, max_length + 1):
@@ -156,6 +162,8 @@ def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int)
         checked = k
         rho_k = spectral_radii(products) ** (1.0 / k)
         i = int(np.argmax(rho_k))
+        if per_length is not None:
+            per_length.append((float(rho_k[i]), tuple(int(d) for d in np.unravel_index(i, (S,) * k))))
         if rho_k[i] > bound * (1 + 1e-12):
             bound = float(rho_k[i])
             sequence = tuple(int(d) for d in np.unravel_index(i, (S,) * k))
@@ -281,9 +289,23 @@ def analyze(
     A = modes.closed_loops(K)
     _check_products_fit_float64(A, max_product_length)
     radii = spectral_radii(A)
-    estimate, seq, checked = product_lower_bound(A, max_product_length, max_products)
-    worst = [modes.label(s) for s in seq]
+    candidates: list = []
+    estimate, seq, checked = product_lower_bound(A, max_product_length, max_products, per_length=candidates)
     proven, unstable, proof_note = _prove_product(family, K, modes, seq, estimate)
+    if not unstable:
+        # a proof once found is kept: the float-best product may be a rounding artefact (its exact radius
+        # smaller) while a shorter one is proven unstable; try every length whose estimate reaches 1
+        for est, other in sorted(candidates, reverse=True):
+            if other == seq or est ** len(other) < 1 - 1e-6:
+                continue
+            bound, other_unstable, _ = _prove_product(family, K, modes, other, est)
+            if bound is not None and (proven is None or bound > proven):
+                proven = bound
+            if other_unstable:
+                seq, unstable = other, True
+                proof_note = f"proven on a product of length {len(other)}; longer products only estimated"
+                break
+    worst = [modes.label(s) for s in seq]
     certificate = None
     scaling = None
     upper_q = upper_s = rate = None
@@ -291,11 +313,13 @@ def analyze(
     if unstable:
         stable = False
         if len(worst) == 1:
-            reason = f"mode {worst[0]} has spectral radius >= 1 (proven exactly; float64 estimate {estimate:.6g})"
+            reason = (f"mode {worst[0]} has spectral radius >= 1 (proven exactly; float64 estimate "
+                      f"{float(radii[seq[0]]):.6g})")
         else:
             reason = (
                 f"repeating the sequence of {len(worst)} intervals in worst_sequence gives a product with "
-                f"spectral radius >= 1 (proven exactly; float64 rho^(1/{len(worst)}) = {estimate:.6g})"
+                f"spectral radius >= 1 (proven exactly; float64 estimate of the best product's "
+                f"rho^(1/length) = {estimate:.6g})"
             )
     else:
         try:

@@ -32,55 +32,114 @@ import numpy as np
 #: Unit roundoff of float64.
 U = 2.0**-53
 
-#: Eigenvalues from LAPACK's symmetric solvers are exact for a matrix within
-#: ``EIG_FACTOR * k * U * ||A||_F`` (2-norm) of the input, k its side (backward
-#: stability of Householder tridiagonalization + QR; the constant is generous).
-EIG_FACTOR = 16.0
-
-
 def gamma(k: int) -> float:
     """``k u / (1 - k u)``: relative error bound of a k-term float64 dot product."""
     return k * U / (1.0 - k * U)
 
 
-#: Largest side for which eigenvalue bounds are proven in exact arithmetic (Bareiss on the
-#: dyadic entries, about 0.2 s at side 40); larger matrices use the backward-error allowance.
+#: Largest side for which an inconclusive floating-point bound is retried in exact arithmetic (Bareiss on
+#: the dyadic entries, about 0.1 s at side 40).
 EXACT_MAX_SIDE = 40
 
-
-def _eig_err(M: np.ndarray) -> float:
-    return EIG_FACTOR * M.shape[-1] * U * float(np.linalg.norm(M))
-
-
-def _proven_shift(M: np.ndarray, start: float) -> float:
-    """A ``c >= start`` with ``M + c I`` proven positive definite (exactly when small enough)."""
-    from .exact import positive_definite_shifted
-
-    if M.shape[-1] > EXACT_MAX_SIDE:
-        return start + _eig_err(M)
-    add = max(1e-15 * float(np.linalg.norm(M)), 1e-300)
-    for _ in range(200):
-        c = start + add
-        if positive_definite_shifted(M, c):
-            return c
-        add *= 4.0
-    return np.inf
+#: Smallest normal float64: covers the absolute rounding errors of gradual underflow.
+_TINY = 2.0**-1022
 
 
-def lambda_max_upper(M: np.ndarray, err: float = 0.0) -> float:
+def cholesky_shift_bound(M: np.ndarray, c: float) -> float | None:
+    """A proven ``e >= 0`` with ``lambda_min(M + c I) >= -e``, from a float64 Cholesky of ``fl(M + c I)``; or None.
+
+    docs/design.md, "Floating-point proofs of definiteness": if Cholesky runs to completion on the
+    symmetric float64 matrix ``B``, its computed factor satisfies ``R^T R = B + dB`` with
+    ``|dB| <= gamma_{k+1} |R^T| |R|`` (Higham, *Accuracy and Stability of Numerical Algorithms*,
+    Thm 10.3, any order of summation; we use ``gamma_{k+3}`` to allow for divisions done as
+    products with a computed reciprocal), hence ``|dB_ij| <= g sqrt(b_ii b_jj)``,
+    ``g = gamma / (1 - gamma)``, and ``lambda_min(B) >= -||dB||_2 >= -g tr(B)`` (Rump, "Verification
+    of positive definiteness", BIT 46, 2006).  Forming ``B`` rounds the diagonal only
+    (``|error| <= u |b_ii| / (1 - u)``).
+
+    Parameters
+    ----------
+    M : ndarray, shape (k, k)
+        Exactly symmetric, finite.
+    c : float
+        The shift.
+    """
+    k = M.shape[-1]
+    B = M + c * np.eye(k)  # off-diagonal entries are copied exactly (x + 0.0 == x)
+    d = np.diagonal(B)
+    if not np.all(d > 0):
+        return None
+    try:
+        R = np.linalg.cholesky(B)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(R)):
+        return None
+    g = gamma(k + 3)
+    g = g / (1.0 - g)
+    e = g * float(np.sum(d)) + U / (1.0 - U) * float(np.max(d))
+    # the sum and products above were rounded (a relative gamma), underflow adds absolute errors
+    return e * (1.0 + gamma(2 * k + 8)) + 4.0 * k * (k + 3) * _TINY
+
+
+class Prover:
+    """Proven eigenvalue bounds: floating-point (Cholesky with rounding terms) or exact (Sylvester, Bareiss).
+
+    ``slack`` accumulates how far the floating-point bounds sit above the float64 estimates: a check whose
+    float verdict fails by less than that is retried exactly (:func:`check_farkas`).
+    """
+
+    def __init__(self, exact: bool = False):
+        self.exact = exact
+        self.slack = 0.0
+
+    def shift(self, M: np.ndarray, start: float) -> float:
+        """A ``v`` with ``M + v I`` proven positive semidefinite (``lambda_min(M) >= -v``), ``v`` near ``start``."""
+        add = max(1e-15 * float(np.linalg.norm(M)), 1e-300)
+        if self.exact:
+            from .exact import positive_definite_shifted
+
+            for _ in range(200):
+                c = start + add
+                if positive_definite_shifted(M, c):
+                    return c
+                add *= 4.0
+            return np.inf
+        for _ in range(200):
+            c = start + add
+            e = cholesky_shift_bound(M, c)
+            if e is not None:
+                v = c + e
+                v = v + 4 * U * abs(v) + _TINY  # the addition rounded
+                self.slack += v - start
+                return v
+            add *= 4.0
+        return np.inf
+
+    def max_upper(self, M: np.ndarray, err: float = 0.0) -> float:
+        """A rigorous upper bound of ``lambda_max`` of a symmetric matrix known to within ``err`` (2-norm)."""
+        M = 0.5 * (M + M.T)
+        return self.shift(-M, float(np.linalg.eigvalsh(M)[-1])) + err
+
+    def min_lower(self, M: np.ndarray, err: float = 0.0) -> float:
+        """A rigorous lower bound of ``lambda_min`` of a symmetric matrix known to within ``err`` (2-norm)."""
+        M = 0.5 * (M + M.T)
+        return -self.shift(M, -float(np.linalg.eigvalsh(M)[0])) - err
+
+
+def lambda_max_upper(M: np.ndarray, err: float = 0.0, exact: bool = False) -> float:
     """A rigorous upper bound of ``lambda_max`` of a symmetric matrix known to within ``err`` (2-norm).
 
-    ``c I - M`` is proven positive definite in exact arithmetic (``c`` just above the float64
-    estimate); ``err`` is added (Weyl).
+    ``c I - M`` is proven positive semidefinite (``c`` just above the float64 estimate) by a float64
+    Cholesky with its rounding-error bound (:func:`cholesky_shift_bound`), or in exact arithmetic
+    (``exact=True``); ``err`` is added (Weyl).
     """
-    M = 0.5 * (M + M.T)
-    return _proven_shift(-M, float(np.linalg.eigvalsh(M)[-1])) + err
+    return Prover(exact).max_upper(M, err)
 
 
-def lambda_min_lower(M: np.ndarray, err: float = 0.0) -> float:
+def lambda_min_lower(M: np.ndarray, err: float = 0.0, exact: bool = False) -> float:
     """A rigorous lower bound of ``lambda_min`` of a symmetric matrix known to within ``err`` (2-norm)."""
-    M = 0.5 * (M + M.T)
-    return -_proven_shift(M, -float(np.linalg.eigvalsh(M)[0])) - err
+    return Prover(exact).min_lower(M, err)
 
 
 # ------------------------------------------------------------------ interval data with error bounds
@@ -160,9 +219,12 @@ class FarkasCertificate:
         ``lmi``: shape (S, 2n, 2n), ``Z_s`` in the order of the result's ``mode_labels``.
         ``switched``: shape (S, S, 2n, 2n), ``Z_{s,u}`` for the pair (s, u).
     gain_bound : float
-        No design with ``sqrt(sum_j ||Theta_j||_2^2) < gain_bound`` exists (``Theta_j``
-        the scheme's free gains; ``K_q`` for the predictive scheme); ``inf`` when
+        No design with relative margin ``margin`` and ``sqrt(sum_j ||Theta_j||_2^2) < gain_bound``
+        exists (``Theta_j`` the scheme's free gains; ``K_q`` for the predictive scheme); ``inf`` when
         ``E`` vanishes exactly.
+    gain_bound_any_margin : float
+        The same bound for designs of any margin (> 0 only when ``delta > 0``; see
+        :attr:`any_margin`).
     delta : float
         Proven lower bound of ``-lambda_max(Q)`` less the PSD shifts.
     e_norm : float
@@ -191,14 +253,31 @@ class FarkasCertificate:
     kind: str = "farkas"
     margin: float = 0.0
     source: str = "sdp_dual"
+    gain_bound_any_margin: float = 0.0
+
+    @property
+    def any_margin(self) -> bool:
+        """Whether designs of *every* margin (down to 0) are excluded below ``gain_bound_any_margin``.
+
+        True when the multipliers alone contradict the LMIs (``delta > 0``: the outcome
+        "infeasible"); False when only the margin makes the room (the outcome "marginal": designs
+        with relative margin below ``margin`` may exist).
+        """
+        return self.gain_bound_any_margin > 0
 
     def statement(self) -> str:
         what = ("common quadratic Lyapunov design" if self.method == "lmi"
                 else "switched-Lyapunov design with a common slack (||Z||_F <= trace(Z + Z^T)/2)")
         rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
-        bound = "of any gain norm" if np.isinf(self.gain_bound) else f"with gain norm < {self.gain_bound:.3g}"
-        strict = "" if not self.margin else f", relative margin >= {self.margin:.3g}"
-        return f"no {what} {bound}{strict}{rate} (Farkas certificate re-checked in float64)"
+        if not self.any_margin:
+            return (f"marginal: no {what} with relative margin >= {self.margin:.3g} and gain norm < "
+                    f"{self.gain_bound:.3g}{rate}; designs with a smaller margin are not excluded "
+                    "(Farkas certificate re-checked in float64)")
+        bound = ("of any gain norm" if np.isinf(self.gain_bound_any_margin)
+                 else f"with gain norm < {self.gain_bound_any_margin:.3g}")
+        strict = "" if not self.margin or self.gain_bound <= 1.01 * self.gain_bound_any_margin else (
+            f" (< {self.gain_bound:.3g} with relative margin >= {self.margin:.3g})")
+        return f"no {what} of any margin {bound}{strict}{rate} (Farkas certificate re-checked in float64)"
 
     def to_dict(self) -> dict:
         return {
@@ -207,6 +286,8 @@ class FarkasCertificate:
             "verified": self.verified,
             "gain_bound": float(self.gain_bound),  # JSON: null when unbounded (see gain_bound_unbounded)
             "gain_bound_unbounded": bool(np.isinf(self.gain_bound)),
+            "gain_bound_any_margin": float(self.gain_bound_any_margin),
+            "any_margin": self.any_margin,
             "delta": self.delta,
             "margin": self.margin,
             "e_norm": self.e_norm,
@@ -247,6 +328,31 @@ def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, df
         Elementwise bounds of the error of ``free``, ``coef`` (see :func:`interval_data`);
         zero when the data are taken as exact.
     """
+    return _retry_exact(_farkas_lmi, multipliers, free, coef, dfree, dcoef, decay_rate, margin)
+
+
+def _retry_exact(check, *args):
+    """Run ``check`` with floating-point bounds; retry in exact arithmetic only when that could change the verdict.
+
+    The exact bounds are at least as tight as the float ones; they can change the verdict (no proof ->
+    proof, or a margin-only proof -> a proof for every margin) only when the float room falls short by
+    less than the accumulated float slack.
+    """
+    cert, room, prover = check(*args, Prover(exact=False))
+    side = np.asarray(args[0]).shape[-1]
+    if not np.isfinite(room) or side > EXACT_MAX_SIDE or cert.any_margin:
+        return cert
+    window = 4 * prover.slack
+    if cert.verified:  # "marginal": could exact bounds make it a proof for every margin?
+        if cert.delta - cert.skew_norm + window <= 0:
+            return cert
+    elif room + window <= 0:
+        return cert
+    again = check(*args, Prover(exact=True))[0]
+    return again if again.verified and (again.any_margin or not cert.verified) else cert
+
+
+def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prover):
     Z = _sym(np.asarray(multipliers, dtype=np.float64))
     S, n2, _ = Z.shape
     n = n2 // 2
@@ -254,7 +360,7 @@ def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, df
     dfree = np.zeros_like(free) if dfree is None else dfree
     dcoef = np.zeros_like(coef) if dcoef is None else dcoef
     if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
-        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, decay_rate=decay_rate)
+        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, decay_rate=decay_rate), -np.inf, prover
     Z11, Z21, Z22 = Z[:, :n, :n], Z[:, n:, :n], Z[:, n:, n:]
     FtZ = np.swapaxes(free, 1, 2) @ Z21  # (S, n, n): free_s^T Z21_s
     Q = np.sum(Z11 + Z22 + FtZ + np.swapaxes(FtZ, 1, 2), axis=0)
@@ -268,8 +374,8 @@ def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, df
     E = 2 * np.einsum("sjab,sac->jbc", coef, Z21)  # (J, m, n)
     errE = 2 * gamma(n + S + 2) * np.einsum("sjab,sac->jbc", np.abs(coef), absZ21)
     errE = errE + 2 * np.einsum("sjab,sac->jbc", dcoef, absZ21)
-    mu = np.array([max(0.0, -lambda_min_lower(Z[s])) for s in range(S)])
-    lam_q = lambda_max_upper(Q, float(np.linalg.norm(errQ)))
+    mu = np.array([max(0.0, -prover.min_lower(Z[s])) for s in range(S)])
+    lam_q = prover.max_upper(Q, float(np.linalg.norm(errQ)))
     delta = -lam_q - 2.0 * float(np.sum(mu)) * (1 + 4 * U)
     delta = delta * (1 - 8 * U) if delta > 0 else delta * (1 + 8 * U)
     trace = float(np.sum(np.trace(Z, axis1=1, axis2=2)))
@@ -277,14 +383,18 @@ def check_farkas(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, df
     room = (margin * T * (1 - 4 * U) + delta)
     exact_zero = not np.any(E) and not np.any(errE)
     e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
+    bound, bound_any = _gain_bound(room, e_norm, exact_zero), _gain_bound(delta, e_norm, exact_zero)
+    return FarkasCertificate(Z, bound, float(delta), e_norm, bool(room > 0), decay_rate=decay_rate,
+                             margin=margin, gain_bound_any_margin=bound_any), room, prover
+
+
+def _gain_bound(room: float, e_norm: float, exact_zero: bool) -> float:
+    """``room / ||E||`` rounded down: designs with a smaller gain norm are excluded (0: none is)."""
     if room <= 0:
-        bound = 0.0
-    elif exact_zero:
-        bound = np.inf
-    else:
-        bound = room / e_norm * (1 - 4 * U)
-    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), decay_rate=decay_rate,
-                             margin=margin)
+        return 0.0
+    if exact_zero:
+        return np.inf
+    return float(room / e_norm * (1 - 4 * U))
 
 
 def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.ndarray, dfree=None, dcoef=None,
@@ -306,13 +416,18 @@ def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.nd
     left (``T`` a lower bound of the multipliers' total trace).
     ``gain_bound`` is stated for slacks with ``||Z||_F <= tr H`` (every symmetric PSD Z).
     """
+    return _retry_exact(_farkas_switched, multipliers, free, coef, dfree, dcoef, decay_rate, margin)
+
+
+def _farkas_switched(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prover):
     Z = _sym(np.asarray(multipliers, dtype=np.float64))
     S = Z.shape[0]
     n = Z.shape[-1] // 2
     dfree = np.zeros_like(free) if dfree is None else dfree
     dcoef = np.zeros_like(coef) if dcoef is None else dcoef
     if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
-        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, method="switched", decay_rate=decay_rate)
+        return (FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, method="switched", decay_rate=decay_rate),
+                -np.inf, prover)
     Z11, Z21, Z22 = Z[..., :n, :n], Z[..., n:, :n], Z[..., n:, n:]
     FtZ = np.einsum("sba,subc->ac", free, Z21)  # sum_su free_s^T Z21_su
     Gm = 2 * (np.sum(Z11, axis=(0, 1)) + FtZ)
@@ -324,9 +439,9 @@ def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.nd
     errG_norm = float(np.linalg.norm(errG))
     C = np.sum(np.swapaxes(Z22, 0, 1), axis=1) - np.sum(Z11, axis=1)  # C_s = sum_u Z22_us - sum_u Z11_su
     errC = gamma(2 * S + 2) * (np.sum(np.abs(Z22), axis=0) + np.sum(np.abs(Z11), axis=1))
-    c_pos = sum(max(0.0, lambda_max_upper(_sym(C[s]), float(np.linalg.norm(errC[s])))) for s in range(S))
-    mu = sum(max(0.0, -lambda_min_lower(Z[s, u])) for s in range(S) for u in range(S))
-    delta = -lambda_max_upper(symG, errG_norm) - 2 * c_pos * (1 + 4 * U) - 4 * mu * (1 + 4 * U)
+    c_pos = sum(max(0.0, prover.max_upper(_sym(C[s]), float(np.linalg.norm(errC[s])))) for s in range(S))
+    mu = sum(max(0.0, -prover.min_lower(Z[s, u])) for s in range(S) for u in range(S))
+    delta = -prover.max_upper(symG, errG_norm) - 2 * c_pos * (1 + 4 * U) - 4 * mu * (1 + 4 * U)
     delta = delta * (1 - 16 * U) if delta > 0 else delta * (1 + 16 * U)
     trace = float(np.sum(np.trace(Z, axis1=-2, axis2=-1)))
     T = max(0.0, trace * (1 - gamma(2 * n * S * S + 2)) - abs(trace) * 4 * U)
@@ -338,14 +453,10 @@ def check_farkas_switched(multipliers: np.ndarray, free: np.ndarray, coef: np.nd
     e_norm = 0.0 if exact_zero else (float(np.linalg.norm(E)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
     # ||Z||_F <= tr H and ||Z - H||_F <= ||Z||_F: delta > skew + e_norm kappa excludes the design.
     room = margin * T * (1 - 4 * U) + delta - skew
-    if room <= 0:
-        bound = 0.0
-    elif exact_zero:
-        bound = np.inf
-    else:
-        bound = room / e_norm * (1 - 4 * U)
-    return FarkasCertificate(Z, float(bound), float(delta), e_norm, bool(room > 0), method="switched",
-                             skew_norm=skew, decay_rate=decay_rate, margin=margin)
+    bound, bound_any = _gain_bound(room, e_norm, exact_zero), _gain_bound(delta - skew, e_norm, exact_zero)
+    return FarkasCertificate(Z, bound, float(delta), e_norm, bool(room > 0), method="switched",
+                             skew_norm=skew, decay_rate=decay_rate, margin=margin,
+                             gain_bound_any_margin=bound_any), room, prover
 
 
 # ------------------------------------------------------------------ uncontrollable unstable modes
@@ -405,6 +516,32 @@ class UncontrollableCertificate:
         }
 
 
+#: Relative PBH margin above which a plant mode is taken as controllable without the exact test.
+PBH_SCREEN = 1e-5
+
+
+def clearly_controllable(F: np.ndarray, G: np.ndarray) -> bool:
+    """Float64 screen: whether every eigenvalue of F is far from uncontrollable (PBH test).
+
+    An uncontrollable eigenvalue ``lambda_0`` (``w^H [F - lambda_0 I, G] = 0``) gives
+    ``sigma_min([F - mu I, G]) <= |mu - lambda_0|`` at the computed eigenvalue ``mu``, which lies
+    within about ``(u ||F||)^(1/k)`` of it (Jordan block of size k): a margin above
+    ``PBH_SCREEN (||F|| + ||G||)`` at every computed eigenvalue rules it out for k <= 3.  Not a
+    verdict: False only sends the mode to the exact test (:func:`uncontrollable_mode`), and a missed
+    proof leaves the design to its Farkas certificate or "not_converged", never to a wrong answer.
+    """
+    n = F.shape[0]
+    scale = float(np.linalg.norm(F, 2) + np.linalg.norm(G, 2))
+    if not np.isfinite(scale) or scale == 0:
+        return False
+    eye = np.eye(n)
+    for mu in np.linalg.eigvals(F):
+        pbh = np.hstack([F - mu * eye, G.astype(complex)])
+        if np.linalg.svd(pbh, compute_uv=False)[-1] <= PBH_SCREEN * scale:
+            return False
+    return True
+
+
 def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> UncontrollableCertificate | None:
     """A proven unstable uncontrollable mode of some plant, or None.
 
@@ -413,6 +550,8 @@ def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> Unco
     gains (the adversary may keep plant l forever), so ``|lambda| >= rate`` excludes every
     design with that per-sample rate, of every method.
 
+    Plant modes that a float64 PBH screen shows clearly controllable (:func:`clearly_controllable`)
+    are skipped: the proof is only looked for where one can exist.
     The proof is exact (docs/design.md): the controllable subspace of the float64 pair
     ``(F_l, G_l)`` and the map F induces on the quotient are computed in rational
     arithmetic, and a Schur-Cohn test on its characteristic polynomial proves that it has an
@@ -429,6 +568,8 @@ def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> Unco
     if n > 24:
         return None
     for l in range(F.shape[0]):
+        if clearly_controllable(F[l], G[l]):
+            continue
         part = exact.uncontrollable_part(F[l], G[l])
         if not part:
             continue

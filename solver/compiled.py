@@ -67,9 +67,27 @@ _ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 MAX_SOLVER_MEMORY = int(float(os.environ.get("NCS_SOLVER_MAX_MEMORY", 4 * 2**30)))
 
 
-def check_memory(cone_sides, what: str) -> None:
-    """Raise InvalidInput when PSD cones of these sides would not fit in :data:`MAX_SOLVER_MEMORY`."""
-    need = sum(8 * (k * (k + 1) // 2) ** 2 for k in cone_sides)
+def ipm_memory(n_full: int, p: int, n_blocks: int, side: int, largest_variable: int) -> int:
+    """Bytes the structured IPM (solver/ipm.py) needs at its peak, estimated from its arrays.
+
+    The full-coordinate Schur matrix and its projection (``n_full^2 + p n_full + p^2``), the Cholesky
+    factor (``p^2``), the Kronecker pieces of the largest variable's pair (up to four of
+    ``largest_variable^2`` alive) and about 30 block-diagonal iterates of ``n_blocks`` blocks of side
+    ``side``, with a quarter more for the heap's fragmentation (:func:`solver.ipm.heap_reuse`).
+    Measured at n = 50, r = 5, n_drop = 10 (lmi): estimate 0.66 GB, peak resident set 0.57 GB above
+    the process's start.
+    """
+    v = min(largest_variable, n_full)
+    return 10 * (n_full**2 + p * n_full + 2 * p**2 + 4 * v**2 + 30 * n_blocks * side**2)
+
+
+def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
+    """Raise InvalidInput when the solver's memory would exceed :data:`MAX_SOLVER_MEMORY`.
+
+    ``ipm_bytes``: the structured IPM runs (its own estimate, :func:`ipm_memory`); otherwise
+    Clarabel's KKT system for PSD cones of sides ``cone_sides``.
+    """
+    need = ipm_bytes if ipm_bytes is not None else sum(8 * (k * (k + 1) // 2) ** 2 for k in cone_sides)
     if need > MAX_SOLVER_MEMORY:
         raise InvalidInput(
             f"the {what} SDP would need about {need / 2**30:.1f} GiB of solver memory (limit "

@@ -11,8 +11,9 @@ import numpy as np
 from .compiled import check_solver
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
-from .methods.common import DesignOptions
-from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
+from .methods.common import NEGATIVE, DesignOptions, proof_outcome
+from .ipm import blas_threads
+from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, ModeSet
 from .plant import PlantFamily
 from .result import DesignResult
@@ -155,11 +156,13 @@ def design(
         decay_rate=None if decay_rate in (None, "max") else float(decay_rate),
     )
     scale = balance(family) if scaling == "auto" else None
-    if scale is not None and not scale.is_identity:
-        scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
-                                           scheme=scheme, max_modes=max_modes)
-        return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
-    return _best(method, modes, options, decay_rate, rate_tol)
+    # one BLAS thread: the re-checks and proofs are many small LAPACK calls that 2 threads only slow down
+    with blas_threads(1):
+        if scale is not None and not scale.is_identity:
+            scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
+                                               scheme=scheme, max_modes=max_modes)
+            return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+        return _best(method, modes, options, decay_rate, rate_tol)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
@@ -222,7 +225,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
         return res
 
-    lo, lo_proven = 0.0, True
+    lo, lo_proven, lo_proof, lo_margin = 0.0, True, "infeasible", None
     if upper is not None and upper.outcome == "stabilized" and upper.decay_rate is not None:
         best, hi = upper, float(upper.decay_rate)
         best.method = method
@@ -245,12 +248,17 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             hi, best = mid, res
         else:
             lo, lo_proven = mid, res.outcome == "infeasible"
+            lo_proof = res.outcome if res.outcome in NEGATIVE else None
+            lo_margin = res.certificate.margin if lo_proof == "marginal" else None
     A = modes.closed_loops(best.gains)
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
-    best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven),
-                         "loop_spectral_rate": loop, "relative_tolerance": tol}
-    proven = ("proven: no design with the relative margin, Farkas" if lo_proven
-              else "not proven: a step ended without a verdict")
+    if lo == 0.0:
+        lo_proof = None  # no step below the upper end failed: the lower end 0 is vacuous
+    best.rate_bracket = {"lower": lo, "upper": hi, "lower_proven": bool(lo_proven), "lower_proof": lo_proof,
+                         "lower_margin": lo_margin, "loop_spectral_rate": loop, "relative_tolerance": tol}
+    proven = ("proven: no design of any margin (infeasible)" if lo_proven
+              else f"marginal: only designs with relative margin >= {lo_margin:.3g} are excluded"
+              if lo_proof == "marginal" else "not proven: a step ended without a verdict")
     best.message += (f"; smallest certified decay rate {hi:.6g}, bracket [{lo:.6g}, {hi:.6g}] (lower end {proven}; "
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
@@ -295,7 +303,7 @@ def _proof_back(cert, scale: Scaling, modes: ModeSet):
                                              scale=congruent_scale(modes, cert.decay_rate))
     check = check_farkas_switched if cert.method == "switched" else check_farkas
     mine = check(Z, free, coef, dfree, dcoef, cert.decay_rate, margin=cert.margin)
-    if mine.verified:
+    if mine.verified and (mine.any_margin or not cert.any_margin):  # never weaker than the scaled proof
         return mine
     cert.scaled = True
     return cert
@@ -314,6 +322,7 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     if cert is not None and cert.kind in ("farkas", "uncontrollable"):
         before = cert.statement()
         res.certificate = _proof_back(cert, scale, modes)
+        res.outcome = proof_outcome(res.certificate)
         if res.message.startswith(before):  # say what the returned (user-coordinate) certificate proves
             res.message = res.certificate.statement() + res.message[len(before):]
         if getattr(res.certificate, "scaled", False):
@@ -327,13 +336,10 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
     rho = None if cert.decay_rate is None else cert.decay_rate ** (2.0 * modes.eta)
     if cert.kind == "switched":
         original = recheck_switched(scale.quadratic_back(cert.P), A, cert.source, rho=rho)
+    elif cert.X is not None:  # the reduced form in the user's coordinates (the rate too), lifted afresh
+        original = recheck_lifted(scale.quadratic_back(cert.X), A, modes.n_drop, cert.source, rho=rho)
     else:
-        X = None if cert.X is None else scale.quadratic_back(cert.X)
-        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source, X=X)
-        if not original.verified and X is not None:  # lift X afresh in the user's coordinates
-            original = recheck_common(lift(X, A, modes.n_drop), A, modes.n_drop, cert.source, X=X)
-        if original.verified and rho is not None:  # the rate, too, in the user's coordinates
-            original.verified = recheck_common_reduced(X, A, rho, cert.source).verified
+        original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source)
     if original.verified:
         original.decay_rate = cert.decay_rate
         res.certificate = original

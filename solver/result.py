@@ -9,7 +9,7 @@ import numpy as np
 
 from .lyapunov import Certificate
 
-OUTCOMES = ("stabilized", "infeasible", "not_converged")
+OUTCOMES = ("stabilized", "infeasible", "marginal", "not_converged")
 
 
 def _num(x):
@@ -68,8 +68,11 @@ class DesignResult:
 
     Attributes
     ----------
-    outcome : {"stabilized", "infeasible", "not_converged"}
-        ``stabilized`` only with a certificate that passed the float64 re-check.
+    outcome : {"stabilized", "infeasible", "marginal", "not_converged"}
+        ``stabilized`` only with a certificate that passed the float64 re-check; ``infeasible``
+        only with a proof that no design of any margin exists (up to the Farkas certificate's
+        ``gain_bound_any_margin``); ``marginal`` when the Farkas certificate excludes only designs
+        whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist).
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``; the last iterate's gains when not stabilized (may be None).
     certificate : Certificate or None

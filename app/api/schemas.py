@@ -85,8 +85,14 @@ class Certificate(_Open):
     multipliers: list[Matrix] | list[list[Matrix]] | None = Field(
         None, description="`farkas`: PSD multipliers Z_s, S x 2n x 2n in the order of `modes` (`switched` "
         "method: S x S x 2n x 2n).")
-    gain_bound: float | None = Field(None, description="`farkas`: no design with gain norm "
-                                                       "`sqrt(sum_q ||K_q||_2^2)` below this exists; null = any norm.")
+    gain_bound: float | None = Field(None, description="`farkas`: no design with relative margin >= `margin` "
+                                                       "and gain norm `sqrt(sum_q ||K_q||_2^2)` below this exists; "
+                                                       "null = any norm.")
+    gain_bound_any_margin: float | None = Field(None, description="`farkas`: the same for designs of any margin "
+                                                                  "(0: none excluded, outcome `marginal`).")
+    any_margin: bool | None = Field(None, description="`farkas`: whether designs of every margin are excluded "
+                                                      "(outcome `infeasible`) or only those with margin >= `margin` "
+                                                      "(outcome `marginal`).")
     gain_bound_unbounded: bool | None = Field(None, description="`farkas`: true when `gain_bound` is infinite.")
     delta: float | None = Field(None, description="`farkas`: proven lower bound of `-lambda_max(Q)` less the PSD "
                                                   "shifts.")
@@ -137,7 +143,11 @@ class RateBracket(_Open):
     lower: float | None = Field(None, description="Lower end of the bisection (per sample).")
     upper: float | None = Field(None, description="Upper end: the returned certified rate (per sample).")
     lower_proven: bool | None = Field(None, description="Every design of the method at `lower` is excluded by a "
-                                                        "Farkas/uncontrollable certificate.")
+                                                        "Farkas/uncontrollable certificate (of any margin).")
+    lower_proof: str | None = Field(None, description="What the step at `lower` proved: `infeasible` (no design of "
+                                                      "any margin), `marginal` (only designs with relative margin "
+                                                      ">= `lower_margin` excluded) or null (no proof).")
+    lower_margin: float | None = Field(None, description="The margin of a `marginal` lower end.")
     loop_spectral_rate: float | None = Field(None, description="`max_s rho(A_s)^(1/eta_s)` of the returned loop: "
                                                                "no certificate for these gains goes below it.")
 
@@ -153,7 +163,9 @@ class DesignResult(_Open):
     """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
 
     outcome: str = Field(description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design "
-                                     "of this method exists; `certificate` may prove it) or `not_converged`.")
+                                     "of this method exists, of any margin; `certificate` proves it), `marginal` "
+                                     "(the Farkas certificate excludes only designs with relative margin >= "
+                                     "`certificate.margin`; smaller-margin designs may exist) or `not_converged`.")
     method: str | None = Field(None, description="Design method: `lmi`, `ccl` or `switched`.")
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive losses.")
     gains: list[Matrix] | None = Field(

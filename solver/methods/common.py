@@ -11,7 +11,7 @@ import numpy as np
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
 from ..compiled import SolveInfo, resolve_solver
 from ..errors import SolverFailed
-from ..lyapunov import Certificate, certify, lift, recheck_common, recheck_common_reduced, recheck_switched
+from ..lyapunov import Certificate, certify, recheck_common, recheck_lifted, recheck_switched
 from ..network import ModeSet, spectral_radii
 from ..result import DesignResult, IterationRecord
 
@@ -94,10 +94,8 @@ def certify_gains(
             cert = recheck_switched(candidate, A, candidate_source, rho=rho)
         elif candidate_kind == "augmented":
             cert = recheck_common(candidate, A, n_drop, candidate_source)
-        else:
-            cert = recheck_common(lift(candidate, A, n_drop), A, n_drop, candidate_source, X=candidate)
-            if cert.verified and options.decay_rate is not None:
-                cert.verified = recheck_common_reduced(candidate, A, rho, candidate_source).verified
+        else:  # one re-check, on the reduced form (exact equivalent of the augmented one)
+            cert = recheck_lifted(candidate, A, n_drop, candidate_source, rho=rho)
         if cert.verified:
             cert.decay_rate = options.decay_rate
             return cert, A
@@ -162,6 +160,20 @@ def is_time_limit(err: SolverFailed, options: DesignOptions, clock: RunClock) ->
     if options.time_limit is None:
         return False
     return "limit" in str(err.status or "").lower() or clock.elapsed >= options.time_limit
+
+
+#: Outcomes proven by a negative certificate (no gains are reported).
+NEGATIVE = ("infeasible", "marginal")
+
+
+def proof_outcome(proof) -> str:
+    """What a negative certificate proves (docs/design.md, "infeasible or marginal").
+
+    "infeasible": no design of any margin (Farkas with ``delta > 0``, up to its gain bound, or an
+    uncontrollable unstable mode: no gains at all); "marginal": the Farkas multipliers exclude only
+    designs whose relative margin reaches ``proof.margin``.
+    """
+    return "marginal" if proof.kind == "farkas" and not proof.any_margin else "infeasible"
 
 
 def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate: float | None,
@@ -232,7 +244,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     )
 
     def result(outcome, message, certificate=cert):
-        keep = outcome != "infeasible"  # a proven-infeasible design has no gains to report
+        keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
         return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
                       info.solver, info.status, message, [record], options)
 
@@ -243,7 +255,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
                                     f"(relative margin {cert.margin:.3g}){rate_txt}")
     proof, reason = prove_infeasible(modes, method, sol.duals, rate, options.margin)
     if proof is not None:
-        return result("infeasible", f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
+        return result(proof_outcome(proof), f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
     if np.isfinite(t) and t > 0:
         return result("not_converged", f"the SDP reported margin t* = {t:.3g} but no certificate passed the "
                                        f"float64 re-check{rate_txt}, and {reason}")

@@ -24,8 +24,8 @@ import cvxpy as cp
 import numpy as np
 
 from .. import ipm
-from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, problem_cache, resolve_solver,
-                        schur_block)
+from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, ipm_memory, problem_cache,
+                        resolve_solver, schur_block)
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
@@ -110,6 +110,15 @@ def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | No
     return DesignSdpSolution(t=float(sol.t), W=sol.W, Y=sol.Y, S=None, duals=sol.duals, info=info)
 
 
+def check_size(modes: ModeSet, solver: str) -> None:
+    """Refuse the design when the solver that will run it (the IPM's own estimate, or Clarabel's) lacks memory."""
+    n, m, S, J = modes.n_states, modes.n_inputs, modes.n_modes, modes.n_free_gains
+    ipm_bytes = None
+    if resolve_solver(solver, "lmi", S) == "IPM":  # W symmetric, Y_j; one block of side 2n per mode
+        ipm_bytes = ipm_memory(n * n + J * m * n + 1, n * (n + 1) // 2 + J * m * n, S, 2 * n, n * n)
+    check_memory([2 * n] * S, "lmi", ipm_bytes)
+
+
 def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
-    check_memory([2 * modes.n_states] * modes.n_modes, "lmi")
+    check_size(modes, options.solver)
     return run_one_shot(modes, "lmi", options, solve_sdp)

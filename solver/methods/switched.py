@@ -21,7 +21,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, resolve_solver
+from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, ipm_memory, resolve_solver
 from ..errors import InvalidInput
 from ..network import ModeSet
 from ..result import DesignResult
@@ -76,5 +76,10 @@ def run(modes: ModeSet, options: DesignOptions) -> DesignResult:
             f"the switched design has {modes.n_modes}^2 pairwise LMIs; at most {MAX_MODES} modes are allowed",
             ("n_drop",),
         )
-    check_memory([2 * modes.n_states] * modes.n_modes**2, "switched")
+    n, m, S, J = modes.n_states, modes.n_inputs, modes.n_modes, modes.n_free_gains
+    ipm_bytes = None
+    if resolve_solver(options.solver, "switched", S) == "IPM":  # Z general, S_s stacked, Y_j; S^2 blocks
+        ipm_bytes = ipm_memory(n * n + S * n * n + J * m * n + 1, n * n + S * n * (n + 1) // 2 + J * m * n,
+                               S * S, 2 * n, S * n * n)
+    check_memory([2 * n] * S**2, "switched", ipm_bytes)
     return run_one_shot(modes, "switched", options, solve_sdp)

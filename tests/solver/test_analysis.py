@@ -68,3 +68,27 @@ def test_certificate_margin_shrinks_towards_the_stability_boundary():
         assert rep.stable is True
         margins.append(rep.margin)
     assert margins[0] > margins[1] > margins[2] > 0
+
+
+def test_a_proven_short_product_is_kept_when_a_longer_float_estimate_outranks_it():
+    # Two modes made exactly similar by T = [[1, 0], [2^20, 1]]: mode 0 has spectral radius exactly
+    # 1.0078125 (the eigenvalues of the triangular M), but float64 products of length 4 lose ~2^40 to
+    # cancellation and estimate a larger radius that exact arithmetic does not confirm.
+    from fractions import Fraction
+
+    T = np.array([[1.0, 0.0], [2.0**20, 1.0]])
+    Ti = np.array([[1.0, 0.0], [-(2.0**20), 1.0]])
+    M = np.array([[1.0078125, 0.5], [0.0, 0.25]])
+    D = np.array([[0.5, 0.0], [0.5, 0.25]])
+    A0, A1 = T @ M @ Ti, T @ D @ Ti
+    # independent: A0's characteristic polynomial in exact rationals has the root 1.0078125
+    q = [[Fraction(float(x)) for x in row] for row in A0]
+    z = Fraction(1.0078125)
+    assert (q[0][0] - z) * (q[1][1] - z) - q[0][1] * q[1][0] == 0
+    fam = PlantFamily(F=[A0, A1], G=[np.array([[0.0], [1.0]])] * 2)
+    for length in (1, 2, 4):
+        rep = analyze(fam, np.zeros((1, 1, 2)), n_drop=1, max_product_length=length, bounds="none")
+        assert rep.stable is False, length
+        assert 1.0 <= rep.jsr_lower_bound <= 1.0078125
+        assert rep.worst_sequence == [{"plant": 0, "eta": 1}]
+    assert rep.jsr_lower_estimate > 1.1  # the long product's float estimate, reported as an estimate only

@@ -68,8 +68,11 @@ def test_fuzzed_families_give_an_outcome_or_a_clear_error(family_kind, n_drop, m
         assert independently_certified(fam, res), (kind, res.scaling)
         assert np.all(np.isfinite(res.gains))
     elif res.outcome == "infeasible":
-        # "infeasible" only with a proof that passed its solver-independent re-check
+        # "infeasible" only with a proof that passed its solver-independent re-check, for every margin
         assert res.certificate.kind in ("farkas", "uncontrollable") and res.certificate.verified
+        assert res.certificate.kind == "uncontrollable" or res.certificate.any_margin
+    elif res.outcome == "marginal":
+        assert res.certificate.kind == "farkas" and res.certificate.verified and not res.certificate.any_margin
     else:
         assert res.certificate is None
 

@@ -181,3 +181,37 @@ def test_design_solve_congruent_decay_form():
         _, a = ipm.design_solve(modes, "lmi", free=modes.free * c[:, None, None], coef=coef * c[:, None, None, None])
         _, b = ipm.design_solve(modes, "lmi", rho=lam ** (2.0 * modes.eta))
         assert (a.t > 1e-9) == (b.t > 1e-9)
+
+
+def test_memory_is_estimated_for_the_solver_that_runs():
+    """n = 50, r = 5, n_drop = 10: Clarabel's KKT would need ~10 GiB (refused), the IPM well under 1 GiB."""
+    from bench.cases import random_family
+    from solver.errors import InvalidInput
+    from solver.methods import lmi
+
+    modes = ModeSet.from_family(random_family(50, 5, 2, seed=0, spread=0.02), 10)
+    lmi.check_size(modes, "AUTO")  # the IPM runs: accepted
+    with pytest.raises(InvalidInput) as err:
+        lmi.check_size(modes, "CLARABEL")
+    assert "GiB" in str(err.value) and err.value.field == ("n_drop",)
+
+
+def test_the_ipm_memory_estimate_covers_its_traced_peak():
+    import tracemalloc
+
+    from bench.cases import random_family
+    from solver.compiled import ipm_memory
+
+    n, r, m, N = 16, 3, 2, 4
+    modes = ModeSet.from_family(random_family(n, r, m, seed=1, spread=0.05), N)
+    coef, active = modes.scheme_coef()
+    J, S = modes.n_free_gains, modes.n_modes
+    tracemalloc.start()
+    try:
+        sol = ipm.solve_lmi(modes.free, coef, active)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert sol.status == "optimal"
+    estimate = ipm_memory(n * n + J * m * n + 1, n * (n + 1) // 2 + J * m * n, S, 2 * n, n * n)
+    assert peak <= estimate

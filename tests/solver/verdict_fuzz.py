@@ -8,7 +8,9 @@ No verdict may be contradicted:
 * "infeasible" with ``kind="uncontrollable"``: no method stabilizes the family;
 * "infeasible" with ``kind="farkas"`` (lmi): no common quadratic design built from another method's
   stabilizing gains has relative margin >= the certificate's and gain norm < ``gain_bound``;
-* "infeasible" with ``kind="farkas"`` (switched): likewise for the lmi design (Z = S_s = W).
+* "infeasible" with ``kind="farkas"`` (switched): likewise for the lmi design (Z = S_s = W);
+* "infeasible" from Farkas only with ``any_margin`` (then no such design of any margin has gain norm
+  < ``gain_bound_any_margin``); "marginal" only from a margin-only Farkas certificate.
 """
 
 from __future__ import annotations
@@ -122,7 +124,8 @@ def run(count: int, seed: int = 0, max_switched_modes: int = 6):
                 verdicts[f"{method}:error:{type(err).__name__}"] += 1
                 continue
             results[method] = res
-            label = res.outcome if res.outcome != "infeasible" else f"infeasible/{res.certificate.kind}"
+            label = res.outcome if res.certificate is None or res.outcome == "stabilized" else (
+                f"{res.outcome}/{res.certificate.kind}")
             verdicts[f"{method}:{label}"] += 1
         where = (case, kind, n_drop)
         for method, res in results.items():
@@ -131,7 +134,7 @@ def run(count: int, seed: int = 0, max_switched_modes: int = 6):
                     contradictions.append((where, method, "own float64 re-check fails"))
                 if _proven_unstable(fam, modes, res.gains):
                     contradictions.append((where, method, "a mode or product is proven unstable"))
-            elif res.outcome == "infeasible":
+            elif res.outcome in ("infeasible", "marginal"):
                 cert = res.certificate
                 if not cert.verified:
                     contradictions.append((where, method, "unverified proof"))
@@ -143,4 +146,13 @@ def run(count: int, seed: int = 0, max_switched_modes: int = 6):
                         point = _lmi_point(modes, other.gains)
                         if point is not None and point[0] >= cert.margin and point[1] < cert.gain_bound:
                             contradictions.append((where, method, f"Farkas contradicted by {other.method}: {point}"))
+                        # "infeasible" excludes every margin below its own gain bound
+                        if (point is not None and res.outcome == "infeasible" and point[0] > 0
+                                and point[1] < cert.gain_bound_any_margin):
+                            contradictions.append((where, method, f"infeasible contradicted by {other.method}: "
+                                                                  f"{point}"))
+                if res.outcome == "marginal" and (cert.kind != "farkas" or cert.any_margin):
+                    contradictions.append((where, method, "marginal without a margin-only Farkas certificate"))
+                if res.outcome == "infeasible" and cert.kind == "farkas" and not cert.any_margin:
+                    contradictions.append((where, method, "infeasible from a margin-only certificate"))
     return verdicts, contradictions
