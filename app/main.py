@@ -33,7 +33,8 @@ Design and certify **networked predictive controllers for switched plants** with
   `GET /v1/designs/{id}/events` until `succeeded`, then read `result.gains` (n_drop matrices m x n, K_1 first)
   and the re-checked Lyapunov certificate.
 * `GET /v1/designs/{id}/trace` simulates the designed loop (seeded, reproducible).
-* `GET /v1/designs/{id}/gains.mat` (or `.m`) exports the design for MATLAB/Octave.
+* `GET /v1/designs/{id}/gains.mat` (or `.m`) exports the design for MATLAB/Octave; `.../controller.zip` as C99
+  code of the controller and the actuator's buffer; `.../problem.dat-s` is its SDP in SDPA format.
 * `POST /v1/analyses` checks given gains; `POST /v1/simulations` simulates them.
 
 Notation in the schemas: n states, m inputs, r plant modes, n_drop = N (at most N - 1 consecutive losses),

@@ -63,8 +63,9 @@ def export_c(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs", *
         Input once the newest packet is ``N`` or more samples old: keep playing
         its last entry ``K_N x(stamp)`` (``"hold"``) or apply zero (``"zero"``).
     prefix : str
-        Prefix of every C name and of the file names: ``<prefix>_controller.h``,
-        ``<prefix>_buffer_t``, ``<PREFIX>_N``.  A C identifier of up to 31 characters.
+        Prefix of every C name and of the file names, lower-cased for files, functions and
+        types (``<prefix>_controller.h``, ``<prefix>_buffer_t``), upper-cased for macros
+        (``<PREFIX>_N``).  A letter, then letters, digits or ``_``; at most 31 characters.
     metadata : dict, optional
         Named in the header comment: ``id``, ``method``, ``certificate`` (kind) and
         anything else (str keys, short values).

@@ -16,6 +16,7 @@ rate) and, when ``scaling="auto"`` balances the family, the balanced coordinates
 from __future__ import annotations
 
 import io
+import itertools
 
 import numpy as np
 
@@ -155,29 +156,29 @@ def export_sdpa(family: PlantFamily, n_drop: int, method: str = "lmi", *, decay_
     last = np.zeros((n, n))
     last[n - 1, n - 1] = float(n)
     constant = blocks_at(X=last)  # the LMI's value at x = 0: W (Z) = n e_n e_n^T
-    mats = []
-    for kind, where in units:
-        if kind == "t":
-            mats.append(blocks_at(t=1.0))
-        elif kind in ("W", "Z"):
-            a, b = where
-            E = np.zeros((n, n))
-            E[a, b] = 1.0
-            if kind == "W":
-                E[b, a] = 1.0
-            if a == b:
-                E[n - 1, n - 1] = -1.0  # the eliminated diagonal entry absorbs the trace
-            mats.append(blocks_at(X=E))
-        elif kind == "S":
-            s, a, b = where
-            Sm = np.zeros((S, n, n))
-            Sm[s, a, b] = Sm[s, b, a] = 1.0
-            mats.append(blocks_at(Sm=Sm))
-        else:
-            j, a, b = where
-            Y = np.zeros((J, m, n))
-            Y[j, a, b] = 1.0
-            mats.append(blocks_at(Y=Y))
+    def unit_blocks():  # one variable at a time: the blocks of all variables together need S (2n)^2 each
+        for kind, where in units:
+            if kind == "t":
+                yield blocks_at(t=1.0)
+            elif kind in ("W", "Z"):
+                a, b = where
+                E = np.zeros((n, n))
+                E[a, b] = 1.0
+                if kind == "W":
+                    E[b, a] = 1.0
+                if a == b:
+                    E[n - 1, n - 1] = -1.0  # the eliminated diagonal entry absorbs the trace
+                yield blocks_at(X=E)
+            elif kind == "S":
+                s, a, b = where
+                Sm = np.zeros((S, n, n))
+                Sm[s, a, b] = Sm[s, b, a] = 1.0
+                yield blocks_at(Sm=Sm)
+            else:
+                j, a, b = where
+                Y = np.zeros((J, m, n))
+                Y[j, a, b] = 1.0
+                yield blocks_at(Y=Y)
 
     out = io.StringIO()
     _header(out, method, family, modes, decay_rate, scale, names, n, len(constant))
@@ -185,7 +186,7 @@ def export_sdpa(family: PlantFamily, n_drop: int, method: str = "lmi", *, decay_
     out.write(" ".join([str(2 * n)] * len(constant)) + " = bLOCKsTRUCT\n")
     out.write(" ".join(["-1.0"] + ["0.0"] * (len(names) - 1)) + "\n")
     upper = np.triu_indices(2 * n)
-    for index, F in enumerate([-constant] + mats):  # F_0 = -(the constant part)
+    for index, F in enumerate(itertools.chain([-constant], unit_blocks())):  # F_0 = -(the constant part)
         vals = F[:, upper[0], upper[1]]
         for blk, k in zip(*np.nonzero(vals)):
             out.write(f"{index} {blk + 1} {upper[0][k] + 1} {upper[1][k] + 1} {float(vals[blk, k])!r}\n")

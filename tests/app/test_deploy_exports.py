@@ -111,3 +111,17 @@ def test_cli_codegen_and_export_sdpa(tmp_path):
     assert out.returncode == 2 and "sequence of SDPs" in out.stderr
     out = ncs("codegen", "res.json", "--out", "c", "--prefix", "9", cwd=tmp_path)
     assert out.returncode == 2 and "prefix" in out.stderr
+
+
+def test_default_limits_admit_the_measured_lmi_case(module_db):
+    """lmi at n = 60, r = 5, n_drop = 10 (measured in 44 s of CPU: README) passes the default limits;
+    n = 61 is refused naming the field."""
+    rng = np.random.default_rng(0)
+
+    def body(n):
+        return {"plant": {"kind": "discrete", "F": (0.1 * rng.standard_normal((5, n, n))).tolist(),
+                          "G": rng.standard_normal((5, n, 2)).tolist()}, "n_drop": 10}
+
+    with running_client(module_db, run_dispatcher=False) as c:
+        assert c.post("/v1/designs", json=body(60)).status_code == 202
+        assert_problem(c.post("/v1/designs", json=body(61)), 422, "/plant/F")
