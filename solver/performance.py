@@ -241,10 +241,12 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
     need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
-    c = float(np.max(need)) * (1 + 1e-9)
+    c = float(np.max(need)) * (1 + 1e-12)
     if c <= 0:
         return None, "all gains are zero: every state keeps the inputs at zero (no ellipsoid needed)"
     Xc = c * X
+    if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
+        Xc = c * (1 + 1e-9) * X  # rounding of the solve
     if x0 is not None and x0 @ Xc @ x0 > 1:
         return None, f"x0 lies outside the certified set (x0' X x0 = {x0 @ Xc @ x0:.6g} > 1)"
     return Xc, ""

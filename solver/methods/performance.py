@@ -33,6 +33,8 @@ from .common import DesignOptions, RunClock, certify_gains, congruent_scale, fin
 #: Extra strictness of the stability blocks of an input-limited design (the ellipsoid shrinks by it).
 STRICT = 1e-5
 OBJECTIVES = ("stability", "cost", "hinf")
+#: Relative slack on u_max inside the SDP (the re-check uses u_max itself).
+LIMIT_SLACK = 1e-6
 #: Largest semi-axis of the invariant ellipsoid the plain input-limited design looks for (times max(1, |x0|)).
 MAX_RADIUS = 1e3
 
@@ -60,7 +62,8 @@ def input_blocks(modes, W, Y, u_max: np.ndarray, level=None) -> list:
             continue
         for j, u in enumerate(u_max):
             row = Yq[j:j + 1, :]
-            cons.append(schur_block(np.array([[u**2]]), row.T, W) >> 0)
+            # a hair inside the limit, so that x0 on the set's boundary survives the re-check's rounding
+            cons.append(schur_block(np.array([[(u * (1 - LIMIT_SLACK))**2]]), row.T, W) >> 0)
     return cons
 
 
@@ -73,18 +76,25 @@ def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None):
     M = modes.gain_map
     cons, extra = [], {}
     if objective == "cost":
-        gamma = cp.Variable() if x0 is not None else None
+        # with input limits the Kothare form (P = gamma W^{-1}): its W also shapes the invariant set;
+        # without them the plain form (P = W^{-1})
+        kothare = u_max is not None
+        gamma = cp.Variable()
         for lm in lifted.lifted:
             V = cp.vstack([lm.state.times_w(W, Y, M), lm.cost.times_w(W, Y, M)])
             k = lm.cost.free.shape[0]
-            tail = np.eye(k) if gamma is None else gamma * np.eye(k)
+            tail = gamma * np.eye(k) if kothare else np.eye(k)
             cons.append(schur_block(W, V, _blkdiag(W, tail)) >> 0)
         if x0 is None:
             Z = cp.Variable((n, n), symmetric=True)
             cons.append(schur_block(Z, np.eye(n), W) >> 0)
             objective_expr, extra["Z"] = cp.Minimize(cp.trace(Z)), Z
         else:
-            objective_expr, extra["gamma"] = cp.Minimize(gamma), gamma
+            level = np.ones((1, 1)) if kothare else cp.reshape(gamma, (1, 1), order="C")
+            cons.append(schur_block(level, x0.reshape(-1, 1), W) >> 0)
+            objective_expr = cp.Minimize(gamma)
+        extra["kothare"] = kothare
+        extra["gamma"] = gamma
     elif objective == "hinf":
         g = cp.Variable()
         for lm in lifted.lifted:
@@ -102,7 +112,7 @@ def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None):
         objective_expr = cp.Maximize(cp.log_det(W))
     if u_max is not None:
         cons += input_blocks(modes, W, Y, u_max)
-    if x0 is not None and (u_max is not None or objective == "cost"):
+    if x0 is not None and u_max is not None and objective != "cost":
         cons.append(schur_block(np.ones((1, 1)), x0.reshape(-1, 1), W) >> 0)
     return cp.Problem(objective_expr, cons), W, Y, extra
 
@@ -176,7 +186,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         return _no_design(lifted, options, clock, objective, "the SDP's W is singular", info)
     performance, P0, X0 = None, None, Winv
     if objective == "cost":
-        P0 = Winv if x0 is None else float(extra["gamma"].value) * Winv
+        P0 = float(extra["gamma"].value) * Winv if extra["kothare"] else Winv
         performance = bracket(lifted, gains, "cost", P0=P0, x0=x0, solver=options.solver)
     elif objective == "hinf":
         P0 = Winv
@@ -185,6 +195,12 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_source=f"lmi_{objective}")
     if cert is None and candidate is not Winv:
         cert, A = certify_gains(modes, gains, options, clock, candidate=Winv, candidate_source=f"lmi_{objective}")
+    if cert is None:  # perhaps no stabilizing design exists at all: the plain design may prove it
+        base = lmi.run(modes, options)
+        if base.outcome == "infeasible":
+            base.message = f"the {objective} SDP gave no certified gains; {base.message}"
+            base.objective = objective
+            return base
     invariant, inv_reason = None, ""
     if u_max is not None:
         invariant, inv_reason = check_invariant(X0, A, gains, u_max, x0)
