@@ -171,12 +171,9 @@ def design(
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
-    if objective != "stability" or u_max is not None:
+    if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
         return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
                                    margin, max_iter, time_limit, callback, decay_rate)
-    for name, value in (("weights", weights), ("x0", x0), ("disturbance", disturbance), ("output", output)):
-        if value is not None:
-            raise InvalidInput(f"{name} needs objective='cost' or 'hinf' (or u_max for x0)", (name,))
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -197,45 +194,10 @@ def design(
 def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,
                         margin, max_iter, time_limit, callback, decay_rate) -> DesignResult:
     """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), user coordinates."""
-    from .lifting import lift_modes
     from .methods import performance
-    from .performance import check_x0
 
-    if objective not in performance.OBJECTIVES:
-        raise InvalidInput(f"objective must be one of {performance.OBJECTIVES}, got {objective!r}", ("objective",))
-    if method != "lmi":
-        raise InvalidInput("objective and u_max need method='lmi' (a common quadratic Lyapunov function)",
-                           ("method",))
-    if decay_rate == "max":
-        raise InvalidInput("decay_rate='max' cannot be combined with an objective or u_max; give a rate",
-                           ("decay_rate",))
-    if decay_rate is not None and objective != "stability":
-        raise InvalidInput("decay_rate combines with u_max and objective='stability' only", ("decay_rate",))
-    n, m = modes.n_states, modes.n_inputs
-    x0 = check_x0(x0, n)
-    if u_max is not None:
-        try:
-            u_max = np.array(u_max, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
-        if u_max.size != m or not np.all(np.isfinite(u_max)) or np.any(u_max <= 0):
-            raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
-        if objective == "hinf":
-            raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
-                               "disturbance energy)", ("u_max",))
-        if objective == "cost" and x0 is None:
-            raise InvalidInput("u_max with objective='cost' needs x0 (the limits hold on a set containing x0)",
-                               ("x0",))
-    if objective == "hinf" and disturbance is None:
-        raise InvalidInput("objective='hinf' needs disturbance=E", ("disturbance",))
-    if objective != "hinf" and (disturbance is not None or output is not None):
-        raise InvalidInput("disturbance and output go with objective='hinf'", ("disturbance",))
-    if objective != "cost" and weights is not None:
-        raise InvalidInput("weights go with objective='cost'", ("weights",))
-    if objective == "stability" and x0 is not None and u_max is None:
-        raise InvalidInput("x0 goes with objective='cost' or u_max", ("x0",))
-    lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
-                        cost=objective == "cost")
+    lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
+                                            decay_rate)
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
                             decay_rate=None if decay_rate is None else float(decay_rate))

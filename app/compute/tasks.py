@@ -138,7 +138,8 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
     plant = req.plant.model_dump()
     fam = build_family(plant)
-    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
+    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options),
+                 **req.performance_kwargs())
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     return add_per_second_rates(out, fam.sampling_period)
@@ -233,6 +234,13 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     for key in ("plant_switching", "bounds"):
         if req.get(key) is not None:
             kwargs[key] = req[key]
+    if req.get("weights") is not None:
+        kwargs["weights"] = (req["weights"]["Q"], req["weights"]["R"])
+    if req.get("output") is not None:
+        kwargs["output"] = (req["output"]["C"], req["output"].get("D"))
+    for key in ("x0", "disturbance"):
+        if req.get(key) is not None:
+            kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
     return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
@@ -280,6 +288,22 @@ def warm_up() -> None:
     import solver.margins  # noqa: F401
 
     import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
+
+
+def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> None:
+    """The solver's own checks of a design request's performance fields (objective, weights, x0, disturbance,
+    output, u_max) before a job exists; raises the solver's InvalidInput naming the field."""
+    from solver.methods.performance import prepare
+    from solver.network import ModeSet
+
+    from app.compute.requests import DesignRequest
+
+    req = DesignRequest.model_validate(request)
+    fam = build_family(plant)
+    modes = ModeSet.from_family(fam, req.n_drop, req.options.plant_switching, req.options.scheme)
+    kw = req.performance_kwargs()
+    prepare(modes, req.method, kw.pop("objective"), kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
+            kw.get("output"), kw.get("u_max"), req.options.decay_rate)
 
 
 def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:

@@ -24,8 +24,9 @@ import numpy as np
 
 from ..compiled import SolveInfo, check_memory, schur_block
 from ..errors import SolverFailed
-from ..lifting import Lifted
-from ..performance import Performance, bracket, certify_cost, check_invariant
+from ..errors import InvalidInput
+from ..lifting import Lifted, lift_modes
+from ..performance import bracket, check_invariant, check_x0
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish
@@ -144,6 +145,52 @@ def _solve(prob: cp.Problem, solver: str, time_limit: float | None) -> SolveInfo
                      wall_time=time.perf_counter() - start,
                      objective=float(prob.value) if prob.value is not None and np.isfinite(prob.value) else float("nan"),
                      iterations=stats.num_iters if stats else None)
+
+
+def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate):
+    """Validate a performance / input-limit request and lift its data: ``(lifted, x0, u_max)``.
+
+    Raises :class:`solver.errors.InvalidInput` naming the field (the service calls it before a job exists).
+    """
+    if objective not in OBJECTIVES:
+        raise InvalidInput(f"objective must be one of {OBJECTIVES}, got {objective!r}", ("objective",))
+    if objective == "stability" and u_max is None:
+        for name, value in (("weights", weights), ("x0", x0), ("disturbance", disturbance), ("output", output)):
+            if value is not None:
+                raise InvalidInput(f"{name} needs objective='cost' or 'hinf' (or u_max, for x0)", (name,))
+        return None, None, None
+    if method != "lmi":
+        raise InvalidInput("objective and u_max need method='lmi' (a common quadratic Lyapunov function)",
+                           ("method",))
+    if decay_rate == "max":
+        raise InvalidInput("decay_rate='max' cannot be combined with an objective or u_max; give a rate",
+                           ("decay_rate",))
+    if decay_rate is not None and objective != "stability":
+        raise InvalidInput("decay_rate combines with u_max and objective='stability' only", ("decay_rate",))
+    n, m = modes.n_states, modes.n_inputs
+    x0 = check_x0(x0, n)
+    if u_max is not None:
+        try:
+            u_max = np.array(u_max, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
+        if u_max.size != m or not np.all(np.isfinite(u_max)) or np.any(u_max <= 0):
+            raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+        if objective == "hinf":
+            raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
+                               "disturbance energy)", ("u_max",))
+        if objective == "cost" and x0 is None:
+            raise InvalidInput("u_max with objective='cost' needs x0 (the limits hold on a set containing x0)",
+                               ("x0",))
+    if objective == "hinf" and disturbance is None:
+        raise InvalidInput("objective='hinf' needs disturbance=E", ("disturbance",))
+    if objective != "hinf" and (disturbance is not None or output is not None):
+        raise InvalidInput("disturbance and output go with objective='hinf'", ("disturbance",))
+    if objective != "cost" and weights is not None:
+        raise InvalidInput("weights go with objective='cost'", ("weights",))
+    lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
+                        cost=objective == "cost")
+    return lifted, x0, u_max
 
 
 def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray | None,

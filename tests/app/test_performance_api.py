@@ -1,0 +1,66 @@
+"""Performance designs and brackets over HTTP: request fields, typed results, 422 naming the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.examples import PAPER_GAINS_H01, PAPER_PLANT
+
+from .conftest import assert_problem, running_client, wait_for
+
+
+@pytest.fixture(scope="module")
+def client(module_db):
+    with running_client(module_db, workers=1) as c:
+        yield c
+
+
+def paper_family():
+    from solver import PlantFamily
+
+    return PlantFamily.from_continuous(A=PAPER_PLANT["A"], B=PAPER_PLANT["B"], sampling_period=0.1)
+
+
+def test_cost_design_with_input_limit_matches_the_library(client):
+    from solver import design
+
+    body = {"plant": PAPER_PLANT, "n_drop": 2, "objective": "cost",
+            "weights": {"Q": [[1, 0], [0, 1]], "R": [[1]]}, "x0": [-3, 2], "u_max": [0.5]}
+    resp = client.post("/v1/designs", json=body)
+    assert resp.status_code == 202, resp.text
+    done = wait_for(client, resp.json()["id"])
+    assert done["status"] == "succeeded", done
+    res = done["result"]
+    assert res["outcome"] == "stabilized" and res["objective"] == "cost"
+    perf = res["performance"]
+    assert perf["kind"] == "cost" and perf["verified"] and perf["lower"] <= perf["upper"]
+    direct = design(paper_family(), 2, objective="cost", weights=(np.eye(2), np.eye(1)), x0=[-3, 2], u_max=[0.5])
+    assert perf["upper"] == pytest.approx(direct.performance.upper, rel=1e-6)
+    np.testing.assert_allclose(np.asarray(res["invariant_set"]), direct.invariant_set, rtol=1e-5)
+    assert [tuple(w) for w in perf["witness"]] == [tuple(w) for w in direct.performance.witness]
+
+
+def test_hinf_analysis_of_the_paper_gains(client):
+    body = {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01, "disturbance": [[2.0], [0.0]],
+            "output": {"C": [[1, 0], [0, 1], [0, 0]], "D": [[0], [0], [1]]}, "bounds": "none"}
+    resp = client.post("/v1/analyses", json=body)
+    assert resp.status_code == 200, resp.text
+    rep = resp.json()
+    assert rep["hinf"]["verified"] and rep["hinf"]["lower"] <= rep["hinf"]["upper"]
+    assert rep["cost"] is None
+
+
+@pytest.mark.parametrize("extra, pointer", [
+    ({"objective": "cost", "weights": {"Q": [[1, 0], [0, -1]], "R": [[1]]}}, "/weights/Q"),
+    ({"objective": "hinf"}, "/disturbance"),
+    ({"objective": "cost", "u_max": [1.0]}, "/x0"),
+    ({"u_max": [1.0, 2.0]}, "/u_max"),
+    ({"weights": {"Q": [[1, 0], [0, 1]], "R": [[1]]}}, "/weights"),
+    ({"objective": "cost", "method": "ccl"}, "/method"),
+    ({"objective": "bogus"}, "/objective"),
+    ({"u_max": [-1.0]}, "/u_max"),
+])
+def test_bad_performance_fields_are_422_naming_the_field(client, extra, pointer):
+    resp = client.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 2, **extra})
+    assert_problem(resp, 422, pointer)
