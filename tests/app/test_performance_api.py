@@ -64,3 +64,36 @@ def test_hinf_analysis_of_the_paper_gains(client):
 def test_bad_performance_fields_are_422_naming_the_field(client, extra, pointer):
     resp = client.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 2, **extra})
     assert_problem(resp, 422, pointer)
+
+
+def test_python_client_sends_the_performance_fields(client):
+    from app.client import Client
+    from solver import design
+
+    service = Client("http://testserver", http_client=client, poll_interval=0.05)
+    fam = paper_family()
+    E = list(fam.G)
+    res = service.design(fam, 2, objective="hinf", disturbance=E, output=(np.vstack([np.eye(2), [[0, 0]]]),
+                                                                          np.array([[0.0], [0.0], [1.0]])))
+    direct = design(fam, 2, objective="hinf", disturbance=E)  # the same output: z = [x; u]
+    assert res.objective == "hinf" and res.performance["upper"] == pytest.approx(direct.performance.upper, rel=1e-6)
+    rep = service.analyze(fam, PAPER_GAINS_H01, 3, weights=(np.eye(2), np.eye(1)), x0=[-3, 2], bounds="none")
+    assert rep.cost["verified"] and rep.cost["x0"] == [-3.0, 2.0] and rep.hinf is None
+
+
+def test_cli_performance_flags(tmp_path):
+    import json
+
+    from .test_cli import ncs
+
+    (tmp_path / "motor.json").write_text(json.dumps(PAPER_PLANT))
+    out = ncs("design", "motor.json", "--n-drop", 2, "--objective", "cost", "--x0=-3,2", "--u-max", "0.5",
+              "--weights", '{"Q": [[1, 0], [0, 1]], "R": [[1]]}', "-o", "cost.json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "cost: upper" in out.stdout and "input limits hold from" in out.stdout
+    result = json.loads((tmp_path / "cost.json").read_text())
+    assert result["performance"]["verified"] and result["invariant_set"] is not None
+    out = ncs("analyze", "motor.json", "--gains", "cost.json", "--disturbance", "[[2], [0]]", cwd=tmp_path)
+    assert out.returncode == 0 and "l2 gain: upper" in out.stdout, out.stderr
+    out = ncs("design", "motor.json", "--n-drop", 2, "--objective", "hinf", cwd=tmp_path)
+    assert out.returncode == 2 and "disturbance" in out.stderr and "Traceback" not in out.stderr
