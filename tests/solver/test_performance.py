@@ -331,3 +331,20 @@ def test_performance_to_dict_is_json():
     assert d["performance"]["kind"] == "hinf" and d["performance"]["verified"]
     assert d["performance"]["upper"] >= d["performance"]["lower"]
     assert isinstance(d["performance"]["witness"][0][1], int)
+
+
+def test_mat_and_m_exports_carry_the_bracket_and_the_invariant_set(tmp_path):
+    import scipy.io
+
+    from solver.matlab import m_script, save_mat
+
+    fam = PlantFamily.paper_example(0.1)
+    res = design(fam, 2, objective="cost", x0=[-3, 2], u_max=[0.5])
+    for result in (res, res.to_dict()):
+        save_mat(tmp_path / "g.mat", result, fam)
+        d = scipy.io.loadmat(tmp_path / "g.mat")
+        assert str(d["perf_kind"][0]) == "cost"
+        assert float(d["perf_upper"][0, 0]) == res.performance.upper
+        np.testing.assert_array_equal(d["X_inv"], res.invariant_set)
+        np.testing.assert_array_equal(d["P_perf"], res.performance.certificate)
+    assert "X_inv = [" in m_script(res, fam) and "perf_upper = " in m_script(res, fam)
