@@ -348,3 +348,18 @@ def test_mat_and_m_exports_carry_the_bracket_and_the_invariant_set(tmp_path):
         np.testing.assert_array_equal(d["X_inv"], res.invariant_set)
         np.testing.assert_array_equal(d["P_perf"], res.performance.certificate)
     assert "X_inv = [" in m_script(res, fam) and "perf_upper = " in m_script(res, fam)
+
+
+def test_trace_figure_draws_the_input_limit():
+    from solver import simulate
+    from solver.plotting import trace_figure
+
+    fam = unstable_family()
+    res = design(fam, 3, u_max=[1.5])
+    X = res.invariant_set
+    x0 = boundary_points(X, 1, np.random.default_rng(0))[0]
+    tr = simulate(fam, res.gains, 3, x0=x0, steps=40, seed=1)
+    assert np.max(np.abs(tr.input)) <= 1.5 * (1 + 1e-9)  # the library's own simulator agrees
+    fig = trace_figure([tr], u_max=[1.5])
+    lines = [line for line in fig.axes[1].get_lines() if line.get_linestyle() == "--"]
+    assert sorted(float(line.get_ydata()[0]) for line in lines) == [-1.5, 1.5]
