@@ -48,7 +48,7 @@ async def submit_design(
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
-    validation.check_performance(req)
+    validation.check_performance(req, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
 
 

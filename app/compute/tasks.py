@@ -290,10 +290,11 @@ def warm_up() -> None:
     import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
 
 
-def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> None:
+def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> int:
     """The solver's own checks of a design request's performance fields (objective, weights, x0, disturbance,
-    output, u_max) before a job exists; raises the solver's InvalidInput naming the field."""
-    from solver.methods.performance import prepare
+    output, u_max) before a job exists; raises the solver's InvalidInput naming the field.  Returns the sum of
+    the design's LMI block sides (for the service's size limit)."""
+    from solver.methods.performance import block_sides, prepare
     from solver.network import ModeSet
 
     from app.compute.requests import DesignRequest
@@ -302,8 +303,10 @@ def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> 
     fam = build_family(plant)
     modes = ModeSet.from_family(fam, req.n_drop, req.options.plant_switching, req.options.scheme)
     kw = req.performance_kwargs()
-    prepare(modes, req.method, kw.pop("objective"), kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
-            kw.get("output"), kw.get("u_max"), req.options.decay_rate)
+    objective = kw.pop("objective")
+    lifted, _, _ = prepare(modes, req.method, objective, kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
+                           kw.get("output"), kw.get("u_max"), req.options.decay_rate)
+    return 0 if lifted is None else sum(block_sides(lifted, objective))
 
 
 def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:

@@ -190,7 +190,18 @@ def prepare(modes, method: str, objective: str, weights, x0, disturbance, output
         raise InvalidInput("weights go with objective='cost'", ("weights",))
     lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
                         cost=objective == "cost")
+    check_memory(block_sides(lifted, objective), objective)
     return lifted, x0, u_max
+
+
+def block_sides(lifted: Lifted, objective: str) -> list[int]:
+    """Side of every per-mode LMI block of the design (the input-limit blocks are n + 1 each)."""
+    n = lifted.modes.n_states
+    if objective == "cost":
+        return [2 * n + lm.cost.free.shape[0] for lm in lifted.lifted]
+    if objective == "hinf":
+        return [2 * n + lm.B.shape[1] + lm.D.shape[0] for lm in lifted.lifted]
+    return [2 * n] * len(lifted.lifted)
 
 
 def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray | None,
@@ -199,15 +210,6 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     modes = lifted.modes
     clock = RunClock()
     clock.cached = False
-    sides = []
-    for lm in lifted.lifted:
-        if objective == "cost":
-            sides.append(2 * modes.n_states + lm.cost.free.shape[0])
-        elif objective == "hinf":
-            sides.append(2 * modes.n_states + lm.B.shape[1] + lm.D.shape[0])
-        else:
-            sides.append(2 * modes.n_states)
-    check_memory(sides, objective)
     rate = options.decay_rate
     build_start = clock.elapsed
     prob, Wv, Yv, extra = build(lifted, objective, x0, u_max, rate)

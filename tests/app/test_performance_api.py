@@ -97,3 +97,12 @@ def test_cli_performance_flags(tmp_path):
     assert out.returncode == 0 and "l2 gain: upper" in out.stdout, out.stderr
     out = ncs("design", "motor.json", "--n-drop", 2, "--objective", "hinf", cwd=tmp_path)
     assert out.returncode == 2 and "disturbance" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_lifted_blocks_count_against_the_size_limit(client):
+    # 300 disturbance channels: blocks of side 2n + eta (p_w + p_z), 3 plant modes x 3 interval lengths
+    wide = [[1.0] * 300, [0.0] * 300]
+    resp = client.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 3, "objective": "hinf",
+                                            "disturbance": wide})
+    body = assert_problem(resp, 422)
+    assert "NCS_MAX_LMI_SIZE" in resp.text or "solver memory" in resp.text, body  # refused before a job exists
