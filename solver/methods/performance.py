@@ -34,6 +34,8 @@ from .common import DesignOptions, RunClock, certify_gains, congruent_scale, fin
 #: Extra strictness of the stability blocks of an input-limited design (the ellipsoid shrinks by it).
 STRICT = 1e-5
 OBJECTIVES = ("stability", "cost", "hinf")
+#: Relative slack on the optimal x0 cost allowed to the tie-break stage (min trace P among x0-optimal designs).
+TIE_BREAK = 1e-9
 #: Relative slack on u_max inside the SDP (the re-check uses u_max itself).
 LIMIT_SLACK = 1e-6
 #: Largest semi-axis of the invariant ellipsoid the plain input-limited design looks for (times max(1, |x0|)).
@@ -68,8 +70,12 @@ def input_blocks(modes, W, Y, u_max: np.ndarray, level=None) -> list:
     return cons
 
 
-def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None):
-    """The cvxpy problem and the variables ``(problem, W, Y, extra)`` of one design."""
+def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None, cap: float | None = None):
+    """The cvxpy problem and the variables ``(problem, W, Y, extra)`` of one design.
+
+    ``cap`` (cost from x0 without limits): the tie-break stage, ``min trace P`` among designs with
+    ``x0' P x0 <= cap`` (only x0' P x0 is optimized otherwise, so P and the gains are not unique).
+    """
     modes = lifted.modes
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
     W = cp.Variable((n, n), symmetric=True)
@@ -94,6 +100,10 @@ def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None):
             level = np.ones((1, 1)) if kothare else cp.reshape(gamma, (1, 1), order="C")
             cons.append(schur_block(level, x0.reshape(-1, 1), W) >> 0)
             objective_expr = cp.Minimize(gamma)
+            if cap is not None:
+                Z = cp.Variable((n, n), symmetric=True)
+                cons += [schur_block(Z, np.eye(n), W) >> 0, gamma <= cap]
+                objective_expr = cp.Minimize(cp.trace(Z))
         extra["kothare"] = kothare
         extra["gamma"] = gamma
     elif objective == "hinf":
@@ -228,6 +238,17 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     if Wv.value is None or info.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return _no_design(lifted, options, clock, objective,
                           f"the {objective} SDP ended with status {info.status!r}", info)
+    if objective == "cost" and x0 is not None and u_max is None:
+        # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P
+        cap = float(extra["gamma"].value) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
+        second, W2, Y2, extra2 = build(lifted, objective, x0, u_max, rate, cap=cap)
+        try:
+            info2 = _solve(second, options.solver, clock.remaining(options.time_limit))
+        except SolverFailed:
+            info2 = None
+        if info2 is not None and info2.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and W2.value is not None:
+            clock.add(info2)
+            Wv, Yv, extra, info = W2, Y2, extra2, info2
     W = 0.5 * (Wv.value + Wv.value.T)
     Y = [np.array(y.value, dtype=float) for y in Yv]
     try:
