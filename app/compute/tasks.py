@@ -259,7 +259,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
     titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
-    return render(trace_figure(runs, titles, family=fam, **size), fmt)
+    return render(trace_figure(runs, titles, family=fam, u_max=params.get("u_max"), **size), fmt)
 
 
 def run_margin_plot(result: dict[str, Any], fmt: str, size: dict[str, Any]) -> bytes:

@@ -106,3 +106,21 @@ def test_lifted_blocks_count_against_the_size_limit(client):
                                             "disturbance": wide})
     body = assert_problem(resp, 422)
     assert "NCS_MAX_LMI_SIZE" in resp.text or "solver memory" in resp.text, body  # refused before a job exists
+
+
+def test_trace_figure_of_an_input_limited_design_draws_the_limit(client):
+    body = {"plant": PAPER_PLANT, "n_drop": 2, "u_max": [0.5]}
+    resp = client.post("/v1/designs", json=body)
+    done = wait_for(client, resp.json()["id"])
+    assert done["result"]["outcome"] == "stabilized", done
+    svg = client.get(f"/v1/designs/{done['id']}/trace.svg?x0=-3,2&steps=30")
+    assert svg.status_code == 200, svg.text
+    assert "u_max = 0.5" in svg.text
+
+
+def test_bad_analysis_performance_fields_are_422(client):
+    body = {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01, "weights": {"Q": [[1, 0], [0, 1]], "R": [[0]]},
+            "bounds": "none"}
+    assert_problem(client.post("/v1/analyses", json=body), 422, "/weights")
+    body = {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01, "disturbance": [[1.0, 2.0, 3.0]], "bounds": "none"}
+    assert_problem(client.post("/v1/analyses", json=body), 422, "/disturbance")
