@@ -15,13 +15,16 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+import time
+import warnings
+from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 
+from .compiled import SolveInfo
 from .errors import InvalidInput, SolverFailed
 from .lifting import Lifted
 
@@ -156,7 +159,8 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None):
         ok, worst = check_cost(P, data)
         if ok:
             return P, float(np.trace(P) if x0 is None else x0 @ P @ x0), ""
-    return None, None, f"no multiple of the solver's P passes the float64 re-check (worst relative eigenvalue {worst:.3g})"
+    return None, None, ("no multiple of the solver's P passes the float64 re-check "
+                        f"(worst relative eigenvalue {worst:.3g})")
 
 
 def _brl(P, d, g):
@@ -253,15 +257,42 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
 
 
 # --------------------------------------------------------------- fixed-gain upper bounds (analyze)
-def _solve(prob: cp.Problem, solver: str):
+def solve_sdp(prob: cp.Problem, solver: str, time_limit: float | None = None) -> SolveInfo:
+    """Solve a performance SDP with Clarabel (``"SCS"`` when asked) at tight tolerances.
+
+    The LQR reproduction (gains to 1e-6) needs tolerances tighter than Clarabel's defaults; when the solver
+    stalls there (exponential cones of ``log det``), the defaults are tried once more.  Whatever comes out is
+    only a proposal for the float64 re-checks.
+    """
     name = "SCS" if str(solver).upper() == "SCS" else "CLARABEL"
-    opts = dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=200_000) if name == "SCS" else dict(
-        tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10, max_iter=400)
-    try:
-        prob.solve(solver=getattr(cp, name), **opts)
-    except cp.error.SolverError as err:
-        raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
-    return prob.status
+    if name == "SCS":
+        attempts = [dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=200_000)]
+        limit_key = "time_limit_secs"
+    else:
+        attempts = [dict(tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, tol_ktratio=1e-9, max_iter=500),
+                    dict()]
+        limit_key = "time_limit"
+    start = time.perf_counter()
+    for i, opts in enumerate(attempts):
+        if time_limit is not None:
+            opts[limit_key] = max(float(time_limit) - (time.perf_counter() - start), 1e-3)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                prob.solve(solver=getattr(cp, name), **opts)
+        except cp.error.SolverError as err:
+            if i + 1 < len(attempts):
+                continue
+            raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
+        if prob.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE, cp.INFEASIBLE) or i + 1 == len(attempts):
+            break
+    stats = prob.solver_stats
+    value = prob.value
+    return SolveInfo(status=prob.status, solver=name,
+                     solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
+                     wall_time=time.perf_counter() - start,
+                     objective=float(value) if value is not None and np.isfinite(value) else float("nan"),
+                     iterations=stats.num_iters if stats else None)
 
 
 def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO"):
@@ -270,7 +301,7 @@ def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO
     P = cp.Variable((n, n), symmetric=True)
     cons = [P - d["A"].T @ P @ d["A"] - d["S"] >> 0 for d in data]
     obj = cp.trace(P) if x0 is None else x0 @ P @ x0
-    status = _solve(cp.Problem(cp.Minimize(obj), cons + [P >> 0]), solver)
+    status = solve_sdp(cp.Problem(cp.Minimize(obj), cons + [P >> 0]), solver).status
     if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the fixed-gain cost LMI ended with status {status!r} (no common quadratic bound)"
     return certify_cost(P.value, data, x0)
@@ -288,7 +319,7 @@ def fixed_gain_hinf(data: list[dict], solver: str = "AUTO"):
         top = P - A.T @ P @ A - C.T @ C
         off = -(A.T @ P @ B + C.T @ D)
         cons.append(cp.bmat([[top, off], [off.T, g * np.eye(k) - B.T @ P @ B - D.T @ D]]) >> 0)
-    status = _solve(cp.Problem(cp.Minimize(g), cons), solver)
+    status = solve_sdp(cp.Problem(cp.Minimize(g), cons), solver).status
     if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the fixed-gain bounded-real LMI ended with status {status!r} (no common quadratic bound)"
     return certify_hinf(P.value, data)

@@ -26,7 +26,7 @@ from ..compiled import SolveInfo, check_memory, schur_block
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..performance import bracket, check_invariant, check_x0
+from ..performance import bracket, check_invariant, check_x0, solve_sdp
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish
@@ -128,35 +128,6 @@ def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None, cap: fl
     return cp.Problem(objective_expr, cons), W, Y, extra
 
 
-def _solve(prob: cp.Problem, solver: str, time_limit: float | None) -> SolveInfo:
-    name = "SCS" if solver == "SCS" else "CLARABEL"
-    if name == "SCS":
-        opts = dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=200_000)
-        if time_limit is not None:
-            opts["time_limit_secs"] = float(time_limit)
-    else:
-        # the LQR reproduction (gains to 1e-6) needs tolerances tighter than Clarabel's defaults
-        opts = dict(tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, tol_ktratio=1e-9, max_iter=500)
-        if time_limit is not None:
-            opts["time_limit"] = float(time_limit)
-    import time
-    import warnings
-
-    start = time.perf_counter()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            prob.solve(solver=getattr(cp, name), **opts)
-    except cp.error.SolverError as err:
-        raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
-    stats = prob.solver_stats
-    return SolveInfo(status=prob.status, solver=name,
-                     solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
-                     wall_time=time.perf_counter() - start,
-                     objective=float(prob.value) if prob.value is not None and np.isfinite(prob.value) else float("nan"),
-                     iterations=stats.num_iters if stats else None)
-
-
 def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate):
     """Validate a performance / input-limit request and lift its data: ``(lifted, x0, u_max)``.
 
@@ -225,7 +196,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     prob, Wv, Yv, extra = build(lifted, objective, x0, u_max, rate)
     clock.setup = clock.elapsed - build_start
     try:
-        info = _solve(prob, options.solver, options.time_limit)
+        info = solve_sdp(prob, options.solver, options.time_limit)
     except SolverFailed as err:
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP failed ({err})", None)
     clock.add(info)
@@ -243,7 +214,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         cap = float(extra["gamma"].value) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
         second, W2, Y2, extra2 = build(lifted, objective, x0, u_max, rate, cap=cap)
         try:
-            info2 = _solve(second, options.solver, clock.remaining(options.time_limit))
+            info2 = solve_sdp(second, options.solver, clock.remaining(options.time_limit))
         except SolverFailed:
             info2 = None
         if info2 is not None and info2.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and W2.value is not None:
