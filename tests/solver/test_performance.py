@@ -362,3 +362,43 @@ def test_trace_figure_draws_the_input_limit():
     fig = trace_figure([tr], u_max=[1.5])
     lines = [line for line in fig.axes[1].get_lines() if line.get_linestyle() == "--"]
     assert sorted(float(line.get_ydata()[0]) for line in lines) == [-1.5, 1.5]
+
+
+def interval_maps_by_stepping(fam, K, seq):
+    """x(i_m + eta) and the interval cost matrix from x(i_m), by stepping the buffer on basis vectors (Q = R = I)."""
+    n = fam.F.shape[1]
+    A, L = np.zeros((n, n)), []
+    for i in range(n):
+        x = xm = np.eye(n)[i]
+        rows = []
+        for t, l in enumerate(seq):
+            u = K[t] @ xm
+            rows.append(np.concatenate([x, u]))
+            x = fam.F[l] @ x + fam.G[l] @ u
+        A[:, i] = x
+        L.append(np.concatenate(rows))
+    L = np.array(L).T  # stacked [x(t); u(t)] rows per unit initial state
+    return A, L.T @ L
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("switching", ["per_interval", "per_sample"])
+def test_random_families_cost_certificates_hold_by_independent_stepping(seed, switching):
+    rng = np.random.default_rng(100 + seed)
+    r, n, N = 2, 2, 2
+    F = rng.normal(size=(r, n, n))
+    F = F / np.max(np.abs(np.linalg.eigvals(F)), axis=1)[:, None, None] * rng.uniform(0.6, 1.3, size=(r, 1, 1))
+    fam = PlantFamily(F=F, G=rng.normal(size=(r, n, 1)))
+    res = design(fam, N, objective="cost", plant_switching=switching)
+    if res.outcome == "infeasible":
+        assert res.certificate is not None and res.certificate.verified
+        return
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    P = perf.certificate
+    modes = ModeSet.from_family(fam, N, plant_switching=switching)
+    for seq in modes.plants:
+        A, S = interval_maps_by_stepping(fam, res.gains, seq)
+        assert np.linalg.eigvalsh(A.T @ P @ A - P + S)[-1] <= 1e-12 * np.linalg.norm(P, 2)
+    assert np.trace(P) == pytest.approx(perf.upper, rel=1e-12)
