@@ -28,9 +28,13 @@ from .compiled import SolveInfo
 from .errors import InvalidInput, SolverFailed
 from .lifting import Lifted
 
-#: Rounding allowance of the float64 re-checks, relative to the size of the terms
-#: (eigvalsh is backward stable; forming A' P A costs a few n eps of the norms).
+#: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
+#: stable; forming A' P A costs a few n eps of the norms): ``max(64, 8 k) eps`` for a k x k inequality.
 ROUND = 64 * np.finfo(float).eps
+
+
+def _allowance(k: int) -> float:
+    return max(ROUND, 8 * k * np.finfo(float).eps)
 #: Periodic patterns searched for the lower bound: up to this many intervals per period ...
 PATTERN_LENGTH = 3
 #: ... and at most this many patterns (shorter periods first).
@@ -125,7 +129,7 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     """Float64 re-check of ``P > 0`` and ``A_s' P A_s - P + S_s <= 0`` for all modes.
 
     Returns ``(passed, worst)``: ``worst`` is the largest eigenvalue of the inequality's left side
-    relative to the size of its terms; passing needs it below ``-ROUND`` (rounding cannot flip it).
+    relative to the size of its terms; passing needs it below minus the rounding allowance (rounding cannot flip it).
     """
     P = _sym(P)
     if np.linalg.eigvalsh(P)[0] <= 0:
@@ -135,7 +139,7 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
         APA = d["A"].T @ P @ d["A"]
         size = np.linalg.norm(APA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
         worst = max(worst, np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size)
-    return bool(worst < -ROUND), float(worst)
+    return bool(worst < -_allowance(P.shape[0])), float(worst)
 
 
 def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None):
@@ -185,7 +189,7 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
         size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P, 2) + np.linalg.norm(CD, 2) ** 2 \
             + np.linalg.norm(P, 2) + g
         worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
-    return bool(worst < -ROUND), float(worst)
+    return bool(worst < -_allowance(P.shape[0] + max(d["B"].shape[1] for d in data))), float(worst)
 
 
 def certify_hinf(P0: np.ndarray, data: list[dict]):
@@ -240,7 +244,7 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     for s, As in enumerate(A):
         APA = As.T @ X @ As
         size = np.linalg.norm(APA, 2) + eigX[-1]
-        if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -ROUND:
+        if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -_allowance(X.shape[0]):
             return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
     rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
