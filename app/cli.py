@@ -59,6 +59,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
         p.add_argument("--n-drop", type=int, default=None, help="drop bound (default: the number of gains)")
 
+    def performance_args(p):
+        p.add_argument("--weights", default=None, metavar="JSON",
+                       help='cost weights, inline or @file: {"Q": [[...]], "R": [[...]]}')
+        p.add_argument("--x0", dest="perf_x0", default=None, metavar="X1,X2,...",
+                       help="initial state of the cost bound (and inside the input-limit set)")
+        p.add_argument("--disturbance", default=None, metavar="JSON",
+                       help="E (n x p_w) or one per plant mode, inline or @file (hinf)")
+        p.add_argument("--performance-output", default=None, metavar="JSON",
+                       help='z = C x + D u, inline or @file: {"C": [[...]], "D": [[...]]} (default z = [x; u])')
+
     d = sub.add_parser("design", help="design gains K_1..K_N for a plant file")
     plant_args(d)
     d.add_argument("--n-drop", type=int, required=True, help="at most n_drop - 1 consecutive losses")
@@ -69,10 +79,15 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--scheme", choices=("predictive", "hold", "zero"), default=None)
     d.add_argument("--output", "-o", default=None, metavar="FILE",
                    help="write gains and certificate: .json (the service's result), .mat or .m (MATLAB/Octave)")
+    d.add_argument("--objective", choices=("stability", "cost", "hinf"), default=None,
+                   help="cost: minimize the certified worst-case quadratic cost; hinf: the certified l2 gain")
+    d.add_argument("--u-max", default=None, metavar="U1,U2,...", help="input limits (one per input)")
+    performance_args(d)
 
     a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")
     plant_args(a)
     gains_args(a)
+    performance_args(a)
     a.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
     a.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
 

@@ -96,6 +96,56 @@ def _parse_decay_rate(text: str | None):
         raise UsageError(f"--decay-rate must be a number in (0, 1] or 'max', got {text!r}") from None
 
 
+def _json_arg(text: str | None, flag: str):
+    """A JSON value given inline or as ``@file``."""
+    if text is None:
+        return None
+    try:
+        return _read_json(Path(text[1:])) if text.startswith("@") else json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{flag} must be JSON (inline or @file): {exc}") from None
+
+
+def _numbers(text: str | None, flag: str):
+    if text is None:
+        return None
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UsageError(f"{flag} must be comma-separated numbers, got {text!r}") from None
+
+
+def performance_kwargs(args) -> dict:
+    """solver.design/analyze keywords from the performance flags (docs/design.md §8)."""
+    kw: dict = {}
+    weights = _json_arg(args.weights, "--weights")
+    if weights is not None:
+        if not isinstance(weights, dict) or set(weights) != {"Q", "R"}:
+            raise UsageError('--weights must be {"Q": [[...]], "R": [[...]]}')
+        kw["weights"] = (weights["Q"], weights["R"])
+    out = _json_arg(args.performance_output, "--performance-output")
+    if out is not None:
+        if not isinstance(out, dict) or "C" not in out:
+            raise UsageError('--performance-output must be {"C": [[...]], "D": [[...]]}')
+        kw["output"] = (out["C"], out.get("D"))
+    for key, value in (("x0", _numbers(args.perf_x0, "--x0")),
+                       ("disturbance", _json_arg(args.disturbance, "--disturbance")),
+                       ("objective", getattr(args, "objective", None)),
+                       ("u_max", _numbers(getattr(args, "u_max", None), "--u-max"))):
+        if value is not None:
+            kw[key] = value
+    return kw
+
+
+def performance_summary(perf: dict | None, name: str) -> list[str]:
+    if not perf:
+        return []
+    upper = "none certified" if perf.get("upper") is None else f"{perf['upper']:.6g}"
+    lower = "-" if perf.get("lower") is None else f"{perf['lower']:.6g}"
+    witness = " ".join(f"({p}, {e})" for p, e in perf.get("witness") or [])
+    return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst periodic pattern {witness})"]
+
+
 # ------------------------------------------------------------------------------------------- summary
 def _fmt_matrix(M) -> str:
     M = np.atleast_2d(np.asarray(M, dtype=float))
@@ -127,6 +177,9 @@ def design_summary(result: dict) -> list[str]:
         lines.append(f"max spectral radius of the interval closed loops: {result['max_spectral_radius']:.4g}")
     if result.get("decay_rate") is not None:
         lines.append(f"certified decay rate: {result['decay_rate']:.4g} per sample")
+    lines += performance_summary(result.get("performance"), result.get("objective") or "performance")
+    if result.get("invariant_set") is not None:
+        lines.append(f"input limits hold from x' X x <= 1, X = {_fmt_matrix(result['invariant_set'])}")
     for q, K in enumerate(result.get("gains") or []):
         lines.append(f"K_{q + 1} = {_fmt_matrix(K)}")
     if result.get("message"):
@@ -146,17 +199,18 @@ def cmd_design(args) -> int:
     decay_rate = _parse_decay_rate(args.decay_rate)
     options = {k: v for k, v in (("decay_rate", decay_rate), ("plant_switching", args.plant_switching),
                                  ("scheme", args.scheme)) if v is not None}
+    perf = performance_kwargs(args)
     suffix = Path(args.output).suffix.lower() if args.output else None
     if suffix not in (None, ".json", ".mat", ".m"):
         raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
     print(plant_summary(fam))
     if args.server:
         with _client(args) as c:
-            result = c.design(fam, n_drop=args.n_drop, method=args.method, **options).raw
+            result = c.design(fam, n_drop=args.n_drop, method=args.method, **perf, **options).raw
     else:
         from solver import design
 
-        res = design(fam, n_drop=args.n_drop, method=args.method, **options)
+        res = design(fam, n_drop=args.n_drop, method=args.method, **perf, **options)
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
     print("\n".join(design_summary(result)))
@@ -182,6 +236,7 @@ def cmd_analyze(args) -> int:
     gains = load_gains(args.gains)
     n_drop = args.n_drop or len(gains)
     kwargs = {"plant_switching": args.plant_switching} if args.plant_switching else {}
+    kwargs.update(performance_kwargs(args))
     print(plant_summary(fam))
     if args.server:
         with _client(args) as c:
@@ -197,6 +252,8 @@ def cmd_analyze(args) -> int:
         print(f"certificate relative margin: {report['margin']:.3g}")
     if report.get("decay_rate") is not None:
         print(f"best certified decay rate: {report['decay_rate']:.4g} per sample")
+    for line in performance_summary(report.get("cost"), "cost") + performance_summary(report.get("hinf"), "l2 gain"):
+        print(line)
     if args.output:
         Path(args.output).write_text(json.dumps(report, indent=1) + "\n")
         print(f"wrote {args.output}")

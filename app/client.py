@@ -132,6 +132,29 @@ class Job:
         return self.status in TERMINAL
 
 
+def _nested(value):
+    """Arrays (or lists of them, one per plant mode) as JSON lists."""
+    if isinstance(value, (list, tuple)):
+        return [_nested(v) for v in value]
+    return np.asarray(value, dtype=float).tolist()
+
+
+def performance_json(weights=None, x0=None, disturbance=None, output=None, u_max=None) -> dict:
+    """The performance fields of a design/analysis request, from :func:`solver.design`'s arguments."""
+    body: dict = {}
+    if weights is not None:
+        body["weights"] = {"Q": _nested(weights[0]), "R": _nested(weights[1])}
+    if x0 is not None:
+        body["x0"] = _nested(x0)
+    if disturbance is not None:
+        body["disturbance"] = _nested(disturbance)
+    if output is not None:
+        body["output"] = {"C": _nested(output[0]), "D": None if output[1] is None else _nested(output[1])}
+    if u_max is not None:
+        body["u_max"] = _nested(u_max)
+    return body
+
+
 @dataclass
 class DesignResult:
     """A finished design.
@@ -165,6 +188,13 @@ class DesignResult:
         Names and units of the plant's states and inputs.
     job_id : str or None
         The service job (None for an in-process design).
+    objective : str
+        ``stability``, ``cost`` or ``hinf``.
+    performance : dict or None
+        ``cost``/``hinf``: the certified bracket (``kind``, ``upper``, ``lower``, ``witness``, ``certificate``,
+        ``verified``, ``gap``; ``Performance`` in ``/openapi.json``).
+    invariant_set : ndarray, shape (n, n), or None
+        With ``u_max``: X of ``{x : x' X x <= 1}``, from which every applied input meets the limits.
     raw : dict
         The JSON result (``DesignResult`` in ``/openapi.json``).
     """
@@ -185,6 +215,9 @@ class DesignResult:
     input_names: list | None = None
     units: dict | None = None
     job_id: str | None = None
+    objective: str = "stability"
+    performance: dict | None = None
+    invariant_set: np.ndarray | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -196,7 +229,9 @@ class DesignResult:
                    G=_array(result.get("G")), sampling_period=result.get("sampling_period"),
                    decay_rate=result.get("decay_rate"), decay_rate_per_second=result.get("decay_rate_per_second"),
                    state_names=result.get("state_names"), input_names=result.get("input_names"),
-                   units=result.get("units"), job_id=job_id, raw=result)
+                   units=result.get("units"), job_id=job_id, objective=result.get("objective") or "stability",
+                   performance=result.get("performance"), invariant_set=_array(result.get("invariant_set")),
+                   raw=result)
 
     @property
     def success(self) -> bool:
@@ -236,6 +271,8 @@ class AnalysisResult:
         Best certified per-sample decay rate.
     decay_rate_per_second : float or None
         The same per second, ``lambda^(1/h)``.
+    cost, hinf : dict or None
+        The certified brackets asked for with ``weights``/``x0`` and ``disturbance`` (``Performance``).
     raw : dict
         The JSON report (``AnalysisReport`` in ``/openapi.json``).
     """
@@ -247,6 +284,8 @@ class AnalysisResult:
     certificate: dict | None
     decay_rate: float | None
     decay_rate_per_second: float | None = None
+    cost: dict | None = None
+    hinf: dict | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -255,7 +294,7 @@ class AnalysisResult:
                    spectral_radii=np.asarray(data.get("spectral_radii"), dtype=float),
                    max_spectral_radius=data.get("max_spectral_radius"), certificate=data.get("certificate"),
                    decay_rate=data.get("decay_rate"), decay_rate_per_second=data.get("decay_rate_per_second"),
-                   raw=data)
+                   cost=data.get("cost"), hinf=data.get("hinf"), raw=data)
 
 
 @dataclass
@@ -459,7 +498,8 @@ class Client:
 
     # -- designs
     def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
-               sampling_period: float | None = None, label: str | None = None, **options) -> DesignResult | Job:
+               sampling_period: float | None = None, label: str | None = None, objective: str | None = None,
+               weights=None, x0=None, disturbance=None, output=None, u_max=None, **options) -> DesignResult | Job:
         """Design gains K_1..K_{n_drop} on the service.
 
         Parameters
@@ -477,6 +517,8 @@ class Client:
             h in seconds for continuous python-control systems.
         label : str, optional
             Your name for the job (at most 200 characters), shown in :meth:`jobs`.
+        objective, weights, x0, disturbance, output, u_max
+            As in :func:`solver.design` (``"cost"`` / ``"hinf"``, ``(Q, R)``, ``(C, D)``, ...; docs/design.md §8).
         **options
             ``decay_rate``, ``plant_switching``, ``scheme``, ``solver``, ``margin``, ``max_iter``
             (the request's ``options``).
@@ -497,6 +539,9 @@ class Client:
             body["label"] = label
         if options:
             body["options"] = options
+        if objective is not None:
+            body["objective"] = objective
+        body.update(performance_json(weights=weights, x0=x0, disturbance=disturbance, output=output, u_max=u_max))
         job = self._submit("design", body, wait)
         if not job.done:
             return job
@@ -530,13 +575,15 @@ class Client:
 
     # -- synchronous computations
     def analyze(self, plant, gains, n_drop: int | None = None, *, sampling_period: float | None = None,
-                **options) -> AnalysisResult:
+                weights=None, x0=None, disturbance=None, output=None, **options) -> AnalysisResult:
         """Certify given gains (``POST /v1/analyses``): Theorem 1 certificate and spectral radii.
 
         ``gains`` has shape (n_drop, m, n); ``options``: ``plant_switching``, ``bounds``,
-        ``max_product_length``.
+        ``max_product_length``.  ``weights``/``x0`` and ``disturbance``/``output`` ask for the cost and
+        l2-gain brackets (``result.cost``, ``result.hinf``), as in :func:`solver.analyze`.
         """
-        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **options}
+        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **options,
+                **performance_json(weights=weights, x0=x0, disturbance=disturbance, output=output)}
         if n_drop is not None:
             body["n_drop"] = n_drop
         return AnalysisResult.from_json(self._request("POST", "/v1/analyses", json=body).json())

@@ -71,6 +71,11 @@ class AnalysisReport:
     product_length_checked : int
     reason : str
     timings : dict
+    cost : Performance or None
+        With ``weights``: the certified bracket of the worst-case quadratic cost of these gains
+        (:class:`solver.performance.Performance`: ``lower``, ``upper``, ``witness``).
+    hinf : Performance or None
+        With ``disturbance``: the bracket of the worst-case l2 gain from w to z.
     """
 
     stable: bool | None
@@ -87,6 +92,8 @@ class AnalysisReport:
     timings: dict = field(default_factory=dict)
     jsr_lower_estimate: float | None = None
     scaling: list | None = None
+    cost: object | None = None
+    hinf: object | None = None
 
     @property
     def max_spectral_radius(self) -> float:
@@ -120,6 +127,8 @@ class AnalysisReport:
             "product_length_checked": self.product_length_checked,
             "modes": self.mode_labels,
             "timings": self.timings,
+            "cost": None if self.cost is None else self.cost.to_dict(),
+            "hinf": None if self.hinf is None else self.hinf.to_dict(),
         }
 
 
@@ -232,6 +241,10 @@ def analyze(
     rate_tol: float = 1e-3,
     max_modes: int = MAX_MODES,
     solver: str = "AUTO",
+    weights=None,
+    x0=None,
+    disturbance=None,
+    output=None,
 ) -> AnalysisReport:
     """Decide stability of the networked loop with given gains under arbitrary losses and jumps.
 
@@ -261,6 +274,14 @@ def analyze(
     solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
         As in :func:`solver.design`: under "AUTO" the common fixed-gain LMI (and its rate bisection)
         runs on the structured IPM, the switched one on Clarabel.
+    weights : (Q, R), optional
+        Report ``rep.cost``: the bracket of the worst-case cost ``sum_k x' Q x + u' R u`` (from ``x0``, or
+        ``trace`` for initial states of covariance I), as in :func:`solver.design` with ``objective="cost"``.
+    x0 : array_like of n, optional
+    disturbance : array_like, optional
+        ``E`` (one or one per plant mode): report ``rep.hinf``, the l2-gain bracket from w to z.
+    output : (C, D), optional
+        ``z = C x + D u`` (default ``z = [x; u]``).
 
     Returns
     -------
@@ -360,6 +381,9 @@ def analyze(
         rates.append(certified_rate(A, modes.eta, kind, per="sample", tol=rate_tol, solver=solver)[0])
     rates = [r for r in rates if r is not None]
     rate = min(rates) if rates else None
+    cost = hinf = None
+    if weights is not None or x0 is not None or disturbance is not None or output is not None:
+        cost, hinf = _performance(modes, K, weights, x0, disturbance, output, solver)
     return AnalysisReport(
         stable=stable,
         spectral_radii=modes.reshape_per_mode(radii),
@@ -375,4 +399,21 @@ def analyze(
         decay_rate=rate,
         mode_labels=[modes.label(s) for s in range(modes.n_modes)],
         timings={"total": time.perf_counter() - start},
+        cost=cost,
+        hinf=hinf,
     )
+
+
+def _performance(modes: ModeSet, K: np.ndarray, weights, x0, disturbance, output, solver: str):
+    """The cost and H-infinity brackets of fixed gains (solver/performance.py)."""
+    from .lifting import lift_modes
+    from .performance import bracket, check_x0
+
+    if disturbance is None and output is not None:
+        raise InvalidInput("output needs disturbance=E", ("output",))
+    x0 = check_x0(x0, modes.n_states)
+    want_cost = weights is not None or x0 is not None
+    lifted = lift_modes(modes, weights, disturbance, output, cost=want_cost)
+    cost = bracket(lifted, K, "cost", x0=x0, solver=solver) if want_cost else None
+    hinf = bracket(lifted, K, "hinf", solver=solver) if disturbance is not None else None
+    return cost, hinf

@@ -62,6 +62,12 @@ def design(
     scheme: str = "predictive",
     max_modes: int = MAX_MODES,
     scaling: str = "auto",
+    objective: str = "stability",
+    weights=None,
+    x0=None,
+    disturbance=None,
+    output=None,
+    u_max=None,
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -119,7 +125,27 @@ def design(
     scaling : {"auto", "none"}
         ``"auto"`` designs in balanced coordinates (diagonal powers of two) when
         the family's entries spread over more than three decades, and maps
-        gains and certificates back (see :mod:`solver.scaling`).
+        gains and certificates back (see :mod:`solver.scaling`).  Designs with an
+        ``objective`` other than "stability" or with ``u_max`` run in the user's coordinates.
+    objective : {"stability", "cost", "hinf"}
+        ``"stability"`` (default): the designs above.  ``"cost"``: minimize the certified bound on the
+        worst-case quadratic cost ``sum_k x' Q x + u' R u`` over every allowed pattern (``x0' P x0``,
+        or ``trace P`` for initial states of covariance I when ``x0`` is None).  ``"hinf"``: minimize
+        the certified worst-case l2 gain from the disturbance w to z.  Both: method ``"lmi"`` only,
+        solved by Clarabel (also under "AUTO"), ``res.performance`` holds the bracket (certified upper
+        bound, worst periodic pattern as the lower bound, its witness); docs/design.md, "Performance".
+    weights : (Q, R), optional
+        Cost weights (n x n positive semidefinite, m x m positive definite; default identities).
+    x0 : array_like of n, optional
+        Initial state: the cost objective bounds its cost; with ``u_max`` the invariant set contains it.
+    disturbance : array_like
+        ``E`` (n x p_w), one for all plant modes or one per mode: ``x(k+1) = F x + G u + E w`` (hinf).
+    output : (C, D), optional
+        Performance output ``z = C x + D u`` (one pair or one per mode; D may be None); default ``z = [x; u]``.
+    u_max : array_like of m, optional
+        Input limits: every applied input must satisfy ``|u_j(k)| <= u_max[j]`` from every initial state
+        of ``res.invariant_set`` (X of ``x' X x <= 1``; as large as the design can make it, or containing
+        ``x0``) under every allowed pattern.  With ``objective="cost"`` it needs ``x0``; not with "hinf".
 
     Returns
     -------
@@ -146,6 +172,9 @@ def design(
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
+    if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
+        return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
+                                   margin, max_iter, time_limit, callback, decay_rate)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -163,6 +192,19 @@ def design(
                                                scheme=scheme, max_modes=max_modes)
             return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
         return _best(method, modes, options, decay_rate, rate_tol)
+
+
+def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,
+                        margin, max_iter, time_limit, callback, decay_rate) -> DesignResult:
+    """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), user coordinates."""
+    from .methods import performance
+
+    lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
+                                            decay_rate)
+    options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
+                            time_limit=None if time_limit is None else float(time_limit), callback=callback,
+                            decay_rate=None if decay_rate is None else float(decay_rate))
+    return performance.run(lifted, options, objective, x0, u_max)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:

@@ -67,7 +67,9 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
     Returns
     -------
     dict
-        ``K``, ``K1``..``KN``, ``F``, ``G``, ``P``, ``n_drop``, ``outcome``, ``certificate``, ``h``.
+        ``K``, ``K1``..``KN``, ``F``, ``G``, ``P``, ``n_drop``, ``outcome``, ``certificate``, ``h``; for a
+        cost/hinf design also ``perf_kind``, ``perf_upper``, ``perf_lower`` (NaN when none) and ``P_perf``, and with
+        ``u_max`` ``X_inv`` (the invariant set ``x' X_inv x <= 1``).
     """
     if family is not None:
         F, G, h = np.asarray(family.F), np.asarray(family.G), family.sampling_period
@@ -93,6 +95,19 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
         "certificate": kind,
         "h": np.zeros((0, 0)) if h is None else float(h),
     })
+    perf = _get(result, "performance")
+    if perf is not None:  # docs/design.md §8: the certified bracket and its certificate
+        perf = perf if isinstance(perf, dict) else perf.to_dict()
+        nan = float("nan")
+        out.update({
+            "perf_kind": str(perf["kind"]),
+            "perf_upper": nan if perf.get("upper") is None else float(perf["upper"]),
+            "perf_lower": nan if perf.get("lower") is None else float(perf["lower"]),
+            "P_perf": np.zeros((0, 0)) if perf.get("certificate") is None else np.asarray(perf["certificate"], float),
+        })
+    X_inv = _get(result, "invariant_set")
+    if X_inv is not None:  # inputs within u_max from every x with x' X_inv x <= 1
+        out["X_inv"] = np.asarray(X_inv, dtype=float)
     return out
 
 

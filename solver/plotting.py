@@ -59,7 +59,7 @@ def default_window(traces: Sequence[SimulationResult]) -> float:
 
 def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | None = None,
                  width: float = 10.0, height: float = 6.0, dpi: int = 100, family=None,
-                 t_max: float | None = None) -> Figure:
+                 t_max: float | None = None, u_max=None) -> Figure:
     """States, inputs and the network/plant strip over time for each run (like the paper's Fig. 3/4).
 
     One column per run.  Top: states; middle: inputs (held over each sample); bottom strip:
@@ -82,6 +82,9 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
     t_max : float, optional
         End of the time axis (s, or samples).  Default :func:`default_window`: until the state
         norm falls below 1e-3 of its peak, plus 20 %, at least 10 samples.
+    u_max : sequence of float, optional
+        Input limits (one per input) drawn as dashed lines at ``+-u_max[j]`` (a design with ``u_max`` keeps
+        every input inside them from its invariant set, docs/design.md §8).
     """
     cols = max(len(traces), 1)
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
@@ -113,6 +116,10 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
             ax.set_xlim(float(t[0]), end)
         ax_x.axhline(0.0, color="0.5", linewidth=0.6)
         ax_u.axhline(0.0, color="0.5", linewidth=0.6)
+        for j, limit in enumerate([] if u_max is None else np.atleast_1d(np.asarray(u_max, dtype=float))):
+            for sign in (1.0, -1.0):
+                ax_u.axhline(sign * limit, color=colors[(n + j) % len(colors)], linewidth=0.9, linestyle="--",
+                             label=f"u_max = {limit:g}" if sign > 0 else None)
         ax_m.set_xlabel("time (s)" if timed else "sample k")
         if c == 0:
             ax_x.set_ylabel("state")

@@ -106,6 +106,13 @@ class DesignResult:
     scaling : dict or None
         The diagonal state/input scaling the design was made in (None when none was needed)
         and in which coordinates ``certificate`` is expressed.
+    objective : {"stability", "cost", "hinf"}
+        What the design optimized (see :func:`solver.design`).
+    performance : Performance or None
+        For ``objective="cost"``/``"hinf"``: the certified bracket (:class:`solver.performance.Performance`).
+    invariant_set : ndarray, shape (n, n), or None
+        With ``u_max``: X of the ellipsoid ``{x : x' X x <= 1}`` from which, under every allowed pattern,
+        every applied input meets the limits (re-checked in float64).
     """
 
     outcome: str
@@ -126,6 +133,9 @@ class DesignResult:
     rate_search: list = field(default_factory=list)
     scaling: dict | None = None
     rate_bracket: dict | None = None
+    objective: str = "stability"
+    performance: object | None = None
+    invariant_set: np.ndarray | None = None
 
     @property
     def iterations(self) -> int:
@@ -164,6 +174,9 @@ class DesignResult:
             "modes": self.mode_labels,
             "scaling": self.scaling,
             "rate_bracket": self.rate_bracket,
+            "objective": self.objective,
+            "performance": None if self.performance is None else self.performance.to_dict(),
+            "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
         }
 
 

@@ -48,6 +48,7 @@ async def submit_design(
     validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
+    validation.check_performance(req, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
 
 
@@ -163,6 +164,8 @@ async def design_trace_image(
     owner: str | None = Depends(require_api_key),
 ):
     req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
+    if req.get("u_max") is not None:  # a design with input limits: the figure draws them
+        params = {**params, "u_max": req["u_max"]}
     size = {"width": width / 100, "height": height / 100, "dpi": 100}
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params), fmt, width, height)

@@ -159,6 +159,28 @@ class Scaling(_Open):
                                                       "`scaled`).")
 
 
+class Performance(_Open):
+    """A certified performance bracket (docs/design.md §8): `lower <= true worst case <= upper`."""
+
+    kind: str = Field(description="`cost`: worst-case `sum_k x'Qx + u'Ru` (w = 0) from `x0`, or its mean over "
+                                  "initial states of covariance I; `hinf`: worst-case l2 gain from w to z, x(0) = 0.")
+    upper: float | None = Field(None, description="Certified upper bound (a re-checked quadratic certificate); null "
+                                                  "when none passed the float64 re-check (`message` says why).")
+    lower: float | None = Field(None, description="The value of the worst allowed periodic pattern searched (exact "
+                                                  "cost; H-infinity norm by a frequency sweep, a lower bound).")
+    lower_infinite: bool | None = Field(None, description="True when a periodic pattern is unstable (infinite cost).")
+    witness: list[list[int | list[int]]] | None = Field(
+        None, description="That pattern, one period: `[plant_mode, eta]` per interval (`plant_mode` a list of "
+        "plant modes per sample under per-sample switching).")
+    certificate: Matrix | None = Field(None, description="P (n x n) of the upper bound: `x'Px` bounds the cost "
+                                                         "from x (cost), or is the bounded-real storage (hinf).")
+    verified: bool | None = Field(None, description="Whether `certificate` passed the float64 re-check.")
+    gap: float | None = Field(None, description="`(upper - lower) / upper`.")
+    x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
+    patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")
+    message: str | None = Field(None, description="The bracket in words.")
+
+
 class DesignResult(_Open):
     """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
 
@@ -201,6 +223,11 @@ class DesignResult(_Open):
     state_names: list[str] | None = Field(None, description="Names of the n states (from the plant).")
     input_names: list[str] | None = Field(None, description="Names of the m inputs (from the plant).")
     units: dict[str, str] | None = Field(None, description="Unit of each named state or input.")
+    objective: str | None = Field(None, description="`stability`, `cost` or `hinf`: what the design optimized.")
+    performance: Performance | None = Field(None, description="`cost`/`hinf`: the certified bracket.")
+    invariant_set: Matrix | None = Field(
+        None, description="With `u_max`: X (n x n) of `{x : x'Xx <= 1}`: from every state in it, under every "
+        "allowed pattern, every applied input meets the limits (re-checked).")
 
 
 # -- margins -------------------------------------------------------------------------------------
@@ -235,6 +262,9 @@ class MarginResult(_Open):
 # -- analyses, simulations, traces ---------------------------------------------------------------
 class AnalysisReport(_Open):
     """Stability analysis of given gains (`POST /v1/analyses`)."""
+
+    cost: Performance | None = Field(None, description="With `weights` or `x0`: the certified cost bracket.")
+    hinf: Performance | None = Field(None, description="With `disturbance`: the certified l2-gain bracket.")
 
     stable: bool | None = Field(description="True: certified (re-checked certificate); false: a mode product "
                                             "is proven unstable (`worst_sequence`); null: unknown.")

@@ -262,6 +262,33 @@ def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None 
     return field_error([*(loc_base or ["body"]), *field], message, "solver_invalid_input")
 
 
+def check_performance(req: dict[str, Any], settings: Settings) -> None:
+    """The solver's checks of a design request's performance fields (docs/design.md §8) and the size of their
+    LMI blocks against ``NCS_MAX_LMI_SIZE``; 422 naming the field."""
+    if req.get("objective", "stability") == "stability" and all(
+            req.get(k) is None for k in ("weights", "x0", "disturbance", "output", "u_max")):
+        return
+    from solver import InvalidInput
+
+    from app.compute.tasks import check_performance_inputs
+
+    try:
+        size = check_performance_inputs(req["plant"], req)
+    except InvalidInput as exc:
+        field = tuple(getattr(exc, "field", ()))
+        if field[:1] == ("weights",) and len(field) > 1:
+            field = ("weights", "QR"[field[1]]) + field[2:]
+        elif field[:1] == ("output",) and len(field) > 1:
+            field = ("output", "CD"[field[1]]) + field[2:]
+        elif field[:1] in (("decay_rate",),):
+            field = ("options",) + field
+        raise invalid([solver_field_error(field, str(exc), req["plant"])]) from None
+    if size > settings.max_lmi_size:
+        raise invalid([field_error(["body", "objective"], f"the {req.get('objective')} design has total LMI size "
+                                   f"{size}, over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
+                                   "limit_exceeded")])
+
+
 def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_switching: str = "per_interval",
                       scheme: str = "predictive") -> None:
     """What the solver library itself checks before a design, run before a job exists: the family (the

@@ -167,7 +167,36 @@ _LABEL = dict(description="Your name for the job (at most 200 printable characte
                           "shown in job listings.", examples=["motor rig A, h = 0.1 s"])
 
 
-class DesignRequest(_Strict):
+class Weights(_Strict):
+    """Cost weights of `J = sum_k x(k)' Q x(k) + u(k)' R u(k)`."""
+
+    Q: Matrix = Field(description="n x n, symmetric positive semidefinite (state weight).")
+    R: Matrix = Field(description="m x m, symmetric positive definite (input weight).")
+
+
+PerMode = Union[Matrix, list[Matrix]]
+
+
+class Output(_Strict):
+    """Performance output `z(k) = C_l x(k) + D_l u(k)`."""
+
+    C: PerMode = Field(description="p x n, one matrix for every plant mode or a list with one per mode.")
+    D: PerMode | None = Field(None, description="p x m, one or one per mode; null means zero.")
+
+
+class _Performance(_Strict):
+    """Performance fields shared by design and analysis requests (docs/design.md §8)."""
+
+    weights: Weights | None = Field(None, description="Cost weights (Q, R); with `objective: cost` the default is "
+                                                      "identities.")
+    x0: Vector | None = Field(None, description="Initial state (length n): the cost is bounded from it; with `u_max` "
+                                                "the invariant set contains it.")
+    disturbance: PerMode | None = Field(None, description="E (n x p_w), one or one per plant mode: "
+                                                          "`x(k+1) = F x + G u + E w` (hinf).")
+    output: Output | None = Field(None, description="z = C x + D u (hinf); default z = [x; u].")
+
+
+class DesignRequest(_Performance):
     label: Label | None = Field(None, **_LABEL)
     plant: Plant
     n_drop: Int = Field(3, ge=1, description="N_drop: at most n_drop - 1 consecutive losses.")
@@ -176,6 +205,31 @@ class DesignRequest(_Strict):
         "complementarity linearization (iterative, reports progress)."
     )
     options: DesignOptions = Field(default_factory=DesignOptions, description="Solver and design options.")
+    objective: Literal["stability", "cost", "hinf"] = Field(
+        "stability", description="`stability` (default): the stabilizing design. `cost`: minimize the certified "
+        "worst-case quadratic cost over every allowed pattern (`weights`, optional `x0`). `hinf`: minimize the "
+        "certified worst-case l2 gain from w to z (`disturbance`, optional `output`). `lmi` only.")
+    u_max: list[Annotated[Number, Field(gt=0)]] | None = Field(
+        None, description="Input limits (length m): every applied input satisfies |u_j| <= u_max[j] from every "
+        "state of the result's `invariant_set`, under every allowed pattern. With `cost` it needs `x0`.")
+
+    def performance_kwargs(self) -> dict:
+        """Keyword arguments of solver.design for the performance fields."""
+        return performance_kwargs(self, objective=self.objective, u_max=self.u_max)
+
+
+def performance_kwargs(req, **extra) -> dict:
+    """``weights``, ``x0``, ``disturbance``, ``output`` of a request as solver.design/analyze keywords."""
+    out = dict(extra)
+    if req.weights is not None:
+        out["weights"] = (req.weights.Q, req.weights.R)
+    if req.x0 is not None:
+        out["x0"] = req.x0
+    if req.disturbance is not None:
+        out["disturbance"] = req.disturbance
+    if req.output is not None:
+        out["output"] = (req.output.C, req.output.D)
+    return out
 
 
 _single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
@@ -198,7 +252,10 @@ class SimulationRequest(_Strict):
     mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
 
 
-class AnalysisRequest(_Strict):
+class AnalysisRequest(_Performance):
+    """Stability analysis of given gains; with `weights` (or `x0`) also the cost bracket, with `disturbance`
+    the l2-gain bracket."""
+
     plant: Plant
     gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
     _single = field_validator("gains", mode="before")(_single_gains)

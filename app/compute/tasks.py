@@ -138,7 +138,8 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
     plant = req.plant.model_dump()
     fam = build_family(plant)
-    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options))
+    res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options),
+                 **req.performance_kwargs())
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     return add_per_second_rates(out, fam.sampling_period)
@@ -233,6 +234,13 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     for key in ("plant_switching", "bounds"):
         if req.get(key) is not None:
             kwargs[key] = req[key]
+    if req.get("weights") is not None:
+        kwargs["weights"] = (req["weights"]["Q"], req["weights"]["R"])
+    if req.get("output") is not None:
+        kwargs["output"] = (req["output"]["C"], req["output"].get("D"))
+    for key in ("x0", "disturbance"):
+        if req.get(key) is not None:
+            kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
     return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
@@ -251,7 +259,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
     titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
-    return render(trace_figure(runs, titles, family=fam, **size), fmt)
+    return render(trace_figure(runs, titles, family=fam, u_max=params.get("u_max"), **size), fmt)
 
 
 def run_margin_plot(result: dict[str, Any], fmt: str, size: dict[str, Any]) -> bytes:
@@ -309,6 +317,25 @@ def warm_up() -> None:
     import solver.margins  # noqa: F401
 
     import app.compute.requests  # noqa: F401  (every job is re-validated into these models)
+
+
+def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> int:
+    """The solver's own checks of a design request's performance fields (objective, weights, x0, disturbance,
+    output, u_max) before a job exists; raises the solver's InvalidInput naming the field.  Returns the sum of
+    the design's LMI block sides (for the service's size limit)."""
+    from solver.methods.performance import block_sides, prepare
+    from solver.network import ModeSet
+
+    from app.compute.requests import DesignRequest
+
+    req = DesignRequest.model_validate(request)
+    fam = build_family(plant)
+    modes = ModeSet.from_family(fam, req.n_drop, req.options.plant_switching, req.options.scheme)
+    kw = req.performance_kwargs()
+    objective = kw.pop("objective")
+    lifted, _, _ = prepare(modes, req.method, objective, kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
+                           kw.get("output"), kw.get("u_max"), req.options.decay_rate)
+    return 0 if lifted is None else sum(block_sides(lifted, objective))
 
 
 def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:

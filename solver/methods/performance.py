@@ -1,0 +1,296 @@
+"""Designs for a performance objective or input limits (docs/design.md, "Performance designs").
+
+With ``W = P^{-1}`` (``X^{-1}``) and ``Y_j = Theta_j W`` every block below is affine in (W, Y) and a few
+scalars; the lifted data come from :mod:`solver.lifting` (``rows.times_w(W, Y)`` is ``rows(K) W``):
+
+* cost (trace):  ``[[W, V_s'], [V_s, diag(W, I)]] >= 0``, ``V_s = [A_s W; L_s W]``, ``[[Z, I], [I, W]] >= 0``,
+  minimize ``trace Z`` (``Z >= P``);
+* cost (x0):     ``[[W, V_s'], [V_s, diag(W, gamma I)]] >= 0``, ``[[1, x0'], [x0, W]] >= 0``, minimize
+  gamma; ``P = gamma W^{-1}`` and ``x0' P x0 <= gamma`` (the invariant set is ``x' W^{-1} x <= 1``);
+* hinf:          ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]] >= 0``, ``U_s = [[A_s W, B_s], [C_s W, D_s]]``,
+  minimize ``g = gamma^2``;
+* input limits:  ``[[u_j^2, (Y_q)_j], [(Y_q)_j', W]] >= 0`` for every buffered gain q and input j; with
+  the plain objective the stability blocks ``[[W, c_s (A_s W)'], [c_s A_s W, W]] >= 0`` and
+  ``max log det W`` (the largest invariant ellipsoid), x0 inside when given.
+
+Every figure the result reports passes the float64 re-checks of :mod:`solver.performance`.
+Solved by Clarabel through cvxpy (tight tolerances); the structured IPM does not take these blocks yet.
+"""
+
+from __future__ import annotations
+
+import cvxpy as cp
+import numpy as np
+
+from ..compiled import SolveInfo, check_memory, schur_block
+from ..errors import SolverFailed
+from ..errors import InvalidInput
+from ..lifting import Lifted, lift_modes
+from ..performance import bracket, check_invariant, check_x0, solve_sdp
+from ..result import DesignResult, IterationRecord
+from . import lmi
+from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish
+
+#: Extra strictness of the stability blocks of an input-limited design (the ellipsoid shrinks by it).
+STRICT = 1e-5
+OBJECTIVES = ("stability", "cost", "hinf")
+#: Relative slack on the optimal x0 cost allowed to the tie-break stage (min trace P among x0-optimal designs).
+TIE_BREAK = 1e-9
+#: Relative slack on u_max inside the SDP (the re-check uses u_max itself).
+LIMIT_SLACK = 1e-6
+#: Largest semi-axis of the invariant ellipsoid the plain input-limited design looks for (times max(1, |x0|)).
+MAX_RADIUS = 1e3
+
+
+def _blkdiag(*blocks):
+    rows = []
+    sizes = [b.shape[0] for b in blocks]
+    for i, b in enumerate(blocks):
+        rows.append([b if i == j else np.zeros((sizes[i], sizes[j])) for j in range(len(blocks))])
+    return cp.bmat(rows)
+
+
+def _gains_of(modes, W: np.ndarray, Y: list) -> np.ndarray:
+    theta = np.stack([np.linalg.solve(W, y.T).T for y in Y])  # Theta_j = Y_j W^{-1} (W symmetric)
+    return modes.expand(theta)
+
+
+def input_blocks(modes, W, Y, u_max: np.ndarray, level=None) -> list:
+    """``[[u_j^2, (Y_q)_j], [(Y_q)_j', W]] >= 0`` for every gain K_q of the buffer and input j."""
+    cons = []
+    M = modes.gain_map
+    for q in range(modes.n_drop):
+        Yq = sum(M[q, j] * Y[j] for j in range(M.shape[1]) if M[q, j] != 0)
+        if isinstance(Yq, int):  # K_q = 0 under this scheme
+            continue
+        for j, u in enumerate(u_max):
+            row = Yq[j:j + 1, :]
+            # a hair inside the limit, so that x0 on the set's boundary survives the re-check's rounding
+            cons.append(schur_block(np.array([[(u * (1 - LIMIT_SLACK))**2]]), row.T, W) >> 0)
+    return cons
+
+
+def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None, cap: float | None = None):
+    """The cvxpy problem and the variables ``(problem, W, Y, extra)`` of one design.
+
+    ``cap`` (cost from x0 without limits): the tie-break stage, ``min trace P`` among designs with
+    ``x0' P x0 <= cap`` (only x0' P x0 is optimized otherwise, so P and the gains are not unique).
+    """
+    modes = lifted.modes
+    n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
+    W = cp.Variable((n, n), symmetric=True)
+    Y = [cp.Variable((m, n)) for _ in range(J)]
+    M = modes.gain_map
+    cons, extra = [], {}
+    if objective == "cost":
+        # with input limits the Kothare form (P = gamma W^{-1}): its W also shapes the invariant set;
+        # without them the plain form (P = W^{-1})
+        kothare = u_max is not None
+        gamma = cp.Variable()
+        for lm in lifted.lifted:
+            V = cp.vstack([lm.state.times_w(W, Y, M), lm.cost.times_w(W, Y, M)])
+            k = lm.cost.free.shape[0]
+            tail = gamma * np.eye(k) if kothare else np.eye(k)
+            cons.append(schur_block(W, V, _blkdiag(W, tail)) >> 0)
+        if x0 is None:
+            Z = cp.Variable((n, n), symmetric=True)
+            cons.append(schur_block(Z, np.eye(n), W) >> 0)
+            objective_expr, extra["Z"] = cp.Minimize(cp.trace(Z)), Z
+        else:
+            level = np.ones((1, 1)) if kothare else cp.reshape(gamma, (1, 1), order="C")
+            cons.append(schur_block(level, x0.reshape(-1, 1), W) >> 0)
+            objective_expr = cp.Minimize(gamma)
+            if cap is not None:
+                Z = cp.Variable((n, n), symmetric=True)
+                cons += [schur_block(Z, np.eye(n), W) >> 0, gamma <= cap]
+                objective_expr = cp.Minimize(cp.trace(Z))
+        extra["kothare"] = kothare
+        extra["gamma"] = gamma
+    elif objective == "hinf":
+        g = cp.Variable()
+        for lm in lifted.lifted:
+            U = cp.bmat([[lm.state.times_w(W, Y, M), lm.B], [lm.output.times_w(W, Y, M), lm.D]])
+            top = _blkdiag(W, g * np.eye(lm.B.shape[1]))
+            cons.append(schur_block(top, U, _blkdiag(W, np.eye(lm.D.shape[0]))) >> 0)
+        objective_expr, extra["g"] = cp.Minimize(g), g
+    else:
+        c = congruent_scale(modes, rate) * (1 + STRICT)
+        for s, lm in enumerate(lifted.lifted):
+            cons.append(schur_block(W, c[s] * lm.state.times_w(W, Y, M), W) >> 0)
+        # K = 0 may keep an open-loop stable plant inside any ellipsoid: cap the radius so the SDP is bounded
+        radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
+        cons.append(W << radius**2 * np.eye(n))
+        objective_expr = cp.Maximize(cp.log_det(W))
+    if u_max is not None:
+        cons += input_blocks(modes, W, Y, u_max)
+    if x0 is not None and u_max is not None and objective != "cost":
+        cons.append(schur_block(np.ones((1, 1)), x0.reshape(-1, 1), W) >> 0)
+    return cp.Problem(objective_expr, cons), W, Y, extra
+
+
+def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate):
+    """Validate a performance / input-limit request and lift its data: ``(lifted, x0, u_max)``.
+
+    Raises :class:`solver.errors.InvalidInput` naming the field (the service calls it before a job exists).
+    """
+    if objective not in OBJECTIVES:
+        raise InvalidInput(f"objective must be one of {OBJECTIVES}, got {objective!r}", ("objective",))
+    if objective == "stability" and u_max is None:
+        for name, value in (("weights", weights), ("x0", x0), ("disturbance", disturbance), ("output", output)):
+            if value is not None:
+                raise InvalidInput(f"{name} needs objective='cost' or 'hinf' (or u_max, for x0)", (name,))
+        return None, None, None
+    if method != "lmi":
+        raise InvalidInput("objective and u_max need method='lmi' (a common quadratic Lyapunov function)",
+                           ("method",))
+    if decay_rate == "max":
+        raise InvalidInput("decay_rate='max' cannot be combined with an objective or u_max; give a rate",
+                           ("decay_rate",))
+    if decay_rate is not None and objective != "stability":
+        raise InvalidInput("decay_rate combines with u_max and objective='stability' only", ("decay_rate",))
+    n, m = modes.n_states, modes.n_inputs
+    x0 = check_x0(x0, n)
+    if u_max is not None:
+        try:
+            u_max = np.array(u_max, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
+        if u_max.size != m or not np.all(np.isfinite(u_max)) or np.any(u_max <= 0):
+            raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+        if objective == "hinf":
+            raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
+                               "disturbance energy)", ("u_max",))
+        if objective == "cost" and x0 is None:
+            raise InvalidInput("u_max with objective='cost' needs x0 (the limits hold on a set containing x0)",
+                               ("x0",))
+    if objective == "hinf" and disturbance is None:
+        raise InvalidInput("objective='hinf' needs disturbance=E", ("disturbance",))
+    if objective != "hinf" and (disturbance is not None or output is not None):
+        raise InvalidInput("disturbance and output go with objective='hinf'", ("disturbance",))
+    if objective != "cost" and weights is not None:
+        raise InvalidInput("weights go with objective='cost'", ("weights",))
+    lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
+                        cost=objective == "cost")
+    check_memory(block_sides(lifted, objective), objective)
+    return lifted, x0, u_max
+
+
+def block_sides(lifted: Lifted, objective: str) -> list[int]:
+    """Side of every per-mode LMI block of the design (the input-limit blocks are n + 1 each)."""
+    n = lifted.modes.n_states
+    if objective == "cost":
+        return [2 * n + lm.cost.free.shape[0] for lm in lifted.lifted]
+    if objective == "hinf":
+        return [2 * n + lm.B.shape[1] + lm.D.shape[0] for lm in lifted.lifted]
+    return [2 * n] * len(lifted.lifted)
+
+
+def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray | None,
+        u_max: np.ndarray | None) -> DesignResult:
+    """One performance / input-limited design, every reported figure re-checked (see the module docstring)."""
+    modes = lifted.modes
+    clock = RunClock()
+    clock.cached = False
+    rate = options.decay_rate
+    build_start = clock.elapsed
+    prob, Wv, Yv, extra = build(lifted, objective, x0, u_max, rate)
+    clock.setup = clock.elapsed - build_start
+    try:
+        info = solve_sdp(prob, options.solver, options.time_limit)
+    except SolverFailed as err:
+        return _no_design(lifted, options, clock, objective, f"the {objective} SDP failed ({err})", None)
+    clock.add(info)
+    if np.isfinite(info.solve_time):  # cvxpy's canonicalization happens inside solve(): count it as setup
+        clock.setup += max(info.wall_time - info.solve_time, 0.0)
+    record = IterationRecord(0, info.objective, None, False, None, info.solve_time, clock.elapsed)
+    if info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+        return _no_design(lifted, options, clock, objective, f"the {objective} SDP is reported infeasible by "
+                          f"{info.solver} ({info.status})", info)
+    if Wv.value is None or info.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        return _no_design(lifted, options, clock, objective,
+                          f"the {objective} SDP ended with status {info.status!r}", info)
+    if objective == "cost" and x0 is not None and u_max is None:
+        # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P
+        cap = float(extra["gamma"].value) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
+        second, W2, Y2, extra2 = build(lifted, objective, x0, u_max, rate, cap=cap)
+        try:
+            info2 = solve_sdp(second, options.solver, clock.remaining(options.time_limit))
+        except SolverFailed:
+            info2 = None
+        if info2 is not None and info2.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and W2.value is not None:
+            clock.add(info2)
+            Wv, Yv, extra, info = W2, Y2, extra2, info2
+    W = 0.5 * (Wv.value + Wv.value.T)
+    Y = [np.array(y.value, dtype=float) for y in Yv]
+    try:
+        gains = _gains_of(modes, W, Y)
+        Winv = np.linalg.inv(W)
+    except np.linalg.LinAlgError:
+        return _no_design(lifted, options, clock, objective, "the SDP's W is singular", info)
+    performance, P0, X0 = None, None, Winv
+    if objective == "cost":
+        P0 = float(extra["gamma"].value) * Winv if extra["kothare"] else Winv
+        performance = bracket(lifted, gains, "cost", P0=P0, x0=x0, solver=options.solver)
+    elif objective == "hinf":
+        P0 = Winv
+        performance = bracket(lifted, gains, "hinf", P0=P0, solver=options.solver)
+    candidate = performance.certificate if performance is not None and performance.verified else Winv
+    cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_source=f"lmi_{objective}")
+    if cert is None and candidate is not Winv:
+        cert, A = certify_gains(modes, gains, options, clock, candidate=Winv, candidate_source=f"lmi_{objective}")
+    if cert is None:  # perhaps no stabilizing design exists at all: the plain design may prove it
+        base = lmi.run(modes, options)
+        if base.outcome == "infeasible":
+            base.message = f"the {objective} SDP gave no certified gains; {base.message}"
+            base.objective = objective
+            return base
+    invariant, inv_reason = None, ""
+    if u_max is not None:
+        invariant, inv_reason = check_invariant(X0, A, gains, u_max, x0)
+    record.theorem1 = cert is not None
+    record.certificate_margin = None if cert is None else cert.margin
+    if options.callback is not None:
+        options.callback(record)
+    rate_txt = "" if rate is None else f" at decay rate {rate:.6g}"
+    if cert is None:
+        outcome, message = "not_converged", (f"the {objective} SDP gave gains but no stability certificate passed "
+                                             f"the float64 re-check{rate_txt}")
+    elif u_max is not None and invariant is None:
+        outcome, message = "not_converged", f"stabilizing gains found but the input limits are not proven: {inv_reason}"
+    else:
+        outcome = "stabilized"
+        message = f"stabilized; {cert.kind} certificate re-checked (relative margin {cert.margin:.3g}){rate_txt}"
+        if u_max is not None:
+            message += "; inputs within u_max from every state of the invariant set (re-checked)"
+    if performance is not None:
+        message += f"; {performance.message}"
+    res = finish(modes, "lmi", outcome, gains, cert, A, clock, info.solver, info.status, message, [record], options)
+    res.objective = objective
+    res.performance = performance
+    res.invariant_set = invariant
+    return res
+
+
+def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objective: str, reason: str,
+               info: SolveInfo | None) -> DesignResult:
+    """No certified design: the plain stability design decides between "infeasible" (proven) and "not_converged".
+
+    Every objective here asks for a common quadratic Lyapunov function that the plain ``lmi`` design also
+    needs (cost with Q > 0 and input limits imply its strict inequality), so its Farkas proof excludes them too.
+    """
+    base = lmi.run(lifted.modes, options)
+    if base.outcome == "infeasible":
+        base.message = f"{reason}; {base.message}"
+        base.objective = objective
+        return base
+    if base.outcome == "stabilized":
+        why = (f"{reason}, although stabilizing gains exist (plain lmi design); no certificate that the "
+               f"{objective} design is impossible was re-checked")
+    else:
+        why = f"{reason}; the plain stability design did not settle either: {base.message}"
+    record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
+    res = finish(lifted.modes, "lmi", "not_converged", None, None, None, clock,
+                 "CLARABEL" if info is None else info.solver, "" if info is None else info.status, why, [record],
+                 options)
+    res.objective = objective
+    return res

@@ -1,0 +1,510 @@
+"""Certified performance brackets: quadratic cost and l2 gain (H-infinity) under every allowed pattern.
+
+A performance figure is a bracket (docs/design.md, "Performance brackets"):
+
+* ``upper``: a common quadratic ``x' P x`` whose inequality on every lifted interval system
+  (:mod:`solver.lifting`) passes a float64 re-check here, independent of the solver that proposed P::
+
+      cost:  A_s' P A_s - P + S_s <= 0                                 (bound x0' P x0, or trace P)
+      hinf:  [A_s B_s; C_s D_s]' diag(P, I) [A_s B_s; C_s D_s] - diag(P, gamma^2 I) <= 0
+
+* ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (frequency sweep, a lower
+  bound by construction) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+import warnings
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from .compiled import SolveInfo
+from .errors import InvalidInput, SolverFailed
+from .lifting import Lifted
+
+#: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
+#: stable; forming A' P A costs a few n eps of the norms): ``max(64, 8 k) eps`` for a k x k inequality.
+ROUND = 64 * np.finfo(float).eps
+
+
+def _allowance(k: int) -> float:
+    return max(ROUND, 8 * k * np.finfo(float).eps)
+#: Periodic patterns searched for the lower bound: up to this many intervals per period ...
+PATTERN_LENGTH = 3
+#: ... and at most this many patterns (shorter periods first).
+MAX_PATTERNS = 4000
+#: ... (H-infinity: each pattern needs a frequency sweep of its lifted system)
+MAX_PATTERNS_HINF = 500
+#: Frequencies of the coarse H-infinity sweep on [0, pi] (refined around the best ones).
+SWEEP = 97
+
+
+def _sym(M):
+    return 0.5 * (M + np.swapaxes(M, -1, -2))
+
+
+@dataclass
+class Performance:
+    """A certified performance bracket.
+
+    Attributes
+    ----------
+    kind : {"cost", "hinf"}
+        ``cost``: worst-case ``J = sum_k x(k)' Q x(k) + u(k)' R u(k)`` (w = 0) from ``x0``, or its mean
+        over initial states of covariance I (``x0`` None).  ``hinf``: worst-case l2 gain gamma from w
+        to z with x(0) = 0.
+    upper : float or None
+        Certified upper bound (None when no certificate passed the re-check; ``message`` says why).
+    lower : float or None
+        The value of the worst periodic allowed pattern searched (``inf`` when one is unstable).
+    witness : list of tuple
+        That pattern, one period: ``(plant_mode, eta)`` per interval (``plant_mode`` a tuple of plant
+        indices per sample under per-sample switching).
+    certificate : ndarray, shape (n, n), or None
+        P (user coordinates) of the upper bound.
+    verified : bool
+        Whether ``certificate`` passed the float64 re-check.
+    gap : float or None
+        ``(upper - lower) / upper``.
+    x0 : ndarray or None
+    patterns : int
+        Periodic patterns evaluated for the lower bound.
+    message : str
+    """
+
+    kind: str
+    upper: float | None
+    lower: float | None
+    witness: list
+    certificate: np.ndarray | None
+    verified: bool
+    gap: float | None = None
+    x0: np.ndarray | None = None
+    patterns: int = 0
+    message: str = ""
+
+    def __post_init__(self):
+        if self.gap is None and self.upper is not None and self.lower is not None and self.upper > 0:
+            self.gap = float((self.upper - self.lower) / self.upper) if np.isfinite(self.lower) else None
+
+    def to_dict(self) -> dict:
+        def num(v):
+            return None if v is None or not np.isfinite(v) else float(v)
+
+        return {
+            "kind": self.kind,
+            "upper": num(self.upper),
+            "lower": num(self.lower),
+            "lower_infinite": self.lower is not None and not np.isfinite(self.lower),
+            "witness": [[list(p) if isinstance(p, tuple) else p, int(e)] for p, e in self.witness],
+            "certificate": None if self.certificate is None else self.certificate.tolist(),
+            "verified": self.verified,
+            "gap": num(self.gap),
+            "x0": None if self.x0 is None else self.x0.tolist(),
+            "patterns": self.patterns,
+            "message": self.message,
+        }
+
+
+def check_x0(x0, n: int) -> np.ndarray | None:
+    if x0 is None:
+        return None
+    try:
+        x = np.array(x0, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("x0 must be a list of n numbers", ("x0",)) from None
+    if x.size != n or not np.all(np.isfinite(x)):
+        raise InvalidInput(f"x0 must have {n} finite entries", ("x0",))
+    return x
+
+
+# ---------------------------------------------------------------------------------- re-checks
+def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
+    """Float64 re-check of ``P > 0`` and ``A_s' P A_s - P + S_s <= 0`` for all modes.
+
+    Returns ``(passed, worst)``: ``worst`` is the largest eigenvalue of the inequality's left side
+    relative to the size of its terms; passing needs it below minus the rounding allowance (rounding cannot flip it).
+    """
+    P = _sym(P)
+    if np.linalg.eigvalsh(P)[0] <= 0:
+        return False, np.inf
+    worst = -np.inf
+    for d in data:
+        APA = d["A"].T @ P @ d["A"]
+        size = np.linalg.norm(APA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
+        worst = max(worst, np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size)
+    return bool(worst < -_allowance(P.shape[0])), float(worst)
+
+
+def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None):
+    """Smallest multiple ``c P0`` that passes :func:`check_cost`, and its bound.
+
+    ``c P0`` certifies when ``c (P0 - A' P0 A) >= S``: ``c`` is the largest generalized eigenvalue of
+    ``(S_s, P0 - A_s' P0 A_s)`` (a shrink when P0 has slack, a small growth when the solver left it a
+    hair infeasible).  Returns ``(P or None, bound or None, reason)``.
+    """
+    P0 = _sym(P0)
+    c = 1.0
+    try:
+        c = max(float(scipy.linalg.eigh(_sym(d["S"]), _sym(P0 - d["A"].T @ P0 @ d["A"]), eigvals_only=True)[-1])
+                for d in data)
+        c = max(c, 1e-300)
+    except (np.linalg.LinAlgError, ValueError):
+        c = 1.0  # P0 - A'P0A not positive definite: only P0 itself can still pass
+    worst = np.inf
+    for bump in (1e-12, 1e-10, 1e-8, 1e-6, 1e-4):
+        P = c * (1 + bump) * P0
+        ok, worst = check_cost(P, data)
+        if ok:
+            return P, float(np.trace(P) if x0 is None else x0 @ P @ x0), ""
+    return None, None, ("no multiple of the solver's P passes the float64 re-check "
+                        f"(worst relative eigenvalue {worst:.3g})")
+
+
+def _brl(P, d, g):
+    """The bounded-real matrix ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I)``."""
+    AB = np.hstack([d["A"], d["B"]])
+    CD = np.hstack([d["C"], d["D"]])
+    n, k = d["A"].shape[0], d["B"].shape[1]
+    M = AB.T @ P @ AB + CD.T @ CD
+    M[:n, :n] -= P
+    M[n:, n:] -= g * np.eye(k)
+    return _sym(M), AB, CD
+
+
+def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
+    """Float64 re-check of ``P > 0`` and the bounded-real inequality at ``gamma^2 = g`` for all modes."""
+    P = _sym(P)
+    if np.linalg.eigvalsh(P)[0] <= 0:
+        return False, np.inf
+    worst = -np.inf
+    for d in data:
+        M, AB, CD = _brl(P, d, g)
+        size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P, 2) + np.linalg.norm(CD, 2) ** 2 \
+            + np.linalg.norm(P, 2) + g
+        worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
+    return bool(worst < -_allowance(P.shape[0] + max(d["B"].shape[1] for d in data))), float(worst)
+
+
+def certify_hinf(P0: np.ndarray, data: list[dict]):
+    """Smallest ``gamma`` that ``c P0`` (c near 1) certifies, re-checked by :func:`check_hinf`.
+
+    For fixed P the smallest ``g = gamma^2`` is ``max_s lambda_max(N22 - N21 N11^{-1} N12)`` of the
+    bounded-real matrix at g = 0 (needs ``N11 < 0``).  Returns ``(P or None, gamma or None, reason)``.
+    """
+    P0 = _sym(P0)
+    best = (None, None)
+    reason = "the state block A'PA - P + C'C of the solver's P is not negative definite"
+    for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
+        P = c * P0
+        g = 0.0
+        try:
+            for d in data:
+                M, _, _ = _brl(P, d, 0.0)
+                n = d["A"].shape[0]
+                N11, N12, N22 = M[:n, :n], M[:n, n:], M[n:, n:]
+                if np.linalg.eigvalsh(N11)[-1] >= 0:
+                    raise np.linalg.LinAlgError
+                g = max(g, float(np.linalg.eigvalsh(_sym(N22 - N12.T @ np.linalg.solve(N11, N12)))[-1]))
+        except np.linalg.LinAlgError:
+            continue
+        for bump in (1e-10, 1e-8, 1e-6):
+            gb = max(g, 0.0) * (1 + bump) + bump * np.linalg.norm(P, 2) * 1e-3 + 1e-300
+            ok, worst = check_hinf(P, gb, data)
+            if ok:
+                if best[1] is None or np.sqrt(gb) < best[1]:
+                    best = (P, float(np.sqrt(gb)))
+                break
+            reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
+        if best[0] is not None and c > 1:
+            break
+    if best[0] is None:
+        return None, None, reason
+    return best[0], best[1], ""
+
+
+def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.ndarray,
+                    x0: np.ndarray | None = None):
+    """Largest ``{x : x' (c X) x <= 1}`` in which every buffered input meets the limits, re-checked.
+
+    Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe): then the set is invariant at
+    packet times and every input ``K_q x(i_m)`` has ``|(K_q)_j x| <= sqrt((K_q)_j X^{-1} (K_q)_j') / sqrt(c)``.
+    ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``.
+    """
+    X = _sym(X)
+    eigX = np.linalg.eigvalsh(X)
+    if eigX[0] <= 0:
+        return None, "the candidate ellipsoid matrix is not positive definite"
+    for s, As in enumerate(A):
+        APA = As.T @ X @ As
+        size = np.linalg.norm(APA, 2) + eigX[-1]
+        if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -_allowance(X.shape[0]):
+            return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
+    rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
+    lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
+    need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
+    c = float(np.max(need)) * (1 + 1e-12)
+    if c <= 0:
+        return None, "all gains are zero: every state keeps the inputs at zero (no ellipsoid needed)"
+    Xc = c * X
+    if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
+        Xc = c * (1 + 1e-9) * X  # rounding of the solve
+    if x0 is not None and x0 @ Xc @ x0 > 1:
+        return None, f"x0 lies outside the certified set (x0' X x0 = {x0 @ Xc @ x0:.6g} > 1)"
+    return Xc, ""
+
+
+# --------------------------------------------------------------- fixed-gain upper bounds (analyze)
+def solve_sdp(prob: cp.Problem, solver: str, time_limit: float | None = None) -> SolveInfo:
+    """Solve a performance SDP with Clarabel (``"SCS"`` when asked) at tight tolerances.
+
+    The LQR reproduction (gains to 1e-6) needs tolerances tighter than Clarabel's defaults; when the solver
+    stalls there (exponential cones of ``log det``), the defaults are tried once more.  Whatever comes out is
+    only a proposal for the float64 re-checks.
+    """
+    name = "SCS" if str(solver).upper() == "SCS" else "CLARABEL"
+    if name == "SCS":
+        attempts = [dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=200_000)]
+        limit_key = "time_limit_secs"
+    else:
+        attempts = [dict(tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, tol_ktratio=1e-9, max_iter=500),
+                    dict()]
+        limit_key = "time_limit"
+    start = time.perf_counter()
+    for i, opts in enumerate(attempts):
+        if time_limit is not None:
+            opts[limit_key] = max(float(time_limit) - (time.perf_counter() - start), 1e-3)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                prob.solve(solver=getattr(cp, name), **opts)
+        except cp.error.SolverError as err:
+            if i + 1 < len(attempts):
+                continue
+            raise SolverFailed(f"{name} failed: {err}", status="solver_error") from err
+        if prob.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE, cp.INFEASIBLE) or i + 1 == len(attempts):
+            break
+    stats = prob.solver_stats
+    value = prob.value
+    return SolveInfo(status=prob.status, solver=name,
+                     solve_time=float(stats.solve_time) if stats and stats.solve_time is not None else float("nan"),
+                     wall_time=time.perf_counter() - start,
+                     objective=float(value) if value is not None and np.isfinite(value) else float("nan"),
+                     iterations=stats.num_iters if stats else None)
+
+
+def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO"):
+    """Upper bound for given gains: ``min trace P`` (or ``x0' P x0``) s.t. the cost inequality, re-checked."""
+    n = data[0]["A"].shape[0]
+    P = cp.Variable((n, n), symmetric=True)
+    cons = [P - d["A"].T @ P @ d["A"] - d["S"] >> 0 for d in data]
+    obj = cp.trace(P) if x0 is None else x0 @ P @ x0
+    status = solve_sdp(cp.Problem(cp.Minimize(obj), cons + [P >> 0]), solver).status
+    if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        return None, None, f"the fixed-gain cost LMI ended with status {status!r} (no common quadratic bound)"
+    return certify_cost(P.value, data, x0)
+
+
+def fixed_gain_hinf(data: list[dict], solver: str = "AUTO"):
+    """Upper bound for given gains: ``min gamma^2`` s.t. the bounded-real inequality on every mode, re-checked."""
+    n = data[0]["A"].shape[0]
+    P = cp.Variable((n, n), symmetric=True)
+    g = cp.Variable()
+    cons = [P >> 0]
+    for d in data:
+        A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+        k = B.shape[1]
+        top = P - A.T @ P @ A - C.T @ C
+        off = -(A.T @ P @ B + C.T @ D)
+        cons.append(cp.bmat([[top, off], [off.T, g * np.eye(k) - B.T @ P @ B - D.T @ D]]) >> 0)
+    status = solve_sdp(cp.Problem(cp.Minimize(g), cons), solver).status
+    if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        return None, None, f"the fixed-gain bounded-real LMI ended with status {status!r} (no common quadratic bound)"
+    return certify_hinf(P.value, data)
+
+
+# ------------------------------------------------------------------------- periodic lower bounds
+def patterns(n_modes: int, max_length: int = PATTERN_LENGTH, max_count: int = MAX_PATTERNS,
+             rotations: bool = True):
+    """Periodic mode sequences that are not repetitions of a shorter one, shortest first.
+
+    ``rotations=False`` keeps one sequence per rotation class (the H-infinity norm of a periodic
+    system does not depend on the phase it is lifted at; a cost from x0 does).
+    """
+    out = []
+    for k in range(1, max_length + 1):
+        for seq in itertools.product(range(n_modes), repeat=k):
+            if not rotations and seq != min(seq[i:] + seq[:i] for i in range(k)):
+                continue
+            if any(k % d == 0 and seq == seq[:d] * (k // d) for d in range(1, k)):
+                continue
+            out.append(seq)
+            if len(out) >= max_count:
+                return out
+    return out
+
+
+def period_system(data: list[dict], seq) -> dict:
+    """The lifted LTI system of one period of the pattern ``seq`` (mode indices in the order applied).
+
+    ``Phi`` maps x at the period's start to x at its end; ``L`` stacks the cost rows (``S = L' L``);
+    ``B``, ``C``, ``D`` the disturbance channel over the period (when present).
+    """
+    first = data[seq[0]]
+    n = first["A"].shape[0]
+    T = np.eye(n)  # state at the current interval's start, from x at the period's start
+    has_w = first["B"] is not None
+    has_cost = first["L"] is not None
+    Ls, Cs, Ds_rows = [], [], []
+    Tw = None
+    widths = [data[s]["B"].shape[1] for s in seq] if has_w else []
+    total_w = sum(widths)
+    if has_w:
+        Tw = np.zeros((n, total_w))
+    col = 0
+    for i, s in enumerate(seq):
+        d = data[s]
+        if has_cost:
+            Ls.append(d["L"] @ T)
+        if has_w:
+            C_rows = d["C"] @ T
+            D_rows = d["C"] @ Tw
+            D_rows[:, col:col + widths[i]] += d["D"]
+            Cs.append(C_rows)
+            Ds_rows.append(D_rows)
+            Tw = d["A"] @ Tw
+            Tw[:, col:col + widths[i]] += d["B"]
+            col += widths[i]
+        T = d["A"] @ T
+    return {
+        "Phi": T,
+        "L": np.vstack(Ls) if has_cost else None,
+        "B": Tw,
+        "C": np.vstack(Cs) if has_w else None,
+        "D": np.vstack(Ds_rows) if has_w else None,
+    }
+
+
+def _sigma_max(sys: dict, omega: np.ndarray) -> np.ndarray:
+    """Largest singular value of ``D + C (e^{j w} I - Phi)^{-1} B`` at each frequency."""
+    n = sys["Phi"].shape[0]
+    z = np.exp(1j * np.atleast_1d(omega))
+    M = z[:, None, None] * np.eye(n)[None] - sys["Phi"][None]
+    H = sys["D"][None] + sys["C"][None] @ np.linalg.solve(M, np.broadcast_to(sys["B"], (z.size,) + sys["B"].shape))
+    return np.linalg.svd(H, compute_uv=False)[:, 0]
+
+
+def hinf_norm_lower(sys: dict, points: int = SWEEP, refine: bool = True) -> float:
+    """A lower bound on the H-infinity norm of a stable discrete LTI system: the largest gain found by
+    a frequency sweep on [0, pi], refined (bounded scalar search) around its best points."""
+    omega = np.linspace(0.0, np.pi, points)
+    gains = _sigma_max(sys, omega)
+    best = float(np.max(gains))
+    if not refine:
+        return best
+    for i in np.argsort(gains)[-3:]:
+        lo, hi = omega[max(i - 1, 0)], omega[min(i + 1, points - 1)]
+        res = scipy.optimize.minimize_scalar(lambda w: -_sigma_max(sys, w)[0], bounds=(lo, hi), method="bounded",
+                                             options={"xatol": 1e-12})
+        best = max(best, float(-res.fun))
+    return best
+
+
+#: Patterns whose coarse sweep comes closest to the best are refined (the rest keep their sweep value).
+REFINED = 4
+
+
+def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
+                data: list[dict] | None = None, max_length: int = PATTERN_LENGTH, max_count: int | None = None):
+    """Worst periodic allowed pattern: ``(value, witness, patterns searched, note)``.
+
+    cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per`` (scipy's
+    ``solve_discrete_lyapunov``): the exact cost of repeating the pattern from the period's start.
+    hinf: the H-infinity norm of the period's lifted LTI system (a sweep: a lower bound by construction).
+    An unstable period gives ``inf`` for the cost (it has a nonzero stage cost) and is skipped for hinf.
+    """
+    data = lifted.numeric(gains) if data is None else data
+    if max_count is None:
+        max_count = MAX_PATTERNS if kind == "cost" else MAX_PATTERNS_HINF
+    pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
+    best, witness, note = -np.inf, None, ""
+    skipped = 0
+    coarse = []
+    for seq in pats:
+        sys = period_system(data, seq)
+        rho = float(np.max(np.abs(np.linalg.eigvals(sys["Phi"]))))
+        if kind == "cost":
+            if rho >= 1:
+                if np.linalg.norm(sys["L"]) == 0:
+                    continue
+                value = np.inf
+                note = "a periodic pattern is unstable (float64 spectral radius >= 1): its cost is unbounded"
+            else:
+                Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+                value = float(np.trace(Pp) if x0 is None else x0 @ Pp @ x0)
+        else:
+            if rho >= 1:
+                skipped += 1
+                continue
+            value = hinf_norm_lower(sys, refine=False)
+            coarse.append((value, seq, sys))
+        if value > best:
+            best, witness = value, seq
+        if value == np.inf:
+            break
+    for value, seq, sys in sorted(coarse, key=lambda item: -item[0])[:REFINED]:
+        fine = hinf_norm_lower(sys)
+        if fine > best:
+            best, witness = fine, seq
+    if witness is None:
+        return None, [], len(pats), f"no stable periodic pattern ({skipped} unstable)"
+    labels = []
+    for s in witness:
+        lm = lifted.lifted[s]
+        plant = lm.plants[0] if lifted.modes.plant_switching == "per_interval" else tuple(lm.plants)
+        labels.append((plant, lm.eta))
+    if skipped:
+        note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
+    return best, labels, len(pats), note
+
+
+def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
+            x0: np.ndarray | None = None, solver: str = "AUTO") -> Performance:
+    """The certified bracket of ``kind`` for given gains.
+
+    ``P0``: a candidate certificate (a design's); without one (or when it fails the re-check) the
+    fixed-gain LMI proposes P.  Either way P is accepted only through the float64 re-check.
+    """
+    data = lifted.numeric(gains)
+    P = upper = None
+    reason = ""
+    certify = (lambda Pc: certify_cost(Pc, data, x0)) if kind == "cost" else (lambda Pc: certify_hinf(Pc, data))
+    if P0 is not None and np.all(np.isfinite(P0)):
+        P, upper, reason = certify(P0)
+    if P is None:
+        try:
+            P, upper, why = fixed_gain_cost(data, x0, solver) if kind == "cost" else fixed_gain_hinf(data, solver)
+        except SolverFailed as err:
+            P, upper, why = None, None, str(err)
+        reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+    lower, witness, count, note = lower_bound(lifted, gains, kind, x0, data=data)
+    if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
+        # cannot happen for a valid certificate: refuse both rather than report a contradiction
+        P, upper, reason = None, None, f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
+    what = "cost" if kind == "cost" else "l2 gain"
+    if P is not None:
+        message = f"{what} certified <= {upper:.6g} (float64 re-check of P)"
+    else:
+        message = f"no certified upper bound: {reason}"
+    if lower is not None:
+        message += f"; worst periodic pattern searched: {lower:.6g} ({count} patterns)"
+    if note:
+        message += f"; {note}"
+    return Performance(kind=kind, upper=upper, lower=lower, witness=witness, certificate=P,
+                       verified=P is not None, x0=x0, patterns=count, message=message)
