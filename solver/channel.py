@@ -1,0 +1,747 @@
+"""Packet channels as finite Markov chains, and how often they break the drop bound.
+
+A :class:`Channel` is a Markov chain over channel states ``c`` (transition matrix
+``T``, ``T[c, c']`` = probability of state ``c'`` at the next sample) and, per state,
+the probability ``loss[c]`` that the sample's transmission is *not effective* (the
+sensor or the control packet is lost, Sec. II.E).  Given the state, losses are
+independent of everything else.  Conventions (docs/design.md, "Stochastic channels"):
+the chain runs once per sample and starts in its stationary distribution ``pi``.
+
+A *burst* is a run of ``>= n_drop`` consecutive non-effective samples: the
+paper's guarantee needs at most ``n_drop - 1``.  With ``D_e = diag(1 - loss)``,
+``D_l = diag(loss)`` the probability that a burst starts at a given sample
+(the previous sample effective, the next ``n_drop`` lost) is exactly::
+
+    rate(n_drop) = pi D_e (T D_l)^n_drop 1          (Bernoulli: (1 - p) p^n_drop)
+
+and, by renewal, the mean time between burst starts is ``1 / rate`` samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInput
+
+#: Row sums of a transition matrix may differ from 1 by this much (then they are normalized).
+STOCHASTIC_TOL = 1e-9
+
+
+def _probabilities(name: str, value, shape=None) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must hold numbers in [0, 1]", (name,)) from None
+    if shape is not None and arr.shape != shape:
+        raise InvalidInput(f"{name} must have shape {shape}, got {arr.shape}", (name,))
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0) or np.any(arr > 1):
+        raise InvalidInput(f"{name} must hold probabilities in [0, 1]", (name,))
+    return arr
+
+
+def check_stochastic(name: str, matrix, size: int | None = None) -> np.ndarray:
+    """Validate a row-stochastic matrix (rows: probabilities of the next state) and return it."""
+    try:
+        T = np.array(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be a square matrix of probabilities", (name,)) from None
+    if T.ndim != 2 or T.shape[0] != T.shape[1] or T.shape[0] < 1:
+        raise InvalidInput(f"{name} must be a square matrix, got shape {T.shape}", (name,))
+    if size is not None and T.shape[0] != size:
+        raise InvalidInput(f"{name} must be {size} x {size}, got {T.shape}", (name,))
+    if not np.all(np.isfinite(T)) or np.any(T < 0) or np.any(T > 1):
+        raise InvalidInput(f"{name} must hold probabilities in [0, 1]", (name,))
+    sums = T.sum(axis=1)
+    bad = np.flatnonzero(np.abs(sums - 1.0) > STOCHASTIC_TOL)
+    if bad.size:
+        raise InvalidInput(f"row {int(bad[0])} of {name} sums to {sums[bad[0]]!r}, not 1", (name, int(bad[0])))
+    return T / sums[:, None]
+
+
+def stationary_distribution(T: np.ndarray, name: str = "transition") -> np.ndarray:
+    """The unique stationary distribution of an irreducible chain (InvalidInput if not unique)."""
+    c = T.shape[0]
+    A = np.vstack([T.T - np.eye(c), np.ones((1, c))])
+    b = np.zeros(c + 1)
+    b[-1] = 1.0
+    if np.linalg.matrix_rank(A, tol=1e-10) < c:
+        raise InvalidInput(f"{name} has more than one stationary distribution (the chain is reducible)", (name,))
+    pi = np.linalg.lstsq(A, b, rcond=None)[0]
+    pi = np.clip(pi, 0.0, None)
+    return pi / pi.sum()
+
+
+@dataclass
+class BurstStatistics:
+    """How often a channel breaks the drop bound ``n_drop`` (exact, from the chain).
+
+    Attributes
+    ----------
+    n_drop : int
+    rate : float
+        Probability per sample that a run of ``>= n_drop`` non-effective samples starts.
+    rate_per_second : float or None
+        ``rate / h`` when the sampling period h is known.
+    mean_time_between : float
+        ``1 / rate`` samples (inf when no burst can happen).
+    mean_time_between_seconds : float or None
+    loss_fraction : float
+        Stationary probability that a sample is not effective.
+    mean_run_length : float
+        Mean length of a maximal run of non-effective samples (samples); nan if none occur.
+    run_length_pmf : ndarray, shape (max_length,)
+        ``P(run length = l)`` for ``l = 1..max_length`` (entry l-1).
+    run_length_tail : float
+        ``P(run length > max_length)``.
+    sampling_period : float or None
+    """
+
+    n_drop: int
+    rate: float
+    rate_per_second: float | None
+    mean_time_between: float
+    mean_time_between_seconds: float | None
+    loss_fraction: float
+    mean_run_length: float
+    run_length_pmf: np.ndarray
+    run_length_tail: float
+    sampling_period: float | None
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return None if x is None or not np.isfinite(x) else float(x)
+
+        return {
+            "n_drop": self.n_drop,
+            "rate": self.rate,
+            "rate_per_second": num(self.rate_per_second),
+            "mean_time_between": num(self.mean_time_between),
+            "mean_time_between_seconds": num(self.mean_time_between_seconds),
+            "loss_fraction": self.loss_fraction,
+            "mean_run_length": num(self.mean_run_length),
+            "run_length_pmf": self.run_length_pmf.tolist(),
+            "run_length_tail": self.run_length_tail,
+            "sampling_period": self.sampling_period,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Channel:
+    """A packet channel: a Markov chain whose state sets the loss probability of each sample.
+
+    Parameters
+    ----------
+    transition : array_like, shape (c, c)
+        Row-stochastic, per sample: ``transition[i, j]`` = P(state j next | state i).
+        The chain must be irreducible (one stationary distribution).
+    loss : array_like, shape (c,)
+        Per state, the probability that a sample's transmission is not effective.
+    names : tuple of str, optional
+        State labels.
+
+    Attributes
+    ----------
+    stationary : ndarray, shape (c,)
+        Stationary distribution ``pi`` (the chain's state at sample 0).
+    """
+
+    transition: np.ndarray
+    loss: np.ndarray
+    names: tuple | None = None
+
+    def __post_init__(self):
+        T = check_stochastic("transition", self.transition)
+        loss = _probabilities("loss", self.loss, shape=(T.shape[0],))
+        object.__setattr__(self, "transition", T)
+        object.__setattr__(self, "loss", loss)
+        object.__setattr__(self, "_pi", stationary_distribution(T))
+        if self.names is not None:
+            names = tuple(str(s) for s in self.names)
+            if len(names) != T.shape[0]:
+                raise InvalidInput(f"names must have {T.shape[0]} entries", ("names",))
+            object.__setattr__(self, "names", names)
+
+    # ------------------------------------------------------------ constructors
+    @classmethod
+    def bernoulli(cls, loss: float) -> "Channel":
+        """Independent losses with probability ``loss`` per sample (one state)."""
+        p = _probabilities("loss", loss, shape=())
+        return cls(np.ones((1, 1)), np.array([float(p)]), names=("bernoulli",))
+
+    @classmethod
+    def gilbert_elliott(cls, p_gb: float, p_bg: float, loss_good: float = 0.0, loss_bad: float = 1.0) -> "Channel":
+        """Two states, good and bad: ``p_gb`` = P(good -> bad), ``p_bg`` = P(bad -> good) per sample."""
+        p_gb = float(_probabilities("p_gb", p_gb, shape=()))
+        p_bg = float(_probabilities("p_bg", p_bg, shape=()))
+        if p_gb + p_bg == 0:
+            raise InvalidInput("p_gb and p_bg cannot both be 0 (the chain would never leave its state)", ("p_gb",))
+        lg = float(_probabilities("loss_good", loss_good, shape=()))
+        lb = float(_probabilities("loss_bad", loss_bad, shape=()))
+        return cls([[1 - p_gb, p_gb], [p_bg, 1 - p_bg]], [lg, lb], names=("good", "bad"))
+
+    @classmethod
+    def combine(cls, sensor: "Channel", control: "Channel") -> "Channel":
+        """One chain for independent sensor and control links: effective iff both packets arrive.
+
+        The state is the pair (sensor state, control state), ``transition = kron(T_s, T_c)``,
+        ``loss = 1 - (1 - loss_s) (1 - loss_c)``.
+        """
+        for name, ch in (("sensor", sensor), ("control", control)):
+            if not isinstance(ch, Channel):
+                raise InvalidInput(f"{name} must be a Channel", (name,))
+        T = np.kron(sensor.transition, control.transition)
+        loss = 1.0 - np.outer(1.0 - sensor.loss, 1.0 - control.loss).reshape(-1)
+        names = tuple(f"{a}/{b}" for a in sensor.state_names for b in control.state_names)
+        return cls(T, loss, names=names)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Channel":
+        """``{"kind": "bernoulli", "loss": p}``, ``{"kind": "gilbert_elliott", "p_gb", "p_bg", "loss_good",
+        "loss_bad"}`` or ``{"kind": "markov", "transition": [[...]], "loss": [...]}``."""
+        if not isinstance(data, dict):
+            raise InvalidInput("channel must be an object", ("channel",))
+        kind = data.get("kind")
+        try:
+            if kind == "bernoulli":
+                return cls.bernoulli(data["loss"])
+            if kind == "gilbert_elliott":
+                return cls.gilbert_elliott(data["p_gb"], data["p_bg"], data.get("loss_good", 0.0),
+                                           data.get("loss_bad", 1.0))
+            if kind == "markov":
+                return cls(data["transition"], data["loss"], names=data.get("names"))
+        except KeyError as err:
+            raise InvalidInput(f"channel of kind {kind!r} needs {err.args[0]!r}", (err.args[0],)) from None
+        raise InvalidInput("channel kind must be 'bernoulli', 'gilbert_elliott' or 'markov'", ("kind",))
+
+    def to_dict(self) -> dict:
+        return {"kind": "markov", "transition": self.transition.tolist(), "loss": self.loss.tolist(),
+                "names": list(self.state_names), "stationary": self.stationary.tolist()}
+
+    # -------------------------------------------------------------- properties
+    @property
+    def n_states(self) -> int:
+        return self.transition.shape[0]
+
+    @property
+    def stationary(self) -> np.ndarray:
+        return self._pi.copy()
+
+    @property
+    def state_names(self) -> tuple:
+        return self.names if self.names is not None else tuple(f"s{i}" for i in range(self.n_states))
+
+    @property
+    def loss_fraction(self) -> float:
+        """Stationary probability that a sample is not effective."""
+        return float(self._pi @ self.loss)
+
+    # ------------------------------------------------------------ statistics
+    def _runs(self, length: int) -> np.ndarray:
+        """Row vectors ``pi D_e (T D_l)^j`` for j = 0..length (shape (length + 1, c))."""
+        step = self.transition * self.loss[None, :]
+        out = np.empty((length + 1, self.n_states))
+        out[0] = self._pi * (1.0 - self.loss)
+        for j in range(1, length + 1):
+            out[j] = out[j - 1] @ step
+        return out
+
+    def burst_rate(self, n_drop: int) -> float:
+        """Probability per sample that a run of ``>= n_drop`` non-effective samples starts there."""
+        n_drop = _positive_int("n_drop", n_drop)
+        return float(self._runs(n_drop)[-1].sum())
+
+    def burst_statistics(self, n_drop: int, sampling_period: float | None = None,
+                         max_length: int | None = None) -> BurstStatistics:
+        """Burst rate, mean time between bursts and the run-length distribution.
+
+        Parameters
+        ----------
+        n_drop : int
+            Drop bound: a burst is a run of at least ``n_drop`` non-effective samples.
+        sampling_period : float, optional
+            h in seconds, for rates per second.
+        max_length : int, optional
+            Length of the run-length distribution returned (default ``max(4 n_drop, 20)``).
+        """
+        n_drop = _positive_int("n_drop", n_drop)
+        h = _period(sampling_period)
+        L = max(4 * n_drop, 20) if max_length is None else _positive_int("max_length", max_length)
+        at_least = self._runs(max(L + 1, n_drop)).sum(axis=1)  # P(effective, then >= j losses), j = 0..
+        starts = at_least[1]
+        rate = float(at_least[n_drop])
+        if starts > 0:
+            pmf = (at_least[1:L + 1] - at_least[2:L + 2]) / starts
+            tail = float(at_least[L + 1] / starts)
+            mean_run = self.loss_fraction / starts  # lost samples per run start (renewal)
+        else:
+            pmf, tail, mean_run = np.zeros(L), 0.0, float("nan")
+        mtb = 1.0 / rate if rate > 0 else float("inf")
+        return BurstStatistics(
+            n_drop=n_drop, rate=rate, rate_per_second=None if h is None else rate / h,
+            mean_time_between=mtb, mean_time_between_seconds=None if h is None else mtb * h,
+            loss_fraction=self.loss_fraction, mean_run_length=float(mean_run),
+            run_length_pmf=np.clip(pmf, 0.0, None), run_length_tail=max(tail, 0.0), sampling_period=h,
+        )
+
+    def smallest_n_drop(self, target_rate: float, sampling_period: float | None = None,
+                        max_n_drop: int = 10_000) -> int | None:
+        """The smallest ``n_drop`` whose burst rate is ``<= target_rate``.
+
+        Parameters
+        ----------
+        target_rate : float
+            Bursts per sample, or per second when ``sampling_period`` is given
+            (once a year at h = 10 ms: ``target_rate = 1 / 31_557_600``, ``sampling_period=0.01``).
+        max_n_drop : int
+            Give up (return None) above this bound.
+
+        Returns
+        -------
+        int or None
+            None when no ``n_drop <= max_n_drop`` reaches the target.
+        """
+        try:
+            target = float(target_rate)
+        except (TypeError, ValueError):
+            raise InvalidInput("target_rate must be a number >= 0", ("target_rate",)) from None
+        if not np.isfinite(target) or target < 0:
+            raise InvalidInput("target_rate must be a finite number >= 0", ("target_rate",))
+        h = _period(sampling_period)
+        per_sample = target if h is None else target * h
+        step = self.transition * self.loss[None, :]
+        v = self._pi * (1.0 - self.loss)
+        # The rate is non-increasing in n_drop (a longer run contains a shorter one).
+        for n in range(1, int(max_n_drop) + 1):
+            v = v @ step
+            if v.sum() <= per_sample:
+                return n
+        return None
+
+    # -------------------------------------------------------------- sampling
+    def sample(self, steps: int, rng: np.random.Generator, size: int | None = None):
+        """Draw channel states and effective flags, the state at sample 0 from ``pi``.
+
+        Parameters
+        ----------
+        steps : int
+        rng : numpy.random.Generator
+        size : int, optional
+            Number of independent chains (vectorized); None for one.
+
+        Returns
+        -------
+        states : ndarray of int, shape (steps,) or (size, steps)
+        effective : ndarray of bool, same shape
+        """
+        steps = _positive_int("steps", steps)
+        shape = (1 if size is None else int(size),)
+        # Fixed draw order: initial states, transitions, losses.
+        u0 = rng.random(shape)
+        u = rng.random((steps,) + shape)
+        v = rng.random((steps,) + shape)
+        cum = np.cumsum(self.transition, axis=1)
+        cum[:, -1] = 1.0
+        cum_pi = np.cumsum(self._pi)
+        cum_pi[-1] = 1.0
+        c = self.n_states
+        states = np.empty((steps,) + shape, dtype=np.int64)
+        s = np.searchsorted(cum_pi, u0, side="right").clip(0, c - 1)
+        states[0] = s
+        if c == 1:
+            states[:] = 0
+        else:
+            for k in range(1, steps):
+                s = (u[k][:, None] >= cum[s]).sum(axis=1).clip(0, c - 1)
+                states[k] = s
+        effective = v >= self.loss[states]
+        states, effective = states.T, effective.T
+        if size is None:
+            return states[0], effective[0]
+        return states, effective
+
+
+def _positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise InvalidInput(f"{name} must be an integer >= 1, got {value!r}", (name,))
+    return int(value)
+
+
+def _period(h) -> float | None:
+    if h is None:
+        return None
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        raise InvalidInput("sampling_period must be a positive number", ("sampling_period",)) from None
+    if not np.isfinite(h) or h <= 0:
+        raise InvalidInput("sampling_period must be a positive number", ("sampling_period",))
+    return h
+
+
+# ======================================================================= the loop on a channel
+@dataclass
+class ChannelReport:
+    """Result of :func:`analyze_channel`.
+
+    Attributes
+    ----------
+    burst_rate : float
+        Probability per sample that a run of ``>= n_drop`` non-effective samples starts.
+    mean_time_between_bursts : float
+        Samples (``inf`` if bursts cannot happen).
+    mean_time_between_bursts_seconds : float or None
+    bursts : BurstStatistics
+    ms_stable : bool or None
+        True: ``rho(L) < 1`` proven by a re-checked coupled Lyapunov certificate (or, for arbitrary
+        plant jumps, the LMI's re-checked certificate). False: ``rho(L) >= 1`` proven by a
+        first-return growth certificate. None: neither (``reason``).
+    ms_radius : float or None
+        Float64 spectral radius of the second-moment operator (an estimate; None for arbitrary jumps).
+    ms_radius_upper, ms_radius_lower : float or None
+        Proven bounds on that radius (the certificates' beta and mu).
+    expected_cost : float or None
+        ``E sum_k x'Qx + u'Ru`` (conventions of docs/design.md), from the linear equations; None
+        when not mean-square stable or without weights.
+    expected_cost_upper, expected_cost_lower : float or None
+        Certified upper bound (re-checked ``P - L*(P) >= S``) and a lower bound from rigorously
+        rounded partial sums.
+    stationary_cost : float or None
+        Cost per sample in the long run with process noise ``noise`` (covariance), when given.
+    upper_certificate, lower_certificate : object or None
+    exhausted : str
+    plant_transitions : str
+        ``"stay"``, ``"markov"`` or ``"arbitrary"``.
+    n_modes : int
+        Modes of the jump system (reachable (channel state, plant mode, buffer age)).
+    reason : str
+    """
+
+    burst_rate: float
+    mean_time_between_bursts: float
+    mean_time_between_bursts_seconds: float | None
+    bursts: BurstStatistics
+    ms_stable: bool | None
+    ms_radius: float | None
+    ms_radius_upper: float | None
+    ms_radius_lower: float | None
+    expected_cost: float | None
+    expected_cost_upper: float | None
+    expected_cost_lower: float | None
+    stationary_cost: float | None
+    upper_certificate: object | None
+    lower_certificate: object | None
+    exhausted: str
+    plant_transitions: str
+    n_modes: int
+    reason: str
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return None if x is None or not np.isfinite(x) else float(x)
+
+        return {
+            "burst_rate": self.burst_rate,
+            "mean_time_between_bursts": num(self.mean_time_between_bursts),
+            "mean_time_between_bursts_seconds": num(self.mean_time_between_bursts_seconds),
+            "bursts": self.bursts.to_dict(),
+            "ms_stable": self.ms_stable,
+            "ms_radius": num(self.ms_radius),
+            "ms_radius_upper": num(self.ms_radius_upper),
+            "ms_radius_lower": num(self.ms_radius_lower),
+            "expected_cost": num(self.expected_cost),
+            "expected_cost_upper": num(self.expected_cost_upper),
+            "expected_cost_lower": num(self.expected_cost_lower),
+            "stationary_cost": num(self.stationary_cost),
+            "upper_certificate": None if self.upper_certificate is None else self.upper_certificate.to_dict(),
+            "lower_certificate": None if self.lower_certificate is None else self.lower_certificate.to_dict(),
+            "exhausted": self.exhausted,
+            "plant_transitions": self.plant_transitions,
+            "n_modes": self.n_modes,
+            "reason": self.reason,
+        }
+
+
+def _psd(name: str, M, size: int) -> np.ndarray:
+    try:
+        A = np.array(M, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be a {size} x {size} matrix", (name,)) from None
+    if A.ndim == 0 or (A.ndim == 1 and A.shape == (size,)):
+        A = np.diag(np.broadcast_to(A, (size,)).astype(np.float64))
+    if A.shape != (size, size) or not np.all(np.isfinite(A)):
+        raise InvalidInput(f"{name} must be a finite {size} x {size} matrix", (name,))
+    if not np.allclose(A, A.T, rtol=1e-12, atol=0):
+        raise InvalidInput(f"{name} must be symmetric", (name,))
+    A = 0.5 * (A + A.T)
+    if np.linalg.eigvalsh(A)[0] < -1e-12 * max(1.0, float(np.abs(A).max())):
+        raise InvalidInput(f"{name} must be positive semidefinite", (name,))
+    return A
+
+
+def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(Q, R)``: symmetric PSD, n x n and m x m (scalars and vectors mean diagonal)."""
+    if not isinstance(weights, (tuple, list)) or len(weights) != 2:
+        raise InvalidInput("weights must be a pair (Q, R)", ("weights",))
+    return _psd("Q", weights[0], n), _psd("R", weights[1], m)
+
+
+def check_plant_transitions(plant_transitions, r: int):
+    """None (stay), "arbitrary", or an r x r row-stochastic matrix."""
+    if plant_transitions is None:
+        return np.eye(r), "stay"
+    if isinstance(plant_transitions, str):
+        if plant_transitions == "arbitrary":
+            return None, "arbitrary"
+        if plant_transitions == "stay":
+            return np.eye(r), "stay"
+        raise InvalidInput("plant_transitions must be an r x r matrix, 'stay' or 'arbitrary'",
+                           ("plant_transitions",))
+    return check_stochastic("plant_transitions", plant_transitions, size=r), "markov"
+
+
+def _check_exhausted(exhausted: str) -> str:
+    from .mjls import EXHAUSTED
+
+    if exhausted not in EXHAUSTED:
+        raise InvalidInput(f"exhausted must be one of {EXHAUSTED}, got {exhausted!r}", ("exhausted",))
+    return exhausted
+
+
+def _loop_inputs(family, gains, n_drop, channel, exhausted):
+    from .network import check_gains, check_n_drop
+    from .plant import PlantFamily
+
+    if not isinstance(family, PlantFamily):
+        raise InvalidInput("family must be a PlantFamily", ("family",))
+    if not isinstance(channel, Channel):
+        raise InvalidInput("channel must be a Channel (Channel.bernoulli, Channel.gilbert_elliott, ...)",
+                           ("channel",))
+    n_drop = check_n_drop(n_drop)
+    K = check_gains(gains, n_drop, family.n_inputs, family.n_states)
+    return n_drop, K, _check_exhausted(exhausted)
+
+
+def _verdicts(loop, want_lower: bool = True):
+    """Radius estimate, proven bounds and the verdict for one Markov loop."""
+    from .mjls import certify_lower, certify_upper, radius_estimate
+
+    rho, perron = radius_estimate(loop)
+    upper = lower = None
+    if np.isfinite(rho) and rho < 1:
+        gap = 1.0 - rho
+        for f in (1e-6, 1e-4, 1e-2, 0.1, 0.5):
+            cert = certify_upper(loop, rho + f * gap)
+            if cert is not None and cert.verified:
+                upper = cert
+                break
+    if np.isfinite(rho) and rho >= 1:
+        lower = certify_lower(loop, 1.0, perron)
+        if lower is not None and rho > 1 + 1e-6:
+            lower = certify_lower(loop, rho * (1 - 1e-6), perron) or lower
+    if want_lower and lower is None and np.isfinite(rho) and rho > 0:
+        for f in (1e-6, 1e-3, 0.1):
+            mu = rho * (1 - f)
+            cert = certify_lower(loop, mu, perron)
+            if cert is not None:
+                lower = cert
+                break
+    if upper is not None and upper.beta < 1:
+        stable, reason = True, f"rho(L) <= {upper.beta:.6g} < 1 by a re-checked coupled Lyapunov certificate"
+    elif lower is not None and lower.mu >= 1:
+        stable, reason = False, f"rho(L) >= {lower.mu:.6g} by a re-checked first-return growth certificate"
+    else:
+        stable = None
+        reason = (f"spectral radius estimate {rho:.12g}: neither a stability nor an instability certificate "
+                  "passed the float64 re-check (too close to 1, or badly conditioned)")
+    return rho, upper, lower, stable, reason
+
+
+def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: str = "hold",
+                    plant_transitions=None, weights=None, noise=None) -> ChannelReport:
+    """The predictive loop on a stochastic channel: bursts, mean-square stability, expected cost.
+
+    Per sample k (docs/design.md, "Stochastic channels"): the buffer age ``d = k - i_m``, the
+    input ``u(k) = K_{d+1} x(i_m)`` while ``d < n_drop``, then the ``exhausted`` policy; the
+    channel state follows ``channel`` (stationary at k = 0), the plant mode follows
+    ``plant_transitions``; sample 0 is effective.
+
+    Parameters
+    ----------
+    family : PlantFamily
+    gains : array_like, shape (n_drop, m, n)
+    n_drop : int
+        Buffer length N (the design's drop bound).
+    channel : Channel
+    exhausted : {"hold", "zero"}
+        After ``n_drop`` samples without an effective packet: keep applying ``K_N x(i_m)``, or u = 0.
+    plant_transitions : None, (r, r) array_like or "arbitrary"
+        Per-sample Markov chain of the plant mode (row l: probabilities of the next mode);
+        None: the mode never changes (drawn uniformly at k = 0).  ``"arbitrary"``: any switching
+        (worst case, as in the paper): a sufficient LMI test with mode-dependent Lyapunov
+        matrices per (channel state, age); True only with its re-checked certificate.
+    weights : (Q, R), optional
+        Stage cost ``x'Qx + u'Ru`` (PSD, n x n and m x m).  Expected cost with ``E[x(0)x(0)'] = I``.
+    noise : array_like (n, n), optional
+        Process noise covariance W (``x(k+1) = F x + G u + w``): adds ``stationary_cost``, the
+        long-run cost per sample.
+
+    Returns
+    -------
+    ChannelReport
+    """
+    from .mjls import build_loop, cesaro_modes, cost_lower, cost_to_go, cost_upper
+
+    n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, channel, exhausted)
+    r, n, m = family.n_modes, family.n_states, family.n_inputs
+    Pi, kind = check_plant_transitions(plant_transitions, r)
+    W = None if weights is None else check_weights(weights, n, m)
+    noise_cov = None if noise is None else _psd("noise", noise, n)
+    if noise_cov is not None and W is None:
+        raise InvalidInput("noise needs weights (Q, R) to define the cost", ("weights",))
+    bursts = channel.burst_statistics(n_drop, family.sampling_period)
+    F, G = np.asarray(family.F, dtype=np.float64), np.asarray(family.G, dtype=np.float64)
+    common = dict(burst_rate=bursts.rate, mean_time_between_bursts=bursts.mean_time_between,
+                  mean_time_between_bursts_seconds=bursts.mean_time_between_seconds, bursts=bursts,
+                  exhausted=exhausted, plant_transitions=kind)
+    if kind == "arbitrary":
+        return _analyze_arbitrary(F, G, K, channel, exhausted, W, common)
+    loop = build_loop(F, G, K, channel.transition, channel.loss, channel.stationary, Pi, exhausted, weights=W)
+    rho, upper, lower, stable, reason = _verdicts(loop)
+    cost = cost_hi = cost_lo = stat = None
+    if W is not None and stable:
+        X0 = loop.initial_moments()
+        P = cost_to_go(loop, loop.stage)
+        if P is not None:
+            cost = float(sum(np.sum(p * x) for p, x in zip(P, X0)))
+            cost_hi = cost_upper(loop, X0, cost)
+            cost_lo = cost_lower(loop, X0, cost)
+            if noise_cov is not None:
+                q = cesaro_modes(loop, loop.initial)
+                stat = float(sum(q[i] * np.sum(P[i] * (E @ noise_cov @ E.T)) for i, E in enumerate(loop.embed)))
+    elif W is not None:
+        reason += "; expected cost: not finite unless mean-square stable" if stable is False else \
+            "; expected cost not computed without a stability proof"
+    return ChannelReport(
+        ms_stable=stable, ms_radius=rho, ms_radius_upper=None if upper is None else upper.beta,
+        ms_radius_lower=None if lower is None else lower.mu, expected_cost=cost, expected_cost_upper=cost_hi,
+        expected_cost_lower=cost_lo, stationary_cost=stat, upper_certificate=upper, lower_certificate=lower,
+        n_modes=len(loop.modes), reason=reason, **common)
+
+
+def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
+    """Arbitrary plant switching: common P per (channel state, age) for every plant mode (an LMI)."""
+    from .mjls import build_loop, recheck_upper
+
+    r = F.shape[0]
+    one = np.ones((1, 1))
+    loops = [build_loop(F[l:l + 1], G[l:l + 1], K, channel.transition, channel.loss, channel.stationary,
+                        one, exhausted) for l in range(r)]
+    # A constant plant is one of the arbitrary switching sequences: its growth proves instability.
+    lower = None
+    for loop in loops:
+        _, _, low, stable, _ = _verdicts(loop, want_lower=False)
+        if stable is False:
+            lower = low
+            break
+    upper, reason = None, ""
+    keys = [loops[0].modes[i] for i in range(len(loops[0].modes))]
+    same = all([lp.modes for lp in loops][0] == lp.modes for lp in loops)
+    if lower is None and same:
+        upper, reason = _arbitrary_lmi(loops)
+    if lower is not None:
+        stable, reason = False, (f"a constant plant mode gives rho(L) >= {lower.mu:.6g} (re-checked first-return "
+                                 "growth certificate)")
+    elif upper is not None and upper.verified and upper.beta < 1:
+        stable, reason = True, (f"mode-dependent Lyapunov LMI for arbitrary plant switching, re-checked: "
+                                f"E V decays by {upper.beta:.6g} per sample")
+    else:
+        stable = None
+        reason = reason or "the arbitrary-switching LMI found no certificate that passed the re-check"
+    del keys
+    return ChannelReport(
+        ms_stable=stable, ms_radius=None, ms_radius_upper=None if upper is None or not upper.verified else upper.beta,
+        ms_radius_lower=None if lower is None else lower.mu, expected_cost=None, expected_cost_upper=None,
+        expected_cost_lower=None, stationary_cost=None, upper_certificate=upper, lower_certificate=lower,
+        n_modes=len(loops[0].modes) * r, reason=reason, **common)
+
+
+def _arbitrary_lmi(loops):
+    """Find P_i >= I with beta P_i - L_l*(P)_i >= I for every plant mode l (cvxpy + Clarabel), then re-check."""
+    import cvxpy as cp
+
+    from .mjls import recheck_upper
+
+    base = loops[0]
+    Ps = [cp.Variable((d, d), symmetric=True) for d in base.dims]
+    beta = cp.Parameter(nonneg=True)
+    cons = [P >> np.eye(P.shape[0]) for P in Ps]
+    for loop in loops:
+        LP = [0 for _ in Ps]
+        for t in loop.transitions:
+            LP[t.src] = LP[t.src] + t.p * (t.A.T @ Ps[t.dst] @ t.A)
+        for i, P in enumerate(Ps):
+            M = beta * P - LP[i]
+            cons.append(0.5 * (M + M.T) >> np.eye(P.shape[0]))
+    prob = cp.Problem(cp.Minimize(sum(cp.trace(P) for P in Ps)), cons)
+    best = None
+    lo, hi = 0.0, 1.0
+    for it in range(12):
+        b = hi if it == 0 else 0.5 * (lo + hi)
+        beta.value = b
+        try:
+            prob.solve(solver=cp.CLARABEL)
+        except cp.error.SolverError:
+            status = "solver_error"
+        else:
+            status = prob.status
+        cert = None
+        if status in ("optimal", "optimal_inaccurate") and all(P.value is not None for P in Ps):
+            cert = recheck_upper(loops, [P.value for P in Ps], b)
+        if cert is not None and cert.verified:
+            best, hi = cert, b
+        elif it == 0:
+            return None, f"the arbitrary-switching LMI at beta = 1: {status}, no re-checked certificate"
+        else:
+            lo = b
+        if hi - lo < 1e-3:
+            break
+    return best, ""
+
+
+def critical_loss(family, gains, n_drop: int, *, exhausted: str = "hold", plant_transitions=None,
+                  tol: float = 1e-7) -> float:
+    """The Bernoulli loss probability at which the loop stops being mean-square stable.
+
+    Bisection on ``p`` of the float64 spectral radius of the second-moment operator
+    (:func:`analyze_channel` proves the verdict at any given ``p``).  Returns 0.0 when the loop
+    is not mean-square stable even without losses and 1.0 when it stays stable for every
+    ``p < 1`` (up to ``1 - tol``).
+    """
+    from .mjls import build_loop, radius_estimate
+
+    n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, Channel.bernoulli(0.0), exhausted)
+    Pi, kind = check_plant_transitions(plant_transitions, family.n_modes)
+    if kind == "arbitrary":
+        raise InvalidInput("critical_loss needs a Markov plant chain (or None), not 'arbitrary'",
+                           ("plant_transitions",))
+    F, G = np.asarray(family.F, dtype=np.float64), np.asarray(family.G, dtype=np.float64)
+
+    def rho(p):
+        ch = Channel.bernoulli(p)
+        return radius_estimate(build_loop(F, G, K, ch.transition, ch.loss, ch.stationary, Pi, exhausted))[0]
+
+    if not rho(0.0) < 1:
+        return 0.0
+    hi = 1.0 - tol
+    if rho(hi) < 1:
+        return 1.0
+    lo = 0.0
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        if rho(mid) < 1:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
