@@ -32,6 +32,8 @@ EXHAUSTED = ("hold", "zero")
 U = np.finfo(np.float64).eps / 2  # unit roundoff
 #: Above this operator size the spectral radius comes from ARPACK instead of a dense eigensolver.
 DENSE_LIMIT = 2500
+#: Up to this operator size the dense eigensolver is used directly.
+SMALL = 40
 
 
 def _sym(M):
@@ -79,6 +81,7 @@ class Loop:
     stage: list | None = None
     stage_err: np.ndarray | None = None
     embed: list = field(default_factory=list)
+    _stacked: tuple | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -106,18 +109,37 @@ class Loop:
         return self.modes[i][2] == 0
 
     # ------------------------------------------------------------- operators
+    def _stacks(self):
+        """Transitions as padded arrays (exact zeros pad every block to the largest dimension)."""
+        if getattr(self, "_stacked", None) is None:
+            D = int(self.dims.max())
+            T = len(self.transitions)
+            A = np.zeros((T, D, D))
+            A_abs = np.zeros((T, D, D))
+            for k, t in enumerate(self.transitions):
+                A[k, :t.A.shape[0], :t.A.shape[1]] = t.A
+                A_abs[k, :t.A.shape[0], :t.A.shape[1]] = t.A_abs
+            src = np.array([t.src for t in self.transitions])
+            dst = np.array([t.dst for t in self.transitions])
+            p = np.array([t.p for t in self.transitions])
+            self._stacked = (D, A, A_abs, src, dst, p)
+        return self._stacked
+
     def apply(self, X: list, adjoint: bool = False, absolute: bool = False) -> list:
         """``L(X)`` (or ``L*(X)``); ``absolute``: the same with ``|A|`` bounds and ``|X|``."""
-        Y = self.zeros()
-        for t in self.transitions:
-            A = t.A_abs if absolute else t.A
-            if adjoint:
-                Xj = np.abs(X[t.dst]) if absolute else X[t.dst]
-                Y[t.src] += t.p * (A.T @ Xj @ A)
-            else:
-                Xi = np.abs(X[t.src]) if absolute else X[t.src]
-                Y[t.dst] += t.p * (A @ Xi @ A.T)
-        return Y
+        D, A, A_abs, src, dst, p = self._stacks()
+        Mat = A_abs if absolute else A
+        S = np.zeros((len(self.modes), D, D))
+        for i, x in enumerate(X):
+            S[i, :x.shape[0], :x.shape[1]] = np.abs(x) if absolute else x
+        Y = np.zeros_like(S)
+        if adjoint:
+            terms = np.swapaxes(Mat, 1, 2) @ S[dst] @ Mat
+            np.add.at(Y, src, p[:, None, None] * terms)
+        else:
+            terms = Mat @ S[src] @ np.swapaxes(Mat, 1, 2)
+            np.add.at(Y, dst, p[:, None, None] * terms)
+        return [Y[i, :d, :d] for i, d in enumerate(self.dims)]
 
     def apply_bounded(self, X: list, adjoint: bool = False) -> tuple[list, np.ndarray]:
         """Float ``L(X)`` and, per block, a bound on the Frobenius norm of its error vs exact data."""
@@ -270,13 +292,17 @@ def build_loop(F: np.ndarray, G: np.ndarray, K: np.ndarray, transition: np.ndarr
 def radius_estimate(loop: Loop) -> tuple[float, np.ndarray | None]:
     """Float64 spectral radius of L and a Perron (right) eigenvector, vec form (not a proof)."""
     M = loop.matrix()
-    if loop.size <= DENSE_LIMIT:
-        w, V = np.linalg.eig(M.toarray())
-    else:
+    w = None
+    if loop.size > SMALL:
+        # ARPACK: sparse products only (dense LAPACK eig is slow when BLAS threads compete for cores).
         try:
-            w, V = spla.eigs(M, k=min(6, loop.size - 2), which="LM", maxiter=20000, tol=1e-12)
+            w, V = spla.eigs(M, k=min(6, loop.size - 2), which="LM", maxiter=50000, tol=1e-13)
         except spla.ArpackNoConvergence:
+            w = None
+    if w is None:
+        if loop.size > DENSE_LIMIT:
             return float("nan"), None
+        w, V = np.linalg.eig(M.toarray())
     rho = float(np.max(np.abs(w)))
     if rho == 0:
         return 0.0, None
@@ -471,7 +497,7 @@ def cost_upper(loop: Loop, X0: list, value: float) -> float | None:
     return None
 
 
-def cost_lower(loop: Loop, X0: list, value: float, max_steps: int = 20000, rel_tol: float = 1e-6) -> float:
+def cost_lower(loop: Loop, X0: list, value: float, max_steps: int = 5000, rel_tol: float = 1e-6) -> float:
     """Witnessed lower bound: the partial sum ``sum_{k<K} <S, L^k(X0)>`` with rigorously rounded-down moments."""
     total = 0.0
     X = X0
@@ -484,6 +510,8 @@ def cost_lower(loop: Loop, X0: list, value: float, max_steps: int = 20000, rel_t
                     np.sum(np.abs(s) * np.abs(x)))
                 total += term - bound
         if value > 0 and total >= value * (1 - rel_tol):
+            break
+        if sum(float(np.trace(np.abs(x))) for x in X) < 1e-13 * max(1.0, sum(float(np.trace(x)) for x in X0)):
             break
         Z, err = loop.apply_bounded(X)
         X = [z - 1.01 * (err[i] + 4 * U * float(np.linalg.norm(z))) * np.eye(z.shape[0]) for i, z in enumerate(Z)]
