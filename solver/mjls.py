@@ -418,6 +418,86 @@ def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: i
         cert = _first_return(loop, mu, Q0, sel, max_steps)
         if cert is not None:
             return cert
+    if perron is not None:
+        # Growth confined to a face of the cone (e.g. x grows while x(i_m) = 0): exact zeros must
+        # stay exact, so track entrywise error bounds instead of identity shifts.
+        sets = [sel for _, sel in candidates[:2]]
+        # Collecting on one mode avoids comparing two rank-deficient blocks of the same range.
+        for i in np.argsort(-mass)[:3]:
+            if mass[i] > 0:
+                one = np.zeros(len(loop.modes), dtype=bool)
+                one[i] = True
+                sets.append(one)
+        for sel in sets:
+            cert = _first_return_entrywise(loop, mu, blocks, sel, max_steps)
+            if cert is not None:
+                return cert
+    return None
+
+
+def _first_return_entrywise(loop: Loop, mu: float, blocks: list, sel: np.ndarray,
+                            max_steps: int) -> LowerCertificate | None:
+    """First-return growth with ``Q0 = W W'`` (exactly PSD) and entrywise rounding bounds.
+
+    ``|exact - float| <= E`` entrywise is carried through every step (``|A|``-products), so rows
+    and columns that are exactly zero stay exactly zero and the final PSD test runs on the support.
+    """
+    g = loop.gamma
+    Q0, E0 = [], []
+    scale = sum(max(float(np.trace(b)), 0.0) for i, b in enumerate(blocks) if sel[i])
+    if not scale > 0:
+        return None
+    for i, d in enumerate(loop.dims):
+        if not sel[i]:
+            Q0.append(np.zeros((d, d)))
+            E0.append(np.zeros((d, d)))
+            continue
+        s, V = np.linalg.eigh(_sym(blocks[i]) / scale)
+        keep = s > 1e-9 * max(float(s[-1]), 1e-300)
+        W = V[:, keep] * np.sqrt(s[keep])
+        W[np.abs(W) < 1e-13 * max(float(np.abs(W).max(initial=0.0)), 1e-300)] = 0.0
+        Q0.append(W @ W.T)  # stands for the exact (PSD) product W W'
+        E0.append(2 * (W.shape[1] + 2) * U * (np.abs(W) @ np.abs(W).T))
+    members = np.flatnonzero(sel)
+    collected = {i: np.zeros_like(Q0[i]) for i in members}
+    col_err = {i: np.zeros_like(Q0[i]) for i in members}
+    Y, EY = Q0, E0
+    with np.errstate(all="ignore"):
+        for step in range(1, max_steps + 1):
+            Z = loop.apply(Y)
+            Zabs = loop.apply(Y, absolute=True)
+            Eprop = loop.apply(EY, absolute=True)
+            nxt, nerr = loop.zeros(), loop.zeros()
+            for i in range(len(Z)):
+                z = _sym(Z[i]) / mu
+                e = (g * Zabs[i] + (1 + g) * Eprop[i]) / mu * (1 + 4 * U) + 2 * U * np.abs(z)
+                if sel[i]:
+                    collected[i] = collected[i] + z
+                    col_err[i] = col_err[i] + e + 2 * U * np.abs(collected[i])
+                else:
+                    nxt[i], nerr[i] = z, e
+            Y, EY = nxt, nerr
+            if step % 5 == 0 or step == max_steps:
+                ok, worst = True, np.inf
+                for i in members:
+                    D = _sym(collected[i] - Q0[i])
+                    ED = col_err[i] + E0[i] + 2 * U * np.abs(D)
+                    if not (np.all(np.isfinite(D)) and np.all(np.isfinite(ED))):
+                        return None
+                    S = np.flatnonzero((np.abs(D) + ED).sum(axis=1) > 0)
+                    if S.size == 0:
+                        continue
+                    Ds = D[np.ix_(S, S)]
+                    margin = float(np.linalg.eigvalsh(Ds)[0]) - _eig_err(Ds) - 1.01 * float(
+                        np.linalg.norm(ED[np.ix_(S, S)]))
+                    worst = min(worst, margin)
+                    ok = ok and margin > 0
+                if ok:
+                    return LowerCertificate(mu=float(mu), Q0=Q0, steps=step, slack=float(worst), verified=True)
+                remaining = sum(float(np.abs(y).sum()) for y in Y)
+                total = sum(float(np.abs(c).sum()) for c in collected.values())
+                if not np.isfinite(remaining) or remaining < 1e-14 * max(1.0, total):
+                    return None
     return None
 
 
