@@ -543,7 +543,7 @@ def _verdicts(loop, want_lower: bool = True):
     if want_lower and lower is None and np.isfinite(rho) and rho > 0:
         for f in (1e-6, 1e-2):
             mu = rho * (1 - f)
-            cert = certify_lower(loop, mu, perron, max_steps=400)
+            cert = certify_lower(loop, mu, perron, max_steps=200, thorough=False)
             if cert is not None:
                 lower = cert
                 break

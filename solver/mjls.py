@@ -392,7 +392,8 @@ def _psd_part(M: np.ndarray, rel: float = 1e-9) -> np.ndarray:
     return Q + eps * np.eye(M.shape[0])
 
 
-def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: int = 4000) -> LowerCertificate | None:
+def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: int = 4000,
+                  thorough: bool = True) -> LowerCertificate | None:
     """Prove ``rho(L) >= mu`` by a first-return growth certificate (module docstring).
 
     Mass ``Q0`` starts on a set C of modes, propagates through ``L / mu`` outside C and is
@@ -418,7 +419,7 @@ def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: i
         cert = _first_return(loop, mu, Q0, sel, max_steps)
         if cert is not None:
             return cert
-    if perron is not None:
+    if perron is not None and thorough:
         # Growth confined to a face of the cone (e.g. x grows while x(i_m) = 0): exact zeros must
         # stay exact, so track entrywise error bounds instead of identity shifts.
         sets = [sel for _, sel in candidates[:2]]
