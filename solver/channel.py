@@ -917,3 +917,26 @@ def design_for_channel(family, channel: Channel, target_rate: float, *, per: str
         rep = analyze_channel(family, res.gains, N, channel, exhausted=exhausted,
                               plant_transitions=plant_transitions, weights=weights)
     return ChannelDesign(N, channel.burst_statistics(N, family.sampling_period), res, rep)
+
+
+def loss_sweep(family, gains, n_drop: int, losses, *, exhausted=("hold", "zero"), weights=None,
+               plant_transitions=None) -> list:
+    """:func:`analyze_channel` on Bernoulli channels over a list of loss probabilities.
+
+    Returns
+    -------
+    list of dict
+        Per (loss, exhausted): ``loss``, ``exhausted``, ``burst_rate``, ``ms_stable``, ``ms_radius``,
+        ``expected_cost`` (None unless proven mean-square stable with weights).
+    """
+    if isinstance(exhausted, str):
+        exhausted = (exhausted,)
+    rows = []
+    for p in losses:
+        ch = Channel.bernoulli(p)
+        for ex in exhausted:
+            rep = analyze_channel(family, gains, n_drop, ch, exhausted=ex, weights=weights,
+                                  plant_transitions=plant_transitions)
+            rows.append({"loss": float(p), "exhausted": ex, "burst_rate": rep.burst_rate, "ms_stable": rep.ms_stable,
+                         "ms_radius": rep.ms_radius, "expected_cost": rep.expected_cost})
+    return rows

@@ -278,3 +278,15 @@ def test_simulate_on_a_channel_runs_past_the_bound():
             np.testing.assert_allclose(tr.input[k], expected, rtol=1e-15)
     # the channel draws do not depend on the exhaustion policy
     np.testing.assert_array_equal(runs["hold"].effective, runs["zero"].effective)
+
+
+def test_channel_figure_renders():
+    from solver.channel import loss_sweep
+    from solver.plotting import channel_figure, render
+
+    sweep = loss_sweep(SCALAR, [[[-1.5]], [[-0.5]]], 2, [0.1, 0.2, 0.3], weights=(1.0, 1.0))
+    assert [r["ms_stable"] for r in sweep if r["exhausted"] == "hold"] == [True, True, False]
+    svg = render(channel_figure(Channel.gilbert_elliott(0.05, 0.3, 0.01, 0.8), range(1, 8), 0.1, sweep), "svg")
+    assert b"per hour" in svg and b"exhausted = zero" in svg
+    assert svg == render(channel_figure(Channel.gilbert_elliott(0.05, 0.3, 0.01, 0.8), range(1, 8), 0.1, sweep),
+                         "svg")
