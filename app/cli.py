@@ -17,7 +17,7 @@ import sys
 
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
-TOOL_COMMANDS = ("design", "analyze", "simulate")
+TOOL_COMMANDS = ("design", "analyze", "simulate", "channel")
 
 
 def package_version() -> str:
@@ -86,6 +86,26 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--mode", type=int, default=None, help="fixed plant mode (0-based) with --plant-switching none")
     m.add_argument("--plot", default=None, metavar="FILE", help="draw the run: .png or .svg")
     m.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the run as JSON")
+
+    ch = sub.add_parser("channel", help="given gains on a lossy channel: how often the drop bound breaks, "
+                        "mean-square stability, expected cost (in-process)")
+    ch.add_argument("plant", metavar="PLANT", help="plant file (as for design)")
+    ch.add_argument("--sampling-period", type=float, default=None, metavar="H")
+    gains_args(ch)
+    link = ch.add_mutually_exclusive_group(required=True)
+    link.add_argument("--loss", type=float, default=None, metavar="P", help="Bernoulli loss probability per sample")
+    link.add_argument("--gilbert-elliott", default=None, metavar="P_GB,P_BG,LOSS_GOOD,LOSS_BAD",
+                      help="Gilbert-Elliott link: transition and loss probabilities per sample")
+    link.add_argument("--channel", dest="channel_file", default=None, metavar="FILE.json",
+                      help='channel JSON: {"kind": "markov", "transition": [[...]], "loss": [...]} (or bernoulli, '
+                           "gilbert_elliott)")
+    ch.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
+                    help="input once the buffer runs dry (default hold)")
+    ch.add_argument("--no-cost", action="store_true", help="skip the expected cost (weights Q = I, R = I)")
+    ch.add_argument("--target-per-hour", type=float, default=None, metavar="RATE",
+                    help="also print the smallest n_drop with at most RATE bursts per hour")
+    ch.add_argument("--plot", default=None, metavar="FILE", help="violation rate vs n_drop and cost vs loss: .png/.svg")
+    ch.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
     return parser
 
 
