@@ -940,3 +940,165 @@ def loss_sweep(family, gains, n_drop: int, losses, *, exhausted=("hold", "zero")
             rows.append({"loss": float(p), "exhausted": ex, "burst_rate": rep.burst_rate, "ms_stable": rep.ms_stable,
                          "ms_radius": rep.ms_radius, "expected_cost": rep.expected_cost})
     return rows
+
+
+# ============================================================== design for the channel (mode-dependent Lyapunov)
+@dataclass
+class ChannelDesignResult:
+    """Result of :func:`design_channel`.
+
+    Attributes
+    ----------
+    outcome : {"stabilized", "not_converged"}
+        "stabilized" only when :func:`analyze_channel` proves mean-square stability of the gains
+        (its own re-checked certificate, not the SDP's).
+    gains : ndarray (n_drop, m, n) or None
+    analysis : ChannelReport or None
+        Exact expected cost and certificates of the designed gains.
+    sdp_bound : float or None
+        The SDP's objective, an upper bound of the expected cost if the SDP were solved exactly.
+    status : str
+        cvxpy status of the SDP.
+    message : str
+    """
+
+    outcome: str
+    gains: np.ndarray | None
+    analysis: ChannelReport | None
+    sdp_bound: float | None
+    status: str
+    message: str
+
+    def to_dict(self) -> dict:
+        return {"outcome": self.outcome, "gains": None if self.gains is None else self.gains.tolist(),
+                "analysis": None if self.analysis is None else self.analysis.to_dict(),
+                "sdp_bound": self.sdp_bound, "status": self.status, "message": self.message}
+
+
+def _sqrt_psd(M: np.ndarray) -> np.ndarray:
+    s, V = np.linalg.eigh(M)
+    return (V * np.sqrt(np.clip(s, 0.0, None))) @ V.T
+
+
+def design_channel(family, n_drop: int, channel: Channel, *, exhausted: str = "hold", plant_transitions=None,
+                   weights=None, margin: float = 1e-7) -> ChannelDesignResult:
+    """Gains ``K_1..K_N`` that make the loop on ``channel`` mean-square stable with small expected cost.
+
+    One SDP (cvxpy + Clarabel) on the jump system of :func:`analyze_channel`, with a Lyapunov matrix
+    ``P_i = S_i^{-1}`` per mode (channel state, plant mode, buffer age) and one common slack ``Z``
+    (the gains are common to all modes; ``Y_q = K_q Z``).  With ``Zb`` the block-diagonal copy of
+    ``Z`` on the mode's state, ``Zb' P_i Zb >= Zb + Zb' - S_i`` turns
+
+        [[Zb + Zb' - S_i, (sqrt(p_ij) A_ij Zb)', (C_i Zb)'], [sqrt(p_ij) A_ij Zb, S_j, 0], [C_i Zb, 0, I]] > 0
+
+    into ``P_i - sum_j p_ij A_ij' P_j A_ij > C_i' C_i`` (``C_i' C_i`` the stage cost), so
+    ``J <= sum_i <P_i, X0_i> <= sum_i tr X_i`` with ``[[X_i, I], [I, S_i]] >= 0`` (minimized).
+    A sufficient condition (the common slack).  The verdict and the cost come from
+    :func:`analyze_channel` on the returned gains, never from the SDP.
+
+    Parameters
+    ----------
+    family, n_drop, channel, exhausted, plant_transitions
+        As in :func:`analyze_channel` (not "arbitrary").
+    weights : (Q, R), optional
+        Default identities.
+    margin : float
+        Strictness of the SDP blocks.
+    """
+    import cvxpy as cp
+
+    from .mjls import build_loop
+    from .network import check_n_drop
+    from .plant import PlantFamily
+
+    if not isinstance(family, PlantFamily):
+        raise InvalidInput("family must be a PlantFamily", ("family",))
+    if not isinstance(channel, Channel):
+        raise InvalidInput("channel must be a Channel", ("channel",))
+    N = check_n_drop(n_drop)
+    exhausted = _check_exhausted(exhausted)
+    r, n, m = family.n_modes, family.n_states, family.n_inputs
+    Pi, kind = check_plant_transitions(plant_transitions, r)
+    if kind == "arbitrary":
+        raise InvalidInput("design_channel needs a plant chain (an r x r matrix) or None", ("plant_transitions",))
+    Qw, Rw = check_weights(weights if weights is not None else (np.eye(n), np.eye(m)), n, m)
+    Qh, Rh = _sqrt_psd(Qw), _sqrt_psd(Rw)
+    F, G = np.asarray(family.F, dtype=np.float64), np.asarray(family.G, dtype=np.float64)
+    # The reachable modes and transition probabilities do not depend on the gains.
+    loop = build_loop(F, G, np.zeros((N, m, n)), channel.transition, channel.loss, channel.stationary, Pi, exhausted)
+    # One slack per gain (Y_q = K_q Z_q, shared by every mode that applies K_q); the part of the
+    # state the gains do not touch gets a slack of its own per mode.
+    Zg = [cp.Variable((n, n)) for _ in range(N)]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    S = [cp.Variable((d, d), symmetric=True) for d in loop.dims]
+    zero_nn = np.zeros((n, n))
+
+    def gain_index(d):
+        if d < N:
+            return d
+        return None if exhausted == "zero" else N - 1
+
+    def pieces(l, d, dim):
+        """(Zb, x_next Zb, x(i_m) part of the next state times Zb, stage C Zb) of a mode."""
+        if d == 0:
+            Z = Zg[0]
+            return Z, F[l] @ Z + G[l] @ Y[0], Z, cp.vstack([Qh @ Z, Rh @ Y[0]])
+        if dim == n:  # exhausted, zero input: no gain
+            Z = cp.Variable((n, n))
+            return Z, F[l] @ Z, None, Qh @ Z
+        q = gain_index(d)
+        Zx = cp.Variable((n, n))
+        Zb = cp.bmat([[Zx, zero_nn], [zero_nn, Zg[q]]])
+        stage = cp.bmat([[Qh @ Zx, np.zeros((n, n))], [np.zeros((m, n)), Rh @ Y[q]]])
+        return Zb, cp.hstack([F[l] @ Zx, G[l] @ Y[q]]), cp.hstack([zero_nn, Zg[q]]), stage
+
+    out = {}
+    for t in loop.transitions:
+        out.setdefault(t.src, []).append(t)
+    cons = []
+    for i, (c, l, d) in enumerate(loop.modes):
+        dim = int(loop.dims[i])
+        Zb, xn, keep, C = pieces(l, d, dim)
+        rows = []
+        for t in out.get(i, []):
+            AZ = xn if int(loop.dims[t.dst]) == n else cp.vstack([xn, keep])
+            rows.append((np.sqrt(t.p) * AZ, S[t.dst]))
+        blocks_n = [dim] + [S[t.dst].shape[0] for t in out.get(i, [])] + [C.shape[0]]
+        k = len(blocks_n)
+        M = [[None] * k for _ in range(k)]
+        M[0][0] = Zb + Zb.T - S[i]
+        for a, (AZ, Sj) in enumerate(rows, start=1):
+            M[a][0] = AZ
+            M[0][a] = AZ.T
+            M[a][a] = Sj
+        M[k - 1][0] = C
+        M[0][k - 1] = C.T
+        M[k - 1][k - 1] = np.eye(C.shape[0])
+        for a in range(k):
+            for b in range(k):
+                if M[a][b] is None:
+                    M[a][b] = np.zeros((blocks_n[a], blocks_n[b]))
+        cons.append(cp.bmat(M) >> margin * np.eye(sum(blocks_n)))
+    X = {}
+    for i in np.flatnonzero(loop.initial > 0):
+        X[i] = cp.Variable((n, n), symmetric=True)
+        cons.append(cp.bmat([[X[i], np.eye(n)], [np.eye(n), S[i]]]) >> 0)
+    objective = cp.Minimize(sum(loop.initial[i] * cp.trace(X[i]) for i in X))
+    prob = cp.Problem(objective, cons)
+    try:
+        prob.solve(solver=cp.CLARABEL)
+        status = prob.status
+    except cp.error.SolverError as err:
+        return ChannelDesignResult("not_converged", None, None, None, "solver_error", str(err))
+    if status not in ("optimal", "optimal_inaccurate") or any(Z.value is None for Z in Zg):
+        return ChannelDesignResult("not_converged", None, None, None, str(status),
+                                   f"the SDP ended {status}: no design of this form")
+    try:
+        K = np.array([y.value @ np.linalg.inv(Z.value) for y, Z in zip(Y, Zg)])
+    except np.linalg.LinAlgError:
+        return ChannelDesignResult("not_converged", None, None, None, str(status), "a slack Z_q is singular")
+    rep = analyze_channel(family, K, N, channel, exhausted=exhausted, plant_transitions=plant_transitions,
+                          weights=(Qw, Rw))
+    outcome = "stabilized" if rep.ms_stable is True else "not_converged"
+    msg = "mean-square stability certified by analyze_channel" if rep.ms_stable else rep.reason
+    return ChannelDesignResult(outcome, K, rep, float(prob.value), str(status), msg)
