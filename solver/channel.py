@@ -56,7 +56,8 @@ def check_stochastic(name: str, matrix, size: int | None = None) -> np.ndarray:
     sums = T.sum(axis=1)
     bad = np.flatnonzero(np.abs(sums - 1.0) > STOCHASTIC_TOL)
     if bad.size:
-        raise InvalidInput(f"row {int(bad[0])} of {name} sums to {sums[bad[0]]!r}, not 1", (name, int(bad[0])))
+        raise InvalidInput(f"row {int(bad[0])} of {name} sums to {float(sums[bad[0]]):.17g}, not 1",
+                           (name, int(bad[0])))
     return T / sums[:, None]
 
 
