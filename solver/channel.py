@@ -638,7 +638,7 @@ def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
     r = F.shape[0]
     one = np.ones((1, 1))
     loops = [build_loop(F[l:l + 1], G[l:l + 1], K, channel.transition, channel.loss, channel.stationary,
-                        one, exhausted) for l in range(r)]
+                        one, exhausted, weights=W) for l in range(r)]
     # A constant plant is one of the arbitrary switching sequences: its growth proves instability.
     lower = None
     for loop in loops:
@@ -661,11 +661,50 @@ def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
         stable = None
         reason = reason or "the arbitrary-switching LMI found no certificate that passed the re-check"
     del keys
+    cost_hi = None
+    if W is not None and stable:
+        cost_hi = _arbitrary_cost(loops)
+        reason += ("; expected_cost_upper: worst case over plant switching (re-checked LMI)" if cost_hi is not None
+                   else "; no worst-case cost bound passed the re-check")
     return ChannelReport(
         ms_stable=stable, ms_radius=None, ms_radius_upper=None if upper is None or not upper.verified else upper.beta,
-        ms_radius_lower=None if lower is None else lower.mu, expected_cost=None, expected_cost_upper=None,
+        ms_radius_lower=None if lower is None else lower.mu, expected_cost=None, expected_cost_upper=cost_hi,
         expected_cost_lower=None, stationary_cost=None, upper_certificate=upper, lower_certificate=lower,
         n_modes=len(loops[0].modes) * r, reason=reason, **common)
+
+
+def _arbitrary_cost(loops):
+    """Worst-case expected cost over plant switching: min sum_i <P_i, X0_i> with P - L_l*(P) - S >= 0 for every
+    plant mode l (cvxpy + Clarabel, a relative margin), re-checked with rounding bounds; None if nothing passes."""
+    import cvxpy as cp
+
+    from .mjls import bound_from, recheck_cost
+
+    base = loops[0]
+    X0 = base.initial_moments()
+    Ps = [cp.Variable((d, d), symmetric=True) for d in base.dims]
+    eta = cp.Parameter(nonneg=True)
+    cons = []
+    for loop in loops:
+        LP = [0 for _ in Ps]
+        for t in loop.transitions:
+            LP[t.src] = LP[t.src] + t.p * (t.A.T @ Ps[t.dst] @ t.A)
+        for i, P in enumerate(Ps):
+            M = P - LP[i] - loop.stage[i]
+            cons.append(0.5 * (M + M.T) >> eta * np.eye(P.shape[0]))
+    prob = cp.Problem(cp.Minimize(sum(cp.sum(cp.multiply(P, x)) for P, x in zip(Ps, X0))), cons)
+    scale = max(float(np.max([np.trace(s) for s in base.stage])), 1e-12)
+    for rel in (1e-7, 1e-5, 1e-3):
+        eta.value = rel * scale
+        try:
+            prob.solve(solver=cp.CLARABEL)
+        except cp.error.SolverError:
+            continue
+        if prob.status in ("optimal", "optimal_inaccurate") and all(P.value is not None for P in Ps):
+            P = [0.5 * (P.value + P.value.T) for P in Ps]
+            if recheck_cost(loops, P):
+                return bound_from(P, X0)
+    return None
 
 
 def _arbitrary_lmi(loops):

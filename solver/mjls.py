@@ -554,6 +554,27 @@ def cost_to_go(loop: Loop, rhs: list) -> list | None:
     return [_sym(b) for b in loop.unvec(p)]
 
 
+def recheck_cost(loops: list, P: list) -> bool:
+    """Re-check ``P_i - L_l*(P)_i - S_i >= 0`` for every loop l, every rounding bounded (as :func:`recheck_upper`)."""
+    P = [_sym(p) for p in P]
+    for loop in loops:
+        LP, err = loop.apply_bounded(P, adjoint=True)
+        for i, p in enumerate(P):
+            D = _sym(p - LP[i] - loop.stage[i])
+            bound = err[i] + loop.stage_err[i] + 4 * U * (float(np.linalg.norm(p)) + float(np.linalg.norm(LP[i]))
+                                                           + float(np.linalg.norm(loop.stage[i])))
+            if float(np.linalg.eigvalsh(D)[0]) - _eig_err(D) - bound < 0:
+                return False
+    return True
+
+
+def bound_from(P: list, X0: list) -> float:
+    """``<P, X0>`` rounded up."""
+    total = sum(float(np.sum(p * x)) for p, x in zip(P, X0))
+    size = sum(x.size for x in X0)
+    return total * (1 + 4 * size * U) + 1e-300
+
+
 def cost_upper(loop: Loop, X0: list, value: float) -> float | None:
     """Certified upper bound: ``P - L*(P) - S >= 0`` re-checked, then ``J <= <P, X0>``."""
     scale = max(value, 1e-300) / max(sum(float(np.trace(x)) for x in X0), 1e-300)
@@ -562,19 +583,8 @@ def cost_upper(loop: Loop, X0: list, value: float) -> float | None:
         P = cost_to_go(loop, [s + eta * np.eye(s.shape[0]) for s in loop.stage])
         if P is None:
             return None
-        LP, err = loop.apply_bounded(P, adjoint=True)
-        ok = True
-        for i, p in enumerate(P):
-            D = _sym(p - LP[i] - loop.stage[i])
-            bound = err[i] + loop.stage_err[i] + 4 * U * (float(np.linalg.norm(p)) + float(np.linalg.norm(LP[i]))
-                                                           + float(np.linalg.norm(loop.stage[i])))
-            if float(np.linalg.eigvalsh(D)[0]) - _eig_err(D) - bound < 0:
-                ok = False
-                break
-        if ok:
-            total = sum(float(np.sum(p * x)) for p, x in zip(P, X0))
-            size = sum(x.size for x in X0)
-            return total * (1 + 4 * size * U) + 1e-300
+        if recheck_cost([loop], P):
+            return bound_from(P, X0)
     return None
 
 

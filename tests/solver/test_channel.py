@@ -198,15 +198,18 @@ def test_radius_bounds_bracket_the_estimate():
 
 
 def test_arbitrary_plant_switching_lmi_is_consistent_with_markov_chains():
-    """The arbitrary-switching certificate covers every plant chain; a constant unstable mode refutes it."""
+    """The arbitrary-switching certificate and worst-case cost bound cover every plant chain; a constant unstable
+    mode refutes stability."""
     fam = PlantFamily(F=[[[1.2]], [[0.9]]], G=[[[1.0]], [[0.5]]])
     K = design(fam, 3).gains
     ch = Channel.gilbert_elliott(0.1, 0.3, 0.05, 0.6)
-    worst = analyze_channel(fam, K, 3, ch, plant_transitions="arbitrary")
+    worst = analyze_channel(fam, K, 3, ch, plant_transitions="arbitrary", weights=(1.0, 1.0))
     assert worst.ms_stable is True and worst.upper_certificate.verified
+    assert worst.expected_cost_upper is not None
     for Pi in (None, [[0.5, 0.5], [0.5, 0.5]], [[0.0, 1.0], [1.0, 0.0]]):
-        rep = analyze_channel(fam, K, 3, ch, plant_transitions=Pi)
+        rep = analyze_channel(fam, K, 3, ch, plant_transitions=Pi, weights=(1.0, 1.0))
         assert rep.ms_stable is True and rep.ms_radius <= worst.ms_radius_upper + 1e-12
+        assert rep.expected_cost <= worst.expected_cost_upper
     bad = analyze_channel(SCALAR, [[[-1.5]], [[-0.5]]], 2, Channel.bernoulli(0.4), plant_transitions="arbitrary")
     assert bad.ms_stable is False
 
