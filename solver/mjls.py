@@ -463,6 +463,7 @@ def _first_return_entrywise(loop: Loop, mu: float, blocks: list, sel: np.ndarray
     collected = {i: np.zeros_like(Q0[i]) for i in members}
     col_err = {i: np.zeros_like(Q0[i]) for i in members}
     Y, EY = Q0, E0
+    best, best_step = -np.inf, 0
     with np.errstate(all="ignore"):
         for step in range(1, max_steps + 1):
             Z = loop.apply(Y)
@@ -495,6 +496,10 @@ def _first_return_entrywise(loop: Loop, mu: float, blocks: list, sel: np.ndarray
                     ok = ok and margin > 0
                 if ok:
                     return LowerCertificate(mu=float(mu), Q0=Q0, steps=step, slack=float(worst), verified=True)
+                if worst > best + 1e-12 * abs(best):
+                    best, best_step = worst, step
+                elif step - best_step > 500:
+                    return None  # the margin stopped improving
                 remaining = sum(float(np.abs(y).sum()) for y in Y)
                 total = sum(float(np.abs(c).sum()) for c in collected.values())
                 if not np.isfinite(remaining) or remaining < 1e-14 * max(1.0, total):
@@ -511,6 +516,7 @@ def _first_return(loop: Loop, mu: float, Q0: list, sel: np.ndarray, max_steps: i
     collected = {i: np.zeros_like(Q0[i]) for i in members}
     slack = {i: 0.0 for i in members}
     Y = Q0
+    best, best_step = -np.inf, 0
     with np.errstate(all="ignore"):
         for step in range(1, max_steps + 1):
             Z, err = loop.apply_bounded(Y)
@@ -537,6 +543,10 @@ def _first_return(loop: Loop, mu: float, Q0: list, sel: np.ndarray, max_steps: i
                     ok = ok and margin > 0
                 if ok:
                     return LowerCertificate(mu=float(mu), Q0=Q0, steps=step, slack=float(worst), verified=True)
+                if worst > best + 1e-12 * abs(best):
+                    best, best_step = worst, step
+                elif step - best_step > 500:
+                    return None  # the margin stopped improving
                 remaining = sum(float(np.linalg.norm(y)) for y in Y)
                 if not np.isfinite(remaining) or remaining < 1e-14 * max(1.0, total):
                     return None  # nothing left to return
