@@ -647,9 +647,8 @@ def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
             lower = low
             break
     upper, reason = None, ""
-    keys = [loops[0].modes[i] for i in range(len(loops[0].modes))]
-    same = all([lp.modes for lp in loops][0] == lp.modes for lp in loops)
-    if lower is None and same:
+    # Every single-plant loop has the same (channel state, age) modes: they depend on the channel only.
+    if lower is None and all(lp.modes == loops[0].modes for lp in loops):
         upper, reason = _arbitrary_lmi(loops)
     if lower is not None:
         stable, reason = False, (f"a constant plant mode gives rho(L) >= {lower.mu:.6g} (re-checked first-return "
@@ -660,7 +659,6 @@ def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
     else:
         stable = None
         reason = reason or "the arbitrary-switching LMI found no certificate that passed the re-check"
-    del keys
     cost_hi = None
     if W is not None and stable:
         cost_hi = _arbitrary_cost(loops)

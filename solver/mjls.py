@@ -26,7 +26,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import InvalidInput
 
 EXHAUSTED = ("hold", "zero")
 U = np.finfo(np.float64).eps / 2  # unit roundoff
@@ -208,8 +207,6 @@ def build_loop(F: np.ndarray, G: np.ndarray, K: np.ndarray, transition: np.ndarr
             GK = G[l] @ Kd
             A = np.hstack([F[l], GK])
             A_abs = np.hstack([np.abs(F[l]), (np.abs(G[l]) @ np.abs(Kd)) * (1 + (m + 2) * U * 2)])
-        if dim(d) == 2 * n and A.shape[1] == n:  # exhausted "zero" never has dim 2n
-            raise AssertionError
         return A, A_abs
 
     def next_z(l, d, d_next):
