@@ -61,8 +61,8 @@ def _burst_starts(eff: np.ndarray, N: int) -> np.ndarray:
 
 
 def test_gilbert_elliott_burst_counts_monte_carlo():
-    """2 * 10^6 seeded samples (1000 independent stationary chains): counts of burst starts and of lost
-    samples within 5 standard errors of the exact rates."""
+    """2 * 10^6 seeded samples (1000 independent stationary chains): counts of burst starts, of lost samples and
+    the run-length frequencies within 5 standard errors of the exact values."""
     ch = Channel.gilbert_elliott(0.05, 0.3, loss_good=0.02, loss_bad=0.7)
     chains, steps = 1000, 2000
     states, eff = ch.sample(steps, np.random.default_rng(20240518), size=chains)
@@ -77,6 +77,18 @@ def test_gilbert_elliott_burst_counts_monte_carlo():
     assert abs(lost.mean() - ch.loss_fraction * steps) < 5 * lost.std(ddof=1) / np.sqrt(chains)
     bad = (states == 1).sum(axis=1)
     assert abs(bad.mean() - ch.stationary[1] * steps) < 5 * bad.std(ddof=1) / np.sqrt(chains)
+    # Run lengths: every complete run of lost samples (effective before and after it).
+    lengths = []
+    for row in ~eff:
+        edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        keep = (starts > 0) & (ends < steps)
+        lengths.append(ends[keep] - starts[keep])
+    lengths = np.concatenate(lengths)
+    pmf = ch.burst_statistics(1, max_length=5).run_length_pmf
+    for ell in range(1, 6):
+        freq = np.mean(lengths == ell)
+        assert abs(freq - pmf[ell - 1]) < 5 * np.sqrt(pmf[ell - 1] * (1 - pmf[ell - 1]) / lengths.size), ell
 
 
 def test_smallest_n_drop_once_a_year_at_10ms():
@@ -90,6 +102,14 @@ def test_smallest_n_drop_once_a_year_at_10ms():
     N = ge.smallest_n_drop(1 / year, sampling_period=0.01)
     assert ge.burst_rate(N) <= 0.01 / year < ge.burst_rate(N - 1)
     assert Channel.gilbert_elliott(0.1, 0.1, 0.0, 1.0).smallest_n_drop(0.0, max_n_drop=50) is None
+
+
+def test_channel_json_round_trip():
+    ge = Channel.combine(Channel.gilbert_elliott(0.1, 0.2, 0.05, 0.9), Channel.bernoulli(0.1))
+    back = Channel.from_dict(json.loads(json.dumps(ge.to_dict())))
+    np.testing.assert_array_equal(back.transition, ge.transition)
+    np.testing.assert_array_equal(back.loss, ge.loss)
+    assert back.state_names == ge.state_names and back.burst_rate(3) == ge.burst_rate(3)
 
 
 def test_combined_links_are_one_bernoulli_chain():
