@@ -91,7 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "mean-square stability, expected cost (in-process)")
     ch.add_argument("plant", metavar="PLANT", help="plant file (as for design)")
     ch.add_argument("--sampling-period", type=float, default=None, metavar="H")
-    gains_args(ch)
+    ch.add_argument("--gains", default=None, metavar="FILE",
+                    help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
+    ch.add_argument("--n-drop", type=int, default=None, help="buffer length (default: the number of gains)")
     link = ch.add_mutually_exclusive_group(required=True)
     link.add_argument("--loss", type=float, default=None, metavar="P", help="Bernoulli loss probability per sample")
     link.add_argument("--gilbert-elliott", default=None, metavar="P_GB,P_BG,LOSS_GOOD,LOSS_BAD",
@@ -102,6 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     ch.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
                     help="input once the buffer runs dry (default hold)")
     ch.add_argument("--no-cost", action="store_true", help="skip the expected cost (weights Q = I, R = I)")
+    ch.add_argument("--design", action="store_true",
+                    help="design gains for this channel instead (--gains is then optional; n_drop from --n-drop or "
+                         "the gains file): minimal expected-cost bound, verdict by the analysis")
     ch.add_argument("--target-per-hour", type=float, default=None, metavar="RATE",
                     help="also print the smallest n_drop with at most RATE bursts per hour")
     ch.add_argument("--plot", default=None, metavar="FILE", help="violation rate vs n_drop and cost vs loss: .png/.svg")

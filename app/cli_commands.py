@@ -266,11 +266,23 @@ def cmd_channel(args) -> int:
     if args.plot and Path(args.plot).suffix.lower() not in (".png", ".svg"):
         raise UsageError(f"--plot must end in .png or .svg, got {args.plot!r}")
     fam = load_plant(args.plant, args.sampling_period)
-    gains = load_gains(args.gains)
+    if args.gains is None and not (args.design and args.n_drop):
+        raise UsageError("give --gains FILE (or --design with --n-drop N)")
+    gains = None if args.gains is None else load_gains(args.gains)
     n_drop = args.n_drop or len(gains)
     channel = _channel_from_args(args)
     weights = None if args.no_cost else (np.eye(fam.n_states), np.eye(fam.n_inputs))
     print(plant_summary(fam))
+    if args.design:
+        from solver.channel import design_channel
+
+        res = design_channel(fam, n_drop, channel, exhausted=args.exhausted, weights=weights)
+        print(f"channel design, n_drop = {n_drop}: {res.outcome} ({res.message})")
+        if res.gains is None:
+            return EXIT_NO
+        gains = res.gains
+        for q, K in enumerate(gains, start=1):
+            print(f"K_{q} = {_fmt_matrix(K)}")
     rep = analyze_channel(fam, gains, n_drop, channel, exhausted=args.exhausted, weights=weights)
     h = fam.sampling_period
     per = f"{rep.burst_rate / h * 3600:.4g} per hour" if h else f"{rep.burst_rate:.4g} per sample"
@@ -288,7 +300,10 @@ def cmd_channel(args) -> int:
         best = channel.smallest_n_drop(args.target_per_hour / 3600.0, sampling_period=h, max_n_drop=1000)
         print(f"smallest n_drop with <= {args.target_per_hour:g} bursts per hour: {best}")
     if args.output:
-        Path(args.output).write_text(json.dumps(jsonable(rep.to_dict())) + "\n")
+        out = jsonable(rep.to_dict())
+        if args.design:
+            out = {"gains": jsonable(np.asarray(gains).tolist()), "n_drop": n_drop, "analysis": out}
+        Path(args.output).write_text(json.dumps(out) + "\n")
         print(f"wrote {args.output}")
     if args.plot:
         from solver.plotting import channel_figure, render

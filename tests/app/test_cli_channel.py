@@ -27,3 +27,17 @@ def test_channel_command_reports_bursts_stability_and_cost(tmp_path):
     assert bad.returncode == 2 and "four numbers" in bad.stderr
     bad = ncs("channel", "plant.json", "--gains", "gains.json", "--loss", "1.5", cwd=tmp_path)
     assert bad.returncode == 2 and "(loss)" in bad.stderr
+
+
+def test_channel_command_designs_for_the_channel(tmp_path):
+    (tmp_path / "plant.json").write_text(json.dumps(
+        {"kind": "dc_motor", "inertias": [0.03, 0.05], "sampling_period": 0.1}))
+    out = ncs("channel", "plant.json", "--design", "--n-drop", "3", "--loss", "0.3", "--exhausted", "zero",
+              "--output", "d.json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "channel design, n_drop = 3: stabilized" in out.stdout and "K_3 = " in out.stdout
+    data = json.loads((tmp_path / "d.json").read_text())
+    fam = PlantFamily.dc_motor([0.03, 0.05], 0.1)
+    ref = analyze_channel(fam, data["gains"], 3, Channel.bernoulli(0.3), exhausted="zero")
+    assert data["analysis"]["ms_stable"] is True and ref.ms_stable is True
+    assert ncs("channel", "plant.json", "--loss", "0.3", cwd=tmp_path).returncode == 2
