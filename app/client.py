@@ -258,6 +258,14 @@ class AnalysisResult:
                    raw=data)
 
 
+def _channel_json(channel) -> dict:
+    """A channel as request JSON: a :class:`solver.channel.Channel` becomes its ``markov`` form."""
+    if hasattr(channel, "transition") and hasattr(channel, "loss"):
+        return {"kind": "markov", "transition": np.asarray(channel.transition).tolist(),
+                "loss": np.asarray(channel.loss).tolist()}
+    return channel
+
+
 @dataclass
 class ChannelAnalysisResult:
     """Given gains on a stochastic channel (``ChannelAnalysis`` in ``/openapi.json``).
@@ -582,9 +590,7 @@ class Client:
         ``options``: ``exhausted``, ``plant_transitions``, ``weights`` (``{"Q": ..., "R": ...}`` or a pair),
         ``noise``.
         """
-        if hasattr(channel, "transition") and hasattr(channel, "loss"):
-            channel = {"kind": "markov", "transition": np.asarray(channel.transition).tolist(),
-                       "loss": np.asarray(channel.loss).tolist()}
+        channel = _channel_json(channel)
         weights = options.get("weights")
         if isinstance(weights, (tuple, list)):
             options["weights"] = {"Q": np.asarray(weights[0], dtype=float).tolist(),
@@ -602,8 +608,13 @@ class Client:
                  sampling_period: float | None = None, **options) -> SimulationResult:
         """A seeded simulation of given gains (``POST /v1/simulations``).
 
-        ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``.
+        ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``; or
+        ``channel`` (a :class:`solver.channel.Channel` or its JSON), ``exhausted``, ``plant_transitions``.
         """
+        if options.get("channel") is not None:
+            options["channel"] = _channel_json(options["channel"])
+        if isinstance(options.get("plant_transitions"), np.ndarray):
+            options["plant_transitions"] = options["plant_transitions"].tolist()
         body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains),
                 "x0": [float(v) for v in x0], "steps": steps, "seed": seed, **options}
         if n_drop is not None:

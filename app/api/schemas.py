@@ -269,9 +269,12 @@ class Simulation(_Open):
     interval_start: list[int] = Field(description="The effective samples i_m.")
     eta: list[int] = Field(description="`i_{m+1} - i_m` of every completed interval (samples).")
     seed: int | None = Field(None, description="Seed of the packet losses and plant jumps.")
-    loss_model: str | None = Field(None, description="`paper` or `bernoulli`.")
-    plant_switching: str | None = Field(None, description="`per_interval`, `per_sample` or `none`.")
+    loss_model: str | None = Field(None, description="`paper`, `bernoulli` or `channel`.")
+    plant_switching: str | None = Field(None, description="`per_interval`, `per_sample` or `none` (on a "
+                                                         "channel: `stay` or `markov`).")
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
+    channel_state: list[int] | None = Field(None, description="Channel state (0-based) at each sample, steps "
+                                                              "values (runs on a channel only).")
 
 
 class ModeRun(Simulation):

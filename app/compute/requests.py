@@ -181,41 +181,6 @@ class DesignRequest(_Strict):
 _single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
 
 
-class SimulationRequest(_Strict):
-    plant: Plant
-    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
-    _single = field_validator("gains", mode="before")(_single_gains)
-    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
-    x0: Vector = Field(description="Initial state (length n).")
-    steps: Int = Field(100, ge=1, description="Samples to simulate.")
-    seed: Int = Field(42, ge=0, description="Seed of the losses and plant jumps: same seed, same run.")
-    loss_model: Literal["paper", "bernoulli"] = Field("paper", description="`paper`: the paper's loss process; "
-                                                      "`bernoulli`: independent losses.")
-    sensor_loss: Number = Field(0.2, ge=0, lt=1, description="Sensor packet loss probability per sample.")
-    control_loss: Number = Field(0.2, ge=0, lt=1, description="Control packet loss probability per sample.")
-    plant_switching: Literal["per_interval", "per_sample", "none"] = Field(
-        "per_interval", description="When the plant mode may jump (`none`: fixed `mode`).")
-    mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
-
-
-class AnalysisRequest(_Strict):
-    plant: Plant
-    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
-    _single = field_validator("gains", mode="before")(_single_gains)
-    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
-    max_product_length: Int | None = Field(
-        None, ge=1, le=8, description="Longest mode product searched for a destabilizing pattern "
-        "(default 4; the number of products per length is capped by NCS_MAX_ANALYSIS_PRODUCTS)."
-    )
-    plant_switching: Literal["per_interval", "per_sample"] = Field(
-        "per_interval", description="Plant mode constant over an interval (the paper), or free to jump per sample."
-    )
-    bounds: Literal["quadratic", "all", "none"] = Field(
-        "quadratic", description="Joint-spectral-radius upper bounds and best certified decay rate to compute: "
-        "from common quadratic certificates, also from switched ones (`all`, slower), or none."
-    )
-
-
 Probability = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=1)]
 
 
@@ -247,6 +212,50 @@ class MarkovChannel(_Strict):
 
 ChannelSpec = Annotated[Union[BernoulliChannel, GilbertElliottChannel, MarkovChannel], Field(
     discriminator="kind", description="The packet channel (Markov chain of loss probabilities).")]
+
+
+class SimulationRequest(_Strict):
+    plant: Plant
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
+    _single = field_validator("gains", mode="before")(_single_gains)
+    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
+    x0: Vector = Field(description="Initial state (length n).")
+    steps: Int = Field(100, ge=1, description="Samples to simulate.")
+    seed: Int = Field(42, ge=0, description="Seed of the losses and plant jumps: same seed, same run.")
+    loss_model: Literal["paper", "bernoulli"] = Field("paper", description="`paper`: the paper's loss process; "
+                                                      "`bernoulli`: independent losses.")
+    sensor_loss: Number = Field(0.2, ge=0, lt=1, description="Sensor packet loss probability per sample.")
+    control_loss: Number = Field(0.2, ge=0, lt=1, description="Control packet loss probability per sample.")
+    plant_switching: Literal["per_interval", "per_sample", "none"] = Field(
+        "per_interval", description="When the plant mode may jump (`none`: fixed `mode`).")
+    mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
+    channel: ChannelSpec | None = Field(
+        None, description="Draw losses from this Markov channel instead (its state at 0 from the stationary "
+        "distribution, sample 0 effective, runs past the bound included); loss_model, sensor_loss, control_loss "
+        "and plant_switching are then not used.")
+    exhausted: Literal["hold", "zero"] = Field(
+        "hold", description="With a channel: the input once n_drop samples passed without an effective packet.")
+    plant_transitions: Matrix | None = Field(
+        None, description="With a channel: per-sample Markov chain of the plant mode (r x r); null keeps the "
+        "initial mode (`mode`, or drawn uniformly).")
+
+
+class AnalysisRequest(_Strict):
+    plant: Plant
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
+    _single = field_validator("gains", mode="before")(_single_gains)
+    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
+    max_product_length: Int | None = Field(
+        None, ge=1, le=8, description="Longest mode product searched for a destabilizing pattern "
+        "(default 4; the number of products per length is capped by NCS_MAX_ANALYSIS_PRODUCTS)."
+    )
+    plant_switching: Literal["per_interval", "per_sample"] = Field(
+        "per_interval", description="Plant mode constant over an interval (the paper), or free to jump per sample."
+    )
+    bounds: Literal["quadratic", "all", "none"] = Field(
+        "quadratic", description="Joint-spectral-radius upper bounds and best certified decay rate to compute: "
+        "from common quadratic certificates, also from switched ones (`all`, slower), or none."
+    )
 
 
 class CostWeights(_Strict):

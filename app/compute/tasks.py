@@ -191,11 +191,21 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
     fam = build_family(req["plant"])
     gains = _gains_array(req["gains"])
     n_drop = req.get("n_drop") or gains.shape[0]
+    extra = {}
+    if req.get("channel") is not None:
+        from solver import InvalidInput
+        from solver.channel import Channel
+
+        try:
+            extra["channel"] = Channel.from_dict(req["channel"])
+        except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
+            raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+        extra.update(exhausted=req.get("exhausted", "hold"), plant_transitions=req.get("plant_transitions"))
     tr = simulate(
         fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
         loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
         control_loss=req["control_loss"], plant_switching=req["plant_switching"],
-        mode=req.get("mode"),
+        mode=req.get("mode"), **extra,
     )
     return jsonable(tr.to_dict())
 

@@ -59,3 +59,25 @@ def test_client_returns_typed_results(http):
     ref = analyze_channel(fam, np.array(PAPER_GAINS_H01), 3, Channel.bernoulli(0.3), weights=(np.eye(2), np.eye(1)))
     assert res.ms_stable is True and res.expected_cost == pytest.approx(ref.expected_cost, rel=1e-9)
     assert res.burst_rate == pytest.approx(0.7 * 0.3**3, rel=1e-12)
+    run = client.simulate(fam, PAPER_GAINS_H01, [1.0, 0.0], steps=50, seed=3, channel=Channel.bernoulli(0.5),
+                          exhausted="zero")
+    assert run.raw["loss_model"] == "channel" and run.state.shape == (51, 2)
+
+
+def test_simulation_on_a_channel_is_the_library_run(http):
+    body = {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01, "x0": [-3.0, 2.0], "steps": 200, "seed": 5,
+            "channel": {"kind": "gilbert_elliott", "p_gb": 0.2, "p_bg": 0.2, "loss_good": 0.1, "loss_bad": 0.9},
+            "exhausted": "zero", "plant_transitions": [[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]]}
+    resp = http.post("/v1/simulations", json=body)
+    assert resp.status_code == 200, resp.text
+    data = resp.json()
+    from solver import simulate
+
+    ref = simulate(PlantFamily.from_dict(PAPER_PLANT), np.array(PAPER_GAINS_H01), 3, [-3.0, 2.0], 200, 5,
+                   channel=Channel.gilbert_elliott(0.2, 0.2, 0.1, 0.9), exhausted="zero",
+                   plant_transitions=body["plant_transitions"])
+    assert data["loss_model"] == "channel" and max(data["buffer_index"]) > 3
+    assert data["channel_state"] == ref.channel_state.tolist()
+    np.testing.assert_allclose(data["x"], ref.state, rtol=1e-12)
+    bad = {**body, "channel": {"kind": "markov", "transition": [[0.5, 0.4], [0.5, 0.5]], "loss": [0, 1]}}
+    assert_problem(http.post("/v1/simulations", json=bad), 422, "/channel/transition")
