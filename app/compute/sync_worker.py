@@ -10,8 +10,9 @@ from app.compute.process import apply_memory_limit, die_with_parent, limit_blas_
 
 log = logging.getLogger("app.compute.sync_worker")
 
-SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "channel": "run_channel", "trace": "run_trace",
-              "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot", "gains_file": "run_gains_file"}
+SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
+              "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot", "gains_file": "run_gains_file",
+              "channel": "run_channel"}
 
 _memory_mb = 0  # this process's cap (NCS_WORKER_MEMORY_MB), named in an over-cap answer
 
