@@ -526,7 +526,7 @@ def _loop_inputs(family, gains, n_drop, channel, exhausted):
 
 def _verdicts(loop, want_lower: bool = True):
     """Radius estimate, proven bounds and the verdict for one Markov loop."""
-    from .mjls import certify_lower, certify_upper, radius_estimate
+    from .mjls import certify_cycle, certify_lower, certify_upper, radius_estimate
 
     rho, perron = radius_estimate(loop)
     upper = lower = None
@@ -541,6 +541,10 @@ def _verdicts(loop, want_lower: bool = True):
         lower = certify_lower(loop, 1.0, perron)
         if lower is not None and rho > 1 + 1e-6:
             lower = certify_lower(loop, rho * (1 - 1e-6), perron) or lower
+        if lower is None:
+            # Growth along a direction every mode keeps exactly (e.g. an open-loop mode with stable parts):
+            # a cycle of modes whose probability times its radius squared is proven >= 1 in exact arithmetic.
+            lower = certify_cycle(loop)
     if want_lower and lower is None and np.isfinite(rho) and rho > 0:
         for f in (1e-6, 1e-2):
             mu = rho * (1 - f)
@@ -551,7 +555,8 @@ def _verdicts(loop, want_lower: bool = True):
     if upper is not None and upper.beta < 1:
         stable, reason = True, f"rho(L) <= {upper.beta:.6g} < 1 by a re-checked coupled Lyapunov certificate"
     elif lower is not None and lower.mu >= 1:
-        stable, reason = False, f"rho(L) >= {lower.mu:.6g} by a re-checked first-return growth certificate"
+        what = "an exact cycle" if lower.kind == "cycle" else "a re-checked first-return growth"
+        stable, reason = False, f"rho(L) >= {lower.mu:.6g} by {what} certificate"
     else:
         stable = None
         reason = (f"spectral radius estimate {rho:.12g}: neither a stability nor an instability certificate "

@@ -21,6 +21,7 @@ bounds on the rounding of every operator application:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from fractions import Fraction
 
 import numpy as np
 import scipy.sparse as sp
@@ -80,6 +81,8 @@ class Loop:
     stage: list | None = None
     stage_err: np.ndarray | None = None
     embed: list = field(default_factory=list)
+    #: The float64 data the loop was built from (for exact re-computation of transition matrices).
+    source: dict = field(default_factory=dict, repr=False)
     _stacked: tuple | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ sizes
@@ -121,23 +124,30 @@ class Loop:
             src = np.array([t.src for t in self.transitions])
             dst = np.array([t.dst for t in self.transitions])
             p = np.array([t.p for t in self.transitions])
-            self._stacked = (D, A, A_abs, src, dst, p)
+
+            def grouping(key):  # sums over transitions sharing a mode, by reduceat (np.add.at is slow)
+                order = np.argsort(key, kind="stable")
+                targets, starts = np.unique(key[order], return_index=True)
+                return order, targets, starts
+
+            self._stacked = (D, A, A_abs, src, dst, p, grouping(dst), grouping(src))
         return self._stacked
 
     def apply(self, X: list, adjoint: bool = False, absolute: bool = False) -> list:
         """``L(X)`` (or ``L*(X)``); ``absolute``: the same with ``|A|`` bounds and ``|X|``."""
-        D, A, A_abs, src, dst, p = self._stacks()
+        D, A, A_abs, src, dst, p, by_dst, by_src = self._stacks()
         Mat = A_abs if absolute else A
         S = np.zeros((len(self.modes), D, D))
         for i, x in enumerate(X):
             S[i, :x.shape[0], :x.shape[1]] = np.abs(x) if absolute else x
         Y = np.zeros_like(S)
         if adjoint:
-            terms = np.swapaxes(Mat, 1, 2) @ S[dst] @ Mat
-            np.add.at(Y, src, p[:, None, None] * terms)
+            terms = p[:, None, None] * (np.swapaxes(Mat, 1, 2) @ S[dst] @ Mat)
+            order, targets, starts = by_src
         else:
-            terms = Mat @ S[src] @ np.swapaxes(Mat, 1, 2)
-            np.add.at(Y, dst, p[:, None, None] * terms)
+            terms = p[:, None, None] * (Mat @ S[src] @ np.swapaxes(Mat, 1, 2))
+            order, targets, starts = by_dst
+        Y[targets] = np.add.reduceat(terms[order], starts, axis=0)
         return [Y[i, :d, :d] for i, d in enumerate(self.dims)]
 
     def apply_bounded(self, X: list, adjoint: bool = False) -> tuple[list, np.ndarray]:
@@ -261,6 +271,7 @@ def build_loop(F: np.ndarray, G: np.ndarray, K: np.ndarray, transition: np.ndarr
         if d == 0:
             initial[i] = stationary[ci] * w0[l]
     loop = Loop(modes=modes, dims=dims, transitions=transitions, initial=initial, n=n, gamma=gamma)
+    loop.source = dict(F=F, G=G, K=K, transition=transition, loss=loss, plant_transitions=Pi, exhausted=exhausted)
     loop.embed = [np.eye(n) if dims[i] == n else np.vstack([np.eye(n), np.zeros((n, n))])
                   for i in range(len(modes))]
     if weights is not None:
@@ -336,6 +347,7 @@ class LowerCertificate:
     steps: int
     slack: float
     verified: bool
+    kind: str = "first_return_growth"
 
     def to_dict(self) -> dict:
         return {"kind": "first_return_growth", "mu": self.mu, "verified": self.verified, "steps": self.steps,
@@ -389,7 +401,7 @@ def _psd_part(M: np.ndarray, rel: float = 1e-9) -> np.ndarray:
     return Q + eps * np.eye(M.shape[0])
 
 
-def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: int = 4000,
+def certify_lower(loop: Loop, mu: float, perron: np.ndarray | None, max_steps: int = 1500,
                   thorough: bool = True) -> LowerCertificate | None:
     """Prove ``rho(L) >= mu`` by a first-return growth certificate (module docstring).
 
@@ -495,7 +507,7 @@ def _first_return_entrywise(loop: Loop, mu: float, blocks: list, sel: np.ndarray
                     return LowerCertificate(mu=float(mu), Q0=Q0, steps=step, slack=float(worst), verified=True)
                 if worst > best + 1e-12 * abs(best):
                     best, best_step = worst, step
-                elif step - best_step > 500:
+                elif step - best_step > 200:
                     return None  # the margin stopped improving
                 remaining = sum(float(np.abs(y).sum()) for y in Y)
                 total = sum(float(np.abs(c).sum()) for c in collected.values())
@@ -542,11 +554,134 @@ def _first_return(loop: Loop, mu: float, Q0: list, sel: np.ndarray, max_steps: i
                     return LowerCertificate(mu=float(mu), Q0=Q0, steps=step, slack=float(worst), verified=True)
                 if worst > best + 1e-12 * abs(best):
                     best, best_step = worst, step
-                elif step - best_step > 500:
+                elif step - best_step > 200:
                     return None  # the margin stopped improving
                 remaining = sum(float(np.linalg.norm(y)) for y in Y)
                 if not np.isfinite(remaining) or remaining < 1e-14 * max(1.0, total):
                     return None  # nothing left to return
+    return None
+
+
+@dataclass
+class CycleCertificate:
+    """A cycle of modes ``i_0 -> ... -> i_k = i_0`` of probability q and product M with ``q rho(M)^2 >= mu^k``.
+
+    ``L^k >= (Q -> q M Q M')`` on block ``i_0`` (one path of the expansion; the rest is PSD), so
+    ``rho(L)^k >= q rho(M)^2``.  ``q`` is the exact product of the data's probabilities and ``rho(M) >= r``
+    is decided in exact arithmetic (:func:`solver.exact.radius_at_least`).
+    """
+
+    mu: float
+    cycle: list
+    probability: float
+    radius_bound: float
+    verified: bool = True
+    kind: str = "cycle"
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "mu": self.mu, "verified": self.verified, "probability": self.probability,
+                "radius_bound": self.radius_bound,
+                "cycle": [{"channel_state": c, "plant_mode": l, "age": d} for c, l, d in self.cycle]}
+
+
+def _exact_transition(loop: Loop, t: Transition):
+    """The transition's matrix computed exactly from the float64 data (``solver.exact`` tuples)."""
+    from . import exact as ex
+
+    src = loop.source
+    F, G, K, zero = src["F"], src["G"], src["K"], src["exhausted"] == "zero"
+    n, N = loop.n, K.shape[0]
+    _, l, d = loop.modes[t.src]
+    Fe = ex.exact(F[l])
+    if d == 0:
+        X = ex.add(Fe, ex.matmul(ex.exact(G[l]), ex.exact(K[0])))
+    elif loop.dims[t.src] == n:  # exhausted, zero input
+        X = Fe
+    else:
+        q = d if d < N else N - 1
+        GK = ex.matmul(ex.exact(G[l]), ex.exact(K[q]))
+        A, B, sc = ex._align(Fe, GK)
+        X = (np.hstack([A, B]), sc)
+    if loop.dims[t.dst] == n:
+        return X
+    zero_blk = np.zeros((n, n), dtype=object) * 0
+    eye = ex.identity(n)[0]
+    keep = eye if d == 0 else np.hstack([zero_blk, eye])
+    Xm, Km, sc = ex._align(X, (keep, 0))
+    return np.vstack([Xm, Km]), sc
+
+
+def _exact_probability(loop: Loop, t: Transition) -> Fraction:
+    src = loop.source
+    c, l, d = loop.modes[t.src]
+    c2, l2, d2 = loop.modes[t.dst]
+    lost = Fraction(float(src["loss"][c2]))
+    pe = (1 - lost) if d2 == 0 else lost
+    return Fraction(float(src["transition"][c, c2])) * Fraction(float(src["plant_transitions"][l, l2])) * pe
+
+
+def certify_cycle(loop: Loop, max_length: int = 3, max_cycles: int = 20000, tries: int = 8) -> CycleCertificate | None:
+    """Search short cycles of modes for ``q rho(M)^2 > 1`` (float64), then prove the best ones exactly."""
+    from . import exact as ex
+
+    if not loop.source:
+        return None
+    out = {}
+    for k, t in enumerate(loop.transitions):
+        out.setdefault(t.src, []).append(k)
+    found = []
+    count = 0
+
+    def walk(start, path, M, q):
+        nonlocal count
+        here = loop.transitions[path[-1]].dst if path else start
+        for k in out.get(here, []):
+            t = loop.transitions[k]
+            count += 1
+            if count > max_cycles:
+                return
+            M2 = t.A @ M
+            q2 = q * t.p
+            if t.dst == start:
+                with np.errstate(all="ignore"):
+                    rho = float(np.max(np.abs(np.linalg.eigvals(M2)))) if M2.shape[0] == M2.shape[1] else 0.0
+                if np.isfinite(rho) and q2 * rho**2 > 1:
+                    L = len(path) + 1
+                    found.append(((q2 * rho**2) ** (1.0 / L), start, path + [k]))
+            elif len(path) + 1 < max_length and t.dst > start:  # each cycle once: start at its smallest mode
+                walk(start, path + [k], M2, q2)
+
+    for i in range(len(loop.modes)):
+        walk(i, [], np.eye(loop.dims[i]), 1.0)
+        if count > max_cycles:
+            break
+    found.sort(key=lambda f: -f[0])
+    for _, start, ks in found[:tries]:
+        trans = [loop.transitions[k] for k in ks]
+        q = Fraction(1)
+        for t in trans:
+            q *= _exact_probability(loop, t)
+        if q == 0:
+            continue
+        M = ex.product([_exact_transition(loop, t) for t in trans])
+        # r >= 1/sqrt(q), rational: then q r^2 >= 1; first try r just below the float radius (a tighter mu)
+        den = 1 << 52
+        r = Fraction(int(np.ceil(den / np.sqrt(float(q)) * (1 + 1e-12))) + 1, den)
+        while q * r * r < 1:
+            r += Fraction(1, den)
+        with np.errstate(all="ignore"):
+            Mf = np.linalg.multi_dot([t.A for t in reversed(trans)]) if len(trans) > 1 else trans[0].A
+            rho_f = float(np.max(np.abs(np.linalg.eigvals(Mf))))
+        tight = Fraction(int(den * rho_f * (1 - 1e-9)), den)
+        if tight > r and ex.radius_at_least(M, tight):
+            r = tight
+        if r == tight or ex.radius_at_least(M, r):
+            L = len(trans)
+            # q r^2 >= 1 exactly; its float root rounded down, but never below the proven 1
+            mu = max(float(q * r * r) ** (1.0 / L) * (1 - 1e-15), 1.0)
+            return CycleCertificate(mu=mu,
+                                    cycle=[loop.modes[t.src] for t in trans], probability=float(q),
+                                    radius_bound=float(r))
     return None
 
 

@@ -372,3 +372,19 @@ def test_simulate_on_a_channel_has_the_analyzed_expected_cost():
             costs.append(float(np.sum(tr.state[:-1] ** 2) + np.sum(tr.input**2)))
         se = np.std(costs, ddof=1) / np.sqrt(len(costs))
         assert abs(np.mean(costs) - rep.expected_cost) < 4 * se, (exhausted, np.mean(costs), rep.expected_cost, se)
+
+
+def test_open_loop_growth_with_a_stable_direction_is_proven():
+    """No input (K = 0), F = [[1.1, 0.3], [0.2, 0.6]] (eigenvalues 1.2 and 0.5): the second moment grows like
+    1.2^2 = 1.44 per sample along the unstable eigenvector while the direction of the stable left eigenvector
+    shrinks in every mode, so no positive definite moment can grow in every direction (and float64 cannot keep the
+    rank-one growth exact); the verdict comes from an exact cycle (probability times radius squared >= 1, decided
+    in integer arithmetic)."""
+    fam = PlantFamily(F=[[[1.1, 0.3], [0.2, 0.6]]], G=[[[0.0], [1.0]]])
+    for exhausted in ("hold", "zero"):
+        rep = analyze_channel(fam, np.zeros((2, 1, 2)), 2, Channel.bernoulli(0.3), exhausted=exhausted)
+        assert rep.ms_radius == pytest.approx(1.44, rel=1e-9)
+        assert rep.ms_stable is False and rep.lower_certificate.verified
+        assert rep.lower_certificate.kind == "cycle"
+        assert 1.0 <= rep.ms_radius_lower <= 1.44
+        json.dumps(rep.to_dict())
