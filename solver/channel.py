@@ -537,9 +537,9 @@ def _verdicts(loop, want_lower: bool = True):
             if cert is not None and cert.verified:
                 upper = cert
                 break
-    if np.isfinite(rho) and rho >= 1:
+    if rho >= 1:  # also inf (the operator overflows float64); NaN: no estimate
         lower = certify_lower(loop, 1.0, perron)
-        if lower is not None and rho > 1 + 1e-6:
+        if lower is not None and np.isfinite(rho) and rho > 1 + 1e-6:
             lower = certify_lower(loop, rho * (1 - 1e-6), perron) or lower
         if lower is None:
             # Growth along a direction every mode keeps exactly (e.g. an open-loop mode with stable parts):

@@ -20,6 +20,7 @@ bounds on the rounding of every operator application:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from fractions import Fraction
 
@@ -304,13 +305,19 @@ def radius_estimate(loop: Loop) -> tuple[float, np.ndarray | None]:
     if loop.size > SMALL:
         # ARPACK: sparse products only (dense LAPACK eig is slow when BLAS threads compete for cores).
         try:
-            w, V = spla.eigs(M, k=min(6, loop.size - 2), which="LM", maxiter=50000, tol=1e-13)
-        except spla.ArpackNoConvergence:
+            with np.errstate(all="ignore"):
+                w, V = spla.eigs(M, k=min(6, loop.size - 2), which="LM", maxiter=50000, tol=1e-13)
+        except (spla.ArpackNoConvergence, spla.ArpackError, ValueError):
+            w = None
+        if w is not None and not np.all(np.isfinite(w)):
             w = None
     if w is None:
         if loop.size > DENSE_LIMIT:
             return float("nan"), None
-        w, V = np.linalg.eig(M.toarray())
+        dense = M.toarray()
+        if not np.all(np.isfinite(dense)):
+            return float("inf"), None
+        w, V = np.linalg.eig(dense)
     rho = float(np.max(np.abs(w)))
     if rho == 0:
         return 0.0, None
@@ -644,10 +651,12 @@ def certify_cycle(loop: Loop, max_length: int = 3, max_cycles: int = 20000, trie
             q2 = q * t.p
             if t.dst == start:
                 with np.errstate(all="ignore"):
-                    rho = float(np.max(np.abs(np.linalg.eigvals(M2)))) if M2.shape[0] == M2.shape[1] else 0.0
-                if np.isfinite(rho) and q2 * rho**2 > 1:
+                    rho = (float(np.max(np.abs(np.linalg.eigvals(M2)))) if np.all(np.isfinite(M2))
+                           else float("nan"))
+                score = q2 * rho * rho  # inf, not an OverflowError, for huge radii
+                if np.isfinite(rho) and score > 1:
                     L = len(path) + 1
-                    found.append(((q2 * rho**2) ** (1.0 / L), start, path + [k]))
+                    found.append((np.exp(np.log(score) / L) if np.isfinite(score) else np.inf, start, path + [k]))
             elif len(path) + 1 < max_length and t.dst > start:  # each cycle once: start at its smallest mode
                 walk(start, path + [k], M2, q2)
 
@@ -666,19 +675,22 @@ def certify_cycle(loop: Loop, max_length: int = 3, max_cycles: int = 20000, trie
         M = ex.product([_exact_transition(loop, t) for t in trans])
         # r >= 1/sqrt(q), rational: then q r^2 >= 1; first try r just below the float radius (a tighter mu)
         den = 1 << 52
-        r = Fraction(int(np.ceil(den / np.sqrt(float(q)) * (1 + 1e-12))) + 1, den)
+        r = Fraction(int(np.ceil(den / math.sqrt(float(q)) * (1 + 1e-12))) + 1, den) if float(q) > 0 else None
+        if r is None:
+            continue
         while q * r * r < 1:
             r += Fraction(1, den)
         with np.errstate(all="ignore"):
             Mf = np.linalg.multi_dot([t.A for t in reversed(trans)]) if len(trans) > 1 else trans[0].A
-            rho_f = float(np.max(np.abs(np.linalg.eigvals(Mf))))
-        tight = Fraction(int(den * rho_f * (1 - 1e-9)), den)
+            rho_f = float(np.max(np.abs(np.linalg.eigvals(Mf)))) if np.all(np.isfinite(Mf)) else float("nan")
+        tight = Fraction(int(den * rho_f * (1 - 1e-9)), den) if np.isfinite(rho_f) and rho_f < 1e300 else r
         if tight > r and ex.radius_at_least(M, tight):
             r = tight
         if r == tight or ex.radius_at_least(M, r):
             L = len(trans)
             # q r^2 >= 1 exactly; its float root rounded down, but never below the proven 1
-            mu = max(float(q * r * r) ** (1.0 / L) * (1 - 1e-15), 1.0)
+            qr2 = q * r * r
+            mu = max(math.exp((math.log(qr2.numerator) - math.log(qr2.denominator)) / L) * (1 - 1e-12), 1.0)
             return CycleCertificate(mu=mu,
                                     cycle=[loop.modes[t.src] for t in trans], probability=float(q),
                                     radius_bound=float(r))

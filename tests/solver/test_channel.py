@@ -388,3 +388,31 @@ def test_open_loop_growth_with_a_stable_direction_is_proven():
         assert rep.lower_certificate.kind == "cycle"
         assert 1.0 <= rep.ms_radius_lower <= 1.44
         json.dumps(rep.to_dict())
+
+
+def test_random_loops_never_crash_and_proofs_never_contradict():
+    """Seeded random loops (open loop, huge entries, certain losses, periodic channels, every plant chain kind):
+    bad input is InvalidInput, every report is JSON, and a proven lower bound never exceeds a proven upper bound."""
+    import warnings
+
+    rng = np.random.default_rng(12)
+    channels = [Channel.bernoulli(0.0), Channel.bernoulli(0.7), Channel.bernoulli(1.0),
+                Channel.gilbert_elliott(0.3, 0.2, 0.0, 1.0), Channel([[0, 1], [1, 0]], [1.0, 0.0])]
+    verdicts = set()
+    for t in range(40):
+        n, m, r, N = (int(v) for v in (rng.integers(1, 4), rng.integers(1, 3), rng.integers(1, 3), rng.integers(1, 4)))
+        scale = 10.0 ** int(rng.integers(-3, 120)) if t % 9 == 0 else 1.0
+        fam = PlantFamily(F=rng.standard_normal((r, n, n)) * scale, G=rng.standard_normal((r, n, m)))
+        K = rng.standard_normal((N, m, n)) * (0.0 if t % 4 == 1 else 0.5)
+        plants = [None, "arbitrary", [[1.0 / r] * r] * r][t % 3]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rep = analyze_channel(fam, K, N, channels[t % 5], exhausted=("hold", "zero")[t % 2],
+                                  weights=(np.eye(n), np.eye(m)), plant_transitions=plants)
+        json.dumps(rep.to_dict())
+        verdicts.add(rep.ms_stable)
+        if rep.ms_radius_lower is not None and rep.ms_radius_upper is not None:
+            assert rep.ms_radius_lower <= rep.ms_radius_upper
+        if rep.ms_stable is True and rep.expected_cost is not None:
+            assert rep.expected_cost_lower <= rep.expected_cost <= rep.expected_cost_upper
+    assert {True, False} <= verdicts
