@@ -17,7 +17,7 @@ import sys
 
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
-TOOL_COMMANDS = ("design", "analyze", "simulate", "codegen", "export-sdpa")
+TOOL_COMMANDS = ("design", "analyze", "simulate", "codegen", "export-sdpa", "channel")
 
 
 def package_version() -> str:
@@ -118,6 +118,31 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
     x.add_argument("--scheme", choices=("predictive", "hold", "zero"), default=None)
     x.add_argument("--output", "-o", default=None, metavar="FILE.dat-s", help="write here (default: stdout)")
+
+    ch = sub.add_parser("channel", help="given gains on a lossy channel: how often the drop bound breaks, "
+                        "mean-square stability, expected cost (in-process)")
+    ch.add_argument("plant", metavar="PLANT", help="plant file (as for design)")
+    ch.add_argument("--sampling-period", type=float, default=None, metavar="H")
+    ch.add_argument("--gains", default=None, metavar="FILE",
+                    help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
+    ch.add_argument("--n-drop", type=int, default=None, help="buffer length (default: the number of gains)")
+    link = ch.add_mutually_exclusive_group(required=True)
+    link.add_argument("--loss", type=float, default=None, metavar="P", help="Bernoulli loss probability per sample")
+    link.add_argument("--gilbert-elliott", default=None, metavar="P_GB,P_BG,LOSS_GOOD,LOSS_BAD",
+                      help="Gilbert-Elliott link: transition and loss probabilities per sample")
+    link.add_argument("--channel", dest="channel_file", default=None, metavar="FILE.json",
+                      help='channel JSON: {"kind": "markov", "transition": [[...]], "loss": [...]} (or bernoulli, '
+                           "gilbert_elliott)")
+    ch.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
+                    help="input once the buffer runs dry (default hold)")
+    ch.add_argument("--no-cost", action="store_true", help="skip the expected cost (weights Q = I, R = I)")
+    ch.add_argument("--design", action="store_true",
+                    help="design gains for this channel instead (--gains is then optional; n_drop from --n-drop or "
+                         "the gains file): minimal expected-cost bound, verdict by the analysis")
+    ch.add_argument("--target-per-hour", type=float, default=None, metavar="RATE",
+                    help="also print the smallest n_drop with at most RATE bursts per hour")
+    ch.add_argument("--plot", default=None, metavar="FILE", help="violation rate vs n_drop and cost vs loss: .png/.svg")
+    ch.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
     return parser
 
 

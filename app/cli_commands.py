@@ -1,4 +1,4 @@
-"""``ncs-design design | analyze | simulate``: the CLI's computing commands (see :mod:`app.cli`).
+"""``ncs-design design | analyze | simulate | channel``: the CLI's computing commands (see :mod:`app.cli`).
 
 In-process they call the solver library directly (no service, no web framework imported); with
 ``--server URL`` they go through :class:`app.client.Client`.  Results print as a short human
@@ -342,8 +342,82 @@ def cmd_export_sdpa(args) -> int:
     return EXIT_OK
 
 
+def _channel_from_args(args):
+    from solver.channel import Channel
+
+    if args.loss is not None:
+        return Channel.bernoulli(args.loss)
+    if args.gilbert_elliott is not None:
+        try:
+            values = [float(v) for v in args.gilbert_elliott.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 4:
+            raise UsageError("--gilbert-elliott needs four numbers P_GB,P_BG,LOSS_GOOD,LOSS_BAD, got "
+                             f"{args.gilbert_elliott!r}")
+        return Channel.gilbert_elliott(*values)
+    return Channel.from_dict(_read_json(Path(args.channel_file)))
+
+
+def cmd_channel(args) -> int:
+    from solver.channel import analyze_channel, loss_sweep
+
+    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".svg"):
+        raise UsageError(f"--plot must end in .png or .svg, got {args.plot!r}")
+    fam = load_plant(args.plant, args.sampling_period)
+    if args.gains is None and not (args.design and args.n_drop):
+        raise UsageError("give --gains FILE (or --design with --n-drop N)")
+    gains = None if args.gains is None else load_gains(args.gains)
+    n_drop = args.n_drop or len(gains)
+    channel = _channel_from_args(args)
+    weights = None if args.no_cost else (np.eye(fam.n_states), np.eye(fam.n_inputs))
+    print(plant_summary(fam))
+    if args.design:
+        from solver.channel import design_channel
+
+        res = design_channel(fam, n_drop, channel, exhausted=args.exhausted, weights=weights)
+        print(f"channel design, n_drop = {n_drop}: {res.outcome} ({res.message})")
+        if res.gains is None:
+            return EXIT_NO
+        gains = res.gains
+        for q, K in enumerate(gains, start=1):
+            print(f"K_{q} = {_fmt_matrix(K)}")
+    rep = analyze_channel(fam, gains, n_drop, channel, exhausted=args.exhausted, weights=weights)
+    h = fam.sampling_period
+    per = f"{rep.burst_rate / h * 3600:.4g} per hour" if h else f"{rep.burst_rate:.4g} per sample"
+    print(f"channel: loss fraction {channel.loss_fraction:.4g}; runs of >= {n_drop} lost samples: {per} "
+          f"(mean time between: {rep.mean_time_between_bursts:.4g} samples)")
+    verdict = {True: "mean-square stable (certified)", False: "NOT mean-square stable (certified)",
+               None: "unknown"}[rep.ms_stable]
+    print(f"exhausted = {args.exhausted}: {verdict}; radius {rep.ms_radius:.6g}: {rep.reason}")
+    if rep.expected_cost is not None:
+        print(f"expected cost (Q = I, R = I, E x0 x0' = I): {rep.expected_cost:.6g} "
+              f"in [{rep.expected_cost_lower:.6g}, {rep.expected_cost_upper:.6g}]")
+    if args.target_per_hour is not None:
+        if not h:
+            raise UsageError("--target-per-hour needs a plant with a sampling period")
+        best = channel.smallest_n_drop(args.target_per_hour / 3600.0, sampling_period=h, max_n_drop=1000)
+        print(f"smallest n_drop with <= {args.target_per_hour:g} bursts per hour: {best}")
+    if args.output:
+        out = jsonable(rep.to_dict())
+        if args.design:
+            out = {"gains": jsonable(np.asarray(gains).tolist()), "n_drop": n_drop, "analysis": out}
+        Path(args.output).write_text(json.dumps(out) + "\n")
+        print(f"wrote {args.output}")
+    if args.plot:
+        from solver.plotting import channel_figure, render
+
+        sweep = None
+        if weights is not None:
+            sweep = loss_sweep(fam, gains, n_drop, np.linspace(0.0, 0.9, 10), weights=weights)
+        fig = channel_figure(channel, range(1, max(2 * n_drop, 8) + 1), h, sweep)
+        Path(args.plot).write_bytes(render(fig, Path(args.plot).suffix[1:].lower()))
+        print(f"wrote {args.plot}")
+    return EXIT_OK if rep.ms_stable is True else EXIT_NO
+
+
 COMMANDS = {"design": cmd_design, "analyze": cmd_analyze, "simulate": cmd_simulate, "codegen": cmd_codegen,
-            "export-sdpa": cmd_export_sdpa}
+            "export-sdpa": cmd_export_sdpa, "channel": cmd_channel}
 
 
 def run_command(args) -> int:

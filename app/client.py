@@ -297,6 +297,47 @@ class AnalysisResult:
                    cost=data.get("cost"), hinf=data.get("hinf"), raw=data)
 
 
+def _channel_json(channel) -> dict:
+    """A channel as request JSON: a :class:`solver.channel.Channel` becomes its ``markov`` form."""
+    if hasattr(channel, "transition") and hasattr(channel, "loss"):
+        return {"kind": "markov", "transition": np.asarray(channel.transition).tolist(),
+                "loss": np.asarray(channel.loss).tolist()}
+    return channel
+
+
+@dataclass
+class ChannelAnalysisResult:
+    """Given gains on a stochastic channel (``ChannelAnalysis`` in ``/openapi.json``).
+
+    Attributes
+    ----------
+    burst_rate : float
+        Probability per sample that a run of >= n_drop lost samples starts.
+    mean_time_between_bursts : float or None
+        Samples (None: never).
+    ms_stable : bool or None
+        Proven / refuted mean-square stability; None: unknown.
+    ms_radius : float or None
+    expected_cost : float or None
+    reason : str
+    raw : dict
+    """
+
+    burst_rate: float
+    mean_time_between_bursts: float | None
+    ms_stable: bool | None
+    ms_radius: float | None
+    expected_cost: float | None
+    reason: str
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "ChannelAnalysisResult":
+        return cls(burst_rate=data["burst_rate"], mean_time_between_bursts=data.get("mean_time_between_bursts"),
+                   ms_stable=data.get("ms_stable"), ms_radius=data.get("ms_radius"),
+                   expected_cost=data.get("expected_cost"), reason=data.get("reason", ""), raw=data)
+
+
 @dataclass
 class SimulationResult:
     """A seeded simulated run; arrays are indexed by sample k.
@@ -588,12 +629,39 @@ class Client:
             body["n_drop"] = n_drop
         return AnalysisResult.from_json(self._request("POST", "/v1/analyses", json=body).json())
 
+    def analyze_channel(self, plant, gains, channel, n_drop: int | None = None, *,
+                        sampling_period: float | None = None, **options) -> ChannelAnalysisResult:
+        """Given gains on a stochastic channel (``POST /v1/channels``).
+
+        ``channel``: a :class:`solver.channel.Channel` or its JSON (``{"kind": "gilbert_elliott", ...}``);
+        ``options``: ``exhausted``, ``plant_transitions``, ``weights`` (``{"Q": ..., "R": ...}`` or a pair),
+        ``noise``.
+        """
+        channel = _channel_json(channel)
+        weights = options.get("weights")
+        if isinstance(weights, (tuple, list)):
+            options["weights"] = {"Q": np.asarray(weights[0], dtype=float).tolist(),
+                                  "R": np.asarray(weights[1], dtype=float).tolist()}
+        for key in ("plant_transitions", "noise"):
+            if isinstance(options.get(key), np.ndarray):
+                options[key] = options[key].tolist()
+        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), "channel": channel,
+                **options}
+        if n_drop is not None:
+            body["n_drop"] = n_drop
+        return ChannelAnalysisResult.from_json(self._request("POST", "/v1/channels", json=body).json())
+
     def simulate(self, plant, gains, x0, n_drop: int | None = None, *, steps: int = 100, seed: int = 42,
                  sampling_period: float | None = None, **options) -> SimulationResult:
         """A seeded simulation of given gains (``POST /v1/simulations``).
 
-        ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``.
+        ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``; or
+        ``channel`` (a :class:`solver.channel.Channel` or its JSON), ``exhausted``, ``plant_transitions``.
         """
+        if options.get("channel") is not None:
+            options["channel"] = _channel_json(options["channel"])
+        if isinstance(options.get("plant_transitions"), np.ndarray):
+            options["plant_transitions"] = options["plant_transitions"].tolist()
         body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains),
                 "x0": [float(v) for v in x0], "steps": steps, "seed": seed, **options}
         if n_drop is not None:

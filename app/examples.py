@@ -55,6 +55,16 @@ ANALYSIS_EXAMPLES = {
     },
 }
 
+CHANNEL_EXAMPLES = {
+    "paper_gilbert_elliott": {
+        "summary": "The paper's gains over a Gilbert-Elliott link, zero input when the buffer runs dry",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01,
+                  "channel": {"kind": "gilbert_elliott", "p_gb": 0.05, "p_bg": 0.3, "loss_good": 0.01,
+                              "loss_bad": 0.8},
+                  "exhausted": "zero", "weights": {"Q": [[1, 0], [0, 1]], "R": [[1]]}},
+    },
+}
+
 SIMULATION_EXAMPLES = {
     "paper_fig3": {
         "summary": "Fig. 3-like run: paper plant and gains, x0 = [-3, 2]",

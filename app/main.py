@@ -18,7 +18,7 @@ from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
 from app.api.middleware import BodySizeLimit, JsonBodiesOnly
-from app.api import analyses, designs, health, margins, problem_pages, simulations
+from app.api import analyses, channels, designs, health, margins, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
 from app.jobs.watch import JobWatch
@@ -136,6 +136,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(designs.router)
     app.include_router(simulations.router)
     app.include_router(analyses.router)
+    app.include_router(channels.router)
     app.include_router(margins.router)
     app.include_router(health.router)
     app.include_router(problem_pages.router)

@@ -88,6 +88,11 @@ class Settings(BaseSettings):
         "with per-sample plant switching): `2 n M` for lmi, `2 n n_drop (M + 1)` for ccl, `2 n M^2` for switched).",
     )
     max_simulation_steps: int = Field(10_000, ge=1, description="Largest `steps` of a simulation or trace.")
+    max_channel_size: int = Field(
+        20_000, ge=1, description="Largest second-moment operator of a channel analysis (`POST /v1/channels`): "
+        "the sum over the jump-system modes (channel state, plant mode, buffer age) of the squared state "
+        "dimension, at most `c r (n_drop + 1) (2 n)^2`.",
+    )
     max_analysis_products: int = Field(
         200_000, ge=1,
         description="Budget of mode products per length that an analysis may enumerate.",

@@ -3,6 +3,7 @@
 Public names::
 
     from solver import PlantFamily, design, analyze, simulate
+    from solver import Channel, analyze_channel, critical_loss
 
 See ``design`` for the methods, ``analyze`` for certificates and verdicts and
 ``simulate`` for seeded runs of the network of the paper's Sec. II.
@@ -13,6 +14,7 @@ In and out: ``PlantFamily.from_statespace`` / ``solver.control_interop`` (python
 
 from .analysis import AnalysisReport, analyze
 from .codegen import export_c
+from .channel import Channel, ChannelReport, analyze_channel, critical_loss
 from .certificates import FarkasCertificate, UncontrollableCertificate
 from .design import METHODS, design
 from .errors import InvalidInput, SolverFailed
@@ -29,6 +31,10 @@ __all__ = [
     "simulate",
     "export_c",
     "export_sdpa",
+    "Channel",
+    "analyze_channel",
+    "critical_loss",
+    "ChannelReport",
     "METHODS",
     "DesignResult",
     "IterationRecord",

@@ -212,3 +212,52 @@ def render(fig: Figure, fmt: str) -> bytes:
     with matplotlib.rc_context({"svg.hashsalt": "ncs-design"}):
         fig.savefig(buf, format=fmt, metadata=metadata)
     return buf.getvalue()
+
+
+def channel_figure(channel, n_drops: Sequence[int], sampling_period: float | None = None,
+                   sweep: Sequence[dict] | None = None, width: float = 10.0, height: float = 4.0,
+                   dpi: int = 100) -> Figure:
+    """How often a channel breaks the drop bound, and what losses cost the loop.
+
+    Left: burst rate (runs of ``>= n_drop`` lost samples) per hour when ``sampling_period`` is
+    given (per sample otherwise) against ``n_drop``, log scale.  Right (when ``sweep`` rows from
+    :func:`solver.channel.loss_sweep` are given): expected cost against the Bernoulli loss
+    probability, one line per exhaustion policy; losses without a mean-square stability proof
+    are marked at the top edge.
+    """
+    fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
+    axes = fig.subplots(1, 2 if sweep else 1, squeeze=False)[0]
+    ns = np.array(sorted(int(n) for n in n_drops))
+    rates = np.array([channel.burst_rate(int(n)) for n in ns])
+    per = "per sample"
+    if sampling_period is not None:
+        rates = rates / float(sampling_period) * 3600.0
+        per = "per hour"
+    ax = axes[0]
+    shown = rates > 0
+    ax.semilogy(ns[shown], rates[shown], "o-", color="tab:blue")
+    ax.set_xlabel("n_drop (the buffer covers n_drop - 1 consecutive losses)")
+    ax.set_ylabel(f"bursts of >= n_drop losses {per}")
+    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.set_title(f"drop-bound violations, loss fraction {channel.loss_fraction:.3g}")
+    ax.grid(True, which="both", alpha=0.3)
+    if sweep:
+        ax = axes[1]
+        for ex, color in (("hold", "tab:orange"), ("zero", "tab:green")):
+            rows = sorted((r for r in sweep if r["exhausted"] == ex), key=lambda r: r["loss"])
+            if not rows:
+                continue
+            ps = np.array([r["loss"] for r in rows])
+            cost = np.array([np.nan if r["expected_cost"] is None else r["expected_cost"] for r in rows])
+            ax.plot(ps, cost, "o-", color=color, label=f"exhausted = {ex}")
+            bad = np.isnan(cost)
+            if bad.any():
+                top = np.nanmax(cost) if np.isfinite(cost).any() else 1.0
+                ax.plot(ps[bad], np.full(bad.sum(), top), "x", color=color, markersize=8,
+                        label=f"{ex}: not proven mean-square stable")
+        ax.set_xlabel("Bernoulli loss probability")
+        ax.set_ylabel("expected cost  E sum x'Qx + u'Ru")
+        ax.set_title("expected cost, E x(0) x(0)' = I")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+    return fig

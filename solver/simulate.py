@@ -64,9 +64,12 @@ class SimulationResult:
     loss_model: str
     plant_switching: str
     n_drop: int
+    #: Channel state per sample (runs on a :class:`~solver.channel.Channel` only).
+    channel_state: np.ndarray | None = None
 
     def to_dict(self) -> dict:
-        return {
+        extra = {} if self.channel_state is None else {"channel_state": self.channel_state.tolist()}
+        return extra | {
             "t": self.time.tolist(),
             "x": self.state.tolist(),
             "u": self.input.tolist(),
@@ -108,6 +111,9 @@ def simulate(
     plant_switching: str = "per_interval",
     mode: int | None = None,
     switch_probability: float = 1.0,
+    channel=None,
+    exhausted: str = "hold",
+    plant_transitions=None,
 ) -> SimulationResult:
     """Simulate the networked loop with random packet losses and plant jumps.
 
@@ -137,6 +143,18 @@ def simulate(
         Initial plant mode (0-based); drawn at random when None.
     switch_probability : float
         Chance that a jump opportunity redraws the mode (uniformly among all r).
+    channel : Channel, optional
+        Draw losses from this Markov channel instead (docs/design.md, "Stochastic channels"):
+        its state at sample 0 from the stationary distribution, sample 0 effective, and runs of
+        lost samples of any length, also beyond the bound.  ``loss_model``, ``sensor_loss``,
+        ``control_loss``, ``plant_switching`` and ``switch_probability`` are then not used
+        (``sensor_arrived`` and ``control_arrived`` both record ``effective``).
+    exhausted : {"hold", "zero"}
+        With a channel: the input once ``n_drop`` samples passed without an effective packet
+        (``K_N x(i_m)`` held, or zero).  ``buffer_index`` then exceeds ``n_drop``.
+    plant_transitions : array_like (r, r), optional
+        With a channel: per-sample Markov chain of the plant mode (row l: probabilities of the
+        next mode); None keeps the initial mode.
 
     Returns
     -------
@@ -168,6 +186,12 @@ def simulate(
         raise InvalidInput("switch_probability must be in [0, 1]", ("switch_probability",))
     if mode is not None and (isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < r):
         raise InvalidInput(f"mode must be an integer in 0..{r - 1}", ("mode",))
+
+    if channel is not None:
+        return _simulate_channel(family, K, n_drop, x, steps, int(seed), mode, channel, exhausted, plant_transitions)
+    if plant_transitions is not None:
+        raise InvalidInput("plant_transitions applies to runs on a channel (pass channel=...)",
+                           ("plant_transitions",))
 
     rng = np.random.Generator(np.random.PCG64(int(seed)))
     # All draws up front, in a fixed order: reproducible whatever branch a step takes.
@@ -241,4 +265,70 @@ def simulate(
         loss_model=loss_model,
         plant_switching=plant_switching,
         n_drop=n_drop,
+    )
+
+
+def _simulate_channel(family, K, n_drop, x, steps, seed, mode, channel, exhausted, plant_transitions):
+    """One run on a Markov channel; the buffer may run dry (``exhausted`` policy)."""
+    from .channel import Channel, _check_exhausted, check_plant_transitions
+
+    if not isinstance(channel, Channel):
+        raise InvalidInput("channel must be a Channel", ("channel",))
+    exhausted = _check_exhausted(exhausted)
+    r, n, m = family.n_modes, family.n_states, family.n_inputs
+    Pi, kind = check_plant_transitions(plant_transitions, r)
+    if kind == "arbitrary":
+        raise InvalidInput("simulate needs a plant chain (an r x r matrix) or None", ("plant_transitions",))
+    rng = np.random.Generator(np.random.PCG64(seed))
+    # Fixed draw order: channel (initial state, transitions, losses), initial plant mode, plant jumps.
+    states, effective = channel.sample(steps, rng)
+    effective = effective.copy()
+    effective[0] = True  # the loop starts with a delivered packet
+    first_mode = int(rng.integers(0, r))
+    draw_plant = rng.random(steps)
+    current = first_mode if mode is None else int(mode)
+    cum = np.cumsum(Pi, axis=1)
+    cum[:, -1] = 1.0
+    state = np.empty((steps + 1, n))
+    inputs = np.empty((steps, m))
+    modes = np.empty(steps, dtype=np.int64)
+    qs = np.empty(steps, dtype=np.int64)
+    state[0] = x
+    buffer = None
+    q = 0
+    for k in range(steps):
+        if effective[k]:
+            buffer = K @ x
+            q = 1
+        else:
+            q += 1
+        if q <= n_drop:
+            u = buffer[q - 1]
+        else:
+            u = buffer[n_drop - 1] if exhausted == "hold" else np.zeros(m)
+        x = family.F[current] @ x + family.G[current] @ u
+        state[k + 1] = x
+        inputs[k] = u
+        modes[k] = current
+        qs[k] = q
+        current = int(np.searchsorted(cum[current], draw_plant[k], side="right"))
+        current = min(current, r - 1)
+    starts = np.flatnonzero(effective)
+    h = family.sampling_period
+    return SimulationResult(
+        time=np.arange(steps + 1) * (h if h is not None else 1.0),
+        state=state,
+        input=inputs,
+        mode=modes,
+        sensor_arrived=effective.copy(),
+        control_arrived=effective.copy(),
+        effective=effective,
+        buffer_index=qs,
+        interval_start=starts,
+        eta=np.diff(starts),
+        seed=seed,
+        loss_model="channel",
+        plant_switching="stay" if kind == "stay" else "markov",
+        n_drop=n_drop,
+        channel_state=states,
     )

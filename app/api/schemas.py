@@ -311,9 +311,12 @@ class Simulation(_Open):
     interval_start: list[int] = Field(description="The effective samples i_m.")
     eta: list[int] = Field(description="`i_{m+1} - i_m` of every completed interval (samples).")
     seed: int | None = Field(None, description="Seed of the packet losses and plant jumps.")
-    loss_model: str | None = Field(None, description="`paper` or `bernoulli`.")
-    plant_switching: str | None = Field(None, description="`per_interval`, `per_sample` or `none`.")
+    loss_model: str | None = Field(None, description="`paper`, `bernoulli` or `channel`.")
+    plant_switching: str | None = Field(None, description="`per_interval`, `per_sample` or `none` (on a "
+                                                         "channel: `stay` or `markov`).")
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
+    channel_state: list[int] | None = Field(None, description="Channel state (0-based) at each sample, steps "
+                                                              "values (runs on a channel only).")
 
 
 class ModeRun(Simulation):
@@ -509,3 +512,58 @@ class Readiness(_Open):
     status: Literal["ready"] = Field(description="`ready` (else the answer is a 503 problem).")
     database: str = Field(description="`ok` when reachable.")
     workers: WorkersStatus = Field(description="Worker pool state.")
+
+
+
+# -- stochastic channels (POST /v1/channels) ---------------------------------------------------------------
+class BurstStatistics(_Open):
+    """How often the channel breaks the drop bound (exact, from the chain)."""
+
+    n_drop: int = Field(description="Drop bound N: a burst is a run of >= N lost samples.")
+    rate: float = Field(description="Probability per sample that a burst starts (1/sample).")
+    rate_per_second: float | None = Field(None, description="The same per second (1/s); null without h.")
+    mean_time_between: float | None = Field(None, description="Mean time between bursts (samples); null: never.")
+    mean_time_between_seconds: float | None = Field(None, description="The same in seconds.")
+    loss_fraction: float = Field(description="Stationary fraction of samples without an effective packet.")
+    mean_run_length: float | None = Field(None, description="Mean length of a run of lost samples (samples).")
+    run_length_pmf: list[float] = Field(description="P(run length = l) for l = 1, 2, ... (entry l - 1).")
+    run_length_tail: float = Field(description="P(run length > len(run_length_pmf)).")
+    sampling_period: float | None = Field(None, description="h (s).")
+
+
+class ChannelCertificate(_Open):
+    """Summary of a re-checked certificate on the second-moment operator's spectral radius."""
+
+    kind: str = Field(description="`coupled_lyapunov` (radius <= beta), `first_return_growth` (radius >= mu).")
+    verified: bool = Field(description="The float64 re-check with rounding bounds passed.")
+    beta: float | None = Field(None, description="Proven upper bound of the radius (per sample).")
+    mu: float | None = Field(None, description="Proven lower bound of the radius (per sample).")
+    steps: int | None = Field(None, description="Steps of the growth certificate.")
+
+
+class ChannelAnalysis(_Open):
+    """Given gains on a stochastic channel (`POST /v1/channels`)."""
+
+    n_drop: int = Field(description="Buffer length N.")
+    burst_rate: float = Field(description="Probability per sample that a run of >= n_drop lost samples starts.")
+    mean_time_between_bursts: float | None = Field(None, description="Samples between bursts (mean); null: never.")
+    mean_time_between_bursts_seconds: float | None = Field(None, description="The same in seconds.")
+    bursts: BurstStatistics = Field(description="Burst statistics.")
+    ms_stable: bool | None = Field(description="True/false: mean-square stability proven/refuted by a "
+                                               "re-checked certificate; null: unknown (`reason`).")
+    ms_radius: float | None = Field(None, description="Spectral radius of the second-moment operator (float64 "
+                                                      "estimate, per sample); null for arbitrary switching.")
+    ms_radius_upper: float | None = Field(None, description="Proven upper bound of that radius.")
+    ms_radius_lower: float | None = Field(None, description="Proven lower bound of that radius.")
+    expected_cost: float | None = Field(None, description="E sum x'Qx + u'Ru (exact linear equations).")
+    expected_cost_upper: float | None = Field(None, description="Certified upper bound of the expected cost.")
+    expected_cost_lower: float | None = Field(None, description="Lower bound (rigorous partial sums).")
+    stationary_cost: float | None = Field(None, description="Long-run cost per sample with process noise.")
+    upper_certificate: ChannelCertificate | None = Field(None, description="The certificate of "
+                                                                           "`ms_radius_upper`.")
+    lower_certificate: ChannelCertificate | None = Field(None, description="The certificate of "
+                                                                           "`ms_radius_lower`.")
+    exhausted: str = Field(description="`hold` or `zero`.")
+    plant_transitions: str = Field(description="`stay`, `markov` or `arbitrary`.")
+    n_modes: int = Field(description="Modes of the jump system (channel state, plant mode, buffer age).")
+    reason: str = Field(description="The verdict in words.")

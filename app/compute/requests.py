@@ -235,6 +235,39 @@ def performance_kwargs(req, **extra) -> dict:
 _single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
 
 
+Probability = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=1)]
+
+
+class BernoulliChannel(_Strict):
+    """Independent losses: each sample is not effective with probability `loss`."""
+
+    kind: Literal["bernoulli"]
+    loss: Probability = Field(description="Loss probability per sample (dimensionless).")
+
+
+class GilbertElliottChannel(_Strict):
+    """Two states, good and bad, switching per sample."""
+
+    kind: Literal["gilbert_elliott"]
+    p_gb: Probability = Field(description="P(good -> bad) per sample.")
+    p_bg: Probability = Field(description="P(bad -> good) per sample.")
+    loss_good: Probability = Field(0.0, description="Loss probability of a sample in the good state.")
+    loss_bad: Probability = Field(1.0, description="Loss probability of a sample in the bad state.")
+
+
+class MarkovChannel(_Strict):
+    """A general channel: an irreducible Markov chain, per sample, and a loss probability per state."""
+
+    kind: Literal["markov"]
+    transition: list[list[Probability]] = Field(max_length=16, description="c x c row-stochastic matrix: "
+                                                "`transition[i][j]` = P(state j next | state i).")
+    loss: list[Probability] = Field(max_length=16, description="Loss probability per state (length c).")
+
+
+ChannelSpec = Annotated[Union[BernoulliChannel, GilbertElliottChannel, MarkovChannel], Field(
+    discriminator="kind", description="The packet channel (Markov chain of loss probabilities).")]
+
+
 class SimulationRequest(_Strict):
     plant: Plant
     gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
@@ -250,6 +283,15 @@ class SimulationRequest(_Strict):
     plant_switching: Literal["per_interval", "per_sample", "none"] = Field(
         "per_interval", description="When the plant mode may jump (`none`: fixed `mode`).")
     mode: Int | None = Field(None, ge=0, description="Fixed plant mode (0-based) when plant_switching is none.")
+    channel: ChannelSpec | None = Field(
+        None, description="Draw losses from this Markov channel instead (its state at 0 from the stationary "
+        "distribution, sample 0 effective, runs past the bound included); loss_model, sensor_loss, control_loss "
+        "and plant_switching are then not used.")
+    exhausted: Literal["hold", "zero"] = Field(
+        "hold", description="With a channel: the input once n_drop samples passed without an effective packet.")
+    plant_transitions: Matrix | None = Field(
+        None, description="With a channel: per-sample Markov chain of the plant mode (r x r); null keeps the "
+        "initial mode (`mode`, or drawn uniformly).")
 
 
 class AnalysisRequest(_Performance):
@@ -271,6 +313,31 @@ class AnalysisRequest(_Performance):
         "quadratic", description="Joint-spectral-radius upper bounds and best certified decay rate to compute: "
         "from common quadratic certificates, also from switched ones (`all`, slower), or none."
     )
+
+
+class CostWeights(_Strict):
+    Q: Matrix = Field(description="n x n state weight (symmetric PSD).")
+    R: Matrix = Field(description="m x m input weight (symmetric PSD).")
+
+
+class ChannelRequest(_Strict):
+    """Given gains on a stochastic channel: bursts, mean-square stability, expected cost."""
+
+    plant: Plant
+    gains: list[Matrix] = Field(description="n_drop gain matrices K_1..K_N, each m x n (`gains[q-1] = K_q`).")
+    _single = field_validator("gains", mode="before")(_single_gains)
+    n_drop: Int | None = Field(None, ge=1, description="Defaults to the number of gain matrices.")
+    channel: ChannelSpec
+    exhausted: Literal["hold", "zero"] = Field(
+        "hold", description="Input once n_drop samples passed without an effective packet: keep `K_N x(i_m)` "
+        "(`hold`) or 0 (`zero`).")
+    plant_transitions: Matrix | Literal["arbitrary"] | None = Field(
+        None, description="Per-sample Markov chain of the plant mode (r x r, row l: probabilities of the next "
+        "mode); null: the mode never changes (uniform at k = 0); `arbitrary`: any switching (a sufficient LMI test).")
+    weights: CostWeights | None = Field(None, description="Weights of the expected cost "
+                                                          "`E sum x'Qx + u'Ru` (E x(0) x(0)' = I).")
+    noise: Matrix | None = Field(None, description="Process noise covariance W (n x n): adds the stationary cost "
+                                                   "per sample (needs weights).")
 
 
 class GridPoint(_Strict):

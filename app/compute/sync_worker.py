@@ -12,7 +12,8 @@ log = logging.getLogger("app.compute.sync_worker")
 
 SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
               "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot", "gains_file": "run_gains_file",
-              "controller_zip": "run_controller_zip", "problem_sdpa": "run_problem_sdpa"}
+              "controller_zip": "run_controller_zip", "problem_sdpa": "run_problem_sdpa",
+              "channel": "run_channel"}
 
 _memory_mb = 0  # this process's cap (NCS_WORKER_MEMORY_MB), named in an over-cap answer
 

@@ -192,11 +192,21 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
     fam = build_family(req["plant"])
     gains = _gains_array(req["gains"])
     n_drop = req.get("n_drop") or gains.shape[0]
+    extra = {}
+    if req.get("channel") is not None:
+        from solver import InvalidInput
+        from solver.channel import Channel
+
+        try:
+            extra["channel"] = Channel.from_dict(req["channel"])
+        except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
+            raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+        extra.update(exhausted=req.get("exhausted", "hold"), plant_transitions=req.get("plant_transitions"))
     tr = simulate(
         fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
         loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
         control_loss=req["control_loss"], plant_switching=req["plant_switching"],
-        mode=req.get("mode"),
+        mode=req.get("mode"), **extra,
     )
     return jsonable(tr.to_dict())
 
@@ -243,6 +253,36 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
             kwargs[key] = req[key]
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
     return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
+
+
+def run_channel(req: dict[str, Any]) -> dict[str, Any]:
+    """``analyze_channel`` for ``POST /v1/channels``; certificates summarized (their matrices stay out)."""
+    from solver import InvalidInput
+    from solver.channel import Channel, analyze_channel
+
+    fam = build_family(req["plant"])
+    gains = _gains_array(req["gains"])
+    n_drop = req.get("n_drop") or gains.shape[0]
+    weights = None if req.get("weights") is None else (req["weights"]["Q"], req["weights"]["R"])
+    try:
+        channel = Channel.from_dict(req["channel"])
+    except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
+        raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+    try:
+        rep = analyze_channel(fam, gains, n_drop, channel, exhausted=req["exhausted"],
+                              plant_transitions=req.get("plant_transitions"), weights=weights,
+                              noise=req.get("noise"))
+    except InvalidInput as exc:
+        if exc.field[:1] in (("Q",), ("R",)):
+            raise InvalidInput(str(exc), ("weights", *exc.field)) from None
+        raise
+    out = jsonable(rep.to_dict())
+    for key in ("upper_certificate", "lower_certificate"):
+        cert = out.get(key)
+        if cert is not None:
+            out[key] = {k: cert[k] for k in ("kind", "verified", "beta", "mu", "steps") if k in cert}
+    out["n_drop"] = n_drop
+    return out
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
