@@ -29,9 +29,21 @@ QUEUE_FULL = {"description": "The queue is full (NCS_MAX_QUEUE_DEPTH); retry aft
               "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}}
 PREFERENCE_APPLIED = {"Preference-Applied": {"description": "`wait=N` when the request's `Prefer: wait=N` was "
                                                             "honoured", "schema": {"type": "string"}}}
+#: The event stream, documented as OpenAPI 3.1 documents `text/event-stream`: ``schema`` describes ONE event
+#: (its fields as a client's SSE parser gives them), not the stream's text.
 EVENT_STREAM = {"text/event-stream": {"schema": {
-    "type": "string", "description": "Server-Sent Events: `event: status|progress|end`, `data:` a JSON job "
-                                     "summary, a progress record, or the full job (`end`)."}}}
+    "title": "JobEvent", "type": "object", "required": ["event", "data"],
+    "description": "One Server-Sent Event. `status`: on every status change, `data` is the job summary (JSON); "
+                   "`progress`: `data` is the last progress record (JSON); `end`: last, `data` is the full job "
+                   "(JSON), then the stream closes. The stream starts with `retry: 1000` and sends `: keep-alive` "
+                   "comments every 15 s.",
+    "properties": {
+        "event": {"type": "string", "enum": ["status", "progress", "end"]},
+        "data": {"type": "string", "contentMediaType": "application/json",
+                 "description": "A JSON document: job summary, progress record or full job"},
+        "id": {"type": "string", "description": "Sequence number of the event in this stream"},
+        "retry": {"type": "integer", "minimum": 0, "description": "Reconnection delay in ms"},
+    }}}}
 
 
 def submit_responses(kind: str) -> dict:
