@@ -38,7 +38,7 @@ EVENT_STREAM = {"text/event-stream": {"schema": {
                    "(JSON), then the stream closes. The stream starts with `retry: 1000` and sends `: keep-alive` "
                    "comments every 15 s.",
     "properties": {
-        "event": {"type": "string", "enum": ["status", "progress", "end"]},
+        "event": {"type": "string", "enum": ["status", "progress", "end"], "description": "The event's kind"},
         "data": {"type": "string", "contentMediaType": "application/json",
                  "description": "A JSON document: job summary, progress record or full job"},
         "id": {"type": "string", "description": "Sequence number of the event in this stream"},
