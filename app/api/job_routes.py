@@ -12,13 +12,12 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from sqlalchemy.exc import OperationalError
 
 from app.api.deps import PROBLEM, V1_RESPONSES, get_database, require_api_key
 from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
-from app.jobs.database import Database
+from app.jobs.database import Database, unavailable
 from app.jobs.model import FINISHED
 
 ERRORS = {
@@ -137,8 +136,7 @@ async def _bounded(dispatcher, taken: asyncio.Future):
         if not dispatcher.withdraw(taken):
             return await taken  # in a write whose lock wait is bounded by what was left: answered soon
         cause = dispatcher.tick_error or "database is locked"
-        raise OperationalError(None, None, Exception(
-            f"{cause} (the submission waited {bound:g} s)")) from None
+        raise unavailable(f"{cause} (the submission waited {bound:g} s)") from None
 
 
 def job_router(kind: str) -> APIRouter:

@@ -76,6 +76,12 @@ def make_engine(url: str, busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS) -> Engi
                          connect_args=connect_args)
 
 
+def unavailable(message: str) -> OperationalError:
+    """A database failure raised without a statement (the files refuse writes, a submission's wait ran out),
+    answered like any other: 503 with :func:`database_reason` of ``message``."""
+    return OperationalError(None, None, sqlite3.OperationalError(message))
+
+
 def sqlite_files(url: str) -> list[Path]:
     """The files of an SQLite database (the database, its WAL and its WAL index): [] for a memory database."""
     database = make_url(url).database
@@ -141,9 +147,7 @@ class Database:
         if self._files:
             bad = unwritable_file(self._files)
             if bad is not None:
-                orig = sqlite3.OperationalError(f"attempt to write a readonly database ({bad.name} is read-only "
-                                                "or immutable)")
-                raise OperationalError(None, None, orig)
+                raise unavailable(f"attempt to write a readonly database ({bad.name} is read-only or immutable)")
 
     @contextmanager
     def write(self) -> Iterator[Session]:
