@@ -26,7 +26,7 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 #: How long a PostgreSQL connection attempt may take before the server counts as unreachable (s).
 PG_CONNECT_TIMEOUT = 10
 #: How long the readiness write probe waits for the write lock (s), and how long its answer is reused.
-PROBE_TIMEOUT = 0.5
+PROBE_TIMEOUT = 1.0
 PROBE_EVERY = 1.0
 
 
