@@ -30,7 +30,9 @@ V1_RESPONSES = {
 }
 
 # The extra answers of the synchronous operations (analyses, simulations), which run on the sync pool.
-SYNC_RESPONSES = {422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}}
+SYNC_RESPONSES = {413: {"description": "Body over NCS_MAX_BODY_BYTES", **PROBLEM},
+                  415: {"description": "The body is not JSON (send Content-Type: application/json)", **PROBLEM},
+                  422: {"description": "Invalid request", **PROBLEM}, 503: {"description": "Time limit", **PROBLEM}}
 
 
 # The dependencies are ``async def`` although they do not await: FastAPI runs a plain ``def`` dependency in

@@ -12,13 +12,12 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
-from sqlalchemy.exc import OperationalError
 
 from app.api.deps import PROBLEM, V1_RESPONSES, get_database, require_api_key
 from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
-from app.jobs.database import Database
+from app.jobs.database import Database, unavailable
 from app.jobs.model import FINISHED
 
 ERRORS = {
@@ -29,9 +28,21 @@ QUEUE_FULL = {"description": "The queue is full (NCS_MAX_QUEUE_DEPTH); retry aft
               "headers": {"Retry-After": {"description": "Seconds to wait", "schema": {"type": "integer"}}}}
 PREFERENCE_APPLIED = {"Preference-Applied": {"description": "`wait=N` when the request's `Prefer: wait=N` was "
                                                             "honoured", "schema": {"type": "string"}}}
+#: The event stream, documented as OpenAPI 3.1 documents `text/event-stream`: ``schema`` describes ONE event
+#: (its fields as a client's SSE parser gives them), not the stream's text.
 EVENT_STREAM = {"text/event-stream": {"schema": {
-    "type": "string", "description": "Server-Sent Events: `event: status|progress|end`, `data:` a JSON job "
-                                     "summary, a progress record, or the full job (`end`)."}}}
+    "title": "JobEvent", "type": "object", "required": ["event", "data"],
+    "description": "One Server-Sent Event. `status`: on every status change, `data` is the job summary (JSON); "
+                   "`progress`: `data` is the last progress record (JSON); `end`: last, `data` is the full job "
+                   "(JSON), then the stream closes. The stream starts with `retry: 1000` and sends `: keep-alive` "
+                   "comments every 15 s.",
+    "properties": {
+        "event": {"type": "string", "enum": ["status", "progress", "end"], "description": "The event's kind"},
+        "data": {"type": "string", "contentMediaType": "application/json",
+                 "description": "A JSON document: job summary, progress record or full job"},
+        "id": {"type": "string", "description": "Sequence number of the event in this stream"},
+        "retry": {"type": "integer", "minimum": 0, "description": "Reconnection delay in ms"},
+    }}}}
 
 
 def submit_responses(kind: str) -> dict:
@@ -125,8 +136,7 @@ async def _bounded(dispatcher, taken: asyncio.Future):
         if not dispatcher.withdraw(taken):
             return await taken  # in a write whose lock wait is bounded by what was left: answered soon
         cause = dispatcher.tick_error or "database is locked"
-        raise OperationalError(None, None, Exception(
-            f"{cause} (the submission waited {bound:g} s)")) from None
+        raise unavailable(f"{cause} (the submission waited {bound:g} s)") from None
 
 
 def job_router(kind: str) -> APIRouter:

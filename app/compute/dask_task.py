@@ -38,7 +38,7 @@ import time
 from multiprocessing.connection import Connection
 from typing import Any
 
-from app.compute.messages import (Cancel, Cancelled, Failed, JobOutcome, Lost, Progress, Ready, Run, Started,
+from app.compute.messages import (Begun, Cancel, Cancelled, Failed, JobOutcome, Lost, Progress, Ready, Run, Started,
                                   Succeeded, to_event)
 
 START_TOPIC = "ncs-design-start"
@@ -190,6 +190,9 @@ def run_job(job_id: str, key: str, request: dict[str, Any], memory_mb: int = 0) 
     from app.compute.worker import outcome_of_death
 
     worker = get_worker()
+    # First, before the job process starts (seconds when it is new): a worker that dies from here on has
+    # cost this job an attempt, and the service can tell (messages.Begun).
+    worker.log_event(START_TOPIC, to_event(key, Begun(job_id, os.getpid(), worker.address)))
     process = _job_process(memory_mb)
     if process is None:
         return Lost(job_id, f"the job process on Dask worker {worker.address} could not start")

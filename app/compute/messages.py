@@ -46,6 +46,17 @@ class Started:
 
 
 @dataclass(frozen=True)
+class Begun:
+    """A Dask task began on a worker (``worker_pid``: the Dask worker process), before its job process starts
+    (up to seconds): a task Dask re-runs after its worker died in that window begins again on another worker,
+    so a second ``Begun`` from another worker is one more attempt even when no ``Started`` came between."""
+
+    job_id: str
+    worker_pid: int
+    address: str
+
+
+@dataclass(frozen=True)
 class Progress:
     job_id: str
     record: dict[str, Any]
@@ -86,7 +97,7 @@ class Lost:
     reason: str
 
 
-ExecutorEvent = Started | Progress | Succeeded | Cancelled | Failed | Lost
+ExecutorEvent = Begun | Started | Progress | Succeeded | Cancelled | Failed | Lost
 
 
 # -- Dask's event log: plain dicts, checked on the way back ------------------------
@@ -95,18 +106,19 @@ class MalformedEvent(ValueError):
 
 
 _EVENT_TYPES: dict[str, tuple[type, dict[str, type]]] = {
+    "begun": (Begun, {"job_id": str, "worker_pid": int, "address": str}),
     "started": (Started, {"job_id": str, "pid": int, "address": str}),
     "progress": (Progress, {"job_id": str, "record": dict}),
 }
 
 
-def to_event(key: str, message: Started | Progress) -> dict[str, Any]:
+def to_event(key: str, message: Begun | Started | Progress) -> dict[str, Any]:
     """A message as the plain dict Dask's event log carries; ``key`` names the task (job and attempt)."""
-    kind = {Started: "started", Progress: "progress"}[type(message)]
+    kind = {Begun: "begun", Started: "started", Progress: "progress"}[type(message)]
     return {"key": key, "kind": kind, "fields": asdict(message)}
 
 
-def from_event(event: Any) -> tuple[str, Started | Progress]:
+def from_event(event: Any) -> tuple[str, Begun | Started | Progress]:
     """The task key and the message of an event written by :func:`to_event`; :class:`MalformedEvent` if the
     dict is not one (another version of this package on a Dask worker, say)."""
     if not isinstance(event, dict) or not isinstance(event.get("key"), str):

@@ -29,8 +29,11 @@ How the usual guarantees map onto Dask:
   worker for good on ``distributed`` 2026.8.) A job process that dies is replaced at the
   thread's next job; the job it ran is ``Lost``, or ``Failed`` if it aborted under the
   memory cap, as with the local executor.
-* **A worker dies mid-job**: the scheduler re-runs the task on another worker. The
-  task's ``Started`` then comes from a new pid: the dispatcher counts one more attempt, and
+* **A worker dies mid-job**: the scheduler re-runs the task on another worker. The task's
+  first act is a ``Begun`` event (the Dask worker's address and pid), before its job process
+  starts (seconds for a new one); a ``Begun`` from another worker, or a ``Started`` from a new
+  pid, means a re-run: the dispatcher counts one more attempt (also when the first worker died
+  before its job process started), and
   past ``NCS_MAX_ATTEMPTS`` the job ends ``failed`` with the reason. If Dask gives up first
   (``KilledWorker``, scheduler setting ``allowed-failures``) the job is ``Lost``: re-queued
   or failed the same way. A future lost with the scheduler is ``Lost`` too.
@@ -49,7 +52,7 @@ import time
 import uuid
 from typing import Any, Callable
 
-from app.compute.messages import (Cancelled, ExecutorEvent, Failed, Lost, MalformedEvent, Started, Succeeded,
+from app.compute.messages import (Begun, Cancelled, ExecutorEvent, Failed, Lost, MalformedEvent, Started, Succeeded,
                                   from_event)
 from app.jobs.executor import Executor, FreeSlot
 from app.jobs.store import Claimed
@@ -250,7 +253,7 @@ class DaskExecutor(Executor):
         task = self._tasks.get(key)
         if task is None or task.job_id != msg.job_id:
             return  # another replica's job, or one given up
-        if isinstance(msg, Started):
+        if isinstance(msg, (Begun, Started)):
             task.address = msg.address
         self._events.append(msg)
 

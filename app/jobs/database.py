@@ -26,7 +26,7 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 #: How long a PostgreSQL connection attempt may take before the server counts as unreachable (s).
 PG_CONNECT_TIMEOUT = 10
 #: How long the readiness write probe waits for the write lock (s), and how long its answer is reused.
-PROBE_TIMEOUT = 0.5
+PROBE_TIMEOUT = 1.0
 PROBE_EVERY = 1.0
 
 
@@ -74,6 +74,12 @@ def make_engine(url: str, busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS) -> Engi
     connect_args = {"connect_timeout": PG_CONNECT_TIMEOUT} if "psycopg" in url.split(":", 1)[0] else {}
     return create_engine(url, pool_size=10, max_overflow=40, pool_pre_ping=True, pool_timeout=60,
                          connect_args=connect_args)
+
+
+def unavailable(message: str) -> OperationalError:
+    """A database failure raised without a statement (the files refuse writes, a submission's wait ran out),
+    answered like any other: 503 with :func:`database_reason` of ``message``."""
+    return OperationalError(None, None, sqlite3.OperationalError(message))
 
 
 def sqlite_files(url: str) -> list[Path]:
@@ -141,9 +147,7 @@ class Database:
         if self._files:
             bad = unwritable_file(self._files)
             if bad is not None:
-                orig = sqlite3.OperationalError(f"attempt to write a readonly database ({bad.name} is read-only "
-                                                "or immutable)")
-                raise OperationalError(None, None, orig)
+                raise unavailable(f"attempt to write a readonly database ({bad.name} is read-only or immutable)")
 
     @contextmanager
     def write(self) -> Iterator[Session]:

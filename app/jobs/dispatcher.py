@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 from sqlalchemy.exc import DBAPIError
 
-from app.compute.messages import Cancelled, ExecutorEvent, Failed, Lost, Progress, Started, Succeeded
+from app.compute.messages import Begun, Cancelled, ExecutorEvent, Failed, Lost, Progress, Started, Succeeded
 from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
@@ -59,6 +59,7 @@ class _Running:
         self.request = request              # as claimed: completes the finished job's record
         self.pid = pid                      # recorded with the claim, or by the first Started
         self.address = ""                   # the Dask worker it runs on
+        self.run: tuple[str, int] | None = None  # (address, pid) of the Dask worker its task last began on
         self.started: float | None = None   # monotonic; the time limit counts from the real start
         self.cancel_sent: float | None = None
         self.progress: dict[str, Any] | None = None
@@ -347,7 +348,9 @@ class Dispatcher:
         running = self.running.get(msg.job_id)
         if running is None:
             return  # a job given up
-        if isinstance(msg, Started):
+        if isinstance(msg, Begun):
+            self._on_begun(running, msg)
+        elif isinstance(msg, Started):
             self._on_started(running, msg)
         elif isinstance(msg, Progress):
             running.progress, running.progress_dirty = msg.record, True
@@ -362,21 +365,42 @@ class Dispatcher:
             elif isinstance(msg, Failed):
                 self._finish(msg.job_id, Status.FAILED, error=msg.reason, progress=progress)
 
+    def _on_begun(self, running: _Running, msg: Begun) -> None:
+        """A Dask task began on a worker; a second one on another worker process is a re-run (its first
+        worker died, maybe before the job's process started): one more attempt."""
+        run = (msg.address, msg.worker_pid)
+        # Where it ran before: the last Begun, or (if that event was lost) the worker of its Started.
+        before = running.run or ((running.address, None) if running.pid is not None and running.address else None)
+        if before is not None and (before[0] != run[0] or before[1] not in (None, run[1])):
+            what = f"Dask worker {before[0]} (pid {before[1] or running.pid}) died"
+            if not self._count_retry(running, what):
+                return
+            running.pid = None  # the Started of this run is not a re-run of its own
+        running.run, running.address = run, msg.address
+
+    def _count_retry(self, running: _Running, reason: str) -> bool:
+        """The executor re-ran the job by itself: count the attempt. False when the job ended with it
+        (attempts used up, or a cancel asked for): it is dropped here."""
+        outcome = jobs.note_retry(self.db, running.job_id, self.owner, reason, self.settings.max_attempts)
+        log.warning("%s running job %s -> %s", reason, running.job_id, outcome)
+        if outcome == Status.RUNNING:
+            return True
+        self.running.pop(running.job_id, None)
+        self.executor.stop(running.handle, interrupt=False)
+        if outcome is not None and Status(outcome).finished:
+            self.on_finished([(running.job_id, None)])
+        return False
+
     def _on_started(self, running: _Running, msg: Started) -> None:
         running.started = time.monotonic()
         if running.pid == msg.pid:
             return  # recorded with the claim
-        if running.pid is not None:
+        same_run = bool(msg.address) and running.run is not None and running.run[0] == msg.address
+        if running.pid is not None and not same_run:
             # The executor re-ran the job elsewhere (Dask re-runs a task whose worker died).
             reason = (f"Dask worker {running.address} (pid {running.pid}) died" if running.address
                       else f"worker process {running.pid} died")
-            outcome = jobs.note_retry(self.db, running.job_id, self.owner, reason, self.settings.max_attempts)
-            log.warning("%s running job %s -> %s", reason, running.job_id, outcome)
-            if outcome != Status.RUNNING:
-                self.running.pop(running.job_id, None)
-                self.executor.stop(running.handle, interrupt=False)
-                if outcome is not None and Status(outcome).finished:
-                    self.on_finished([(running.job_id, None)])
+            if not self._count_retry(running, reason):
                 return
         running.pid, running.address = msg.pid, msg.address
         jobs.set_worker_pid(self.db, running.job_id, self.owner, msg.pid)

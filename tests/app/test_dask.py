@@ -223,3 +223,60 @@ def test_a_replica_that_stops_releases_its_running_job_and_the_job_process_stops
     with running_client(db_url, dask_scheduler=cluster.scheduler_address) as client:
         job = wait_for(client, job_id, timeout=120)  # the next replica runs it again
         assert job["status"] == "succeeded" and job["attempts"] == 1, job
+
+
+# -- Issue 20: a Dask worker that dies before the job's Started, and a job that kills its worker every time ----
+
+@pytest.fixture(scope="module")
+def cold_cluster():
+    """A cluster of its own: its worker threads have no job process yet, so a job's first run spends seconds
+    between its task beginning (``Begun``) and its job process reporting ``Started``."""
+    with local_cluster() as c:
+        yield c
+
+
+def _run_of(client, job_id: str, seen: set, timeout: float = 120.0):
+    """The next (address, Dask worker pid) the job's task began on that is not in ``seen``; None once the job
+    is no longer running here."""
+    disp = client.app.state.dispatcher
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        running = disp.running.get(job_id)
+        if running is None and client.get(f"/v1/designs/{job_id}").json()["status"] != "queued":
+            return None, None
+        if running is not None and running.run is not None and running.run not in seen:
+            return running.run, running.pid
+        time.sleep(0.005)
+    raise AssertionError(f"job {job_id} began on no new worker within {timeout} s")
+
+
+def test_dask_worker_killed_between_the_claim_and_started_counts_an_attempt(cold_cluster, db_url):
+    with running_client(db_url, dask_scheduler=cold_cluster.scheduler_address) as client:
+        wait_for_the_whole_cluster(client)
+        job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
+        run, pid = _run_of(client, job_id, set())
+        assert pid is None, "the job process had started already: not the window this test is about"
+        os.kill(run[1], signal.SIGKILL)  # the Dask worker, while its new job process is still starting
+        job = wait_for(client, job_id, timeout=180)
+        assert job["status"] == "succeeded", job
+        assert job["attempts"] == 2, job  # the run on the killed worker counted, though it never Started
+
+
+def test_job_that_kills_its_worker_every_time_ends_failed_after_max_attempts(cold_cluster, db_url):
+    with running_client(db_url, dask_scheduler=cold_cluster.scheduler_address, max_attempts=3) as client:
+        wait_for_the_whole_cluster(client, timeout=180)
+        job_id = client.post("/v1/designs", json=MEDIUM).json()["id"]
+        seen: set = set()
+        while True:
+            run, _ = _run_of(client, job_id, seen, timeout=180)
+            if run is None:
+                break
+            seen.add(run)
+            try:
+                os.kill(run[1], signal.SIGKILL)  # every worker the job begins on dies
+            except ProcessLookupError:
+                pass
+        job = wait_for(client, job_id, timeout=60)
+        assert job["status"] == "failed", job
+        assert job["attempts"] == 3 and "3 of 3 attempts" in job["error"], job
+        assert len(seen) == 3, seen

@@ -115,3 +115,20 @@ def test_quota_429_names_the_owners_own_limit_and_does_not_touch_the_other_key(d
     assert again.status_code == 429  # and A is still at its limit
     page = httpx.get(server.base + "/problems/owner-quota")
     assert page.status_code == 200 and "NCS_MAX_QUEUED_PER_OWNER" in page.text
+
+
+def test_two_replicas_each_alternate_between_owners(db_url, start_server):
+    """Two services on one database (PostgreSQL: claims with FOR UPDATE SKIP LOCKED), one worker each: A floods
+    through one replica, B submits through the other; B's job starts before more than one job per worker of
+    A's backlog."""
+    keys = dict(NCS_WORKERS=1, NCS_API_KEYS=f"{KEY_A},{KEY_B}")
+    first, second = start_server(db_url, **keys), start_server(db_url, **keys)
+    assert all(r.status_code == 202 for r in _flood(first.base, KEY_A, SLOW, 200))
+    b = _post(second.base, KEY_B, FAST, Prefer="wait=60")
+    assert b.status_code == 201, b.text
+    job = b.json()
+    queued_at, started_at = _ts(job["created_at"]), _ts(job["started_at"])
+    between = [s for s, _ in _starts(db_url, KEY_A) if queued_at < s < started_at]
+    assert len(between) <= 2, (len(between), job)  # one per worker, two workers in all
+    print(f"\ntwo replicas: B waited {(started_at - queued_at).total_seconds():.3f} s; A jobs started meanwhile: "
+          f"{len(between)}")

@@ -11,6 +11,7 @@ as many rows as A or that the LMI fits the size limit, so schema-valid bodies ar
 
 from __future__ import annotations
 
+import json
 import os
 import uuid
 
@@ -92,6 +93,24 @@ def test_api_conforms_to_its_schema(case, fuzz_server):
                            excluded_checks=[positive_data_acceptance], timeout=60)
 
 
+def test_stateful_workflows_conform_to_their_schema(fuzz_server):
+    """The stateful phase: schemathesis follows the links it infers (POST a job -> GET it, its events, cancel)
+    with real job ids, so the event streams of real jobs are checked against their schema (issue 20: each
+    SSE event violated it, ST108, until the schema described one event)."""
+    base = fuzz_server.base
+
+    class Workflow(schema.as_state_machine()):
+        def get_call_kwargs(self, case):
+            return {"base_url": base, "headers": {"X-API-Key": KEY}, "timeout": 60}
+
+        def validate_response(self, response, case, additional_checks=None, **kwargs):
+            case.validate_response(response, additional_checks=[problem_json],
+                                   excluded_checks=[positive_data_acceptance])
+
+    Workflow.run(settings=settings(max_examples=EXAMPLES, deadline=None, derandomize=not RANDOM, database=None,
+                                   suppress_health_check=list(HealthCheck), stateful_step_count=6))
+
+
 # -- What schemathesis found, pinned as plain regression tests ---------------------------------------------------
 
 def test_found_body_that_is_not_utf8_is_a_422_malformed_json_not_an_undocumented_400(db_url):
@@ -125,3 +144,44 @@ def test_found_huge_list_offset_is_a_422_not_a_500(db_url):
             assert_problem(c.get(path, params={"offset": 167830852003322807713792}), 422, "/offset")
             assert_problem(c.get(path, params={"offset": 2**31}), 422, "/offset")
             assert c.get(path, params={"offset": 2**31 - 1}).json()["items"] == []
+
+
+def test_found_every_sse_event_of_a_real_job_matches_the_published_event_schema(fuzz_server):
+    """Issue 20 (schemathesis ST108 on both /events routes): the schema said `type: string` while OpenAPI 3.1
+    tools read the `text/event-stream` schema as the schema of ONE event (event, data, id, retry). Each event of
+    a real job's stream, parsed here as an SSE client parses it, must match the published schema."""
+    import httpx
+    import jsonschema
+
+    from app.examples import PAPER_PLANT
+
+    headers = {"X-API-Key": KEY}
+    spec = httpx.get(fuzz_server.base + "/openapi.json", timeout=10).json()
+    job = httpx.post(fuzz_server.base + "/v1/designs", headers={**headers, "Prefer": "wait=60"}, timeout=90,
+                     json={"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}).json()
+    for path in ("/v1/designs/{job_id}/events", "/v1/margins/{job_id}/events"):
+        event_schema = spec["paths"][path]["get"]["responses"]["200"]["content"]["text/event-stream"]["schema"]
+        assert event_schema["type"] == "object", event_schema
+    event_schema = spec["paths"]["/v1/designs/{job_id}/events"]["get"]["responses"]["200"]["content"][
+        "text/event-stream"]["schema"]
+    text = httpx.get(fuzz_server.base + f"/v1/designs/{job['id']}/events", headers=headers, timeout=60).text
+    events = []
+    for block in text.split("\n\n"):
+        fields: dict = {}
+        for line in block.splitlines():
+            if not line or line.startswith(":"):
+                continue
+            name, _, value = line.partition(":")
+            value = value[1:] if value.startswith(" ") else value
+            if name == "data":
+                fields["data"] = fields["data"] + "\n" + value if "data" in fields else value
+            elif name == "retry":
+                fields["retry"] = int(value)
+            else:
+                fields[name] = value
+        if "data" in fields:  # an SSE client dispatches only blocks with data
+            events.append(fields)
+    assert [e["event"] for e in events][-1] == "end" and len(events) >= 2, events
+    for event in events:
+        jsonschema.validate(event, event_schema)
+        json.loads(event["data"])

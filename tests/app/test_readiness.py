@@ -18,8 +18,8 @@ from bench.harness import FAST
 
 from .conftest import PG_URL
 
-pytestmark = pytest.mark.skipif(bool(PG_URL), reason="SQLite files and locks; PostgreSQL's read-only case is "
-                                                     "tests/app/test_faults.py")
+sqlite_only = pytest.mark.skipif(bool(PG_URL), reason="SQLite files and locks; PostgreSQL's read-only case is "
+                                                      "tests/app/test_faults.py")
 
 
 def _chattr(flag: str, files: list[Path]) -> None:
@@ -35,6 +35,7 @@ def _readyz_until(base: str, status: int, timeout: float = 30.0) -> httpx.Respon
         time.sleep(0.1)
 
 
+@sqlite_only
 def test_readyz_503_while_the_sqlite_files_are_immutable_and_the_process_survives(db_url, start_server):
     server = start_server(db_url, NCS_WORKERS=1)
     first = httpx.post(server.base + "/v1/designs", json=FAST, headers={"Prefer": "wait=60"}, timeout=90)
@@ -63,6 +64,7 @@ def test_readyz_503_while_the_sqlite_files_are_immutable_and_the_process_survive
     assert server.proc.poll() is None
 
 
+@sqlite_only
 def test_readyz_503_locked_while_another_process_holds_the_write_lock_and_submissions_wait_a_bounded_time(
         db_url, start_server):
     busy = 2.0
@@ -87,3 +89,38 @@ def test_readyz_503_locked_while_another_process_holds_the_write_lock_and_submis
     # Nothing refused was written.
     listing = httpx.get(server.base + "/v1/designs").json()
     assert listing["total"] == 0, listing
+
+
+def test_a_submission_the_dispatcher_has_not_taken_by_the_bound_is_withdrawn_and_answered_503():
+    """The dispatcher stuck in another write (heartbeat, progress...) past a submission's bound: the handler
+    takes the submission back (it is never written) and answers 503 with the cause; one already in a write is
+    awaited (its lock wait is bounded by what was left)."""
+    import asyncio
+
+    from sqlalchemy.exc import OperationalError
+
+    from app.api.job_routes import _bounded
+    from app.jobs.database import database_reason
+
+    class Stuck:
+        submit_wait_bound = 0.05
+        tick_error = None
+
+        def __init__(self, taken: bool):
+            self.taken, self.asked = taken, 0
+
+        def withdraw(self, fut) -> bool:
+            self.asked += 1
+            if self.taken:
+                fut.get_loop().call_later(0.05, fut.set_result, "written")
+            return not self.taken
+
+    async def run(dispatcher):
+        return await _bounded(dispatcher, asyncio.get_running_loop().create_future())
+
+    withdrawn = Stuck(taken=False)
+    with pytest.raises(OperationalError) as err:
+        asyncio.run(run(withdrawn))
+    assert withdrawn.asked == 1 and "locked" in database_reason(err.value), err.value
+    in_write = Stuck(taken=True)
+    assert asyncio.run(run(in_write)) == "written" and in_write.asked == 1

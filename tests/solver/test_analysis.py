@@ -92,3 +92,24 @@ def test_a_proven_short_product_is_kept_when_a_longer_float_estimate_outranks_it
         assert 1.0 <= rep.jsr_lower_bound <= 1.0078125
         assert rep.worst_sequence == [{"plant": 0, "eta": 1}]
     assert rep.jsr_lower_estimate > 1.1  # the long product's float estimate, reported as an estimate only
+@pytest.mark.parametrize("scale,length", [(1e100, 4), (1e60, 6), (1.5e308, 1)])
+def test_gains_whose_products_overflow_float64_are_an_input_error_naming_gains(scale, length):
+    """Finite gains so large that the products of max_product_length closed loops overflow float64 (issue 20:
+    a LinAlgError, 500 over HTTP): InvalidInput on ("gains",), before any product is formed."""
+    from solver import InvalidInput
+
+    fam = PlantFamily.paper_example(0.1)
+    K = np.zeros((3, 1, 2))
+    K[0, 0, 0] = scale
+    with pytest.raises(InvalidInput) as err:
+        analyze(fam, K, n_drop=3, max_product_length=length)
+    assert err.value.field == ("gains",) and "too large" in str(err.value)
+
+
+def test_large_gains_whose_products_stay_finite_are_analyzed():
+    """Just under the overflow check (products of length 2 of norm-1e60 loops stay finite): a verdict, proven."""
+    fam = PlantFamily.paper_example(0.1)
+    K = np.zeros((3, 1, 2))
+    K[0, 0, 0] = 1e60
+    rep = analyze(fam, K, n_drop=3, max_product_length=2, bounds="none")
+    assert rep.stable is False  # a spectral radius of about 1e59: unstable, proven exactly
