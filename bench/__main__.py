@@ -7,7 +7,9 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``);
 ``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
 ``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``);
-``python -m bench methods`` measures which method when (``bench/methods_bench.py``).
+``python -m bench methods`` measures which method when (``bench/methods_bench.py``);
+``python -m bench speed [--quick]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
+feasible and infeasible families (``bench/speed_bench.py``).
 
 Options::
 
@@ -75,6 +77,10 @@ def main(argv=None) -> int:
         from . import methods_bench
 
         return methods_bench.main(argv[1:])
+    if argv and argv[0] == "speed":
+        from . import speed_bench
+
+        return speed_bench.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 
