@@ -615,10 +615,19 @@ def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> Unco
             continue
         sub = np.array([[float(x) for x in row] for row in part])
         target = complex(max(np.linalg.eigvals(sub), key=abs))
-        vals, vecs = np.linalg.eig(F[l].T)
-        i = int(np.argmin(np.abs(vals - target)))
-        w = vecs[:, i] / np.linalg.norm(vecs[:, i])
-        r = float(np.linalg.norm(w.conj() @ F[l] - vals[i] * w.conj()))
-        ri = float(np.linalg.norm(w.conj() @ G[l]))
-        return UncontrollableCertificate(l, complex(vals[i]), w, r, ri, True, dimension=len(part))
+        return UncontrollableCertificate(l, *describe_uncontrollable(F[l], G[l], target), True, dimension=len(part))
     return None
+
+
+def describe_uncontrollable(F: np.ndarray, G: np.ndarray, target: complex) -> tuple:
+    """The float64 description of a proven uncontrollable eigenvalue near ``target``.
+
+    Returns ``(eigenvalue, w, residual_eig, residual_input)``: the eigenvalue of F closest to
+    ``target``, its unit left eigenvector and the residuals (the proof itself is exact, elsewhere).
+    """
+    vals, vecs = np.linalg.eig(F.T)
+    i = int(np.argmin(np.abs(vals - target)))
+    w = vecs[:, i] / np.linalg.norm(vecs[:, i])
+    r = float(np.linalg.norm(w.conj() @ F - vals[i] * w.conj()))
+    ri = float(np.linalg.norm(w.conj() @ G))
+    return complex(vals[i]), w, r, ri
