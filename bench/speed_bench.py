@@ -1,6 +1,7 @@
 """``python -m bench speed``: ``design()`` against its own solver, and both against CVXOPT and Clarabel.
 
-For every size n (random families, r = 5 plant modes, m = 2 inputs, n_drop = 10: 50 loop modes) and two
+For the paper's example and every size n (random families, r = 5 plant modes, m = 2 inputs, n_drop = 10: 50 loop
+modes) and two
 families, one the lmi design stabilizes ("feasible") and one it proves infeasible or marginal
 ("infeasible"), one run prints:
 
@@ -28,17 +29,22 @@ import time
 
 import numpy as np
 
-SIZES = (2, 4, 8, 12, 16, 20, 32, 50, 64)
-QUICK = (2, 8, 12)
+SIZES = ("paper", 2, 4, 8, 12, 16, 20, 32, 50, 64)
+QUICK = ("paper", 2, 8, 12)
 KINDS = ("feasible", "infeasible")
 #: Per size, the seed of the "feasible" family (spread 0.02): the first seed that ``design`` stabilizes.
 FEASIBLE_SEED = {20: 1}
 R, M, N_DROP = 5, 2, 10
 
 
-def family(n: int, kind: str):
+def family(n, kind: str):
+    """The family of a row: n = "paper" is the paper's example (h = 0.1 s, n_drop = 3; feasible only)."""
+    from solver import PlantFamily
+
     from .cases import random_family
 
+    if n == "paper":
+        return PlantFamily.paper_example(0.1) if kind == "feasible" else None
     if kind == "feasible":
         return random_family(n, R, M, seed=FEASIBLE_SEED.get(n, 0), spread=0.02)
     return random_family(n, R, M, seed=0, spread=0.5)
@@ -58,7 +64,8 @@ def child(n: int, kind: str, what: str, budget: float) -> dict:
     from solver.network import ModeSet
 
     fam = family(n, kind)
-    modes = ModeSet.from_family(fam, N_DROP)
+    n_drop = 3 if n == "paper" else N_DROP
+    modes = ModeSet.from_family(fam, n_drop)
     coef, active = modes.scheme_coef()
     design(PlantFamily.paper_example(0.1), 3)  # first-use costs (imports, BLAS handles, caches)
     out = {"n": n, "kind": kind, "what": what, "cpu": [], "wall": []}
@@ -67,7 +74,7 @@ def child(n: int, kind: str, what: str, budget: float) -> dict:
 
         from solver.methods import lmi
 
-        compiled = lmi.build(n, M, modes.n_modes, modes.n_free_gains, active)
+        compiled = lmi.build(modes.n_states, modes.n_inputs, modes.n_modes, modes.n_free_gains, active)
         for key, value in lmi.plant_values(modes).items():
             compiled.parameters[key].value = value
         name = cp.CLARABEL if what == "clarabel" else cp.CVXOPT
@@ -86,7 +93,7 @@ def child(n: int, kind: str, what: str, budget: float) -> dict:
             out.update(t=float(sol.t), status=sol.status, iterations=sol.iterations)
     else:
         def once():
-            res = design(fam, N_DROP)
+            res = design(fam, n_drop)
             out.update(outcome=res.outcome, status=res.solver_status,
                        proof=None if res.certificate is None else res.certificate.kind)
     base = _rss_mb()
@@ -107,7 +114,7 @@ def run_cell(n: int, kind: str, what: str, budget: float, cap: float, mem_gb: fl
     cmd = [sys.executable, "-c",
            "import json, resource; from bench.speed_bench import child; "
            f"cap = int({mem_gb} * 2**30); resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
-           f"print(json.dumps(child({n}, {kind!r}, {what!r}, {budget})))"]
+           f"print(json.dumps(child({n!r}, {kind!r}, {what!r}, {budget})))"]
     t0 = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=cap, cwd=os.getcwd())
@@ -146,12 +153,15 @@ def measure(sizes, peers_max_n: int, budget: float, mem_gb: float, echo=print) -
     rows = []
     for n in sizes:
         for kind in KINDS:
+            if family(n, kind) is None:
+                continue
+            size = 2 if n == "paper" else n
             cells = {}
             for what in ("design", "ipm", "clarabel", "cvxopt"):
-                if what in ("clarabel", "cvxopt") and n > peers_max_n:
+                if what in ("clarabel", "cvxopt") and size > peers_max_n:
                     cells[what] = {"note": "not run"}
                     continue
-                cap = 60.0 + 60.0 * (n / 12.0) ** 3 if what in ("design", "ipm") else 120.0 + 20.0 * n
+                cap = 60.0 + 60.0 * (size / 12.0) ** 3 if what in ("design", "ipm") else 120.0 + 20.0 * size
                 t0 = time.perf_counter()
                 cells[what] = run_cell(n, kind, what, budget, cap, mem_gb)
                 print(f"  n={n} {kind} {what}: {text(cells[what])} ({time.perf_counter() - t0:.0f} s wall)",
@@ -168,7 +178,7 @@ def table(rows) -> str:
         d, i, c, v = r["design"], r["ipm"], r["clarabel"], r["cvxopt"]
         outcome = d.get("outcome", "-") + (f" ({d['proof']})" if d.get("proof") in ("farkas", "uncontrollable")
                                            else "")
-        mem = " / ".join(f"{x['peak_mb']:.0f} MB" if "peak_mb" in x else "-" for x in (d, i))
+        mem = " / ".join(f"{max(x['peak_mb'], 0.0):.0f} MB" if "peak_mb" in x else "-" for x in (d, i))
         lines.append(f"| {r['n']} | {r['kind']} | {outcome} | {text(d)} | {text(i)} | {ratio(cpu(d), cpu(i))} "
                      f"| {text(c)} | {text(v)} | {ratio(cpu(v), cpu(d), 0)} | {ratio(cpu(c), cpu(d), 0)} | {mem} |")
     return "\n".join(lines)
@@ -178,7 +188,8 @@ def exponents(rows) -> list:
     out = []
     for what in ("ipm", "design"):
         for kind in KINDS:
-            pts = [(r["n"], cpu(r[what])) for r in rows if r["kind"] == kind and r["n"] >= 12 and cpu(r[what]) > 0]
+            pts = [(r["n"], cpu(r[what])) for r in rows
+                   if r["kind"] == kind and r["n"] != "paper" and r["n"] >= 12 and cpu(r[what]) > 0]
             if len(pts) >= 3:
                 slope = float(np.polyfit(np.log([p[0] for p in pts]), np.log([p[1] for p in pts]), 1)[0])
                 out.append(f"{what} CPU ~ n^{slope:.2f} ({kind}, n = {pts[0][0]}..{pts[-1][0]})")
@@ -195,7 +206,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=float, default=2.0, help="CPU seconds of repeats per cell (at least one)")
     p.add_argument("--mem-limit", type=float, default=6.0, help="address-space cap per cell, GB")
     a = p.parse_args(argv)
-    sizes = QUICK if a.quick else tuple(int(x) for x in a.sizes.split(",") if x)
+    sizes = QUICK if a.quick else tuple(x if x == "paper" else int(x) for x in a.sizes.split(",") if x)
     budget = 0.0 if a.quick else a.budget
     if a.quick:
         a.peer_max_n = min(a.peer_max_n, 8)
