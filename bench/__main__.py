@@ -9,6 +9,8 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``);
 ``python -m bench methods`` measures which method when (``bench/methods_bench.py``);
 ``python -m bench performance`` prints the cost/H-infinity brackets on the paper's motor (``bench/performance_bench.py``).
+``python -m bench speed [--quick]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
+feasible and infeasible families (``bench/speed_bench.py``).
 
 Options::
 
@@ -80,6 +82,10 @@ def main(argv=None) -> int:
         from . import performance_bench
 
         return performance_bench.main(argv[1:])
+    if argv and argv[0] == "speed":
+        from . import speed_bench
+
+        return speed_bench.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

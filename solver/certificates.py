@@ -64,22 +64,43 @@ def cholesky_shift_bound(M: np.ndarray, c: float) -> float | None:
     c : float
         The shift.
     """
-    k = M.shape[-1]
-    B = M + c * np.eye(k)  # off-diagonal entries are copied exactly (x + 0.0 == x)
-    d = np.diagonal(B)
-    if not np.all(d > 0):
-        return None
-    try:
-        R = np.linalg.cholesky(B)
-    except np.linalg.LinAlgError:
-        return None
-    if not np.all(np.isfinite(R)):
-        return None
+    e = cholesky_shift_bounds(M[None], np.array([c]))[0]
+    return None if np.isnan(e) else float(e)
+
+
+def cholesky_shift_bounds(Ms: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """:func:`cholesky_shift_bound` for a stack (S, k, k) and shifts (S,): NaN where Cholesky fails."""
+    S, k = Ms.shape[0], Ms.shape[-1]
+    B = Ms + c[:, None, None] * np.eye(k)  # off-diagonal entries are copied exactly (x + 0.0 == x)
+    d = np.diagonal(B, axis1=1, axis2=2)
+    out = np.full(S, np.nan)
+    ok = np.all(d > 0, axis=1)
+    if not ok.any():
+        return out
+    with np.errstate(invalid="ignore"):
+        R = _cholesky_nan(B[ok])
+    ok[ok] = np.all(np.isfinite(R), axis=(1, 2))
     g = gamma(k + 3)
     g = g / (1.0 - g)
-    e = g * float(np.sum(d)) + U / (1.0 - U) * float(np.max(d))
+    dd = d[ok]
+    e = g * np.sum(dd, axis=1) + U / (1.0 - U) * np.max(dd, axis=1)
     # the sum and products above were rounded (a relative gamma), underflow adds absolute errors
-    return e * (1.0 + gamma(2 * k + 8)) + 4.0 * k * (k + 3) * _TINY
+    out[ok] = e * (1.0 + gamma(2 * k + 8)) + 4.0 * k * (k + 3) * _TINY
+    return out
+
+
+def _cholesky_nan(B: np.ndarray) -> np.ndarray:
+    """Batched lower Cholesky factors, NaNs for a block that is not positive definite."""
+    try:
+        return np.linalg.cholesky(B)
+    except np.linalg.LinAlgError:
+        out = np.full_like(B, np.nan)
+        for i in range(B.shape[0]):
+            try:
+                out[i] = np.linalg.cholesky(B[i])
+            except np.linalg.LinAlgError:
+                pass
+        return out
 
 
 class Prover:
@@ -126,6 +147,24 @@ class Prover:
         M = 0.5 * (M + M.T)
         return -self.shift(M, -float(np.linalg.eigvalsh(M)[0])) - err
 
+    def min_lower_many(self, Ms: np.ndarray) -> np.ndarray:
+        """:meth:`min_lower` of every matrix of a stack (S, k, k): one batched eigvalsh and Cholesky."""
+        if self.exact or Ms.shape[0] == 0:
+            return np.array([self.min_lower(M) for M in Ms])
+        Ms = 0.5 * (Ms + np.swapaxes(Ms, 1, 2))
+        start = -np.linalg.eigvalsh(Ms)[:, 0]
+        add = np.maximum(1e-15 * np.linalg.norm(Ms, axis=(1, 2)), 1e-300)
+        c = start + add
+        e = cholesky_shift_bounds(Ms, c)
+        v = c + e
+        v = v + 4 * U * np.abs(v) + _TINY  # the addition rounded
+        out = -v
+        for i in np.flatnonzero(np.isnan(e)):  # a failed trial: the one-matrix search with growing shifts
+            out[i] = self.min_lower(Ms[i])
+        good = ~np.isnan(e)
+        self.slack += float(np.sum(v[good] - start[good]))
+        return out
+
 
 def lambda_max_upper(M: np.ndarray, err: float = 0.0, exact: bool = False) -> float:
     """A rigorous upper bound of ``lambda_max`` of a symmetric matrix known to within ``err`` (2-norm).
@@ -170,36 +209,35 @@ def interval_data(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndar
     n, m = F.shape[1], G.shape[2]
     N, J = gain_map.shape
     S = len(plants)
-    free = np.empty((S, n, n))
-    dfree = np.empty((S, n, n))
-    coef = np.zeros((S, J, n, m))
-    dcoef = np.zeros((S, J, n, m))
+    tails = np.empty((S, n, n))
+    dtails = np.empty((S, n, n))
+    cq = np.zeros((S, N, n, m))  # cq[s, k]: the product of the interval after sample k, times G of sample k
+    dq = np.zeros((S, N, n, m))
     g = gamma(n + 2)
+    memo: dict = {}  # interval suffix seq[k:] -> (cq[k], dq[k], tail, dtail): modes share suffixes
     for s, seq in enumerate(plants):
         tail, dtail = np.eye(n), np.zeros((n, n))
-        cq = np.zeros((N, n, m))
-        dq = np.zeros((N, n, m))
         for k in range(len(seq) - 1, -1, -1):
-            Gk, Fk = G[seq[k]], F[seq[k]]
-            cq[k] = tail @ Gk
-            dq[k] = dtail @ np.abs(Gk) + g * (np.abs(tail) @ np.abs(Gk))
-            new = tail @ Fk
-            dtail = dtail @ np.abs(Fk) + g * (np.abs(tail) @ np.abs(Fk))
-            tail = new
-        c = 1.0 if scale is None else float(scale[s])
-        free[s] = c * tail
-        dfree[s] = abs(c) * dtail * (1 + 4 * U) + 8 * U * np.abs(free[s])
-        for j in range(J):
-            acc = np.zeros((n, m))
-            dacc = np.zeros((n, m))
-            for q in range(N):
-                w = gain_map[q, j]
-                if w != 0:
-                    acc = acc + w * cq[q]
-                    dacc = dacc + abs(w) * (dq[q] + 2 * U * np.abs(cq[q]))
-            coef[s, j] = c * acc
-            dacc = dacc + gamma(N + 1) * sum(abs(gain_map[q, j]) * np.abs(cq[q]) for q in range(N))
-            dcoef[s, j] = abs(c) * dacc * (1 + 4 * U) + 8 * U * np.abs(coef[s, j])
+            key = tuple(seq[k:])
+            if key not in memo:
+                Gk, Fk = G[seq[k]], F[seq[k]]
+                memo[key] = (tail @ Gk, dtail @ np.abs(Gk) + g * (np.abs(tail) @ np.abs(Gk)),
+                             tail @ Fk, dtail @ np.abs(Fk) + g * (np.abs(tail) @ np.abs(Fk)))
+            cq[s, k], dq[s, k], tail, dtail = memo[key]
+        tails[s], dtails[s] = tail, dtail
+    c = (np.ones(S) if scale is None else np.asarray(scale, dtype=np.float64))[:, None, None]
+    free = c * tails
+    dfree = np.abs(c) * dtails * (1 + 4 * U) + 8 * U * np.abs(free)
+    # coef_{s,j} = sum_q gain_map[q, j] cq[s, q]: an N-term dot product per entry, in any order (einsum may
+    # use BLAS), so its rounding is within gamma_N sum_q |w_qj| |cq[s, q]|; counted twice over below
+    absw = np.abs(gain_map)
+    absc = np.abs(cq)
+    acc = np.einsum("qj,sqab->sjab", gain_map, cq)
+    dacc = (np.einsum("qj,sqab->sjab", absw, dq + 2 * U * absc)
+            + gamma(N + 1) * np.einsum("qj,sqab->sjab", absw, absc))
+    c = c[:, None]
+    coef = c * acc
+    dcoef = np.abs(c) * dacc * (1 + 4 * U) + 8 * U * np.abs(coef)
     # The bounds themselves were rounded: a factor 2 covers that with a wide margin.
     return free, 2 * dfree, coef, 2 * dcoef
 
@@ -374,7 +412,7 @@ def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prove
     E = 2 * np.einsum("sjab,sac->jbc", coef, Z21)  # (J, m, n)
     errE = 2 * gamma(n + S + 2) * np.einsum("sjab,sac->jbc", np.abs(coef), absZ21)
     errE = errE + 2 * np.einsum("sjab,sac->jbc", dcoef, absZ21)
-    mu = np.array([max(0.0, -prover.min_lower(Z[s])) for s in range(S)])
+    mu = np.maximum(0.0, -prover.min_lower_many(Z))
     lam_q = prover.max_upper(Q, float(np.linalg.norm(errQ)))
     delta = -lam_q - 2.0 * float(np.sum(mu)) * (1 + 4 * U)
     delta = delta * (1 - 8 * U) if delta > 0 else delta * (1 + 8 * U)
@@ -440,7 +478,7 @@ def _farkas_switched(multipliers, free, coef, dfree, dcoef, decay_rate, margin, 
     C = np.sum(np.swapaxes(Z22, 0, 1), axis=1) - np.sum(Z11, axis=1)  # C_s = sum_u Z22_us - sum_u Z11_su
     errC = gamma(2 * S + 2) * (np.sum(np.abs(Z22), axis=0) + np.sum(np.abs(Z11), axis=1))
     c_pos = sum(max(0.0, prover.max_upper(_sym(C[s]), float(np.linalg.norm(errC[s])))) for s in range(S))
-    mu = sum(max(0.0, -prover.min_lower(Z[s, u])) for s in range(S) for u in range(S))
+    mu = float(np.sum(np.maximum(0.0, -prover.min_lower_many(Z.reshape(S * S, 2 * n, 2 * n)))))
     delta = -prover.max_upper(symG, errG_norm) - 2 * c_pos * (1 + 4 * U) - 4 * mu * (1 + 4 * U)
     delta = delta * (1 - 16 * U) if delta > 0 else delta * (1 + 16 * U)
     trace = float(np.sum(np.trace(Z, axis1=-2, axis2=-1)))
@@ -526,20 +564,19 @@ def clearly_controllable(F: np.ndarray, G: np.ndarray) -> bool:
     An uncontrollable eigenvalue ``lambda_0`` (``w^H [F - lambda_0 I, G] = 0``) gives
     ``sigma_min([F - mu I, G]) <= |mu - lambda_0|`` at the computed eigenvalue ``mu``, which lies
     within about ``(u ||F||)^(1/k)`` of it (Jordan block of size k): a margin above
-    ``PBH_SCREEN (||F|| + ||G||)`` at every computed eigenvalue rules it out for k <= 3.  Not a
+    ``PBH_SCREEN (||F||_F + ||G||_F)`` at every computed eigenvalue rules it out for k <= 3.  Not a
     verdict: False only sends the mode to the exact test (:func:`uncontrollable_mode`), and a missed
     proof leaves the design to its Farkas certificate or "not_converged", never to a wrong answer.
     """
-    n = F.shape[0]
-    scale = float(np.linalg.norm(F, 2) + np.linalg.norm(G, 2))
+    n, m = G.shape
+    scale = float(np.linalg.norm(F) + np.linalg.norm(G))  # Frobenius: >= the 2-norms, cheaper
     if not np.isfinite(scale) or scale == 0:
         return False
-    eye = np.eye(n)
-    for mu in np.linalg.eigvals(F):
-        pbh = np.hstack([F - mu * eye, G.astype(complex)])
-        if np.linalg.svd(pbh, compute_uv=False)[-1] <= PBH_SCREEN * scale:
-            return False
-    return True
+    mus = np.linalg.eigvals(F)
+    pbh = np.empty((n, n, n + m), dtype=complex)  # [F - mu I, G] for every computed eigenvalue, one batched SVD
+    pbh[:, :, :n] = F[None] - mus[:, None, None] * np.eye(n)[None]
+    pbh[:, :, n:] = G[None]
+    return bool(np.all(np.linalg.svd(pbh, compute_uv=False)[:, -1] > PBH_SCREEN * scale))
 
 
 def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> UncontrollableCertificate | None:
@@ -578,10 +615,19 @@ def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> Unco
             continue
         sub = np.array([[float(x) for x in row] for row in part])
         target = complex(max(np.linalg.eigvals(sub), key=abs))
-        vals, vecs = np.linalg.eig(F[l].T)
-        i = int(np.argmin(np.abs(vals - target)))
-        w = vecs[:, i] / np.linalg.norm(vecs[:, i])
-        r = float(np.linalg.norm(w.conj() @ F[l] - vals[i] * w.conj()))
-        ri = float(np.linalg.norm(w.conj() @ G[l]))
-        return UncontrollableCertificate(l, complex(vals[i]), w, r, ri, True, dimension=len(part))
+        return UncontrollableCertificate(l, *describe_uncontrollable(F[l], G[l], target), True, dimension=len(part))
     return None
+
+
+def describe_uncontrollable(F: np.ndarray, G: np.ndarray, target: complex) -> tuple:
+    """The float64 description of a proven uncontrollable eigenvalue near ``target``.
+
+    Returns ``(eigenvalue, w, residual_eig, residual_input)``: the eigenvalue of F closest to
+    ``target``, its unit left eigenvector and the residuals (the proof itself is exact, elsewhere).
+    """
+    vals, vecs = np.linalg.eig(F.T)
+    i = int(np.argmin(np.abs(vals - target)))
+    w = vecs[:, i] / np.linalg.norm(vecs[:, i])
+    r = float(np.linalg.norm(w.conj() @ F - vals[i] * w.conj()))
+    ri = float(np.linalg.norm(w.conj() @ G))
+    return complex(vals[i]), w, r, ri

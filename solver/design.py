@@ -329,10 +329,21 @@ def _proof_back(cert, scale: Scaling, modes: ModeSet):
     (exact: powers of two) and are re-checked on interval data rebuilt from the
     user's F, G; when that re-check fails the scaled one stands (``scaled=True``).
     """
-    from .certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
+    from .certificates import (check_farkas, check_farkas_switched, describe_uncontrollable, interval_data,
+                               uncontrollable_mode)
     from .methods.common import congruent_scale
 
     if cert.kind == "uncontrollable":
+        l, t, u = cert.plant, scale.state, scale.input
+        Ft = modes.F[l] / t[:, None] * t[None, :]
+        Gt = modes.G[l] / t[:, None] * u[None, :]
+        if np.array_equal(Ft * t[:, None] / t[None, :], modes.F[l]) and np.array_equal(
+                Gt * t[:, None] / u[None, :], modes.G[l]):
+            # the exact proof carries over: the scaled pair is an exact powers-of-two similarity of the user's
+            # (no underflow: it scales back exactly); only the float64 description is redone in user coordinates
+            cert.eigenvalue, cert.left_vector, cert.residual_eig, cert.residual_input = describe_uncontrollable(
+                modes.F[l], modes.G[l], cert.eigenvalue)
+            return cert
         mine = uncontrollable_mode(modes.F, modes.G, 1.0 if cert.decay_rate is None else cert.decay_rate)
         if mine is not None:
             mine.decay_rate = cert.decay_rate

@@ -66,8 +66,9 @@ class Certificate(_Open):
     method: str | None = Field(None, description="`farkas`: the design method it excludes (`lmi` or `switched`).")
     margin: float | None = Field(
         None, description="`common_quadratic`/`switched`: relative decrease `decrease / lambda_max(P)` "
-        "(dimensionless, relative to the largest eigenvalue of P; accepted above 1e-9): how strictly "
-        "`Phi_s^T P Phi_s < P` holds. `farkas`: the relative strictness tau of the excluded designs.")
+        "(dimensionless, relative to the largest eigenvalue of the re-checked matrix P: the reduced `X` for "
+        "`common_quadratic`, whose `A_s^T X A_s < X` is equivalent to Theorem 1; accepted above 1e-9). "
+        "`farkas`: the relative strictness tau of the excluded designs (outcome `marginal`: only those).")
     decrease: float | None = Field(None, description="Smallest eigenvalue of `P - Phi_s^T P Phi_s` over all modes "
                                                      "(absolute, in the units of P).")
     min_eig_P: float | None = Field(None, description="Smallest eigenvalue of P (of every P_s); must be > 0.")

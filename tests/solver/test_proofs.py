@@ -399,3 +399,67 @@ def test_farkas_proof_of_a_badly_scaled_family_holds_in_the_user_coordinates():
     again = check_farkas(cert.multipliers, free, coef, dfree, dcoef, margin=cert.margin)
     assert again.verified and again.gain_bound == pytest.approx(cert.gain_bound, rel=1e-9)
     assert f"{cert.gain_bound:.3g}" in res.message
+
+
+# ----------------------------------------------------------------- floating-point definiteness proofs
+def _lower_bounds_cases():
+    rng = np.random.default_rng(11)
+    for k in (1, 2, 3, 5):
+        for _ in range(12):
+            Q = np.linalg.qr(rng.standard_normal((k, k)))[0]
+            lam = rng.choice([0.0, 1e-15, -1e-15, 1e-8, -1e-8, 1.0, -0.3], size=k) * rng.uniform(0.5, 2, size=k)
+            M = Q @ np.diag(lam) @ Q.T * 10.0 ** rng.integers(-3, 4)
+            yield 0.5 * (M + M.T)
+
+
+def test_float_eigenvalue_bounds_are_proven_by_own_exact_arithmetic():
+    """lambda_min(M) >= lower and lambda_max(M) <= upper, checked by Sylvester's criterion in rationals."""
+    from solver.certificates import lambda_max_upper, lambda_min_lower
+
+    for M in _lower_bounds_cases():
+        lo, hi = lambda_min_lower(M), lambda_max_upper(M)
+        q = fr(M)
+        k = len(q)
+        # M - (lo - s) I > 0 and (hi + s) I - M > 0 exactly, s a hair (the bounds are non-strict)
+        s = Fraction(1, 2**1000)
+        assert positive_definite(shift(q, -Fraction(lo) + s))
+        assert positive_definite([[-v for v in row] for row in shift(q, -Fraction(hi) - s)])
+        # and they are useful: within a few ulps of the matrix scale from numpy's eigenvalues
+        est = np.linalg.eigvalsh(M)
+        scale = max(np.abs(M).max(), 1e-300)
+        assert est[0] - lo <= 1e-12 * scale * k and hi - est[-1] <= 1e-12 * scale * k
+
+
+def test_float_and_exact_farkas_checks_agree():
+    from solver.certificates import Prover, _farkas_lmi
+
+    res = design(CONFLICT, 2, method="lmi")
+    modes = ModeSet.from_family(CONFLICT, 2)
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map)
+    args = (res.certificate.multipliers, free, coef, dfree, dcoef, None, res.certificate.margin)
+    fl, _, prover = _farkas_lmi(*args, Prover(exact=False))
+    ex, _, _ = _farkas_lmi(*args, Prover(exact=True))
+    assert fl.verified == ex.verified and fl.any_margin == ex.any_margin
+    assert fl.delta <= ex.delta + 1e-300 and ex.delta - fl.delta <= 4 * prover.slack + 1e-15
+
+
+def test_pbh_screen_sends_every_uncontrollable_mode_to_the_exact_test():
+    from solver.certificates import clearly_controllable, uncontrollable_mode
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):  # generic pairs are cleared
+        assert clearly_controllable(rng.standard_normal((4, 4)), rng.standard_normal((4, 1)))
+    for block in (1, 2, 3):  # an uncontrollable Jordan block of size 1..3 at 1.25, hidden by a similarity
+        n = block + 2
+        F = np.zeros((n, n))
+        F[:2, :2] = [[0.5, 1.0], [0.0, 0.3]]
+        F[2:, 2:] = 1.25 * np.eye(block) + np.eye(block, k=1)
+        F[:2, 2:] = 1.0  # the controllable part sees the uncontrollable one; inputs reach only the first two
+        G = np.zeros((n, 1))
+        G[1, 0] = 1.0
+        T = np.eye(n) + np.triu(rng.integers(-2, 3, size=(n, n)), 1).astype(float)  # unit triangular, exact inverse
+        Ti = np.linalg.inv(T)
+        Fs, Gs = T @ F @ Ti, T @ G
+        assert not clearly_controllable(Fs, Gs)
+        cert = uncontrollable_mode(Fs[None], Gs[None])  # integer similarity: the float pair stays uncontrollable
+        assert cert is not None and cert.verified and abs(abs(cert.eigenvalue) - 1.25) < 1e-3
