@@ -240,7 +240,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         cert, A = certify_gains(modes, gains, options, clock, candidate=Winv, candidate_source=f"lmi_{objective}")
     if cert is None:  # perhaps no stabilizing design exists at all: the plain design may prove it
         base = lmi.run(modes, options)
-        if base.outcome == "infeasible":
+        if base.outcome in ("infeasible", "marginal"):  # each names what its Farkas certificate proves
             base.message = f"the {objective} SDP gave no certified gains; {base.message}"
             base.objective = objective
             return base
@@ -273,13 +273,13 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
 
 def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objective: str, reason: str,
                info: SolveInfo | None) -> DesignResult:
-    """No certified design: the plain stability design decides between "infeasible" (proven) and "not_converged".
+    """No certified design: the plain stability design decides: "infeasible"/"marginal" (proven) or "not_converged".
 
     Every objective here asks for a common quadratic Lyapunov function that the plain ``lmi`` design also
     needs (cost with Q > 0 and input limits imply its strict inequality), so its Farkas proof excludes them too.
     """
     base = lmi.run(lifted.modes, options)
-    if base.outcome == "infeasible":
+    if base.outcome in ("infeasible", "marginal"):  # each names what its Farkas certificate proves
         base.message = f"{reason}; {base.message}"
         base.objective = objective
         return base
