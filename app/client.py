@@ -540,7 +540,8 @@ class Client:
     # -- designs
     def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
                sampling_period: float | None = None, label: str | None = None, objective: str | None = None,
-               weights=None, x0=None, disturbance=None, output=None, u_max=None, **options) -> DesignResult | Job:
+               weights=None, x0=None, disturbance=None, output=None, u_max=None, channel=None,
+               exhausted: str = "hold", **options) -> DesignResult | Job:
         """Design gains K_1..K_{n_drop} on the service.
 
         Parameters
@@ -560,6 +561,9 @@ class Client:
             Your name for the job (at most 200 characters), shown in :meth:`jobs`.
         objective, weights, x0, disturbance, output, u_max
             As in :func:`solver.design` (``"cost"`` / ``"hinf"``, ``(Q, R)``, ``(C, D)``, ...; docs/design.md §8).
+        channel, exhausted
+            A :class:`solver.channel.Channel` (or its JSON) to judge the designed gains on; the result's
+            ``raw["channel"]`` is then the report of :meth:`analyze_channel` (burst rate, ``ms_stable``, ...).
         **options
             ``decay_rate``, ``plant_switching``, ``scheme``, ``solver``, ``margin``, ``max_iter``
             (the request's ``options``).
@@ -583,6 +587,9 @@ class Client:
         if objective is not None:
             body["objective"] = objective
         body.update(performance_json(weights=weights, x0=x0, disturbance=disturbance, output=output, u_max=u_max))
+        if channel is not None:
+            body["channel"] = _channel_json(channel)
+            body["exhausted"] = exhausted
         job = self._submit("design", body, wait)
         if not job.done:
             return job

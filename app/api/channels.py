@@ -17,10 +17,6 @@ from app.settings import Settings
 router = APIRouter(prefix="/v1", dependencies=[Depends(require_api_key)], responses=V1_RESPONSES)
 
 
-def _channel_states(channel) -> int:
-    return {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
-
-
 @router.post(
     "/channels", tags=["channels"], response_model=ChannelAnalysis,
     summary="Given gains on a lossy channel: burst rate, mean-square stability, expected cost",
@@ -39,11 +35,7 @@ async def run_channel(request: Request,
         n_drop = validation.check_gains(body.gains, body.n_drop, shape, errors)
         if not errors:
             validation.check_n_drop(n_drop, settings, errors)
-            size = _channel_states(body.channel) * shape.r * (n_drop + 1) * (2 * shape.n) ** 2
-            if size > settings.max_channel_size:
-                errors.append(validation.field_error(
-                    ["body", "channel"], f"the channel analysis has an operator of size up to {size}, over the "
-                    f"limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)", "limit_exceeded"))
+            validation.check_channel_size(body.channel, shape, n_drop, settings, errors)
     if errors:
         raise invalid(errors)
     req = body.model_dump(mode="json")

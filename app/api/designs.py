@@ -45,10 +45,11 @@ async def submit_design(
     settings: Settings = Depends(get_settings),
     owner: str | None = Depends(require_api_key),
 ):
-    validation.check_design(body, settings)
+    shape = validation.check_design(body, settings)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
     validation.check_performance(req, settings)
+    validation.check_design_channel(body, shape, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
 
 

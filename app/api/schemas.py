@@ -229,6 +229,9 @@ class DesignResult(_Open):
     invariant_set: Matrix | None = Field(
         None, description="With `u_max`: X (n x n) of `{x : x'Xx <= 1}`: from every state in it, under every "
         "allowed pattern, every applied input meets the limits (re-checked).")
+    channel: "ChannelAnalysis | None" = Field(
+        None, description="With a `channel` in the request and a stabilized design: the designed gains on that "
+        "channel (as `POST /v1/channels` answers).")
 
 
 # -- margins -------------------------------------------------------------------------------------
@@ -568,3 +571,6 @@ class ChannelAnalysis(_Open):
     plant_transitions: str = Field(description="`stay`, `markov` or `arbitrary`.")
     n_modes: int = Field(description="Modes of the jump system (channel state, plant mode, buffer age).")
     reason: str = Field(description="The verdict in words.")
+
+
+DesignResult.model_rebuild()  # its `channel` field names ChannelAnalysis, defined below it

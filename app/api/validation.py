@@ -289,6 +289,34 @@ def check_performance(req: dict[str, Any], settings: Settings) -> None:
                                    "limit_exceeded")])
 
 
+def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
+    """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
+    states = {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
+    size = states * shape.r * (n_drop + 1) * (2 * shape.n) ** 2
+    if size > settings.max_channel_size:
+        errors.append(field_error(["body", "channel"], f"the channel analysis has an operator of size up to {size}, "
+                                  f"over the limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)",
+                                  "limit_exceeded"))
+
+
+def check_design_channel(req: Any, shape: Shape, settings: Settings) -> None:
+    """A design request's channel: its size, and the solver's own checks (a row that does not sum to 1, ...)."""
+    if req.channel is None:
+        return
+    errors: list = []
+    check_channel_size(req.channel, shape, req.n_drop, settings, errors)
+    if errors:
+        raise invalid(errors)
+    from solver import InvalidInput
+
+    from app.compute.tasks import channel_from_request
+
+    try:
+        channel_from_request(req.channel.model_dump())
+    except InvalidInput as exc:
+        raise invalid([solver_field_error(getattr(exc, "field", ()), str(exc))]) from None
+
+
 def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_switching: str = "per_interval",
                       scheme: str = "predictive") -> None:
     """What the solver library itself checks before a design, run before a job exists: the family (the

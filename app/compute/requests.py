@@ -184,6 +184,39 @@ class Output(_Strict):
     D: PerMode | None = Field(None, description="p x m, one or one per mode; null means zero.")
 
 
+Probability = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=1)]
+
+
+class BernoulliChannel(_Strict):
+    """Independent losses: each sample is not effective with probability `loss`."""
+
+    kind: Literal["bernoulli"] = Field(description="`bernoulli`: independent losses.")
+    loss: Probability = Field(description="Loss probability per sample (dimensionless).")
+
+
+class GilbertElliottChannel(_Strict):
+    """Two states, good and bad, switching per sample."""
+
+    kind: Literal["gilbert_elliott"] = Field(description="`gilbert_elliott`: a two-state (good, bad) link.")
+    p_gb: Probability = Field(description="P(good -> bad) per sample.")
+    p_bg: Probability = Field(description="P(bad -> good) per sample.")
+    loss_good: Probability = Field(0.0, description="Loss probability of a sample in the good state.")
+    loss_bad: Probability = Field(1.0, description="Loss probability of a sample in the bad state.")
+
+
+class MarkovChannel(_Strict):
+    """A general channel: an irreducible Markov chain, per sample, and a loss probability per state."""
+
+    kind: Literal["markov"] = Field(description="`markov`: a general chain.")
+    transition: list[list[Probability]] = Field(max_length=16, description="c x c row-stochastic matrix: "
+                                                "`transition[i][j]` = P(state j next | state i).")
+    loss: list[Probability] = Field(max_length=16, description="Loss probability per state (length c).")
+
+
+ChannelSpec = Annotated[Union[BernoulliChannel, GilbertElliottChannel, MarkovChannel], Field(
+    discriminator="kind", description="The packet channel (Markov chain of loss probabilities).")]
+
+
 class _Performance(_Strict):
     """Performance fields shared by design and analysis requests (docs/design.md §8)."""
 
@@ -212,6 +245,13 @@ class DesignRequest(_Performance):
     u_max: list[Annotated[Number, Field(gt=0)]] | None = Field(
         None, description="Input limits (length m): every applied input satisfies |u_j| <= u_max[j] from every "
         "state of the result's `invariant_set`, under every allowed pattern. With `cost` it needs `x0`.")
+    channel: ChannelSpec | None = Field(
+        None, description="A lossy channel to judge the designed gains on (they are designed for the drop bound "
+        "n_drop): the result's `channel` gives the burst rate, mean-square stability when the buffer runs dry "
+        "(`exhausted`) and the expected cost (the request's `weights`, else Q = I, R = I), as `POST /v1/channels` "
+        "does.")
+    exhausted: Literal["hold", "zero"] = Field(
+        "hold", description="With a channel: the input once n_drop samples passed without an effective packet.")
 
     def performance_kwargs(self) -> dict:
         """Keyword arguments of solver.design for the performance fields."""
@@ -233,39 +273,6 @@ def performance_kwargs(req, **extra) -> dict:
 
 
 _single_gains = _one_error_for_single_matrix("gains", "n_drop gain matrices K_1..K_N (each m x n)")
-
-
-Probability = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=1)]
-
-
-class BernoulliChannel(_Strict):
-    """Independent losses: each sample is not effective with probability `loss`."""
-
-    kind: Literal["bernoulli"]
-    loss: Probability = Field(description="Loss probability per sample (dimensionless).")
-
-
-class GilbertElliottChannel(_Strict):
-    """Two states, good and bad, switching per sample."""
-
-    kind: Literal["gilbert_elliott"]
-    p_gb: Probability = Field(description="P(good -> bad) per sample.")
-    p_bg: Probability = Field(description="P(bad -> good) per sample.")
-    loss_good: Probability = Field(0.0, description="Loss probability of a sample in the good state.")
-    loss_bad: Probability = Field(1.0, description="Loss probability of a sample in the bad state.")
-
-
-class MarkovChannel(_Strict):
-    """A general channel: an irreducible Markov chain, per sample, and a loss probability per state."""
-
-    kind: Literal["markov"]
-    transition: list[list[Probability]] = Field(max_length=16, description="c x c row-stochastic matrix: "
-                                                "`transition[i][j]` = P(state j next | state i).")
-    loss: list[Probability] = Field(max_length=16, description="Loss probability per state (length c).")
-
-
-ChannelSpec = Annotated[Union[BernoulliChannel, GilbertElliottChannel, MarkovChannel], Field(
-    discriminator="kind", description="The packet channel (Markov chain of loss probabilities).")]
 
 
 class SimulationRequest(_Strict):

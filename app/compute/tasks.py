@@ -142,6 +142,14 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
                  **req.performance_kwargs())
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
+    if req.channel is not None and res.outcome == "stabilized":
+        from solver.channel import analyze_channel
+
+        n, m = fam.n_states, fam.n_inputs
+        weights = (np.eye(n), np.eye(m)) if req.weights is None else (req.weights.Q, req.weights.R)
+        rep = analyze_channel(fam, res.gains, req.n_drop, channel_from_request(req.channel.model_dump()),
+                              exhausted=req.exhausted, weights=weights)
+        out["channel"] = channel_report_json(rep, req.n_drop)
     return add_per_second_rates(out, fam.sampling_period)
 
 
@@ -255,19 +263,38 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
 
-def run_channel(req: dict[str, Any]) -> dict[str, Any]:
-    """``analyze_channel`` for ``POST /v1/channels``; certificates summarized (their matrices stay out)."""
+def channel_from_request(spec: dict[str, Any]):
+    """A request's channel JSON as a :class:`solver.channel.Channel`; its errors name fields under /channel."""
     from solver import InvalidInput
-    from solver.channel import Channel, analyze_channel
+    from solver.channel import Channel
+
+    try:
+        return Channel.from_dict(spec)
+    except InvalidInput as exc:
+        raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+
+
+def channel_report_json(rep, n_drop: int) -> dict[str, Any]:
+    """A :class:`solver.channel.ChannelReport` as JSON, its certificates summarized (their matrices stay out)."""
+    out = jsonable(rep.to_dict())
+    for key in ("upper_certificate", "lower_certificate"):
+        cert = out.get(key)
+        if cert is not None:
+            out[key] = {k: cert[k] for k in ("kind", "verified", "beta", "mu", "steps") if k in cert}
+    out["n_drop"] = n_drop
+    return out
+
+
+def run_channel(req: dict[str, Any]) -> dict[str, Any]:
+    """``analyze_channel`` for ``POST /v1/channels``."""
+    from solver import InvalidInput
+    from solver.channel import analyze_channel
 
     fam = build_family(req["plant"])
     gains = _gains_array(req["gains"])
     n_drop = req.get("n_drop") or gains.shape[0]
     weights = None if req.get("weights") is None else (req["weights"]["Q"], req["weights"]["R"])
-    try:
-        channel = Channel.from_dict(req["channel"])
-    except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
-        raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+    channel = channel_from_request(req["channel"])
     try:
         rep = analyze_channel(fam, gains, n_drop, channel, exhausted=req["exhausted"],
                               plant_transitions=req.get("plant_transitions"), weights=weights,
@@ -276,13 +303,7 @@ def run_channel(req: dict[str, Any]) -> dict[str, Any]:
         if exc.field[:1] in (("Q",), ("R",)):
             raise InvalidInput(str(exc), ("weights", *exc.field)) from None
         raise
-    out = jsonable(rep.to_dict())
-    for key in ("upper_certificate", "lower_certificate"):
-        cert = out.get(key)
-        if cert is not None:
-            out[key] = {k: cert[k] for k in ("kind", "verified", "beta", "mu", "steps") if k in cert}
-    out["n_drop"] = n_drop
-    return out
+    return channel_report_json(rep, n_drop)
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,

@@ -81,3 +81,44 @@ def test_simulation_on_a_channel_is_the_library_run(http):
     np.testing.assert_allclose(data["x"], ref.state, rtol=1e-12)
     bad = {**body, "channel": {"kind": "markov", "transition": [[0.5, 0.4], [0.5, 0.5]], "loss": [0, 1]}}
     assert_problem(http.post("/v1/simulations", json=bad), 422, "/channel/transition")
+
+
+def test_a_design_request_with_a_channel_reports_the_designed_gains_on_it(http):
+    link = {"kind": "gilbert_elliott", "p_gb": 0.05, "p_bg": 0.3, "loss_good": 0.01, "loss_bad": 0.8}
+    body = {"plant": PAPER_PLANT, "n_drop": 3, "channel": link, "exhausted": "zero"}  # cost: Q = I, R = I
+    resp = http.post("/v1/designs", json=body, headers={"Prefer": "wait=60"})
+    assert resp.status_code == 201, resp.text
+    result = resp.json()["result"]
+    assert result["outcome"] == "stabilized"
+    fam = PlantFamily.from_dict(PAPER_PLANT)
+    ref = analyze_channel(fam, np.array(result["gains"]), 3, Channel.gilbert_elliott(0.05, 0.3, 0.01, 0.8),
+                          exhausted="zero", weights=(np.eye(2), np.eye(1)))
+    got = result["channel"]
+    assert got["ms_stable"] is ref.ms_stable is True and got["n_drop"] == 3
+    assert got["burst_rate"] == pytest.approx(ref.burst_rate, rel=1e-12)
+    assert got["expected_cost"] == pytest.approx(ref.expected_cost, rel=1e-9)
+    assert "P" not in got["upper_certificate"]
+    # without a channel the result has none
+    plain = http.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 3}, headers={"Prefer": "wait=60"})
+    assert plain.json()["result"].get("channel") is None
+
+
+@pytest.mark.parametrize("channel, pointer", [
+    ({"kind": "markov", "transition": [[0.5, 0.4], [0.5, 0.5]], "loss": [0, 1]}, "/channel"),
+    ({"kind": "bernoulli", "loss": 1.5}, "/channel"),
+    ({"kind": "markov", "transition": np.full((12, 12), 1 / 12).tolist(), "loss": [0.1] * 12}, "/channel"),
+])
+def test_a_design_request_with_a_bad_channel_is_a_422_before_any_job(http, channel, pointer):
+    before = http.get("/v1/designs").json()
+    resp = http.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 3, "channel": channel})
+    assert_problem(resp, 422, pointer)
+    assert http.get("/v1/designs").json() == before
+
+
+def test_the_client_designs_for_a_channel(http):
+    client = Client("http://testserver", http_client=http, poll_interval=0.05)
+    fam = PlantFamily.from_dict(PAPER_PLANT)
+    res = client.design(fam, 3, channel=Channel.bernoulli(0.3), exhausted="hold")
+    ref = analyze_channel(fam, res.gains, 3, Channel.bernoulli(0.3), exhausted="hold")
+    assert res.raw["channel"]["ms_stable"] is True
+    assert res.raw["channel"]["ms_radius"] == pytest.approx(ref.ms_radius, rel=1e-9)
