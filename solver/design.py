@@ -8,12 +8,12 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver
+from .compiled import check_solver, design_size
 from .errors import InvalidInput
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
 from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
-from .network import MAX_MODES, ModeSet
+from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
 from .result import DesignResult
 from .scaling import Scaling, balance
@@ -61,6 +61,7 @@ def design(
     scheme: str = "predictive",
     max_modes: int = MAX_MODES,
     scaling: str = "auto",
+    max_memory: float | None = None,
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -119,6 +120,13 @@ def design(
         ``"auto"`` designs in balanced coordinates (diagonal powers of two) when
         the family's entries spread over more than three decades, and maps
         gains and certificates back (see :mod:`solver.scaling`).
+    max_memory : float, optional
+        Memory budget in bytes (default :data:`solver.compiled.MAX_SOLVER_MEMORY`, 4 GiB, or
+        ``NCS_SOLVER_MAX_MEMORY``).  Before anything is built, the design's size is estimated
+        (:func:`solver.compiled.design_size`) and a design over this budget, or over
+        :data:`solver.compiled.MAX_SOLVER_SECONDS` (300 s, ``NCS_SOLVER_MAX_SECONDS``) of estimated
+        solver time when no ``time_limit`` is given, is refused with ``InvalidInput`` naming the
+        size and the limit.  The same estimate sets the service's limits.
 
     Returns
     -------
@@ -143,6 +151,8 @@ def design(
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
+    check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit,
+                 solves=solve_count(method, decay_rate, rate_tol, max_iter))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     options = DesignOptions(
@@ -160,6 +170,33 @@ def design(
                                            scheme=scheme, max_modes=max_modes)
         return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
     return _best(method, modes, options, decay_rate, rate_tol)
+
+
+def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
+    """How many SDPs a design solves at most (for the time estimate)."""
+    if method == "ccl":
+        return int(max_iter)
+    if decay_rate in ("max", "auto"):
+        return int(np.ceil(np.log2(1.0 / rate_tol))) + 2
+    return 1
+
+
+def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str, scheme: str, max_modes: int,
+                 max_memory: float | None, time_limit: float | None, solves: int = 1) -> None:
+    """Refuse, before building anything, a design whose estimated memory or time is over budget.
+
+    A thin layer over :func:`solver.compiled.design_size` (the estimate the service's limits use too).
+    Bad ``n_drop``, ``plant_switching``, ``scheme`` or too many modes are left to
+    :class:`ModeSet`, which names them.  With a ``time_limit`` the caller bounded the time, so only
+    memory is checked.
+    """
+    n_drop = check_n_drop(n_drop)
+    if plant_switching not in PLANT_SWITCHING or scheme not in SCHEMES:
+        return
+    if mode_count(family.n_modes, n_drop, plant_switching) > max_modes:
+        return
+    size = design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme)
+    size.check(max_memory, float("inf") if time_limit is not None else None, solves=solves)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
