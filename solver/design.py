@@ -15,7 +15,7 @@ from .methods.common import DesignOptions
 from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .result import DesignResult
+from .result import DesignResult, certified_settling, metric_condition
 from .scaling import Scaling, balance
 
 #: Method name -> module with ``run(modes, options)``.
@@ -34,7 +34,7 @@ def _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol
         raise InvalidInput("time_limit must be positive (seconds)", ("time_limit",))
     if ccl_start not in ("feasibility", "min_trace"):
         raise InvalidInput("ccl_start must be 'feasibility' or 'min_trace'", ("ccl_start",))
-    if decay_rate is not None:
+    if decay_rate is not None and decay_rate != "auto":
         if method not in RATE_METHODS:
             raise InvalidInput(f"decay_rate is available with methods {RATE_METHODS}", ("decay_rate",))
         if decay_rate != "max" and (isinstance(decay_rate, bool) or not isinstance(decay_rate, (int, float))
@@ -55,7 +55,7 @@ def design(
     time_limit: float | None = None,
     callback: Callable | None = None,
     ccl_start: str = "feasibility",
-    decay_rate: float | str | None = None,
+    decay_rate: float | str | None = "auto",
     rate_tol: float = 1e-3,
     plant_switching: str = "per_interval",
     scheme: str = "predictive",
@@ -98,8 +98,14 @@ def design(
         iteration; returning True stops the design (``not_converged``).
     ccl_start : {"feasibility", "min_trace"}
         CCL Step 1: the paper's pure feasibility problem, or ``min trace(P + Q)``.
-    decay_rate : float in (0, 1], "max" or None
-        Demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
+    decay_rate : float in (0, 1], "auto", "max" or None
+        ``"auto"`` (default): a loop that settles within about 1.5 times the fastest certifiable
+        one, with smaller gains: a coarse bisection (:data:`AUTO_SETTLING_TOLERANCE`) finds a certified
+        rate ``lambda*`` within 10 % of the best in settling time, then the design is made at
+        ``lambda*^(1 / AUTO_SLOWDOWN)`` (settling time ``AUTO_SLOWDOWN = 1.5`` times longer, where
+        the LMI has room left, so gains are far smaller than at the optimum).  ``ccl`` has no rate
+        and treats ``"auto"`` as None.  ``None``: plain stability (maximizes the LMI's relative
+        margin; such loops may contract by only 0.99 per sample).  A number: demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
         in the certificate's norm), or find the smallest one (``"max"``) by bisection on the
         congruent SDP (data of mode s times ``lambda^(-eta_s)``; docs/design.md).  A rate is
         accepted only by the float64 re-check at that rate and rejected only with a
@@ -162,14 +168,21 @@ def design(
         time_limit=None if time_limit is None else float(time_limit),
         callback=callback,
         ccl_start=ccl_start,
-        decay_rate=None if decay_rate in (None, "max") else float(decay_rate),
+        decay_rate=None if decay_rate in (None, "max", "auto") else float(decay_rate),
     )
+    if decay_rate == "auto" and method not in RATE_METHODS:
+        decay_rate = None
     scale = balance(family) if scaling == "auto" else None
     if scale is not None and not scale.is_identity:
         scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
                                            scheme=scheme, max_modes=max_modes)
-        return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
-    return _best(method, modes, options, decay_rate, rate_tol)
+        res = _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+    else:
+        res = _best(method, modes, options, decay_rate, rate_tol)
+    if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
+        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
+                                          family.sampling_period)
+    return res
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
@@ -215,9 +228,57 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
 
 
 def _run(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
+    if decay_rate == "auto":
+        return _auto_rate(method, modes, options)
     if decay_rate != "max":
         return METHODS[method].run(modes, options)
     return _smallest_rate(method, modes, options, rate_tol)
+
+
+#: ``decay_rate="auto"``: the settling time asked for, as a multiple of the fastest certified one.
+AUTO_SLOWDOWN = 1.5
+#: ``decay_rate="auto"``: the coarse bisection stops when its bracket ``[lo, hi]`` is within this relative
+#: tolerance in settling time (``ln lo / ln hi <= 1 + tol``), so the default loop settles within
+#: ``1.5 x 1.1 = 1.65`` times the fastest certifiable one (under 2x).
+AUTO_SETTLING_TOLERANCE = 0.1
+
+
+def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignResult:
+    """The default design: a rate whose settling time is ``AUTO_SLOWDOWN`` times the best one's.
+
+    At the best rate the LMI's margin vanishes and gains grow without bound; 1.5x its settling time
+    leaves the SDP room, so its maximal-margin solution has moderate gains.  The coarse bisection runs
+    on the settling time (``-1 / ln lambda``), geometrically, since that is what the tolerance is on.
+    """
+    start = time.perf_counter()
+    best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+    if best is not None and best.outcome != "stabilized" and "time limit" not in best.message:
+        # no certified rate at all (not even lambda = 1 with the rate form's margin): plain stability, whose
+        # margin is normalized differently, may still certify the loop
+        plain = METHODS[method].run(modes, options)
+        plain.message += "; decay_rate='auto': no certified decay rate, plain stability design"
+        return plain
+    if best is None or best.outcome != "stabilized" or best.decay_rate is None or best.decay_rate >= 1.0:
+        return best
+    fastest = float(best.decay_rate)
+    target = fastest ** (1.0 / AUTO_SLOWDOWN)
+    remaining = None if options.time_limit is None else options.time_limit - (time.perf_counter() - start)
+    if remaining is not None and remaining <= 0:
+        return best
+    res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+    if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
+        return best
+    res.rate_search = best.rate_search + [{"decay_rate": target, "outcome": res.outcome,
+                                           "proof": None if res.certificate is None else res.certificate.kind}]
+    res.rate_bracket = {**best.rate_bracket, "fastest_certified": fastest, "slowdown": AUTO_SLOWDOWN}
+    res.decay_rate = target
+    res.message += (f"; decay_rate='auto': designed at {target:.6g} per sample = {fastest:.6g}^(1/{AUTO_SLOWDOWN:g}), "
+                    f"settling {AUTO_SLOWDOWN:g}x the fastest certified rate's (bracket [{best.rate_bracket['lower']:.6g}, "
+                    f"{fastest:.6g}])")
+    total = time.perf_counter() - start
+    res.timings.update(total=total, solves=len(res.rate_search),
+                       solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
+    return res
 
 
 #: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
@@ -225,7 +286,8 @@ MIN_RATE = 1e-4
 
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
-                   upper: DesignResult | None = None, user_limit: float | None = None) -> DesignResult:
+                   upper: DesignResult | None = None, user_limit: float | None = None,
+                   settling: bool = False) -> DesignResult:
     """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
 
     A rate is accepted only when the float64 re-check of that step's gains and
@@ -273,8 +335,17 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             if best is not None:
                 best.rate_search = search
             return best if best is not None else _time_out(modes, method, options, search)
-    while hi - lo > tol * hi and hi > MIN_RATE and not timed_out:
-        mid = 0.5 * (lo + hi)
+    def done(lo, hi):
+        if not settling:
+            return hi - lo <= tol * hi
+        return lo > 0 and hi < 1 and np.log(lo) / np.log(hi) <= 1 + tol
+
+    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+        if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)
+            s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
+            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+        else:
+            mid = 0.5 * (lo + hi)
         res = attempt(mid)
         if res is None:
             break

@@ -82,8 +82,8 @@ SOLVER_FAILED = "solver_failed"
 
 def _probe(family: PlantFamily, n_drop: int, method: str, design_options: dict, where: dict):
     """One design of a search: ``(result or None, curve point)``; a solver failure is a point, not a crash."""
-    try:
-        res = design(family, n_drop, method=method, **design_options)
+    try:  # a margin is about stability: plain designs unless a rate is asked for
+        res = design(family, n_drop, method=method, **{"decay_rate": None, **design_options})
     except SolverFailed as err:
         return None, {**where, "outcome": SOLVER_FAILED, "max_spectral_radius": None, "certificate_margin": None,
                       "decay_rate": None, "gains": None, "message": f"no certified design: {err}"}
