@@ -88,12 +88,14 @@ def load_gains(path: str) -> np.ndarray:
 
 
 def _parse_decay_rate(text: str | None):
-    if text is None or text == "max":
+    if text is None or text in ("max", "auto"):
         return text
+    if text == "none":
+        return None
     try:
         return float(text)
     except ValueError:
-        raise UsageError(f"--decay-rate must be a number in (0, 1] or 'max', got {text!r}") from None
+        raise UsageError(f"--decay-rate must be a number in (0, 1], 'auto', 'max' or 'none', got {text!r}") from None
 
 
 # ------------------------------------------------------------------------------------------- summary
@@ -113,6 +115,19 @@ def plant_summary(fam) -> str:
             f"m = {fam.n_inputs} inputs, {h}{names}").replace("plant :", "plant:")
 
 
+def settling_lines(settling: dict | None) -> list[str]:
+    """The certified rate in time units and the settling time it guarantees."""
+    if not settling:
+        return []
+    line = f"certified decay rate: {settling['decay_rate']:.4g} per sample"
+    if settling.get("exponential_rate") is not None:
+        line += (f" = factor {settling['decay_factor_per_second']:.3g} per second (exponential rate "
+                 f"{settling['exponential_rate']:.3g} 1/s, time constant {settling['time_constant']:.3g} s)")
+    seconds = "" if settling.get("seconds") is None else f" = {settling['seconds']:.3g} s"
+    return [line, f"certified settling time to 2 % of |x0|, worst case over every allowed loss and switching "
+                  f"sequence: {settling['samples']} samples{seconds}"]
+
+
 def design_summary(result: dict) -> list[str]:
     lines = [f"design: method {result.get('method')}, n_drop = {result['n_drop']}: {result['outcome']}"]
     cert = result.get("certificate")
@@ -125,8 +140,7 @@ def design_summary(result: dict) -> list[str]:
             lines.append(f"certificate: {cert.get('kind')}, {checked}: {cert.get('statement') or ''}".rstrip(": "))
     if result.get("max_spectral_radius") is not None:
         lines.append(f"max spectral radius of the interval closed loops: {result['max_spectral_radius']:.4g}")
-    if result.get("decay_rate") is not None:
-        lines.append(f"certified decay rate: {result['decay_rate']:.4g} per sample")
+    lines += settling_lines(result.get("settling"))
     for q, K in enumerate(result.get("gains") or []):
         lines.append(f"K_{q + 1} = {_fmt_matrix(K)}")
     if result.get("message"):
@@ -159,11 +173,28 @@ def cmd_design(args) -> int:
         res = design(fam, n_drop=args.n_drop, method=args.method, **options)
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
-    print("\n".join(design_summary(result)))
+    print("\n".join(design_summary(result)), flush=True)
+    if result["outcome"] == "stabilized" and result.get("gains"):
+        print(simulated_settling(fam, result))
     if args.output:
         _write_design(args.output, suffix, result, fam)
         print(f"wrote {args.output}")
     return EXIT_OK if result["outcome"] == "stabilized" else EXIT_NO
+
+
+def simulated_settling(fam, result: dict, seed: int = 42) -> str:
+    """One seeded run from x0 = all ones: where it settled, next to the certified worst case."""
+    from solver import simulate
+
+    certified = (result.get("settling") or {}).get("samples") or 100
+    steps = int(min(max(2 * certified, 100), 10_000))
+    run = simulate(fam, np.asarray(result["gains"]), result["n_drop"], x0=np.ones(fam.n_states), steps=steps,
+                   seed=seed)
+    k = run.settling_samples()
+    if k is None:
+        return f"simulated run (seed {seed}, x0 = all ones, {steps} samples): not within 2 % of |x0| by its end"
+    seconds = "" if fam.sampling_period is None else f" = {k * fam.sampling_period:.3g} s"
+    return f"simulated settling to 2 % of |x0| (seed {seed}, x0 = all ones, paper's loss model): {k} samples{seconds}"
 
 
 def _write_design(path: str, suffix: str, result: dict, fam) -> None:

@@ -148,7 +148,7 @@ def check_design(req: Any, settings: Settings) -> Shape:
     if shape is not None and not errors:
         solves = solve_count(req.method, req.options.decay_rate, 1e-3, getattr(req.options, "max_iter", 50))
         check_size(req.method, shape, req.n_drop, req.options, settings, ["body", "n_drop"], errors, solves)
-        if req.options.decay_rate is not None and req.method == "ccl":
+        if req.options.decay_rate not in (None, "auto") and req.method == "ccl":
             errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
                                       "and switched methods, not ccl", "unsupported_option"))
     if errors:
@@ -197,7 +197,7 @@ def check_margin(req: Any, settings: Settings) -> int:
         elif largest > settings.max_n_drop:
             errors.append(field_error(["body", "points"], f"n_drop = {largest} is over the limit of "
                                       f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
-    if req.options.decay_rate is not None:
+    if req.options.decay_rate not in (None, "auto"):
         errors.append(field_error(["body", "options", "decay_rate"], "margin jobs search stability margins; "
                                   "decay_rate is a design option", "unsupported_option"))
     if shape is not None and not errors:

@@ -122,10 +122,17 @@ def per_second(rate: Any, sampling_period: float | None) -> float | None:
 
 
 def add_per_second_rates(out: dict[str, Any], sampling_period: float | None) -> dict[str, Any]:
-    """``decay_rate_per_second`` next to every ``decay_rate`` of a result and of its certificate."""
+    """Next to every ``decay_rate`` (a factor per sample) of a result and of its certificate: the factor per
+    second, the exponential rate in 1/s and the time constant in s (:func:`solver.result.rate_in_time`);
+    ``decay_rate_per_second`` stays as the old name of the factor per second."""
+    from solver.result import rate_in_time
+
     for d in (out, out.get("certificate") or {}):
         if "decay_rate" in d:
-            d["decay_rate_per_second"] = per_second(d.get("decay_rate"), sampling_period)
+            rate = d.get("decay_rate")
+            ok = isinstance(rate, (int, float)) and not isinstance(rate, bool)
+            d.update(jsonable(rate_in_time(rate if ok else None, sampling_period)), decay_rate=rate)
+            d["decay_rate_per_second"] = d["decay_factor_per_second"]
     return out
 
 

@@ -142,4 +142,5 @@ def test_readme_client_example_runs(db_url, start_server, capsys, monkeypatch):
     exec(compile(code, path, "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed[:3] == ["stabilized (3, 1, 2)", "True", "(51, 2) 2"]
-    assert printed[3] == "422 /plant/F", printed[3]  # a single matrix: one error saying how to wrap it
+    assert printed[3] == "InvalidInput ('F',)", printed[3]  # a single matrix: the library's error, before sending
+    assert printed[4] == "422 /n_drop", printed[4]  # over NCS_MAX_N_DROP: the service's problem
