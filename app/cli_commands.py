@@ -266,10 +266,10 @@ def cmd_simulate(args) -> int:
         Path(args.output).write_text(json.dumps(data) + "\n")
         print(f"wrote {args.output}")
     if args.plot:
-        from solver.plotting import render, trace_figure
+        from solver.plotting import SWITCHING_WORDS, render, trace_figure
 
-        Path(args.plot).write_bytes(render(trace_figure([run], [f"{args.plant_switching} plant switching"],
-                                                        family=fam), Path(args.plot).suffix[1:].lower()))
+        title = SWITCHING_WORDS.get(args.plant_switching, args.plant_switching).capitalize()
+        Path(args.plot).write_bytes(render(trace_figure([run], [title], family=fam), Path(args.plot).suffix[1:].lower()))
         print(f"wrote {args.plot}")
     return EXIT_OK
 

@@ -248,7 +248,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
                    size: dict[str, Any]) -> bytes:
     """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode."""
     from solver import simulate
-    from solver.plotting import render, trace_figure
+    from solver.plotting import SWITCHING_WORDS, mode_title, render, trace_figure
 
     fam = build_family(plant)
     K = _gains_array(gains)
@@ -257,7 +257,8 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
                   control_loss=params["control_loss"])
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
-    titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
+    first = SWITCHING_WORDS.get(params["plant_switching"], params["plant_switching"])
+    titles = [first[0].upper() + first[1:]] + [mode_title(fam, l) for l in range(fam.n_modes)]
     return render(trace_figure(runs, titles, family=fam, **size), fmt)
 
 

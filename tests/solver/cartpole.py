@@ -20,4 +20,5 @@ def cartpole(lengths=LENGTHS, sampling_period: float = 0.02, cart: float = 1.0, 
         B.append([[0], [1 / cart], [0], [-1 / (cart * length)]])
     return PlantFamily.from_continuous(A, B, sampling_period, state_names=["x", "v", "theta", "omega"],
                                        input_names=["F"],
-                                       units={"x": "m", "v": "m/s", "theta": "rad", "omega": "rad/s", "F": "N"})
+                                       units={"x": "m", "v": "m/s", "theta": "rad", "omega": "rad/s", "F": "N"},
+                                       mode_names=[f"pole {length:g} m" for length in lengths])
