@@ -134,8 +134,8 @@ def design_summary(result: dict) -> list[str]:
     if cert:
         checked = 'verified' if cert.get('verified') else 'NOT verified'
         if cert.get("margin") is not None:  # a Lyapunov certificate: stabilized
-            lines.append(f"certificate: {cert.get('kind')}, {checked}, "
-                         f"relative margin {cert['margin']:.3g} (decrease / lambda_max(P))")
+            lines.append(f"certificate: {cert.get('kind')}, {checked}, relative margin of this certificate's P "
+                         f"{cert['margin']:.3g} (min decrease / lambda_max(P))")
         else:  # a proof of infeasibility (farkas, uncontrollable) says what it proves in words
             lines.append(f"certificate: {cert.get('kind')}, {checked}: {cert.get('statement') or ''}".rstrip(": "))
     if result.get("max_spectral_radius") is not None:
@@ -225,9 +225,15 @@ def cmd_analyze(args) -> int:
     print(f"analysis, n_drop = {n_drop}: {verdict}: {report.get('reason', '')}")
     print(f"max spectral radius of the interval closed loops: {report['max_spectral_radius']:.4g}")
     if report.get("margin") is not None:
-        print(f"certificate relative margin: {report['margin']:.3g}")
+        print(f"relative margin of analyze's own certificate P (min decrease / lambda_max(P), the P that maximizes "
+              f"it for these gains; a design's P can have a smaller one): {report['margin']:.3g}")
     if report.get("decay_rate") is not None:
-        print(f"best certified decay rate: {report['decay_rate']:.4g} per sample")
+        from solver.result import rate_in_time
+
+        rate = rate_in_time(report["decay_rate"], fam.sampling_period)
+        extra = ("" if rate["exponential_rate"] is None else
+                 f" (exponential rate {rate['exponential_rate']:.3g} 1/s, time constant {rate['time_constant']:.3g} s)")
+        print(f"best certified decay rate: {report['decay_rate']:.4g} per sample{extra}")
     if args.output:
         Path(args.output).write_text(json.dumps(report, indent=1) + "\n")
         print(f"wrote {args.output}")

@@ -7,7 +7,8 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``);
 ``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
 ``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``);
-``python -m bench methods`` measures which method when (``bench/methods_bench.py``).
+``python -m bench methods`` measures which method when (``bench/methods_bench.py``);
+``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
 
 Options::
 
@@ -75,6 +76,10 @@ def main(argv=None) -> int:
         from . import methods_bench
 
         return methods_bench.main(argv[1:])
+    if argv and argv[0] == "startup":
+        from . import startup_bench
+
+        return startup_bench.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 
