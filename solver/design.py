@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from .compiled import check_solver, design_size
-from .errors import InvalidInput
+from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import DesignOptions
 from .lyapunov import lift, recheck_common, recheck_common_reduced, recheck_switched
@@ -251,7 +251,11 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     on the settling time (``-1 / ln lambda``), geometrically, since that is what the tolerance is on.
     """
     start = time.perf_counter()
-    best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+    try:
+        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+    except SolverFailed:  # at lambda = 1 already: plain stability's SDP is better conditioned
+        best = DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
+                            n_drop=modes.n_drop, message="the solver failed at decay rate 1")
     if best is not None and best.outcome != "stabilized" and "time limit" not in best.message:
         # no certified rate at all (not even lambda = 1 with the rate form's margin): plain stability, whose
         # margin is normalized differently, may still certify the loop
@@ -265,7 +269,10 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     remaining = None if options.time_limit is None else options.time_limit - (time.perf_counter() - start)
     if remaining is not None and remaining <= 0:
         return best
-    res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+    try:
+        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+    except SolverFailed:  # keep the certified faster loop
+        return best
     if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
         return best
     res.rate_search = best.rate_search + [{"decay_rate": target, "outcome": res.outcome,
@@ -280,6 +287,9 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
                        solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
     return res
 
+
+#: What a bisection step whose solver failed returns (no certificate, no proof).
+FAILED_STEP = object()
 
 #: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
 MIN_RATE = 1e-4
@@ -312,7 +322,14 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         if remaining is not None and remaining <= 0:
             timed_out = True
             return None
-        res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+        try:
+            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+        except SolverFailed as err:
+            if lam >= 1.0:  # nothing certified yet: the design itself failed
+                raise
+            # a step the solver could not finish certifies nothing and proves nothing: bisect above it
+            search.append({"decay_rate": lam, "outcome": "solver_failed", "proof": None, "message": str(err)})
+            return FAILED_STEP
         for key in totals:
             totals[key] += res.timings.get(key, 0)
         search.append({"decay_rate": lam, "outcome": res.outcome,
@@ -349,7 +366,9 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         res = attempt(mid)
         if res is None:
             break
-        if res.outcome == "stabilized":
+        if res is FAILED_STEP:
+            lo, lo_proven = mid, False
+        elif res.outcome == "stabilized":
             hi, best = mid, res
         else:
             lo, lo_proven = mid, res.outcome == "infeasible"

@@ -140,6 +140,8 @@ class RatePoint(_Open):
     proof: str | None = Field(None, description="Kind of the certificate behind that outcome (`common_quadratic`, "
                                                 "`switched`, `farkas`, `uncontrollable`; null: none).")
     method: str | None = Field(None, description="The method of that step when it differs from the result's.")
+    message: str | None = Field(None, description="`outcome: solver_failed`: the solver's words (such a step "
+                                                  "certifies nothing and proves nothing).")
 
 
 class Settling(_Open):

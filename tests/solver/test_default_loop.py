@@ -63,3 +63,28 @@ def test_rates_in_time_units_closed_forms():
     # sqrt(kappa) lam^k <= 0.02 first at k = ceil(ln(0.01) / ln(0.9)) = 44
     assert s["samples"] == 44 and s["seconds"] == pytest.approx(4.4)
     assert 2 * 0.9**44 <= 0.02 < 2 * 0.9**43
+
+
+def test_a_bisection_step_the_solver_fails_is_no_proof_and_no_crash(monkeypatch):
+    """A rate step whose solver fails (SolverFailed) is recorded and bisected above, never taken as a proof."""
+    import importlib
+
+    from solver import SolverFailed
+
+    design_module = importlib.import_module("solver.design")
+    lmi = design_module.METHODS["lmi"]
+    real = lmi.run
+
+    def flaky(modes, options):
+        if options.decay_rate is not None and options.decay_rate < 0.99:
+            raise SolverFailed("injected: IPM ended with status 'max_iterations'")
+        return real(modes, options)
+
+    monkeypatch.setattr(lmi, "run", flaky)
+    res = design(cartpole(), n_drop=3, decay_rate="max")
+    assert res.outcome == "stabilized" and res.decay_rate >= 0.99 and res.certificate.verified
+    failed = [step for step in res.rate_search if step["outcome"] == "solver_failed"]
+    assert failed and all("injected" in step["message"] for step in failed)
+    assert res.rate_bracket["lower_proven"] is False
+    auto = design(cartpole(), n_drop=3)
+    assert auto.outcome == "stabilized" and auto.certificate.verified
