@@ -78,6 +78,8 @@ def _point(res: DesignResult, **where) -> dict:
 #: ``outcome`` of a curve point whose solver failed (e.g. the IPM's iteration cap at a large h): no design
 #: was certified there, and nothing was proven either, about that point or any other.
 SOLVER_FAILED = "solver_failed"
+#: ``outcome`` of a curve point the size guard refused (estimated memory or time over budget): not tried.
+OVER_BUDGET = "over_budget"
 
 
 def _probe(family: PlantFamily, n_drop: int, method: str, design_options: dict, where: dict):
@@ -87,6 +89,12 @@ def _probe(family: PlantFamily, n_drop: int, method: str, design_options: dict, 
     except SolverFailed as err:
         return None, {**where, "outcome": SOLVER_FAILED, "max_spectral_radius": None, "certificate_margin": None,
                       "decay_rate": None, "gains": None, "message": f"no certified design: {err}"}
+    except InvalidInput as err:
+        if err.field != ("n_drop",) or "over the limit" not in str(err):
+            raise
+        # the size guard (solver.compiled.design_size): a point too big to try, which proves nothing either
+        return None, {**where, "outcome": OVER_BUDGET, "max_spectral_radius": None, "certificate_margin": None,
+                      "decay_rate": None, "gains": None, "message": f"not tried: {err}"}
     return res, _point(res, **where)
 
 
@@ -150,6 +158,9 @@ def max_n_drop(
     if curve and curve[-1]["outcome"] == SOLVER_FAILED:
         message += (f"; the solver failed at n_drop = {curve[-1]['n_drop']}, which proves nothing: "
                     "the margin may be larger")
+    if curve and curve[-1]["outcome"] == OVER_BUDGET:
+        message += (f"; n_drop = {curve[-1]['n_drop']} is over the size budget and was not tried, which proves "
+                    "nothing: the margin may be larger")
     return MarginResult("n_drop", margin, best, curve, method, stopped, message,
                         {"total": time.perf_counter() - start, "designs": len(curve)})
 

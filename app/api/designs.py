@@ -163,7 +163,8 @@ async def design_trace_image(
     owner: str | None = Depends(require_api_key),
 ):
     req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
-    size = {"width": width / 100, "height": height / 100, "dpi": 100}
+    size = {"width": width / 100, "height": height / 100, "dpi": 100,
+            "settling": (result.get("settling") or {}).get("seconds")}  # the certified worst case, drawn too
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params), fmt, width, height)
     body = cache.get(key)
