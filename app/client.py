@@ -371,7 +371,7 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
         if plant.sampling_period is not None:
             out["sampling_period"] = plant.sampling_period
     # names and units travel too: the service's figures and exports label states and inputs with them
-    for key in ("state_names", "input_names"):
+    for key in ("state_names", "input_names", "mode_names"):
         if getattr(plant, key, None) is not None:
             out[key] = list(getattr(plant, key))
     if getattr(plant, "units", None):

@@ -244,7 +244,7 @@ def check_steps(steps: int, settings: Settings, errors: list, loc: list) -> None
 
 PLANT_FIELDS = {"A", "B", "F", "G", "sampling_period", "inertias", "resistance", "inductance",
                 "torque_constant", "back_emf_constant", "damping", "kind", "family", "state_names",
-                "input_names", "units", "name"}
+                "input_names", "units", "name", "mode_names"}
 
 
 def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None = None,

@@ -86,6 +86,8 @@ class ContinuousPlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
     _single_A = field_validator("A", mode="before")(_one_error_for_single_matrix("A", "n x n matrices, one per plant mode"))
     _single_B = field_validator("B", mode="before")(_one_error_for_single_matrix("B", "n x m matrices, one per plant mode"))
@@ -107,6 +109,8 @@ class DiscretePlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
 
 class DcMotorPlant(_Strict):
@@ -131,13 +135,16 @@ class DcMotorPlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
 
 Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(
     discriminator="kind",
     description="The switched plant family, one of three kinds chosen by `kind`: `continuous` (A, B per mode and "
                 "a sampling period: zero-order hold), `discrete` (F, G per mode) or `dc_motor` (the paper's motor "
-                "from physical parameters, one mode per inertia). Optional `state_names`, `input_names`, `units`.")]
+                "from physical parameters, one mode per inertia). Optional `state_names`, `input_names`, `units`, "
+                "`mode_names`.")]
 
 
 class DesignOptions(_Strict):
