@@ -355,7 +355,9 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     def done(lo, hi):
         if not settling:
             return hi - lo <= tol * hi
-        return lo > 0 and hi < 1 and np.log(lo) / np.log(hi) <= 1 + tol
+        # settling times -1/ln(lambda) of the two ends within 1 + tol (ends clamped as in the midpoint, so a
+        # bracket pinned at hi = 1 ends too, once lo is within 1e-9 of 1: no certified rate below 1)
+        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
 
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
         if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)

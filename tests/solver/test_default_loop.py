@@ -88,3 +88,23 @@ def test_a_bisection_step_the_solver_fails_is_no_proof_and_no_crash(monkeypatch)
     assert res.rate_bracket["lower_proven"] is False
     auto = design(cartpole(), n_drop=3)
     assert auto.outcome == "stabilized" and auto.certificate.verified
+
+
+def test_the_default_bisection_ends_when_only_rate_one_certifies(monkeypatch):
+    """Regression: with nothing certified below lambda = 1 the settling bisection used to creep towards 1 forever."""
+    import importlib
+
+    from solver import SolverFailed
+
+    lmi = importlib.import_module("solver.design").METHODS["lmi"]
+    real = lmi.run
+
+    def only_one(modes, options):
+        if options.decay_rate is not None and options.decay_rate < 1.0:
+            raise SolverFailed("injected")
+        return real(modes, options)
+
+    monkeypatch.setattr(lmi, "run", only_one)
+    res = design(PlantFamily.paper_example(0.1), n_drop=3)
+    assert res.outcome == "stabilized" and res.decay_rate == 1.0 and res.settling is None
+    assert 5 < len(res.rate_search) < 40 and res.rate_bracket["lower"] > 1 - 2e-9
