@@ -88,12 +88,14 @@ def load_gains(path: str) -> np.ndarray:
 
 
 def _parse_decay_rate(text: str | None):
-    if text is None or text == "max":
+    if text is None or text in ("max", "auto"):
         return text
+    if text == "none":
+        return None
     try:
         return float(text)
     except ValueError:
-        raise UsageError(f"--decay-rate must be a number in (0, 1] or 'max', got {text!r}") from None
+        raise UsageError(f"--decay-rate must be a number in (0, 1], 'auto', 'max' or 'none', got {text!r}") from None
 
 
 def _json_arg(text: str | None, flag: str):
@@ -163,20 +165,32 @@ def plant_summary(fam) -> str:
             f"m = {fam.n_inputs} inputs, {h}{names}").replace("plant :", "plant:")
 
 
+def settling_lines(settling: dict | None) -> list[str]:
+    """The certified rate in time units and the settling time it guarantees."""
+    if not settling:
+        return []
+    line = f"certified decay rate: {settling['decay_rate']:.4g} per sample"
+    if settling.get("exponential_rate") is not None:
+        line += (f" = factor {settling['decay_factor_per_second']:.3g} per second (exponential rate "
+                 f"{settling['exponential_rate']:.3g} 1/s, time constant {settling['time_constant']:.3g} s)")
+    seconds = "" if settling.get("seconds") is None else f" = {settling['seconds']:.3g} s"
+    return [line, f"certified settling time to 2 % of |x0|, worst case over every allowed loss and switching "
+                  f"sequence: {settling['samples']} samples{seconds}"]
+
+
 def design_summary(result: dict) -> list[str]:
     lines = [f"design: method {result.get('method')}, n_drop = {result['n_drop']}: {result['outcome']}"]
     cert = result.get("certificate")
     if cert:
         checked = 'verified' if cert.get('verified') else 'NOT verified'
         if cert.get("margin") is not None:  # a Lyapunov certificate: stabilized
-            lines.append(f"certificate: {cert.get('kind')}, {checked}, "
-                         f"relative margin {cert['margin']:.3g} (decrease / lambda_max(P))")
+            lines.append(f"certificate: {cert.get('kind')}, {checked}, relative margin of this certificate's P "
+                         f"{cert['margin']:.3g} (min decrease / lambda_max(P))")
         else:  # a proof of infeasibility (farkas, uncontrollable) says what it proves in words
             lines.append(f"certificate: {cert.get('kind')}, {checked}: {cert.get('statement') or ''}".rstrip(": "))
     if result.get("max_spectral_radius") is not None:
         lines.append(f"max spectral radius of the interval closed loops: {result['max_spectral_radius']:.4g}")
-    if result.get("decay_rate") is not None:
-        lines.append(f"certified decay rate: {result['decay_rate']:.4g} per sample")
+    lines += settling_lines(result.get("settling"))
     lines += performance_summary(result.get("performance"), result.get("objective") or "performance")
     if result.get("invariant_set") is not None:
         lines.append(f"input limits hold from x' X x <= 1, X = {_fmt_matrix(result['invariant_set'])}")
@@ -213,11 +227,28 @@ def cmd_design(args) -> int:
         res = design(fam, n_drop=args.n_drop, method=args.method, **perf, **options)
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
-    print("\n".join(design_summary(result)))
+    print("\n".join(design_summary(result)), flush=True)
+    if result["outcome"] == "stabilized" and result.get("gains"):
+        print(simulated_settling(fam, result))
     if args.output:
         _write_design(args.output, suffix, result, fam)
         print(f"wrote {args.output}")
     return EXIT_OK if result["outcome"] == "stabilized" else EXIT_NO
+
+
+def simulated_settling(fam, result: dict, seed: int = 42) -> str:
+    """One seeded run from x0 = all ones: where it settled, next to the certified worst case."""
+    from solver import simulate
+
+    certified = (result.get("settling") or {}).get("samples") or 100
+    steps = int(min(max(2 * certified, 100), 10_000))
+    run = simulate(fam, np.asarray(result["gains"]), result["n_drop"], x0=np.ones(fam.n_states), steps=steps,
+                   seed=seed)
+    k = run.settling_samples()
+    if k is None:
+        return f"simulated run (seed {seed}, x0 = all ones, {steps} samples): not within 2 % of |x0| by its end"
+    seconds = "" if fam.sampling_period is None else f" = {k * fam.sampling_period:.3g} s"
+    return f"simulated settling to 2 % of |x0| (seed {seed}, x0 = all ones, paper's loss model): {k} samples{seconds}"
 
 
 def _write_design(path: str, suffix: str, result: dict, fam) -> None:
@@ -249,9 +280,15 @@ def cmd_analyze(args) -> int:
     print(f"analysis, n_drop = {n_drop}: {verdict}: {report.get('reason', '')}")
     print(f"max spectral radius of the interval closed loops: {report['max_spectral_radius']:.4g}")
     if report.get("margin") is not None:
-        print(f"certificate relative margin: {report['margin']:.3g}")
+        print(f"relative margin of analyze's own certificate P (min decrease / lambda_max(P), the P that maximizes "
+              f"it for these gains; a design's P can have a smaller one): {report['margin']:.3g}")
     if report.get("decay_rate") is not None:
-        print(f"best certified decay rate: {report['decay_rate']:.4g} per sample")
+        from solver.result import rate_in_time
+
+        rate = rate_in_time(report["decay_rate"], fam.sampling_period)
+        extra = ("" if rate["exponential_rate"] is None else
+                 f" (exponential rate {rate['exponential_rate']:.3g} 1/s, time constant {rate['time_constant']:.3g} s)")
+        print(f"best certified decay rate: {report['decay_rate']:.4g} per sample{extra}")
     for line in performance_summary(report.get("cost"), "cost") + performance_summary(report.get("hinf"), "l2 gain"):
         print(line)
     if args.output:
@@ -292,10 +329,10 @@ def cmd_simulate(args) -> int:
         Path(args.output).write_text(json.dumps(data) + "\n")
         print(f"wrote {args.output}")
     if args.plot:
-        from solver.plotting import render, trace_figure
+        from solver.plotting import SWITCHING_WORDS, render, trace_figure
 
-        Path(args.plot).write_bytes(render(trace_figure([run], [f"{args.plant_switching} plant switching"],
-                                                        family=fam), Path(args.plot).suffix[1:].lower()))
+        title = SWITCHING_WORDS.get(args.plant_switching, args.plant_switching).capitalize()
+        Path(args.plot).write_bytes(render(trace_figure([run], [title], family=fam), Path(args.plot).suffix[1:].lower()))
         print(f"wrote {args.plot}")
     return EXIT_OK
 

@@ -181,8 +181,14 @@ class DesignResult:
         h in seconds.
     decay_rate : float or None
         Per-sample rate lambda the certificate proves, when one was asked for.
+    decay_factor_per_second : float or None
+        The factor the state's norm shrinks by over one second, ``lambda^(1/h)``.
+    exponential_rate, time_constant : float or None
+        The same rate in 1/s (``-ln(lambda)/h``) and its time constant in s.
+    settling : dict or None
+        The certified settling time (``samples``, ``seconds`` to 2 % of the initial state, worst case).
     decay_rate_per_second : float or None
-        The same per second, ``lambda^(1/h)``.
+        Old name of ``decay_factor_per_second``.
     state_names, input_names : list of str or None
     units : dict or None
         Names and units of the plant's states and inputs.
@@ -210,6 +216,10 @@ class DesignResult:
     G: np.ndarray | None = None
     sampling_period: float | None = None
     decay_rate: float | None = None
+    decay_factor_per_second: float | None = None
+    exponential_rate: float | None = None
+    time_constant: float | None = None
+    settling: dict | None = None
     decay_rate_per_second: float | None = None
     state_names: list | None = None
     input_names: list | None = None
@@ -228,10 +238,12 @@ class DesignResult:
                    spectral_radii=_array(result.get("spectral_radii")), F=_array(result.get("F")),
                    G=_array(result.get("G")), sampling_period=result.get("sampling_period"),
                    decay_rate=result.get("decay_rate"), decay_rate_per_second=result.get("decay_rate_per_second"),
-                   state_names=result.get("state_names"), input_names=result.get("input_names"),
-                   units=result.get("units"), job_id=job_id, objective=result.get("objective") or "stability",
-                   performance=result.get("performance"), invariant_set=_array(result.get("invariant_set")),
-                   raw=result)
+                   decay_factor_per_second=result.get("decay_factor_per_second"),
+                   exponential_rate=result.get("exponential_rate"), time_constant=result.get("time_constant"),
+                   settling=result.get("settling"), state_names=result.get("state_names"),
+                   input_names=result.get("input_names"), units=result.get("units"), job_id=job_id,
+                   objective=result.get("objective") or "stability", performance=result.get("performance"),
+                   invariant_set=_array(result.get("invariant_set")), raw=result)
 
     @property
     def success(self) -> bool:
@@ -269,8 +281,8 @@ class AnalysisResult:
     certificate : dict or None
     decay_rate : float or None
         Best certified per-sample decay rate.
-    decay_rate_per_second : float or None
-        The same per second, ``lambda^(1/h)``.
+    decay_factor_per_second : float or None
+        The factor per second, ``lambda^(1/h)`` (``decay_rate_per_second``: its old name).
     cost, hinf : dict or None
         The certified brackets asked for with ``weights``/``x0`` and ``disturbance`` (``Performance``).
     raw : dict
@@ -284,6 +296,7 @@ class AnalysisResult:
     certificate: dict | None
     decay_rate: float | None
     decay_rate_per_second: float | None = None
+    decay_factor_per_second: float | None = None
     cost: dict | None = None
     hinf: dict | None = None
     raw: dict = field(default_factory=dict, repr=False)
@@ -294,7 +307,8 @@ class AnalysisResult:
                    spectral_radii=np.asarray(data.get("spectral_radii"), dtype=float),
                    max_spectral_radius=data.get("max_spectral_radius"), certificate=data.get("certificate"),
                    decay_rate=data.get("decay_rate"), decay_rate_per_second=data.get("decay_rate_per_second"),
-                   cost=data.get("cost"), hinf=data.get("hinf"), raw=data)
+                   decay_factor_per_second=data.get("decay_factor_per_second"), cost=data.get("cost"),
+                   hinf=data.get("hinf"), raw=data)
 
 
 def _channel_json(channel) -> dict:
@@ -417,7 +431,10 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
         For anything else, saying what is accepted.
     """
     if isinstance(plant, dict):
-        return plant
+        from solver.plant import PlantFamily
+
+        PlantFamily.from_dict(plant, sampling_period)  # the library's checks (NaN, shapes): InvalidInput, not a 422
+        return plant if sampling_period is None else {**plant, "sampling_period": sampling_period}
     if not _is_family(plant):
         systems = plant if isinstance(plant, (list, tuple)) else [plant]
         if systems and all(hasattr(s, "state_labels") and hasattr(s, "dt") for s in systems):
@@ -435,7 +452,7 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
         if plant.sampling_period is not None:
             out["sampling_period"] = plant.sampling_period
     # names and units travel too: the service's figures and exports label states and inputs with them
-    for key in ("state_names", "input_names"):
+    for key in ("state_names", "input_names", "mode_names"):
         if getattr(plant, key, None) is not None:
             out[key] = list(getattr(plant, key))
     if getattr(plant, "units", None):
@@ -444,7 +461,21 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
 
 
 def _gains_json(gains) -> list:
-    return np.asarray(gains, dtype=float).tolist()
+    from solver.network import check_gains
+
+    K = np.asarray(gains, dtype=float)
+    if K.ndim == 3:  # the library's check (NaN, infinity) before JSON encoding would fail on it
+        check_gains(K, *K.shape)
+    return K.tolist()
+
+
+def _trace_query(x0, steps: int | None, seed: int | None, query: dict) -> dict:
+    """Query parameters of a trace (JSON or picture): ``x0`` as one comma-separated value."""
+    params = {k: v for k, v in (("steps", steps), ("seed", seed)) if v is not None}
+    params.update(query)
+    if x0 is not None:
+        params["x0"] = ",".join(repr(float(v)) for v in x0)
+    return params
 
 
 # --------------------------------------------------------------------------------------------- client
@@ -677,14 +708,14 @@ class Client:
 
     def trace(self, job_id: str, *, x0=None, steps: int = 100, seed: int = 42, **query) -> SimulationResult:
         """The designed loop's seeded run (``GET /v1/designs/{id}/trace``), with one run per plant mode."""
-        params = {"steps": steps, "seed": seed, **query}
-        if x0 is not None:
-            params["x0"] = ",".join(repr(float(v)) for v in x0)
+        params = _trace_query(x0, steps, seed, query)
         return SimulationResult.from_json(self._request("GET", f"/v1/designs/{job_id}/trace", params=params).json())
 
-    def trace_image(self, job_id: str, fmt: str = "png", **query) -> bytes:
-        """The trace as a PNG or SVG picture."""
-        return self._request("GET", f"/v1/designs/{job_id}/trace.{fmt}", params=query).content
+    def trace_image(self, job_id: str, fmt: str = "png", *, x0=None, steps: int | None = None,
+                    seed: int | None = None, **query) -> bytes:
+        """The trace as a PNG or SVG picture (same parameters as :meth:`trace`)."""
+        params = _trace_query(x0, steps, seed, query)
+        return self._request("GET", f"/v1/designs/{job_id}/trace.{fmt}", params=params).content
 
     def gains_file(self, job_id: str, fmt: str = "mat") -> bytes:
         """A succeeded design as a MATLAB ``.mat`` file (``fmt="mat"``) or an Octave/MATLAB script (``"m"``):

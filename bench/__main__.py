@@ -11,6 +11,7 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench performance`` prints the cost/H-infinity brackets on the paper's motor (``bench/performance_bench.py``).
 ``python -m bench speed [--quick]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
 feasible and infeasible families (``bench/speed_bench.py``).
+``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
 
 Options::
 
@@ -86,6 +87,10 @@ def main(argv=None) -> int:
         from . import speed_bench
 
         return speed_bench.main(argv[1:])
+    if argv and argv[0] == "startup":
+        from . import startup_bench
+
+        return startup_bench.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

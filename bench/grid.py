@@ -42,7 +42,7 @@ def run_grid(repeats: int = 5, max_rows: int = 256, cell_limit: float = 60.0, ec
 
     from .cases import random_family
 
-    design(random_family(2, 1, 1, seed=99), 2, method="lmi")  # first-use costs, not a cell
+    design(random_family(2, 1, 1, seed=99), 2, method="lmi", decay_rate=None)  # first-use costs, not a cell
     rows_out = []
     for n, r, N in itertools.product(NS, RS, NDROPS):
         rows = r * N * 2 * n
@@ -55,13 +55,13 @@ def run_grid(repeats: int = 5, max_rows: int = 256, cell_limit: float = 60.0, ec
         problem_cache.clear()
         try:
             t0 = time.perf_counter()
-            res = design(fam, N, method="lmi", time_limit=cell_limit)
+            res = design(fam, N, method="lmi", time_limit=cell_limit, decay_rate=None)
             cell["cold"] = time.perf_counter() - t0
             cell["outcome"] = res.outcome
             walls, solv = [], []
             for _ in range(max(1, min(repeats, int(cell_limit / 4 / max(cell["cold"], 1e-9))))):
                 t0 = time.perf_counter()
-                res = design(fam, N, method="lmi", time_limit=cell_limit)
+                res = design(fam, N, method="lmi", time_limit=cell_limit, decay_rate=None)
                 walls.append(time.perf_counter() - t0)
                 solv.append(res.timings["solver"])
                 if sum(walls) > cell_limit:

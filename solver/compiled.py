@@ -17,17 +17,32 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable, Hashable
 
-import cvxpy as cp
 import numpy as np
 
 from .errors import InvalidInput, SolverFailed
+
+
+class _LazyCvxpy:
+    """cvxpy, imported on first use.
+
+    Importing cvxpy takes most of ``import solver``'s time (about 0.7 s of 1 s), and the default
+    paths (the structured IPM for ``lmi``, ``switched`` and every bisection) never touch it.
+    """
+
+    def __getattr__(self, name):
+        import cvxpy
+
+        return getattr(cvxpy, name)
+
+
+cp = _LazyCvxpy()
 
 #: Solvers a user may pick.  "AUTO" (the default) is the fastest one that gives the same verdicts,
 #: per problem (:func:`resolve_solver`).  "IPM" is the structured interior-point solver
 #: (solver/ipm.py) for the lmi, switched and ccl designs and the common fixed-gain certificate LMI;
 #: the switched fixed-gain LMI falls back to Clarabel under both names.
 #: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
-SOLVERS = {"AUTO": cp.CLARABEL, "IPM": cp.CLARABEL, "CLARABEL": cp.CLARABEL, "SCS": cp.SCS}
+SOLVERS = {"AUTO": "CLARABEL", "IPM": "CLARABEL", "CLARABEL": "CLARABEL", "SCS": "SCS"}  # cvxpy solver names
 
 #: Largest CCL block side ``2 n n_drop`` that "AUTO" leaves to Clarabel when the default
 #: ``ccl_start="feasibility"`` is asked for: the paper's example (n = 2, n_drop = 3) sits here, where
@@ -57,7 +72,7 @@ def resolve_solver(solver: str, problem: str, n_modes: int = 1, *, ccl_side: int
         return "CLARABEL" if ccl_start == "feasibility" and paper_sized else "IPM"
     return "IPM" if problem in ("lmi", "switched", "common_lmi") else "CLARABEL"
 
-_ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+_ACCEPTED = ("optimal", "optimal_inaccurate")  # cp.OPTIMAL, cp.OPTIMAL_INACCURATE
 
 
 #: Refuse SDPs whose interior-point KKT system would need more memory than this
@@ -94,6 +109,114 @@ def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
             f"{MAX_SOLVER_MEMORY / 2**30:.1f} GiB): use fewer modes, a smaller n_drop or the lmi method",
             ("n_drop",),
         )
+
+
+#: Refuse designs whose estimated solver time is above this (seconds; ``NCS_SOLVER_MAX_SECONDS``
+#: overrides; a ``time_limit`` given to :func:`solver.design` replaces it).  The default is the
+#: service's job time limit (``NCS_JOB_TIME_LIMIT``).
+MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
+
+#: Interior-point iterations and sustained flop rate of the time estimate (:func:`design_size`):
+#: measured on a 4-state, 3-mode family with n_drop = 160 and 320 (bench/solver_bench.py machine),
+#: where one iteration of the structured IPM ran at 2-3 GFlop/s; 40 iterations is a typical solve.
+ESTIMATE_ITERATIONS = 40
+ESTIMATE_FLOPS_PER_SECOND = 2e9
+
+
+@dataclass(frozen=True)
+class DesignSize:
+    """The size of one design SDP and its estimated cost (:func:`design_size`).
+
+    Attributes
+    ----------
+    method : str
+    n_modes : int
+        Interval closed-loop modes (l, eta), or plant sequences per sample.
+    lmi_size : int
+        Sum of the sides of all matrix inequalities (the service's ``NCS_MAX_LMI_SIZE``).
+    n_variables : int
+        Scalar decision variables.
+    memory : float
+        Estimated peak solver memory (bytes): the larger of the structured IPM's
+        (a ``v_b x v_b`` Schur piece per block, ``v_b`` the variables block b touches, plus the
+        dense ``p x p`` Schur complement) and a general conic solver's (a dense
+        ``(k(k+1)/2)^2`` scaling per PSD cone of side k).
+    seconds : float
+        Estimated time of one solve (s): :data:`ESTIMATE_ITERATIONS` iterations of Schur assembly
+        (``k sum_b v_b^2`` flops) and factorization (``p^3 / 3``) at :data:`ESTIMATE_FLOPS_PER_SECOND`.
+    """
+
+    method: str
+    n_modes: int
+    lmi_size: int
+    n_variables: int
+    memory: float
+    seconds: float
+
+    def check(self, max_memory: float | None = None, max_seconds: float | None = None, *, solves: int = 1,
+              memory_name: str = "NCS_SOLVER_MAX_MEMORY or max_memory=",
+              seconds_name: str = "NCS_SOLVER_MAX_SECONDS, or give a time_limit") -> None:
+        """Raise InvalidInput (field ``n_drop``) when the estimate is over a budget.
+
+        ``max_memory`` (bytes) and ``max_seconds`` default to :data:`MAX_SOLVER_MEMORY` and
+        :data:`MAX_SOLVER_SECONDS`; ``inf`` (or 0 for memory, like ``NCS_WORKER_MEMORY_MB``) turns a
+        check off.  ``solves``: how many SDPs the design solves (a decay-rate bisection ~ 12).
+        """
+        max_memory = MAX_SOLVER_MEMORY if max_memory is None else max_memory
+        max_seconds = MAX_SOLVER_SECONDS if max_seconds is None else max_seconds
+        what = (f"the {self.method} design ({self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
+                f"{self.n_variables} variables)")
+        hint = "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else ", or the lmi method")
+        if max_memory and self.memory > max_memory:
+            raise InvalidInput(f"{what} would need about {_bytes(self.memory)} of solver memory, over the limit "
+                               f"of {_bytes(max_memory)} ({memory_name}): {hint}", ("n_drop",))
+        seconds = self.seconds * solves
+        if seconds > max_seconds:
+            runs = "" if solves == 1 else f" ({solves} solves)"
+            raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}, over the limit of {max_seconds:g} s "
+                               f"({seconds_name}): {hint}", ("n_drop",))
+
+
+def _bytes(x: float) -> str:
+    return f"{x / 2**30:.3g} GiB" if x >= 2**30 else f"{x / 2**20:.3g} MiB"
+
+
+def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
+                plant_switching: str = "per_interval", scheme: str = "predictive") -> DesignSize:
+    """Size and estimated cost of a design SDP, from its dimensions alone (no arrays are built).
+
+    The one estimate behind the library's refusal (:func:`solver.design`) and the service's limits
+    (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``).  A mode of interval
+    length eta involves the gains ``K_1..K_eta`` only, so the variables a block touches grow with eta.
+    """
+    n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(n_drop)
+    J = N if scheme == "predictive" else 1
+    sym = n * (n + 1) // 2
+    # (interval length, number of modes of that length)
+    lengths = [(eta, r if plant_switching == "per_interval" else r**eta) for eta in range(1, N + 1)]
+    S = sum(count for _, count in lengths)
+    k = 2 * n
+    if method == "switched":
+        p = n * n + S * sym + J * m * n + 1
+        blocks = sum(count * S for _, count in lengths)
+        pieces = sum(count * S * (n * n + 2 * sym + min(eta, J) * m * n + 1) ** 2 for eta, count in lengths)
+        sides = [(k, blocks)]
+        lmi = k * blocks
+    elif method == "ccl":
+        k = 2 * n * N
+        p = 2 * (n * N) * (n * N + 1) // 2 + J * m * n + 1
+        pieces = (S + 1) * p**2
+        sides = [(k, S + 1)]
+        lmi = k * (S + 1)
+    else:
+        p = sym + J * m * n + 1
+        pieces = sum(count * (sym + min(eta, J) * m * n + 1) ** 2 for eta, count in lengths)
+        sides = [(k, S)]
+        lmi = k * S
+    conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in sides)
+    memory = float(min(max(8 * (pieces + p * p), conic), 10**300))  # per-sample counts can be astronomical
+    flops = float(min(sides[0][0] * pieces + p**3 / 3, 10**300))
+    return DesignSize(method, S, lmi, p, memory, ESTIMATE_ITERATIONS * flops / ESTIMATE_FLOPS_PER_SECOND)
 
 
 def check_solver(solver: str) -> str:

@@ -8,15 +8,15 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver
-from .errors import InvalidInput
+from .compiled import check_solver, design_size
+from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
 from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
-from .network import MAX_MODES, ModeSet
+from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .result import DesignResult
+from .result import DesignResult, certified_settling, metric_condition
 from .scaling import Scaling, balance
 
 #: Method name -> module with ``run(modes, options)``.
@@ -35,7 +35,7 @@ def _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol
         raise InvalidInput("time_limit must be positive (seconds)", ("time_limit",))
     if ccl_start not in ("feasibility", "min_trace"):
         raise InvalidInput("ccl_start must be 'feasibility' or 'min_trace'", ("ccl_start",))
-    if decay_rate is not None:
+    if decay_rate is not None and decay_rate != "auto":
         if method not in RATE_METHODS:
             raise InvalidInput(f"decay_rate is available with methods {RATE_METHODS}", ("decay_rate",))
         if decay_rate != "max" and (isinstance(decay_rate, bool) or not isinstance(decay_rate, (int, float))
@@ -56,7 +56,7 @@ def design(
     time_limit: float | None = None,
     callback: Callable | None = None,
     ccl_start: str = "feasibility",
-    decay_rate: float | str | None = None,
+    decay_rate: float | str | None = "auto",
     rate_tol: float = 1e-3,
     plant_switching: str = "per_interval",
     scheme: str = "predictive",
@@ -68,6 +68,7 @@ def design(
     disturbance=None,
     output=None,
     u_max=None,
+    max_memory: float | None = None,
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -104,8 +105,14 @@ def design(
         iteration; returning True stops the design (``not_converged``).
     ccl_start : {"feasibility", "min_trace"}
         CCL Step 1: the paper's pure feasibility problem, or ``min trace(P + Q)``.
-    decay_rate : float in (0, 1], "max" or None
-        Demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
+    decay_rate : float in (0, 1], "auto", "max" or None
+        ``"auto"`` (default): a loop that settles within about 1.5 times the fastest certifiable
+        one, with smaller gains: a coarse bisection (:data:`AUTO_SETTLING_TOLERANCE`) finds a certified
+        rate ``lambda*`` within 10 % of the best in settling time, then the design is made at
+        ``lambda*^(1 / AUTO_SLOWDOWN)`` (settling time ``AUTO_SLOWDOWN = 1.5`` times longer, where
+        the LMI has room left, so gains are far smaller than at the optimum).  ``ccl`` has no rate
+        and treats ``"auto"`` as None.  ``None``: plain stability (maximizes the LMI's relative
+        margin; such loops may contract by only 0.99 per sample).  A number: demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
         in the certificate's norm), or find the smallest one (``"max"``) by bisection on the
         congruent SDP (data of mode s times ``lambda^(-eta_s)``; docs/design.md).  A rate is
         accepted only by the float64 re-check at that rate and rejected only with a
@@ -127,6 +134,13 @@ def design(
         the family's entries spread over more than three decades, and maps
         gains and certificates back (see :mod:`solver.scaling`).  Designs with an
         ``objective`` other than "stability" or with ``u_max`` run in the user's coordinates.
+    max_memory : float, optional
+        Memory budget in bytes (default :data:`solver.compiled.MAX_SOLVER_MEMORY`, 4 GiB, or
+        ``NCS_SOLVER_MAX_MEMORY``).  Before anything is built, the design's size is estimated
+        (:func:`solver.compiled.design_size`) and a design over this budget, or over
+        :data:`solver.compiled.MAX_SOLVER_SECONDS` (300 s, ``NCS_SOLVER_MAX_SECONDS``) of estimated
+        solver time when no ``time_limit`` is given, is refused with ``InvalidInput`` naming the
+        size and the limit.  The same estimate sets the service's limits.
     objective : {"stability", "cost", "hinf"}
         ``"stability"`` (default): the designs above.  ``"cost"``: minimize the certified bound on the
         worst-case quadratic cost ``sum_k x' Q x + u' R u`` over every allowed pattern (``x0' P x0``,
@@ -170,11 +184,15 @@ def design(
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
+    check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit,
+                 solves=solve_count(method, decay_rate, rate_tol, max_iter))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
+        # "auto" (the default) asks for a usable loop: the cost and l2-gain objectives give one by themselves
         return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                   margin, max_iter, time_limit, callback, decay_rate)
+                                   margin, max_iter, time_limit, callback,
+                                   None if decay_rate == "auto" else decay_rate)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -182,16 +200,23 @@ def design(
         time_limit=None if time_limit is None else float(time_limit),
         callback=callback,
         ccl_start=ccl_start,
-        decay_rate=None if decay_rate in (None, "max") else float(decay_rate),
+        decay_rate=None if decay_rate in (None, "max", "auto") else float(decay_rate),
     )
+    if decay_rate == "auto" and method not in RATE_METHODS:
+        decay_rate = None
     scale = balance(family) if scaling == "auto" else None
     # one BLAS thread: the re-checks and proofs are many small LAPACK calls that 2 threads only slow down
     with blas_threads(1):
         if scale is not None and not scale.is_identity:
             scaled_modes = ModeSet.from_family(scale.family(family), n_drop, plant_switching=plant_switching,
                                                scheme=scheme, max_modes=max_modes)
-            return _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
-        return _best(method, modes, options, decay_rate, rate_tol)
+            res = _unscale(_best(method, scaled_modes, options, decay_rate, rate_tol), scale, modes)
+        else:
+            res = _best(method, modes, options, decay_rate, rate_tol)
+    if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
+        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
+                                          family.sampling_period)
+    return res
 
 
 def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,
@@ -205,6 +230,33 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
                             decay_rate=None if decay_rate is None else float(decay_rate))
     return performance.run(lifted, options, objective, x0, u_max)
+
+
+def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
+    """How many SDPs a design solves at most (for the time estimate)."""
+    if method == "ccl":
+        return int(max_iter)
+    if decay_rate in ("max", "auto"):
+        return int(np.ceil(np.log2(1.0 / rate_tol))) + 2
+    return 1
+
+
+def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str, scheme: str, max_modes: int,
+                 max_memory: float | None, time_limit: float | None, solves: int = 1) -> None:
+    """Refuse, before building anything, a design whose estimated memory or time is over budget.
+
+    A thin layer over :func:`solver.compiled.design_size` (the estimate the service's limits use too).
+    Bad ``n_drop``, ``plant_switching``, ``scheme`` or too many modes are left to
+    :class:`ModeSet`, which names them.  With a ``time_limit`` the caller bounded the time, so only
+    memory is checked.
+    """
+    n_drop = check_n_drop(n_drop)
+    if plant_switching not in PLANT_SWITCHING or scheme not in SCHEMES:
+        return
+    if mode_count(family.n_modes, n_drop, plant_switching) > max_modes:
+        return
+    size = design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme)
+    size.check(max_memory, float("inf") if time_limit is not None else None, solves=solves)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
@@ -223,17 +275,76 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
 
 
 def _run(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:
+    if decay_rate == "auto":
+        return _auto_rate(method, modes, options)
     if decay_rate != "max":
         return METHODS[method].run(modes, options)
     return _smallest_rate(method, modes, options, rate_tol)
 
+
+#: ``decay_rate="auto"``: the settling time asked for, as a multiple of the fastest certified one.
+AUTO_SLOWDOWN = 1.5
+#: ``decay_rate="auto"``: the coarse bisection stops when its bracket ``[lo, hi]`` is within this relative
+#: tolerance in settling time (``ln lo / ln hi <= 1 + tol``), so the default loop settles within
+#: ``1.5 x 1.1 = 1.65`` times the fastest certifiable one (under 2x).
+AUTO_SETTLING_TOLERANCE = 0.1
+
+
+def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignResult:
+    """The default design: a rate whose settling time is ``AUTO_SLOWDOWN`` times the best one's.
+
+    At the best rate the LMI's margin vanishes and gains grow without bound; 1.5x its settling time
+    leaves the SDP room, so its maximal-margin solution has moderate gains.  The coarse bisection runs
+    on the settling time (``-1 / ln lambda``), geometrically, since that is what the tolerance is on.
+    """
+    start = time.perf_counter()
+    try:
+        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+    except SolverFailed:  # at lambda = 1 already: plain stability's SDP is better conditioned
+        best = DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
+                            n_drop=modes.n_drop, message="the solver failed at decay rate 1")
+    if best is not None and best.outcome != "stabilized" and "time limit" not in best.message:
+        # no certified rate at all (not even lambda = 1 with the rate form's margin): plain stability, whose
+        # margin is normalized differently, may still certify the loop
+        plain = METHODS[method].run(modes, options)
+        plain.message += "; decay_rate='auto': no certified decay rate, plain stability design"
+        return plain
+    if best is None or best.outcome != "stabilized" or best.decay_rate is None or best.decay_rate >= 1.0:
+        return best
+    fastest = float(best.decay_rate)
+    target = fastest ** (1.0 / AUTO_SLOWDOWN)
+    remaining = None if options.time_limit is None else options.time_limit - (time.perf_counter() - start)
+    if remaining is not None and remaining <= 0:
+        return best
+    try:
+        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+    except SolverFailed:  # keep the certified faster loop
+        return best
+    if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
+        return best
+    res.rate_search = best.rate_search + [{"decay_rate": target, "outcome": res.outcome,
+                                           "proof": None if res.certificate is None else res.certificate.kind}]
+    res.rate_bracket = {**best.rate_bracket, "fastest_certified": fastest, "slowdown": AUTO_SLOWDOWN}
+    res.decay_rate = target
+    res.message += (f"; decay_rate='auto': designed at {target:.6g} per sample = {fastest:.6g}^(1/{AUTO_SLOWDOWN:g}), "
+                    f"settling {AUTO_SLOWDOWN:g}x the fastest certified rate's (bracket [{best.rate_bracket['lower']:.6g}, "
+                    f"{fastest:.6g}])")
+    total = time.perf_counter() - start
+    res.timings.update(total=total, solves=len(res.rate_search),
+                       solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
+    return res
+
+
+#: What a bisection step whose solver failed returns (no certificate, no proof).
+FAILED_STEP = object()
 
 #: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
 MIN_RATE = 1e-4
 
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
-                   upper: DesignResult | None = None, user_limit: float | None = None) -> DesignResult:
+                   upper: DesignResult | None = None, user_limit: float | None = None,
+                   settling: bool = False) -> DesignResult:
     """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
 
     A rate is accepted only when the float64 re-check of that step's gains and
@@ -258,7 +369,14 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         if remaining is not None and remaining <= 0:
             timed_out = True
             return None
-        res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+        try:
+            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+        except SolverFailed as err:
+            if lam >= 1.0:  # nothing certified yet: the design itself failed
+                raise
+            # a step the solver could not finish certifies nothing and proves nothing: bisect above it
+            search.append({"decay_rate": lam, "outcome": "solver_failed", "proof": None, "message": str(err)})
+            return FAILED_STEP
         for key in totals:
             totals[key] += res.timings.get(key, 0)
         search.append({"decay_rate": lam, "outcome": res.outcome,
@@ -281,12 +399,25 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             if best is not None:
                 best.rate_search = search
             return best if best is not None else _time_out(modes, method, options, search)
-    while hi - lo > tol * hi and hi > MIN_RATE and not timed_out:
-        mid = 0.5 * (lo + hi)
+    def done(lo, hi):
+        if not settling:
+            return hi - lo <= tol * hi
+        # settling times -1/ln(lambda) of the two ends within 1 + tol (ends clamped as in the midpoint, so a
+        # bracket pinned at hi = 1 ends too, once lo is within 1e-9 of 1: no certified rate below 1)
+        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+
+    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+        if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)
+            s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
+            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+        else:
+            mid = 0.5 * (lo + hi)
         res = attempt(mid)
         if res is None:
             break
-        if res.outcome == "stabilized":
+        if res is FAILED_STEP:
+            lo, lo_proven = mid, False
+        elif res.outcome == "stabilized":
             hi, best = mid, res
         else:
             lo, lo_proven = mid, res.outcome == "infeasible"

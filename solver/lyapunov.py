@@ -24,9 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
-import cvxpy as cp
 import numpy as np
 
+from .compiled import cp  # cvxpy, imported on first use
 from .compiled import CompiledProblem, SolveInfo, block, problem_cache, resolve_solver, schur_block
 from .errors import SolverFailed
 from .network import augmented_matrices

@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .design import design
-from .errors import InvalidInput
+from .errors import InvalidInput, SolverFailed
 from .plant import PlantFamily
 from .result import DesignResult
 
@@ -75,6 +75,33 @@ def _point(res: DesignResult, **where) -> dict:
     }
 
 
+#: ``outcome`` of a curve point whose solver failed (e.g. the IPM's iteration cap at a large h): no design
+#: was certified there, and nothing was proven either, about that point or any other.
+SOLVER_FAILED = "solver_failed"
+#: ``outcome`` of a curve point the size guard refused (estimated memory or time over budget): not tried.
+OVER_BUDGET = "over_budget"
+
+
+def _probe(family: PlantFamily, n_drop: int, method: str, design_options: dict, where: dict):
+    """One design of a search: ``(result or None, curve point)``; a solver failure is a point, not a crash."""
+    try:  # a margin is about stability: plain designs unless a rate is asked for
+        res = design(family, n_drop, method=method, **{"decay_rate": None, **design_options})
+    except SolverFailed as err:
+        return None, {**where, "outcome": SOLVER_FAILED, "max_spectral_radius": None, "certificate_margin": None,
+                      "decay_rate": None, "gains": None, "message": f"no certified design: {err}"}
+    except InvalidInput as err:
+        if err.field != ("n_drop",) or "over the limit" not in str(err):
+            raise
+        # the size guard (solver.compiled.design_size): a point too big to try, which proves nothing either
+        return None, {**where, "outcome": OVER_BUDGET, "max_spectral_radius": None, "certificate_margin": None,
+                      "decay_rate": None, "gains": None, "message": f"not tried: {err}"}
+    return res, _point(res, **where)
+
+
+def _stabilized(res) -> bool:
+    return res is not None and res.outcome == "stabilized"
+
+
 def _notify(callback, curve, total) -> bool:
     return bool(callback({"step": len(curve), "total": total, "last": curve[-1]})) if callback else False
 
@@ -111,9 +138,9 @@ def max_n_drop(
     best = None
     stopped = False
     for N in range(1, n_drop_max + 1):
-        res = design(family, N, method=method, **design_options)
-        curve.append(_point(res, n_drop=N))
-        if res.outcome != "stabilized":
+        res, point = _probe(family, N, method, design_options, {"n_drop": N})
+        curve.append(point)
+        if not _stabilized(res):
             break
         best = res
         if _notify(callback, curve, n_drop_max):
@@ -128,6 +155,12 @@ def max_n_drop(
         message = f"stabilizing designs up to the largest n_drop tried ({n_drop_max}); the margin may be larger"
     else:
         message = f"largest n_drop with a stabilizing {method} design: {margin}"
+    if curve and curve[-1]["outcome"] == SOLVER_FAILED:
+        message += (f"; the solver failed at n_drop = {curve[-1]['n_drop']}, which proves nothing: "
+                    "the margin may be larger")
+    if curve and curve[-1]["outcome"] == OVER_BUDGET:
+        message += (f"; n_drop = {curve[-1]['n_drop']} is over the size budget and was not tried, which proves "
+                    "nothing: the margin may be larger")
     return MarginResult("n_drop", margin, best, curve, method, stopped, message,
                         {"total": time.perf_counter() - start, "designs": len(curve)})
 
@@ -152,9 +185,15 @@ def max_sampling_period(
 ) -> MarginResult:
     """Largest sampling period h with a stabilizing design, by bisection.
 
-    Bisection assumes the stabilizable periods form an interval ``(0, h*]``;
+    Bisection assumes the certifiable periods form an interval ``[h_lo, h*]``;
     that is typical but not guaranteed (pathological sampling), so the whole
-    curve of periods tried is returned to judge it.
+    curve of periods tried is returned to judge it.  A period without a
+    certified design proves nothing about other periods: when ``h_min`` has
+    none (at a tiny h the decrease a Lyapunov function can certify is O(h), below
+    the LMI margin, and the solver may fail), the search doubles h until a
+    period is certified and bisects above it.  A probe whose solver fails is
+    recorded as ``outcome="solver_failed"`` (no certified design there, no proof
+    either) and bisected like any uncertified point; it never ends the search.
 
     Parameters
     ----------
@@ -180,32 +219,52 @@ def max_sampling_period(
     total = int(np.ceil(np.log2((h_max - h_min) / tol))) + 2
 
     def attempt(h):
-        res = design(PlantFamily.from_continuous(A, B, h), n_drop, method=method, **design_options)
-        curve.append(_point(res, sampling_period=h))
+        res, point = _probe(PlantFamily.from_continuous(A, B, h), n_drop, method, design_options,
+                            {"sampling_period": h})
+        curve.append(point)
         return res
 
     best = None  # the stabilized design with the largest h so far
     stopped = False
-    if (res := attempt(h_min)).outcome == "stabilized":
-        best = res
+    lo = hi = None  # certified at lo, not at hi (hi = None: nothing tried above lo failed yet)
+    if _stabilized(res := attempt(h_min)):
+        best, lo = res, h_min
+    else:
+        # A point without a certified design proves nothing about other periods (an "infeasible" is a proof
+        # about that h and the LMI margin only; a solver failure proves nothing at all): scan upwards by
+        # doubling for a certified period before concluding anything.
+        h = h_min
+        while not (stopped := _notify(callback, curve, total)) and (h := min(2 * h, h_max)) < h_max:
+            if _stabilized(res := attempt(h)):
+                best, lo = res, h
+                break
+    if best is not None and not stopped:
         stopped = _notify(callback, curve, total)
-        if not stopped and (res := attempt(h_max)).outcome == "stabilized":
+        if not stopped and _stabilized(res := attempt(h_max)):
             best = res
         elif not stopped:
-            lo, hi = h_min, h_max
+            hi = h_max
             while hi - lo > tol and not (stopped := _notify(callback, curve, total)):
                 mid = 0.5 * (lo + hi)
-                if (res := attempt(mid)).outcome == "stabilized":
+                if _stabilized(res := attempt(mid)):
                     lo, best = mid, res
                 else:
                     hi = mid
     margin = None if best is None else max(p["sampling_period"] for p in curve if p["outcome"] == "stabilized")
+    failed = [p["sampling_period"] for p in curve if p["outcome"] == SOLVER_FAILED]
     if best is None:
-        message = f"no stabilizing design even at h = {h_min:g} s"
+        tried = sorted({p["sampling_period"] for p in curve})
+        message = (f"no certified {method} design at any period tried ({', '.join(f'{h:g}' for h in tried)} s); "
+                   f"this proves nothing about other periods")
     elif margin == h_max:
         message = f"stabilizing at the largest period tried ({h_max:g} s); the margin may be larger"
     else:
         message = f"largest sampling period with a stabilizing {method} design: {margin:.6g} s (tolerance {tol:g} s)"
+    if failed:
+        message += (f"; the solver failed at h = {', '.join(f'{h:.6g}' for h in failed)} s (no certified design "
+                    "there, and no proof either)")
+    if best is not None and margin > h_min and curve[0]["outcome"] != "stabilized":
+        message += f"; nothing certified at h_min = {h_min:g} s ({curve[0]['outcome']})"
     return MarginResult("sampling_period", margin, best, curve, method, stopped, message,
                         {"total": time.perf_counter() - start, "designs": len(curve)})
 
@@ -238,8 +297,8 @@ def design_grid(
     curve: list = []
     stopped = False
     for h, N in pairs:
-        res = design(PlantFamily.from_continuous(A, B, h), N, method=method, **design_options)
-        curve.append(_point(res, sampling_period=h, n_drop=N))
+        curve.append(_probe(PlantFamily.from_continuous(A, B, h), N, method, design_options,
+                            {"sampling_period": h, "n_drop": N})[1])
         if _notify(callback, curve, len(pairs)):
             stopped = True
             break

@@ -174,6 +174,9 @@ class PlantFamily:
     units : dict of str to str, optional
         Unit of each named state or input, e.g. ``{"i_a": "A", "omega": "rad/s", "V": "V"}``
         (keys are names from ``state_names``/``input_names``).
+    mode_names : sequence of str, optional
+        One name per plant mode, e.g. ``("pole 0.2 m", "pole 0.3 m")``; figure titles and the
+        plant-mode strip use them (default: the 0-based index).
 
     Attributes
     ----------
@@ -197,6 +200,7 @@ class PlantFamily:
     state_names: tuple[str, ...] | None = None
     input_names: tuple[str, ...] | None = None
     units: dict | None = None
+    mode_names: tuple[str, ...] | None = None
 
     def __post_init__(self):
         Fs = _matrix_list("F", self.F)
@@ -217,6 +221,7 @@ class PlantFamily:
                 raise InvalidInput(f"units names {unknown} that are not in state_names or input_names",
                                    ("units", unknown[0]))
             units = dict(self.units)
+        object.__setattr__(self, "mode_names", _check_names("mode_names", self.mode_names, len(Fs)))
         object.__setattr__(self, "state_names", state_names)
         object.__setattr__(self, "input_names", input_names)
         object.__setattr__(self, "units", units)
@@ -288,7 +293,8 @@ class PlantFamily:
             raise InvalidInput("a plant must be a JSON object with a \"kind\"", ("plant",))
         kind = data.get("kind") or ("continuous" if "A" in data else "discrete" if "F" in data else None)
         h = data.get("sampling_period") if sampling_period is None else sampling_period
-        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name") if data.get(k) is not None}
+        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name", "mode_names")
+                  if data.get(k) is not None}
         need = {"continuous": ("A", "B", "sampling_period"), "discrete": ("F", "G"),
                 "dc_motor": ("inertias", "sampling_period")}
         if kind not in need:
@@ -305,7 +311,7 @@ class PlantFamily:
         fam = cls.dc_motor(data["inertias"], h, **params)
         if labels:
             fam = cls(F=fam.F, G=fam.G, sampling_period=fam.sampling_period, A=fam.A, B=fam.B,
-                      **{"name": fam.name, **DC_MOTOR_LABELS, **labels})
+                      **{"name": fam.name, "mode_names": fam.mode_names, **DC_MOTOR_LABELS, **labels})
         return fam
 
     @classmethod
@@ -451,7 +457,9 @@ class PlantFamily:
         R, L, Km, Kb, Bd = (float(v) for v in params.values())
         A = [[[-R / L, -Kb / L], [Km / J, -Bd / J]] for J in Js]
         B = [[[1.0 / L], [0.0]] for _ in Js]
-        return cls.from_continuous(A, B, sampling_period, name="dc_motor", **DC_MOTOR_LABELS)
+        names = [f"J = {J:g} kg m^2" for J in Js]
+        return cls.from_continuous(A, B, sampling_period, name="dc_motor", **DC_MOTOR_LABELS,
+                                   mode_names=names if len(set(names)) == len(names) else None)
 
     @classmethod
     def paper_example(cls, sampling_period: float = 0.1) -> "PlantFamily":

@@ -57,15 +57,41 @@ def default_window(traces: Sequence[SimulationResult]) -> float:
     return float(min(end, max(1.2 * settle, MIN_WINDOW_SAMPLES * step)))
 
 
+#: Plain words for the plant-switching options, for titles.
+SWITCHING_WORDS = {"per_interval": "plant may switch when a packet arrives",
+                   "per_sample": "plant may switch at every sample",
+                   "none": "plant fixed"}
+
+
+def mode_title(family, l: int) -> str:
+    """A column title for a run with plant mode l fixed: the mode's name when the family has one."""
+    names = getattr(family, "mode_names", None) if family is not None else None
+    return f"Plant fixed: {names[l]}" if names else f"Plant mode {l} fixed"
+
+
+def state_groups(family, n: int) -> list[list[int]]:
+    """States that share one y-axis: those with the same unit; one axis per state when units are unknown."""
+    names = getattr(family, "state_names", None) if family is not None else None
+    units = (getattr(family, "units", None) or {}) if family is not None else {}
+    if not names or not any(units.get(name) for name in names):
+        return [[i] for i in range(n)]
+    groups: dict = {}
+    for i, name in enumerate(names):
+        groups.setdefault(units.get(name) or ("?", i), []).append(i)
+    return list(groups.values())
+
+
 def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | None = None,
-                 width: float = 10.0, height: float = 6.0, dpi: int = 100, family=None,
-                 t_max: float | None = None, u_max=None) -> Figure:
+                 width: float = 10.0, height: float | None = None, dpi: int = 100, family=None,
+                 t_max: float | None = None, settling: float | None = None, u_max=None) -> Figure:
     """States, inputs and the network/plant strip over time for each run (like the paper's Fig. 3/4).
 
-    One column per run.  Top: states; middle: inputs (held over each sample); bottom strip:
-    the active plant mode as a step trace and, below it, a tick at every sample without a new packet
-    (sensor or control packet lost), so the marks never cover a trace.  Rows share their y-axis
-    across columns so runs compare at a glance.
+    One column per run.  Top: one axis per group of states with the same unit (one per state when
+    units are unknown), so an angle in rad is not flattened by a position in m; then the inputs
+    (held over each sample, over the whole window); bottom strip: the active plant mode as a step
+    trace and, below it, a tick at every sample without a new packet.  Rows share their y-axis
+    across columns.  A dotted line marks where each run settled (2 % of ``|x(0)|``,
+    :meth:`SimulationResult.settling_samples`), a dashed one the certified worst case when given.
 
     Parameters
     ----------
@@ -74,65 +100,85 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
         ``mode``, ``effective`` are all that is read).
     titles : sequence of str, optional
     width, height : float
-        Figure size in inches (pixels = inches * dpi for PNG).
+        Figure size in inches (pixels = inches * dpi for PNG); default height grows with the rows.
     dpi : int
     family : PlantFamily, optional
-        Names and units for the legends (``family.state_label(i)``, e.g. ``"omega (rad/s)"``) and
-        the time unit; without it states are ``x1..xn`` and inputs ``u1..um``.
+        Names, units and mode names for legends, axes and the strip; the time unit.
     t_max : float, optional
-        End of the time axis (s, or samples).  Default :func:`default_window`: until the state
-        norm falls below 1e-3 of its peak, plus 20 %, at least 10 samples.
+        End of the time axis (s, or samples); default: the whole simulated window.
+    settling : float, optional
+        The certified settling time (``DesignResult.settling["seconds"]``), drawn as a dashed line.
     u_max : sequence of float, optional
         Input limits (one per input) drawn as dashed lines at ``+-u_max[j]`` (a design with ``u_max`` keeps
         every input inside them from its invariant set, docs/design.md §8).
     """
     cols = max(len(traces), 1)
+    n = traces[0].state.shape[1] if traces else (family.n_states if family is not None else 1)
+    groups = state_groups(family, n)
+    rows = len(groups) + 2
+    if height is None:
+        height = 1.6 * len(groups) + 3.2
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
-    axes = fig.subplots(3, cols, sharex="col", sharey="row", squeeze=False,
-                        gridspec_kw={"height_ratios": [3, 2, 1.4]})
+    axes = fig.subplots(rows, cols, sharex="col", sharey="row", squeeze=False,
+                        gridspec_kw={"height_ratios": [2] * len(groups) + [2, 1.4]})
     timed = (family.sampling_period is not None) if family is not None else (
         bool(traces) and float(traces[0].time[1] - traces[0].time[0]) != 1.0)
     n_modes = family.n_modes if family is not None else (
         1 + max((int(np.max(tr.mode)) for tr in traces if len(tr.mode)), default=0))
-    end = t_max if t_max is not None else (default_window(traces) if traces else 1.0)
+    end = t_max if t_max is not None else (max(float(tr.time[-1]) for tr in traces) if traces else 1.0)
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for c, tr in enumerate(traces):
         t = np.asarray(tr.time, dtype=float)
-        ax_x, ax_u, ax_m = axes[:, c]
-        n, m = tr.state.shape[1], tr.input.shape[1]
-        for i in range(n):
-            label = family.state_label(i) if family is not None else f"x{i + 1}"
-            ax_x.plot(t, tr.state[:, i], color=colors[i % len(colors)], label=label)
+        ax_u, ax_m = axes[-2, c], axes[-1, c]
+        m = tr.input.shape[1]
+        for g, members in enumerate(groups):
+            for i in members:
+                label = family.state_label(i) if family is not None else f"x{i + 1}"
+                axes[g, c].plot(t, tr.state[:, i], color=colors[i % len(colors)], label=label)
         for j in range(m):
             label = family.input_label(j) if family is not None else f"u{j + 1}"
-            ax_u.stairs(tr.input[:, j], t, baseline=None, color=colors[(n + j) % len(colors)], label=label)
+            ax_u.stairs(tr.input[:, j], t, baseline=None, color=colors[(n + j) % len(colors)], label=label,
+                        zorder=3)
         ax_m.stairs(np.asarray(tr.mode, dtype=float), t, baseline=None, color="0.2", label="plant mode")
         lost = np.flatnonzero(~np.asarray(tr.effective, dtype=bool))
         ax_m.plot(t[lost], np.full(lost.size, -1.0), "|", color="tab:red", markersize=7, markeredgewidth=1.2,
                   label="packet lost (buffer plays K_q, q > 1)")
-        ax_x.set_title(titles[c] if titles else f"run {c + 1}")
-        for ax in (ax_x, ax_u, ax_m):
+        k = tr.settling_samples() if hasattr(tr, "settling_samples") else None
+        title = titles[c] if titles else f"run {c + 1}"
+        if k is not None:
+            title += f"\nsettled to 2 % of |x(0)| at {t[k]:.3g} {'s' if timed else 'samples'}"
+        axes[0, c].set_title(title, fontsize="medium")
+        for ax in axes[:, c]:
             ax.grid(True, alpha=0.3)
             ax.set_xlim(float(t[0]), end)
-        ax_x.axhline(0.0, color="0.5", linewidth=0.6)
-        ax_u.axhline(0.0, color="0.5", linewidth=0.6)
+            if k is not None and ax is not ax_m:
+                ax.axvline(t[k], color="0.3", linestyle=":", linewidth=1,
+                           label="settled (2 %)" if ax is ax_u else "_settled")
+            if settling is not None and ax is not ax_m and settling <= end:
+                ax.axvline(settling, color="tab:purple", linestyle="--", linewidth=1,
+                           label="certified settling (worst case)" if ax is ax_u else "_certified")
         for j, limit in enumerate([] if u_max is None else np.atleast_1d(np.asarray(u_max, dtype=float))):
             for sign in (1.0, -1.0):
                 ax_u.axhline(sign * limit, color=colors[(n + j) % len(colors)], linewidth=0.9, linestyle="--",
                              label=f"u_max = {limit:g}" if sign > 0 else None)
         ax_m.set_xlabel("time (s)" if timed else "sample k")
         if c == 0:
-            ax_x.set_ylabel("state")
+            for g, members in enumerate(groups):
+                unit = (family.units or {}).get(family.state_names[members[0]]) if (
+                    family is not None and family.state_names and family.units) else None
+                axes[g, 0].set_ylabel(f"state ({unit})" if unit and len(members) > 1 else
+                                      (family.state_label(members[0]) if family is not None else f"x{members[0] + 1}"))
+                axes[g, 0].legend(loc="upper right", fontsize="small")
             ax_u.set_ylabel("input")
             ax_m.set_ylabel("network")
-            ax_x.legend(loc="upper right", fontsize="small")
             ax_u.legend(loc="upper right", fontsize="small")
-    for ax in axes[2]:
-        ax.set_yticks([-1] + list(range(n_modes)), ["lost"] + [f"mode {l}" for l in range(n_modes)],
-                      fontsize="small")
+    names = getattr(family, "mode_names", None) if family is not None else None
+    for ax in axes[-1]:
+        ax.set_yticks([-1] + list(range(n_modes)),
+                      ["lost"] + [names[l] if names else f"mode {l}" for l in range(n_modes)], fontsize="small")
         ax.set_ylim(-1.7, n_modes - 0.4)
     if traces:  # the strip's legend below the figure, where it covers nothing
-        fig.legend(*axes[2, 0].get_legend_handles_labels(), loc="outside lower center", ncols=2,
+        fig.legend(*axes[-1, 0].get_legend_handles_labels(), loc="outside lower center", ncols=2,
                    fontsize="small", frameon=False)
     _fit_rows(axes, end)
     return fig
@@ -140,13 +186,13 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
 
 def _fit_rows(axes, end: float) -> None:
     """Y-limits of the state and input rows from the data inside the shown window (shared by the row)."""
-    for row in (0, 1):
+    for row in range(axes.shape[0] - 1):
         lo, hi = np.inf, -np.inf
         for ax in axes[row]:
             for line in ax.lines:
-                if line.get_label().startswith("_"):  # unlabelled: the zero reference line
-                    continue
                 x, y = (np.asarray(v, dtype=float) for v in line.get_data())
+                if np.ptp(x) == 0:  # a vertical marker line (settling), not data
+                    continue
                 keep = y[x <= end]
                 if keep.size:
                     lo, hi = min(lo, keep.min()), max(hi, keep.max())
@@ -166,7 +212,9 @@ def margin_figure(result: MarginResult, width: float = 8.0, height: float = 4.5,
 
     The points are drawn as markers, not joined: a bisection samples sparsely and in no order, so a
     line between them would suggest a measured curve.  Green dots: a stabilizing design was
-    found; red crosses: none (drawn at radius 1 when the design has no gains).
+    found, at its radius; red crosses: gains without a certificate, at their radius; points without
+    gains (infeasible, solver failed, not converged) have no radius and are drawn as markers in a band
+    at the bottom of the axes, each kind with its own marker and words.
     """
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
     ax = fig.subplots()
@@ -175,12 +223,25 @@ def margin_figure(result: MarginResult, width: float = 8.0, height: float = 4.5,
     xs = np.array([p[key] for p in pts], dtype=float)
     ys = np.array([np.nan if p.get("max_spectral_radius") is None else p["max_spectral_radius"] for p in pts])
     ok = np.array([p["outcome"] == "stabilized" for p in pts], dtype=bool)
+    measured = ~np.isnan(ys)
     if ok.any():
-        ax.plot(xs[ok], np.where(np.isnan(ys[ok]), 0, ys[ok]), "o", color="tab:green", linestyle="none",
+        ax.plot(xs[ok & measured], ys[ok & measured], "o", color="tab:green", linestyle="none",
                 label="stabilizing design found", zorder=3)
-    if (~ok).any():
-        ax.plot(xs[~ok], np.where(np.isnan(ys[~ok]), 1, ys[~ok]), "x", color="tab:red", linestyle="none",
-                markersize=8, label="no stabilizing design", zorder=3)
+    if (~ok & measured).any():  # gains without a certificate: their radius is a measurement
+        ax.plot(xs[~ok & measured], ys[~ok & measured], "x", color="tab:red", linestyle="none", markersize=8,
+                label="design without certificate", zorder=3)
+    # no gains, so no radius: drawn in a band at the bottom (x in data, y in axes units), never as a value
+    band = ax.get_xaxis_transform()
+    banded = False
+    for outcome, marker, color, label in (
+            ("infeasible", "v", "tab:red", "no design (infeasible at this point)"),
+            ("solver_failed", "D", "tab:orange", "no certified design (solver failed: no proof)"),
+            ("not_converged", "s", "tab:gray", "no certified design (not converged)")):
+        sel = np.array([p["outcome"] == outcome for p in pts], dtype=bool) & ~measured
+        if sel.any():
+            ax.plot(xs[sel], np.full(sel.sum(), 0.04), marker, color=color, linestyle="none", markersize=7,
+                    transform=band, label=label, zorder=3, clip_on=False)
+            banded = True
     ax.axhline(1.0, color="k", linewidth=0.8, linestyle="--", label="spectral radius 1 (stability limit)")
     if result.margin is not None:
         text = (f"largest n_drop with a design: {int(result.margin)}" if result.kind == "n_drop"
@@ -196,8 +257,12 @@ def margin_figure(result: MarginResult, width: float = 8.0, height: float = 4.5,
     ax.set_ylabel("max spectral radius of the designed loop")
     what = {"n_drop": "largest drop bound", "sampling_period": "largest sampling period",
             "grid": "design grid"}[result.kind]
-    ax.set_title(f"{what}, method {result.method}: {len(pts)} designs")
+    ax.set_title(f"{what}, {result.method} design: {len(pts)} designs tried")
     ax.grid(True, alpha=0.3)
+    if banded:  # keep the band (bottom 8 % of the axes) clear of measured radii
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(lo - 0.12 * (hi - lo), hi)
+        ax.fill_between([0, 1], 0, 0.08, transform=ax.transAxes, color="0.93", zorder=0, linewidth=0)
     ax.legend(loc="best", fontsize="small")
     return fig
 

@@ -62,6 +62,62 @@ class IterationRecord:
         }
 
 
+#: Settling means reaching this fraction of the initial state's norm (2 %).
+SETTLING_FRACTION = 0.02
+
+
+def rate_in_time(decay_rate: float | None, sampling_period: float | None) -> dict:
+    """A per-sample contraction factor lambda in the units engineers read, with their names.
+
+    Returns ``decay_rate`` (lambda, a factor per sample), ``decay_factor_per_second`` (``lambda^(1/h)``,
+    the factor over one second), ``exponential_rate`` (``-ln(lambda)/h`` in 1/s: ``|x| <= c e^(-rate t)``)
+    and ``time_constant`` (``h / -ln(lambda)`` in s); the last three are None without h (or for lambda = 1).
+    """
+    out = {"decay_rate": decay_rate, "decay_factor_per_second": None, "exponential_rate": None,
+           "time_constant": None}
+    if decay_rate is None or not sampling_period or not 0 < decay_rate <= 1:
+        return out
+    h = float(sampling_period)
+    out["decay_factor_per_second"] = float(decay_rate) ** (1.0 / h)
+    rate = -math.log(decay_rate) / h
+    out["exponential_rate"] = rate
+    out["time_constant"] = 1.0 / rate if rate > 0 else None
+    return out
+
+
+def certified_settling(decay_rate: float | None, metric_condition: float, sampling_period: float | None,
+                       fraction: float = SETTLING_FRACTION) -> dict | None:
+    """The settling time a certified rate guarantees, worst case over every allowed loss and switching sequence.
+
+    In the certificate's norm ``|x(i_m)|_P <= lambda^(i_m) |x(0)|_P`` at every sample ``i_m`` where a packet
+    takes effect, so in the Euclidean norm ``|x(i_m)| <= sqrt(kappa) lambda^(i_m) |x(0)|`` with ``kappa`` the
+    condition number of the certificate's metric: below ``fraction`` of the initial norm from
+    ``k = ceil(ln(fraction / sqrt(kappa)) / ln(lambda))`` samples on (between packets the state may still move
+    for up to n_drop - 1 samples).
+    """
+    if decay_rate is None or not 0 < decay_rate < 1 or not np.isfinite(metric_condition):
+        return None
+    samples = int(math.ceil(math.log(fraction / math.sqrt(metric_condition)) / math.log(decay_rate)))
+    return {"fraction": fraction, "samples": max(samples, 0),
+            "seconds": None if not sampling_period else max(samples, 0) * float(sampling_period),
+            "metric_condition": float(metric_condition), **rate_in_time(decay_rate, sampling_period)}
+
+
+def metric_condition(certificate, scaling: dict | None = None) -> float:
+    """Condition number of the norm a certificate's rate is stated in (its reduced X, or all switched P_s)."""
+    if certificate is None or getattr(certificate, "P", None) is None:
+        return float("inf")
+    mats = certificate.X if getattr(certificate, "X", None) is not None else certificate.P
+    mats = np.asarray(mats)
+    eig = np.linalg.eigvalsh(mats if mats.ndim == 3 else mats[None])
+    lo, hi = float(eig.min()), float(eig.max())
+    kappa = hi / lo if lo > 0 else float("inf")
+    if scaling and scaling.get("certificate") == "scaled":  # stated in balanced coordinates: back to the user's
+        state = np.asarray(scaling["state"], dtype=float)
+        kappa *= float(state.max() / state.min()) ** 2
+    return kappa
+
+
 @dataclass
 class DesignResult:
     """Outcome of a controller design.
@@ -113,6 +169,11 @@ class DesignResult:
     invariant_set : ndarray, shape (n, n), or None
         With ``u_max``: X of the ellipsoid ``{x : x' X x <= 1}`` from which, under every allowed pattern,
         every applied input meets the limits (re-checked in float64).
+    settling : dict or None
+        What the certified ``decay_rate`` guarantees (:func:`certified_settling`): ``samples`` and
+        ``seconds`` to 2 % of the initial state's norm, worst case over every allowed sequence;
+        the rate as ``decay_rate`` (per sample), ``decay_factor_per_second``, ``exponential_rate``
+        (1/s) and ``time_constant`` (s); ``metric_condition``.  None without a certified rate.
     """
 
     outcome: str
@@ -136,6 +197,7 @@ class DesignResult:
     objective: str = "stability"
     performance: object | None = None
     invariant_set: np.ndarray | None = None
+    settling: dict | None = None
 
     @property
     def iterations(self) -> int:
@@ -177,6 +239,7 @@ class DesignResult:
             "objective": self.objective,
             "performance": None if self.performance is None else self.performance.to_dict(),
             "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
+            "settling": self.settling,
         }
 
 

@@ -67,6 +67,19 @@ class SimulationResult:
     #: Channel state per sample (runs on a :class:`~solver.channel.Channel` only).
     channel_state: np.ndarray | None = None
 
+    def settling_samples(self, fraction: float = 0.02) -> int | None:
+        """First sample from which ``|x(k)| <= fraction |x(0)|`` for the rest of the run (None: not settled).
+
+        A property of this one run (seed, losses, jumps), next to the certified worst case
+        (``DesignResult.settling``).
+        """
+        norms = np.linalg.norm(self.state, axis=1)
+        above = np.nonzero(norms > fraction * norms[0])[0]
+        if norms[0] == 0 or above.size == 0:
+            return 0
+        k = int(above[-1]) + 1
+        return k if k < len(norms) else None
+
     def to_dict(self) -> dict:
         extra = {} if self.channel_state is None else {"channel_state": self.channel_state.tolist()}
         return extra | {

@@ -167,7 +167,8 @@ async def design_trace_image(
     req, result, params = await _trace_inputs(job_id, q, db, settings, owner)
     if req.get("u_max") is not None:  # a design with input limits: the figure draws them
         params = {**params, "u_max": req["u_max"]}
-    size = {"width": width / 100, "height": height / 100, "dpi": 100}
+    size = {"width": width / 100, "height": height / 100, "dpi": 100,
+            "settling": (result.get("settling") or {}).get("seconds")}  # the certified worst case, drawn too
     cache = request.app.state.trace_cache
     key = (job_id, canonical_json(params), fmt, width, height)
     body = cache.get(key)

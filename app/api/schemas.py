@@ -75,8 +75,14 @@ class Certificate(_Open):
     condition_number: float | None = Field(None, description="Largest 2-norm condition number of the P matrices.")
     decay_rate: float | None = Field(None, description="Per-sample rate lambda the certificate also proves (or "
                                                        "excludes, for `farkas`); null when none was asked for.")
+    decay_factor_per_second: float | None = Field(
+        None, description="The factor the state's norm shrinks by over one second, `decay_rate^(1/h)` (dimensionless, "
+        "in (0, 1]); null without a sampling period.")
+    exponential_rate: float | None = Field(
+        None, description="The same rate in 1/s, `-ln(decay_rate)/h`: the norm is below `c exp(-rate t)`.")
+    time_constant: float | None = Field(None, description="`1 / exponential_rate` in seconds.")
     decay_rate_per_second: float | None = Field(
-        None, description="The same rate per second, `decay_rate^(1/h)`; null without a sampling period.")
+        None, description="Deprecated name of `decay_factor_per_second` (a factor per second, not a rate in 1/s).")
     worst_mode: int | None = Field(None, description="Index into `modes` of the mode with the smallest decrease.")
     P: Matrix | list[Matrix] | None = Field(
         None, description="`common_quadratic`: the augmented Theorem 1 matrix, (n N) x (n N). `switched`: S "
@@ -138,6 +144,26 @@ class Timings(_Open):
 class RatePoint(_Open):
     decay_rate: float | None = Field(None, description="Per-sample rate lambda tried.")
     outcome: str | None = Field(None, description="The design's outcome at that rate.")
+    proof: str | None = Field(None, description="Kind of the certificate behind that outcome (`common_quadratic`, "
+                                                "`switched`, `farkas`, `uncontrollable`; null: none).")
+    method: str | None = Field(None, description="The method of that step when it differs from the result's.")
+    message: str | None = Field(None, description="`outcome: solver_failed`: the solver's words (such a step "
+                                                  "certifies nothing and proves nothing).")
+
+
+class Settling(_Open):
+    """What a certified decay rate guarantees, in time units."""
+
+    fraction: float | None = Field(None, description="Settling means reaching this fraction of |x(0)| (0.02).")
+    samples: int | None = Field(None, description="Samples after which |x| <= fraction |x(0)| at every packet "
+                                                  "instant, worst case over every allowed loss and switching sequence.")
+    seconds: float | None = Field(None, description="The same in seconds (`samples h`); null without h.")
+    metric_condition: float | None = Field(None, description="Condition number of the certificate's metric "
+                                                             "(the bound's factor is its square root).")
+    decay_rate: float | None = Field(None, description="The certified rate, a factor per sample.")
+    decay_factor_per_second: float | None = Field(None, description="The factor per second, `decay_rate^(1/h)`.")
+    exponential_rate: float | None = Field(None, description="The rate in 1/s, `-ln(decay_rate)/h`.")
+    time_constant: float | None = Field(None, description="`1 / exponential_rate`, in seconds.")
 
 
 class RateBracket(_Open):
@@ -151,6 +177,11 @@ class RateBracket(_Open):
     lower_margin: float | None = Field(None, description="The margin of a `marginal` lower end.")
     loop_spectral_rate: float | None = Field(None, description="`max_s rho(A_s)^(1/eta_s)` of the returned loop: "
                                                                "no certificate for these gains goes below it.")
+    relative_tolerance: float | None = Field(None, description="Relative tolerance of the bisection.")
+    fastest_certified: float | None = Field(None, description="`decay_rate: auto`: the fastest rate the coarse "
+                                                              "bisection certified (per sample).")
+    slowdown: float | None = Field(None, description="`decay_rate: auto`: settling time asked for, as a multiple of "
+                                                     "the fastest certified one's (1.5).")
 
 
 class Scaling(_Open):
@@ -211,8 +242,19 @@ class DesignResult(_Open):
     plant_switching: str | None = Field(None, description="`per_interval` or `per_sample`.")
     decay_rate: float | None = Field(None, description="Per-sample decay rate lambda the certificate proves, when "
                                                        "one was asked for.")
+    decay_factor_per_second: float | None = Field(
+        None, description="The factor the state's norm shrinks by over one second, `decay_rate^(1/h)` (dimensionless, "
+        "in (0, 1]); null without a sampling period.")
+    exponential_rate: float | None = Field(
+        None, description="The same rate in 1/s, `-ln(decay_rate)/h`: the norm is below `c exp(-rate t)`.")
+    time_constant: float | None = Field(None, description="`1 / exponential_rate` in seconds.")
     decay_rate_per_second: float | None = Field(
-        None, description="The same rate per second, `decay_rate^(1/h)`; null without a sampling period.")
+        None, description="Deprecated name of `decay_factor_per_second` (a factor per second, not a rate in 1/s).")
+    settling: Settling | None = Field(None, description="What the certified decay rate guarantees: `samples` and "
+                                  "`seconds` to 2 % of the initial state's norm, worst case over every allowed loss "
+                                  "and switching sequence (at packet instants), the rate as `decay_rate`, "
+                                  "`decay_factor_per_second`, `exponential_rate` (1/s), `time_constant` (s), and the "
+                                  "certificate metric's `metric_condition`. Null without a certified rate.")
     rate_search: list[RatePoint] | None = Field(None, description="`decay_rate: max`: every rate tried, in order.")
     rate_bracket: RateBracket | None = Field(None, description="`decay_rate: max`: the ends of the bisection.")
     modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes, in the order of the flat "
@@ -289,8 +331,14 @@ class AnalysisReport(_Open):
     jsr_upper_bound_switched: float | None = Field(None, description="From switched certificates "
                                                                      "(`bounds: all`).")
     decay_rate: float | None = Field(None, description="Best certified per-sample decay rate lambda.")
-    decay_rate_per_second: float | None = Field(None, description="The same per second, `decay_rate^(1/h)`; "
-                                                                  "null without a sampling period.")
+    decay_factor_per_second: float | None = Field(
+        None, description="The factor the state's norm shrinks by over one second, `decay_rate^(1/h)` (dimensionless, "
+        "in (0, 1]); null without a sampling period.")
+    exponential_rate: float | None = Field(
+        None, description="The same rate in 1/s, `-ln(decay_rate)/h`: the norm is below `c exp(-rate t)`.")
+    time_constant: float | None = Field(None, description="`1 / exponential_rate` in seconds.")
+    decay_rate_per_second: float | None = Field(
+        None, description="Deprecated name of `decay_factor_per_second` (a factor per second, not a rate in 1/s).")
     worst_sequence: list[ModeLabel] | None = Field(None, description="The product attaining `jsr_lower_bound`, "
                                                                      "in the order applied.")
     product_length_checked: int | None = Field(None, description="Longest product examined.")
@@ -435,7 +483,7 @@ _JOB_EXAMPLE = {
                                 [[-4.0, -0.03], [1.5, -20.0]]],
                           "B": [[[2.0], [0.0]], [[2.0], [0.0]], [[2.0], [0.0]]]},
                 "n_drop": 3, "method": "lmi",
-                "options": {"solver": "AUTO", "margin": 1e-06, "max_iter": 50, "decay_rate": None,
+                "options": {"solver": "AUTO", "margin": 1e-06, "max_iter": 50, "decay_rate": "auto",
                             "plant_switching": "per_interval", "scheme": "predictive"}},
     "result": {
         "outcome": "stabilized", "method": "lmi", "n_drop": 3,

@@ -9,6 +9,10 @@ from typing import Any
 
 from app.api.problems import field_error, invalid
 from app.settings import Settings
+from solver.compiled import design_size
+from solver.design import solve_count
+from solver.errors import InvalidInput
+from solver.network import mode_count  # noqa: F401 (re-exported: the service's name for it)
 
 
 class Shape:
@@ -100,21 +104,27 @@ def plant_shape(plant: Any, settings: Settings, errors: list) -> Shape | None:
     return shape
 
 
-def mode_count(r: int, n_drop: int, plant_switching: str = "per_interval") -> int:
-    """Number of interval modes (l, eta): r n_drop, or r + r^2 + ... + r^n_drop when the plant jumps per sample."""
-    if plant_switching == "per_sample":
-        return sum(r ** eta for eta in range(1, n_drop + 1))
-    return r * n_drop
-
-
 def lmi_size(method: str, n: int, r: int, n_drop: int, plant_switching: str = "per_interval") -> int:
-    """Sum of the block sizes of all matrix inequalities of a design."""
-    modes = mode_count(r, n_drop, plant_switching)
-    if method == "ccl":
-        return 2 * n * n_drop * (modes + 1)
-    if method == "switched":
-        return 2 * n * modes ** 2
-    return 2 * n * modes
+    """Sum of the block sizes of all matrix inequalities of a design (:func:`solver.compiled.design_size`)."""
+    return design_size(method, n, 1, r, n_drop, plant_switching).lmi_size
+
+
+def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: Settings, loc: list,
+               errors: list, solves: int = 1) -> None:
+    """The library's size estimate against the service's budgets: LMI size, worker memory, job time."""
+    switching = options.plant_switching
+    scheme = getattr(options, "scheme", None) or "predictive"
+    size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme)
+    if size.lmi_size > settings.max_lmi_size:
+        errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
+                                  f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "
+                                  f"the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)", "limit_exceeded"))
+        return
+    try:
+        size.check(settings.worker_memory_mb * 2**20, settings.job_time_limit, solves=solves,
+                   memory_name="NCS_WORKER_MEMORY_MB", seconds_name="NCS_JOB_TIME_LIMIT")
+    except InvalidInput as err:
+        errors.append(field_error(loc, str(err), "limit_exceeded"))
 
 
 def check_n_drop(n_drop: int, settings: Settings, errors: list) -> None:
@@ -136,14 +146,9 @@ def check_design(req: Any, settings: Settings) -> Shape:
     shape = plant_shape(req.plant, settings, errors)
     check_n_drop(req.n_drop, settings, errors)
     if shape is not None and not errors:
-        switching = req.options.plant_switching
-        size = lmi_size(req.method, shape.n, shape.r, req.n_drop, switching)
-        if size > settings.max_lmi_size:
-            errors.append(field_error(["body", "n_drop"], f"the {req.method} design has total LMI size {size} "
-                                      f"(n = {shape.n}, r = {shape.r}, n_drop = {req.n_drop}, {switching} "
-                                      f"switching), over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
-                                      "limit_exceeded"))
-        if req.options.decay_rate is not None and req.method == "ccl":
+        solves = solve_count(req.method, req.options.decay_rate, 1e-3, getattr(req.options, "max_iter", 50))
+        check_size(req.method, shape, req.n_drop, req.options, settings, ["body", "n_drop"], errors, solves)
+        if req.options.decay_rate not in (None, "auto") and req.method == "ccl":
             errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
                                       "and switched methods, not ccl", "unsupported_option"))
     if errors:
@@ -192,17 +197,12 @@ def check_margin(req: Any, settings: Settings) -> int:
         elif largest > settings.max_n_drop:
             errors.append(field_error(["body", "points"], f"n_drop = {largest} is over the limit of "
                                       f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
-    if req.options.decay_rate is not None:
+    if req.options.decay_rate not in (None, "auto"):
         errors.append(field_error(["body", "options", "decay_rate"], "margin jobs search stability margins; "
                                   "decay_rate is a design option", "unsupported_option"))
     if shape is not None and not errors:
-        switching = req.options.plant_switching
-        size = lmi_size(req.method, shape.n, shape.r, largest, switching)
-        if size > settings.max_lmi_size:
-            loc = {"n_drop": "n_drop_max", "sampling_period": "n_drop", "grid": "points"}[req.search]
-            errors.append(field_error(["body", loc], f"at n_drop = {largest} the {req.method} design has total LMI "
-                                      f"size {size}, over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
-                                      "limit_exceeded"))
+        loc = {"n_drop": "n_drop_max", "sampling_period": "n_drop", "grid": "points"}[req.search]
+        check_size(req.method, shape, largest, req.options, settings, ["body", loc], errors)
     if errors:
         raise invalid(errors)
     return largest
@@ -244,7 +244,7 @@ def check_steps(steps: int, settings: Settings, errors: list, loc: list) -> None
 
 PLANT_FIELDS = {"A", "B", "F", "G", "sampling_period", "inertias", "resistance", "inductance",
                 "torque_constant", "back_emf_constant", "damping", "kind", "family", "state_names",
-                "input_names", "units", "name"}
+                "input_names", "units", "name", "mode_names"}
 
 
 def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None = None,

@@ -86,6 +86,8 @@ class ContinuousPlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
     _single_A = field_validator("A", mode="before")(_one_error_for_single_matrix("A", "n x n matrices, one per plant mode"))
     _single_B = field_validator("B", mode="before")(_one_error_for_single_matrix("B", "n x m matrices, one per plant mode"))
@@ -107,6 +109,8 @@ class DiscretePlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
 
 class DcMotorPlant(_Strict):
@@ -131,13 +135,16 @@ class DcMotorPlant(_Strict):
     input_names: list[Name] | None
     units: dict[Name, Unit] | None
     state_names, input_names, units = _labels()
+    mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
+                                          "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
 
 Plant = Annotated[Union[ContinuousPlant, DiscretePlant, DcMotorPlant], Field(
     discriminator="kind",
     description="The switched plant family, one of three kinds chosen by `kind`: `continuous` (A, B per mode and "
                 "a sampling period: zero-order hold), `discrete` (F, G per mode) or `dc_motor` (the paper's motor "
-                "from physical parameters, one mode per inertia). Optional `state_names`, `input_names`, `units`.")]
+                "from physical parameters, one mode per inertia). Optional `state_names`, `input_names`, `units`, "
+                "`mode_names`.")]
 
 
 class DesignOptions(_Strict):
@@ -147,9 +154,12 @@ class DesignOptions(_Strict):
         "fixed-gain LMI and `ccl` above the paper's size (block side 2 n n_drop > 12); Clarabel elsewhere). `IPM`, `CLARABEL` (via cvxpy) or `SCS` (first order) force one.")
     margin: Number = Field(1e-6, gt=0, le=1, description="Strictness margin of the LMIs.")
     max_iter: Int = Field(50, ge=1, le=1000, description="Iteration cap of iterative methods (ccl).")
-    decay_rate: Annotated[Number, Field(gt=0, le=1)] | Literal["max"] | None = Field(
-        None, description="Demand a per-sample decay rate lambda in (0, 1] (|x(i_{m+1})| <= lambda^eta |x(i_m)| in "
-        "the certificate's norm), or `\"max\"` to find the smallest by bisection. `lmi` and `switched` only."
+    decay_rate: Annotated[Number, Field(gt=0, le=1)] | Literal["max", "auto"] | None = Field(
+        "auto", description="`\"auto\"` (default): a loop settling within about 1.5x the fastest certifiable one, "
+        "with moderate gains (coarse bisection for the best rate lambda*, then a design at lambda*^(1/1.5); `ccl`: "
+        "plain stability). A number: demand a per-sample decay rate lambda in (0, 1] (|x(i_{m+1})| <= "
+        "lambda^eta |x(i_m)| in the certificate's norm); `\"max\"`: the smallest by bisection; null: plain "
+        "stability (largest LMI margin, often a slow loop). Rates: `lmi` and `switched`."
     )
     plant_switching: Literal["per_interval", "per_sample"] = Field(
         "per_interval", description="Plant mode constant over an interval between effective packets (the paper), "

@@ -122,10 +122,17 @@ def per_second(rate: Any, sampling_period: float | None) -> float | None:
 
 
 def add_per_second_rates(out: dict[str, Any], sampling_period: float | None) -> dict[str, Any]:
-    """``decay_rate_per_second`` next to every ``decay_rate`` of a result and of its certificate."""
+    """Next to every ``decay_rate`` (a factor per sample) of a result and of its certificate: the factor per
+    second, the exponential rate in 1/s and the time constant in s (:func:`solver.result.rate_in_time`);
+    ``decay_rate_per_second`` stays as the old name of the factor per second."""
+    from solver.result import rate_in_time
+
     for d in (out, out.get("certificate") or {}):
         if "decay_rate" in d:
-            d["decay_rate_per_second"] = per_second(d.get("decay_rate"), sampling_period)
+            rate = d.get("decay_rate")
+            ok = isinstance(rate, (int, float)) and not isinstance(rate, bool)
+            d.update(jsonable(rate_in_time(rate if ok else None, sampling_period)), decay_rate=rate)
+            d["decay_rate_per_second"] = d["decay_factor_per_second"]
     return out
 
 
@@ -310,7 +317,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
                    size: dict[str, Any]) -> bytes:
     """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode."""
     from solver import simulate
-    from solver.plotting import render, trace_figure
+    from solver.plotting import SWITCHING_WORDS, mode_title, render, trace_figure
 
     fam = build_family(plant)
     K = _gains_array(gains)
@@ -319,7 +326,8 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
                   control_loss=params["control_loss"])
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
-    titles = [f"{params['plant_switching']} jumps"] + [f"plant mode {l}" for l in range(fam.n_modes)]
+    first = SWITCHING_WORDS.get(params["plant_switching"], params["plant_switching"])
+    titles = [first[0].upper() + first[1:]] + [mode_title(fam, l) for l in range(fam.n_modes)]
     return render(trace_figure(runs, titles, family=fam, u_max=params.get("u_max"), **size), fmt)
 
 

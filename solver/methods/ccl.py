@@ -27,10 +27,10 @@ from __future__ import annotations
 
 import time
 
-import cvxpy as cp
 import numpy as np
 
 from .. import ipm
+from ..compiled import cp  # cvxpy, imported on first use
 from ..compiled import CompiledProblem, block, check_memory, resolve_solver, schur_block
 from ..errors import SolverFailed
 from ..network import ModeSet, augmented_matrices

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import time
 
-import cvxpy as cp
 import numpy as np
 
 from .. import ipm
+from ..compiled import cp  # cvxpy, imported on first use
 from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, ipm_memory, problem_cache,
                         resolve_solver, schur_block)
 from ..network import ModeSet

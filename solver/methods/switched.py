@@ -18,9 +18,9 @@ multipliers re-checked by :func:`solver.certificates.check_farkas_switched`.
 
 from __future__ import annotations
 
-import cvxpy as cp
 import numpy as np
 
+from ..compiled import cp  # cvxpy, imported on first use
 from ..compiled import CompiledProblem, DesignSdpSolution, block, check_memory, ipm_memory, resolve_solver
 from ..errors import InvalidInput
 from ..network import ModeSet

@@ -142,7 +142,33 @@ def test_readme_client_example_runs(db_url, start_server, capsys, monkeypatch):
     exec(compile(code, path, "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed[:3] == ["stabilized (3, 1, 2)", "True", "(51, 2) 2"]
-    assert printed[3] == "422 /plant/F", printed[3]  # a single matrix: one error saying how to wrap it
+    assert printed[3] == "InvalidInput ('F',)", printed[3]  # a single matrix: the library's error, before sending
+    assert printed[4] == "422 /n_drop", printed[4]  # over NCS_MAX_N_DROP: the service's problem
+
+
+def test_design_summary_reports_settling_and_a_too_big_design_is_refused(workdir):
+    """issue 22: the default loop's certified settling time, its rate in 1/s and the simulated run's settling are
+    in the summary; a cart-pole with n_drop = 1000 is one line on stderr (exit 2), not an OOM."""
+    from solver.result import certified_settling, metric_condition
+
+    from tests.solver.cartpole import cartpole
+
+    fam = cartpole()
+    plant = {"kind": "continuous", "A": fam.A.tolist(), "B": fam.B.tolist(), "sampling_period": 0.02,
+             "state_names": list(fam.state_names), "input_names": ["F"], "units": fam.units}
+    (workdir / "cartpole.json").write_text(json.dumps(plant))
+    out = ncs("design", "cartpole.json", "--n-drop", 3, cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    ref = design(fam, 3)
+    settle = certified_settling(ref.decay_rate, metric_condition(ref.certificate, ref.scaling), 0.02)
+    assert (f"certified settling time to 2 % of |x0|, worst case over every allowed loss and switching sequence: "
+            f"{settle['samples']} samples = {settle['seconds']:.3g} s") in out.stdout
+    assert f"exponential rate {settle['exponential_rate']:.3g} 1/s" in out.stdout
+    assert re.search(r"^simulated settling to 2 % of \|x0\| \(seed 42, .*\): \d+ samples = [\d.]+ s$", out.stdout, re.M)
+    big = ncs("design", "cartpole.json", "--n-drop", 1000, cwd=workdir)
+    assert big.returncode == 2 and big.stdout.count("\n") <= 1, big.stdout
+    assert "GiB of solver memory" in big.stderr and "NCS_SOLVER_MAX_MEMORY" in big.stderr
+    assert "Traceback" not in big.stderr and len(big.stderr.strip().splitlines()) == 1
 
 
 def _free_port() -> int:

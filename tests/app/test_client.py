@@ -96,3 +96,38 @@ def test_margins_and_listing(client):
     assert res.kind == "n_drop" and res.margin == 2 and [p["n_drop"] for p in res.curve] == [1, 2]
     margin_jobs = client.jobs(kind="margin")
     assert margin_jobs and margin_jobs[0].status == "succeeded"
+
+
+def test_trace_image_sends_x0_like_trace(client):
+    # issue 22: trace_image(x0=[...]) went out as repeated x0= parameters and got a 422 "x0 has 1 entries"
+    import io
+
+    from PIL import Image
+
+    fam = PlantFamily.dc_motor([0.03, 0.05], 0.1)
+    res = client.design(fam, n_drop=3)
+    png = client.trace_image(res.job_id, "png", x0=[0.5, -1.0], steps=40)
+    assert png[:4] == b"\x89PNG" and Image.open(io.BytesIO(png)).size[0] > 100
+    assert client.trace(res.job_id, x0=[0.5, -1.0], steps=40).state[0].tolist() == [0.5, -1.0]
+
+
+def test_bad_numbers_raise_the_library_error_before_sending(client):
+    from solver import InvalidInput
+
+    plant = {"kind": "discrete", "F": [[[1.0, float("nan")], [0.0, 1.0]]], "G": [[[0.0], [1.0]]]}
+    with pytest.raises(InvalidInput) as err:
+        client.design(plant, n_drop=2)
+    assert err.value.field[0] == "F"
+    fam = PlantFamily.dc_motor([0.03], 0.1)
+    with pytest.raises(InvalidInput) as err:
+        client.analyze(fam, [[[float("nan"), 0.0]]] * 2)
+    assert err.value.field == ("gains",)
+
+
+def test_httpx_is_a_dependency_of_the_package():
+    import tomllib
+
+    from .conftest import REPO
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    assert any(dep.startswith("httpx") for dep in project["dependencies"])

@@ -114,7 +114,7 @@ def test_readme_typed_http_example_runs(db_url, start_server, capsys, monkeypatc
     exec(compile(code, path, "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed == ["['current', 'speed'] rad/s", "0.9 0.3487", "(3, 1, 2) True", "['K', 'K1', 'K2', 'K3', 'F']",
-                       "rig A 2 2 stabilized", "True True", "1 F must be a list of n x n matrices, one per",
+                       "rig A 2 2 stabilized", "True True", "1 n_drop = 100 is over the limit of",
                        "True"], printed
 
 

@@ -61,3 +61,23 @@ def test_simulation_and_trace_steps_are_capped(db_url):
         assert c.get(f"/v1/designs/{job['id']}/trace?steps=300").status_code == 200
         assert_problem(c.get(f"/v1/designs/{job['id']}/trace?steps=301"), 422, "/steps")
         assert_problem(c.get(f"/v1/designs/{job['id']}/trace?steps=10000000000000000000000"), 422, "/steps")
+
+
+def test_a_design_over_the_estimated_memory_or_time_is_a_422_before_any_job(db_url):
+    # The library's estimate (solver.compiled.design_size) against the service's budgets: a 4-state, 3-mode
+    # cart-pole at n_drop = 100 needs ~136 MiB of solver memory; at n_drop = 60 with decay_rate "max" ~9 s.
+    from solver.compiled import design_size
+
+    from tests.solver.cartpole import cartpole
+
+    fam = cartpole()
+    plant = {"kind": "discrete", "F": fam.F.tolist(), "G": fam.G.tolist(), "sampling_period": 0.02}
+    assert 100 * 2**20 < design_size("lmi", 4, 1, 3, 100).memory < 200 * 2**20
+    with running_client(db_url, run_dispatcher=False, worker_memory_mb=100, max_n_drop=1000,
+                        max_lmi_size=10**6, job_time_limit=5) as c:
+        problem = assert_problem(c.post("/v1/designs", json={"plant": plant, "n_drop": 100}), 422, "/n_drop")
+        assert "NCS_WORKER_MEMORY_MB" in problem["detail"] and "MiB of solver memory" in problem["detail"]
+        problem = assert_problem(c.post("/v1/designs", json={"plant": plant, "n_drop": 60,
+                                                             "options": {"decay_rate": "max"}}), 422, "/n_drop")
+        assert "NCS_JOB_TIME_LIMIT" in problem["detail"] and "limit of 5 s" in problem["detail"]
+        assert c.get("/v1/designs").json()["items"] == []

@@ -159,3 +159,23 @@ def test_trace_images_like_fig3(client):
     assert_problem(client.get(url + ".png?x0=1,2,3"), 422, "/x0")
     assert_problem(client.get(url + ".gif"), 422)
     assert_problem(client.get("/v1/designs/00000000-0000-4000-8000-000000000000/trace.png"), 404)
+
+
+def test_a_margin_job_whose_probe_fails_in_the_solver_succeeds(client):
+    # issue 22: the cart-pole's probe at h = 1 s ended the job `failed` ("unexpected SolverFailed"). Any probe
+    # the solver fails is now a curve point "solver_failed", and the job answers the margin it certified.
+    from solver import design
+
+    from tests.solver.cartpole import cartpole
+
+    fam = cartpole()
+    plant = {"kind": "continuous", "A": fam.A.tolist(), "B": fam.B.tolist(), "sampling_period": 0.02}
+    body = {"plant": plant, "search": "sampling_period", "n_drop": 3, "h_min": 0.005, "h_max": 1.0, "tol": 0.005}
+    done = wait_job(client, f"/v1/margins/{client.post('/v1/margins', json=body).json()['id']}", timeout=240)
+    assert done["status"] == "succeeded", done
+    res = done["result"]
+    assert res["margin"] is not None and 0.05 < res["margin"] < 1.0
+    assert res["curve"][1]["sampling_period"] == 1.0 and res["curve"][1]["outcome"] != "stabilized"
+    assert design(cartpole(sampling_period=res["margin"]), 3, decay_rate=None).outcome == "stabilized"
+    svg = client.get(f"/v1/margins/{done['id']}/curve.svg")
+    assert svg.status_code == 200

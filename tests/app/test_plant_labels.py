@@ -73,3 +73,22 @@ def test_client_sends_names_and_gets_them_back(client):
     assert sent["state_names"] == ["i_a", "omega"] and sent["units"]["v_a"] == "V"
     job = client.post("/v1/designs", json={"plant": sent, "n_drop": 2}, headers={"Prefer": "wait=60"}).json()
     assert job["result"]["input_names"] == ["v_a"]
+
+
+def test_mode_names_title_the_trace_figure_instead_of_indices(client):
+    # issue 22, item 7: the figure's titles and plant-mode strip say the plant's names, not "mode 0/1/2"
+    from app.client import plant_json
+
+    from tests.solver.cartpole import cartpole
+
+    plant = plant_json(cartpole())
+    assert plant["mode_names"] == ["pole 0.2 m", "pole 0.3 m", "pole 0.4 m"]
+    job = client.post("/v1/designs", json={"plant": plant, "n_drop": 3, "options": {"decay_rate": None}},
+                      headers={"Prefer": "wait=60"}).json()
+    assert job["status"] == "succeeded", job
+    svg = client.get(f"/v1/designs/{job['id']}/trace.svg?steps=100&x0=0,0,0.1,0").text
+    assert "Plant fixed: pole 0.3 m" in svg and "Plant may switch when a packet arrives" in svg
+    assert "per_interval" not in svg and "mode 0" not in svg
+    bad = {**plant, "mode_names": ["a", "b"]}
+    problem = assert_problem(client.post("/v1/designs", json={"plant": bad, "n_drop": 3}), 422, "/plant/mode_names")
+    assert "mode_names has 2 names but the plant has 3" in problem["detail"]

@@ -54,11 +54,14 @@ def independently_certified(fam, res):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
-@given(families(), st.integers(1, 3), st.sampled_from(["lmi", "switched", "ccl"]))
-def test_fuzzed_families_give_an_outcome_or_a_clear_error(family_kind, n_drop, method):
+@given(families(), st.integers(1, 3), st.sampled_from(["lmi", "switched", "ccl"]), st.booleans())
+def test_fuzzed_families_give_an_outcome_or_a_clear_error(family_kind, n_drop, method, default_rate):
     fam, kind = family_kind
+    # plain stability (one SDP), or the default decay_rate="auto" (a bisection) for lmi: the switched bisection
+    # on fuzzed families costs minutes and is covered by tests/solver/test_default_loop.py
+    rate = "auto" if default_rate and method == "lmi" else None
     try:
-        res = design(fam, n_drop, method=method, max_iter=5)
+        res = design(fam, n_drop, method=method, max_iter=5, decay_rate=rate)
     except (InvalidInput, SolverFailed) as err:
         assert str(err)
         return
@@ -88,8 +91,8 @@ def test_scaling_does_not_change_verdicts():
         t = np.array([1e-4, 1.0, 1e4])
         u = np.array([1e3])
         twin = PlantFamily(F=F / t[None, :, None] * t[None, None, :], G=G / t[None, :, None] * u[None, None, :])
-        a = design(base, 2, method="lmi", scaling="none")
-        b = design(twin, 2, method="lmi")  # auto scaling
+        a = design(base, 2, method="lmi", scaling="none", decay_rate=None)
+        b = design(twin, 2, method="lmi", decay_rate=None)  # auto scaling; verdicts of one SDP each
         assert a.outcome == b.outcome, seed
         assert b.scaling is not None
         if a.outcome == "stabilized":

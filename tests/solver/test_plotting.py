@@ -41,39 +41,65 @@ def test_margin_curve_plot():
 
 
 def test_trace_figure_names_units_modes_losses_shared_axes_and_window():
-    from solver.plotting import default_window, settling_time
-
     fam = PlantFamily.dc_motor([0.03, 0.05], 0.1)
     gains = [[[-4.12, 0.29]], [[0.066, -0.009]], [[0.0099, 0.038]]]
     runs = [simulate(fam, gains, 3, x0=[1.0, -1.0], steps=80, seed=3)]
     runs += [simulate(fam, gains, 3, x0=[1.0, -1.0], steps=80, seed=3, plant_switching="none", mode=1)]
     fig = trace_figure(runs, ["switching", "mode 1"], family=fam)
-    axes = np.array(fig.axes).reshape(3, 2)
-    labels = [t.get_text() for t in axes[0, 0].get_legend().get_texts()]
-    assert labels == ["i_a (A)", "omega (rad/s)"]
-    assert [t.get_text() for t in axes[1, 0].get_legend().get_texts()] == ["v_a (V)"]
+    axes = np.array(fig.axes).reshape(4, 2)  # A and rad/s: one state axis per unit, inputs, strip
+    assert [t.get_text() for t in axes[0, 0].get_legend().get_texts()] == ["i_a (A)"]
+    assert [t.get_text() for t in axes[1, 0].get_legend().get_texts()] == ["omega (rad/s)"]
+    assert [t.get_text() for t in axes[2, 0].get_legend().get_texts()][0] == "v_a (V)"
     assert [t.get_text() for t in fig.legends[0].get_texts()] == ["plant mode", "packet lost (buffer plays K_q, q > 1)"]
-    assert axes[2, 0].get_xlabel() == "time (s)"
-    for row in range(3):  # one y-range per row across the columns
+    assert axes[3, 0].get_xlabel() == "time (s)"
+    for row in range(4):  # one y-range per row across the columns
         assert axes[row, 0].get_ylim() == axes[row, 1].get_ylim()
-    # every state value inside the window is inside the y-range
-    lo, hi = axes[0, 0].get_ylim()
-    end = axes[0, 0].get_xlim()[1]
-    for tr in runs:
-        shown = tr.state[tr.time <= end]
-        assert lo <= shown.min() and shown.max() <= hi
-    # the window fits the transient: |x| under 1e-3 of its peak before its end, well before the 8 s run ends
-    norm = np.linalg.norm(runs[0].state, axis=1)
-    assert np.all(norm[runs[0].time >= end] < 1e-3 * norm.max())
-    assert end == default_window(runs) and 0.5 < end < 8.0
-    assert end == pytest.approx(max(1.2 * max(settling_time(tr) for tr in runs), 1.0))
+    # the whole simulated window (8 s), every state value inside its axis' y-range
+    for ax in axes.ravel():
+        assert ax.get_xlim() == (0.0, pytest.approx(8.0))
+    for row, i in ((0, 0), (1, 1)):
+        lo, hi = axes[row, 0].get_ylim()
+        for tr in runs:
+            assert lo <= tr.state[:, i].min() and tr.state[:, i].max() <= hi
     # the active plant mode is drawn (a step trace of tr.mode) and the losses as ticks on their own row
-    stairs = axes[2, 0].patches[0]
+    stairs = axes[3, 0].patches[0]
     np.testing.assert_array_equal(stairs.get_data().values, runs[0].mode)
-    ticks = [ln for ln in axes[2, 0].lines if ln.get_marker() == "|"][0]
+    ticks = [ln for ln in axes[3, 0].lines if ln.get_marker() == "|"][0]
     np.testing.assert_allclose(ticks.get_xdata(), runs[0].time[:-1][~runs[0].effective])
-    assert set(np.asarray(ticks.get_ydata())) == {-1.0} and min(axes[2, 0].get_ylim()) < -1
-    assert [t.get_text() for t in axes[2, 0].get_yticklabels()] == ["lost", "mode 0", "mode 1"]
+    assert set(np.asarray(ticks.get_ydata())) == {-1.0} and min(axes[3, 0].get_ylim()) < -1
+    # the plant's mode names (dc_motor: its inertias), not code words
+    assert [t.get_text() for t in axes[3, 0].get_yticklabels()] == ["lost", "J = 0.03 kg m^2", "J = 0.05 kg m^2"]
+
+
+def test_trace_figure_one_axis_per_unit_group_full_window_and_whole_input():
+    """Issue 22, item 7: cart-pole states in m, m/s, rad, rad/s each get an axis; without units, one axis per
+    state; the x-range is the simulated window unless t_max asks for less; the input covers the whole window
+    and no zero reference line is drawn where data could be expected."""
+    from .cartpole import cartpole
+
+    fam = cartpole()
+    gains = [[[15.0, 13.8, 62.2, 10.8]], [[7.1, 6.8, 37.3, 6.6]], [[3.7, 4.0, 28.5, 5.2]]]
+    run = simulate(fam, gains, 3, x0=[0, 0, 0.1, 0], steps=300, seed=42)
+    fig = trace_figure([run], ["Plant may switch when a packet arrives"], family=fam, settling=5.04)
+    assert len(fig.axes) == 4 + 2
+    for ax in fig.axes:
+        assert ax.get_xlim() == (0.0, pytest.approx(6.0))
+    input_ax = fig.axes[4]
+    stairs = input_ax.patches[0].get_data()
+    assert len(stairs.values) == 300 and stairs.edges[0] == 0.0 and stairs.edges[-1] == pytest.approx(6.0)
+    np.testing.assert_array_equal(stairs.values, run.input[:, 0])
+    for ax in fig.axes[:5]:  # data lines span the run; the only other lines are vertical markers
+        for line in ax.lines:
+            x = np.asarray(line.get_xdata(), dtype=float)
+            assert len(x) == 301 or np.ptp(x) == 0, line.get_label()
+    assert "theta (rad)" == fig.axes[2].get_ylabel()
+    # without names and units: one axis per state; a shorter window only on request
+    bare = PlantFamily(F=fam.F, G=fam.G, sampling_period=0.02)
+    fig = trace_figure([run], family=bare, t_max=2.0)
+    assert len(fig.axes) == 4 + 2 and fig.axes[0].get_xlim() == (0.0, 2.0)
+    fig = trace_figure([run], family=PlantFamily(F=fam.F, G=fam.G, sampling_period=0.02,
+                                                  state_names=["a", "b", "c", "d"], units={n: "m" for n in "abcd"}))
+    assert len(fig.axes) == 1 + 2  # all four in m share one axis
 
 
 def test_margin_figure_draws_points_not_a_line_with_units():
@@ -90,4 +116,25 @@ def test_margin_figure_draws_points_not_a_line_with_units():
         if ln not in points:
             assert np.ptp(np.asarray(ln.get_xdata(), float)) == 0 or np.ptp(np.asarray(ln.get_ydata(), float)) == 0
     texts = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert "largest h with a design: 0.375 s" in texts and "no stabilizing design" in texts
+    assert "largest h with a design: 0.375 s" in texts and "no design (infeasible at this point)" in texts
+
+
+def test_failed_margin_probes_are_drawn_as_what_they_are_not_at_radius_one():
+    from solver.margins import MarginResult
+
+    curve = [{"sampling_period": 0.005, "outcome": "stabilized", "max_spectral_radius": 0.996},
+             {"sampling_period": 1.0, "outcome": "solver_failed", "max_spectral_radius": None},
+             {"sampling_period": 0.5, "outcome": "infeasible", "max_spectral_radius": None},
+             {"sampling_period": 0.25, "outcome": "stabilized", "max_spectral_radius": 0.97}]
+    fig = margin_figure(MarginResult(kind="sampling_period", margin=0.25, design=None, curve=curve))
+    ax = fig.axes[0]
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "no certified design (solver failed: no proof)" in texts and "no design (infeasible at this point)" in texts
+    for line in ax.lines:
+        label = line.get_label()
+        if label.startswith("no "):  # placed in axes units (a band), not at a spectral radius
+            assert line.get_transform() != ax.transData
+            assert set(np.asarray(line.get_ydata(), float)) == {0.04}
+        elif line.get_marker() == "o":
+            assert sorted(np.asarray(line.get_ydata(), float)) == [0.97, 0.996]
+    assert "mode" not in ax.get_title() and "_" not in ax.get_title()
