@@ -22,14 +22,14 @@ The growth grid (``--grid``) runs the IPM only, in this process, and fits
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
 import numpy as np
+
+from .child import fmt, rss_mb, run_child
 
 SOLVERS = ("ipm", "clarabel_cvxpy", "clarabel_direct", "cvxopt")
 CASES = {
@@ -50,11 +50,6 @@ def modes_for(case: str):
     return ModeSet.from_family(fam, N)
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-
-
 def child(case: str, solver: str, repeats: int, cap: float) -> dict:
     import resource
     import warnings
@@ -70,7 +65,7 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
     out = {"case": case, "solver": solver, "times": [], "cpu": []}
     if solver == "ipm":
         ipm.solve_lmi(modes.free, coef, active)  # first-use costs (imports, BLAS handles)
-        base = _rss_mb()
+        base = rss_mb()
         t_end = time.perf_counter() + cap
         for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.process_time()
@@ -86,7 +81,7 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
         for key, value in values.items():
             compiled.parameters[key].value = value
         prob = compiled.problem
-        base = _rss_mb()
+        base = rss_mb()
         for _ in range(repeats):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -125,30 +120,9 @@ def child(case: str, solver: str, repeats: int, cap: float) -> dict:
 
 
 def run_cell(case: str, solver: str, repeats: int, cap: float, mem_gb: float) -> dict:
-    cmd = [sys.executable, "-c",
-           "import json, resource, sys; from bench.ipm_bench import child; "
-           f"cap = int({mem_gb} * 2**30); resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
-           f"print(json.dumps(child({case!r}, {solver!r}, {repeats}, {cap})))"]
-    t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=cap + 30, cwd=os.getcwd())
-    except subprocess.TimeoutExpired:
-        return {"case": case, "solver": solver, "note": f"> {cap:g} s"}
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
-    if proc.returncode != 0 or not lines:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-        return {"case": case, "solver": solver, "note": f"failed after {time.perf_counter() - t0:.0f} s: {tail[0][:100]}"}
-    return json.loads(lines[-1])
-
-
-def fmt(sec: float) -> str:
-    if sec != sec:
-        return "-"
-    if sec < 1e-2:
-        return f"{sec * 1e3:.2f} ms"
-    if sec < 1:
-        return f"{sec * 1e3:.0f} ms"
-    return f"{sec:.2f} s"
+    out = run_child("from bench.ipm_bench import child", f"child({case!r}, {solver!r}, {repeats}, {cap})", mem_gb,
+                    cap + 30)
+    return {"case": case, "solver": solver, **out} if "note" in out else out
 
 
 def cell_text(c: dict) -> str:

@@ -20,14 +20,14 @@ n >= 12.
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
 import numpy as np
+
+from .child import fmt, rss_mb, run_child
 
 SIZES = ("paper", 2, 4, 8, 12, 16, 20, 32, 50, 64)
 QUICK = ("paper", 2, 8, 12)
@@ -48,11 +48,6 @@ def family(n, kind: str):
     if kind == "feasible":
         return random_family(n, R, M, seed=FEASIBLE_SEED.get(n, 0), spread=0.02)
     return random_family(n, R, M, seed=0, spread=0.5)
-
-
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
 def child(n: int, kind: str, what: str, budget: float) -> dict:
@@ -93,10 +88,10 @@ def child(n: int, kind: str, what: str, budget: float) -> dict:
             out.update(t=float(sol.t), status=sol.status, iterations=sol.iterations)
     else:
         def once():
-            res = design(fam, n_drop)
+            res = design(fam, n_drop, decay_rate=None)  # one SDP: the plain stability design
             out.update(outcome=res.outcome, status=res.solver_status,
                        proof=None if res.certificate is None else res.certificate.kind)
-    base = _rss_mb()
+    base = rss_mb()
     spent = 0.0
     while spent < budget or not out["cpu"]:
         t0, c0 = time.perf_counter(), time.process_time()
@@ -111,30 +106,8 @@ def child(n: int, kind: str, what: str, budget: float) -> dict:
 
 
 def run_cell(n: int, kind: str, what: str, budget: float, cap: float, mem_gb: float) -> dict:
-    cmd = [sys.executable, "-c",
-           "import json, resource; from bench.speed_bench import child; "
-           f"cap = int({mem_gb} * 2**30); resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
-           f"print(json.dumps(child({n!r}, {kind!r}, {what!r}, {budget})))"]
-    t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=cap, cwd=os.getcwd())
-    except subprocess.TimeoutExpired:
-        return {"note": f"> {cap:g} s wall"}
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
-    if proc.returncode != 0 or not lines:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-        return {"note": f"failed after {time.perf_counter() - t0:.0f} s: {tail[0][:80]}"}
-    return json.loads(lines[-1])
-
-
-def fmt(sec: float) -> str:
-    if sec != sec:
-        return "-"
-    if sec < 1e-2:
-        return f"{sec * 1e3:.2f} ms"
-    if sec < 1:
-        return f"{sec * 1e3:.0f} ms"
-    return f"{sec:.2f} s"
+    return run_child("from bench.speed_bench import child", f"child({n!r}, {kind!r}, {what!r}, {budget})", mem_gb,
+                     cap, note_chars=80)
 
 
 def cpu(cell: dict) -> float:
