@@ -233,9 +233,13 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
-    """How many SDPs a design solves at most (for the time estimate)."""
+    """How many SDPs a design solves at least (for the time estimate that refuses a design up front).
+
+    ``ccl`` counts Step 1 and one iteration, not ``max_iter``: how many iterations it takes is not known
+    before it runs, and the time limit (``time_limit``, the service's job time limit) stops it if needed.
+    """
     if method == "ccl":
-        return int(max_iter)
+        return 2
     if decay_rate in ("max", "auto"):
         return int(np.ceil(np.log2(1.0 / rate_tol))) + 2
     return 1
