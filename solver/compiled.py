@@ -116,11 +116,17 @@ def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
 #: service's job time limit (``NCS_JOB_TIME_LIMIT``).
 MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 
-#: Interior-point iterations and sustained flop rate of the time estimate (:func:`design_size`):
-#: measured on a 4-state, 3-mode family with n_drop = 160 and 320 (bench/solver_bench.py machine),
-#: where one iteration of the structured IPM ran at 2-3 GFlop/s; 40 iterations is a typical solve.
-ESTIMATE_ITERATIONS = 40
-ESTIMATE_FLOPS_PER_SECOND = 2e9
+#: The time estimate of :func:`design_size`, made to refuse only designs that surely run over budget:
+#: ``ESTIMATE_ITERATIONS`` interior-point iterations, each its flops at a rate that grows with the block side k
+#: (the Schur assembly is rank-k work: ``ESTIMATE_FLOPS_PER_SIDE`` per unit of k, at most
+#: ``ESTIMATE_FLOPS_PER_SECOND``, near the large GEMMs' rate on one core of the 2-core development machine) plus
+#: ``ESTIMATE_SECONDS_PER_BLOCK`` per LMI block (the batched small calls).  Measured CPU per solve (estimate):
+#: lmi, r = 5, n_drop = 10, m = 2: n = 20 1.6 s (0.9 s), n = 40 7.3 s (5.6 s), n = 50 13.3 s (13.3 s),
+#: n = 60 44 s (25 s); a 4-state, 3-mode cart-pole (side 8) at n_drop = 60: 0.75 s (0.74 s).
+ESTIMATE_ITERATIONS = 25
+ESTIMATE_FLOPS_PER_SECOND = 5e10
+ESTIMATE_FLOPS_PER_SIDE = 4e8
+ESTIMATE_SECONDS_PER_BLOCK = 1e-4
 
 
 @dataclass(frozen=True)
@@ -182,8 +188,13 @@ def _bytes(x: float) -> str:
 
 
 def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
-                plant_switching: str = "per_interval", scheme: str = "predictive") -> DesignSize:
+                plant_switching: str = "per_interval", scheme: str = "predictive",
+                solver: str = "AUTO") -> DesignSize:
     """Size and estimated cost of a design SDP, from its dimensions alone (no arrays are built).
+
+    ``solver``: with ``"AUTO"``/``"IPM"`` the memory is the structured IPM's (Schur pieces per block and
+    the Schur complement); with a general conic solver (``"CLARABEL"``, ``"SCS"``) also its dense
+    scaling per PSD cone, whichever is larger.
 
     The one estimate behind the library's refusal (:func:`solver.design`) and the service's limits
     (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``).  A mode of interval
@@ -214,9 +225,14 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
         sides = [(k, S)]
         lmi = k * S
     conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in sides)
-    memory = float(min(max(8 * (pieces + p * p), conic), 10**300))  # per-sample counts can be astronomical
+    structured = 8 * (pieces + p * p)
+    memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(structured, conic)
+    memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
     flops = float(min(sides[0][0] * pieces + p**3 / 3, 10**300))
-    return DesignSize(method, S, lmi, p, memory, ESTIMATE_ITERATIONS * flops / ESTIMATE_FLOPS_PER_SECOND)
+    n_blocks = sum(count for _, count in sides)
+    rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * sides[0][0])
+    seconds = ESTIMATE_ITERATIONS * (flops / rate + n_blocks * ESTIMATE_SECONDS_PER_BLOCK)
+    return DesignSize(method, S, lmi, p, memory, float(min(seconds, 10**300)))
 
 
 def check_solver(solver: str) -> str:

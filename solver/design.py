@@ -185,7 +185,7 @@ def design(
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
     check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit,
-                 solves=solve_count(method, decay_rate, rate_tol, max_iter))
+                 solves=solve_count(method, decay_rate, rate_tol, max_iter), solver=solver)
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
@@ -246,7 +246,7 @@ def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
 
 
 def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str, scheme: str, max_modes: int,
-                 max_memory: float | None, time_limit: float | None, solves: int = 1) -> None:
+                 max_memory: float | None, time_limit: float | None, solves: int = 1, solver: str = "AUTO") -> None:
     """Refuse, before building anything, a design whose estimated memory or time is over budget.
 
     A thin layer over :func:`solver.compiled.design_size` (the estimate the service's limits use too).
@@ -259,7 +259,8 @@ def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str,
         return
     if mode_count(family.n_modes, n_drop, plant_switching) > max_modes:
         return
-    size = design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme)
+    size = design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme,
+                       solver)
     size.check(max_memory, float("inf") if time_limit is not None else None, solves=solves)
 
 

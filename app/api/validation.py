@@ -114,7 +114,8 @@ def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: S
     """The library's size estimate against the service's budgets: LMI size, worker memory, job time."""
     switching = options.plant_switching
     scheme = getattr(options, "scheme", None) or "predictive"
-    size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme)
+    size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme,
+                       getattr(options, "solver", None) or "AUTO")
     if size.lmi_size > settings.max_lmi_size:
         errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
                                   f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "

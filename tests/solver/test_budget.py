@@ -32,15 +32,15 @@ def test_cartpole_with_n_drop_1000_is_refused_before_anything_is_built(monkeypat
 
 def test_the_time_estimate_refuses_a_long_bisection_unless_a_time_limit_is_given(monkeypatch):
     fam = cartpole()
-    size = design_size("lmi", 4, 1, 3, 200)
+    size = design_size("lmi", 4, 1, 3, 280)
     assert size.memory < MAX_SOLVER_MEMORY  # memory alone would let it through
     monkeypatch.setattr(design_module.ModeSet, "from_family", lambda *a, **k: (_ for _ in ()).throw(KeyError))
     with pytest.raises(InvalidInput, match="would take about .* s .* over the limit of 300 s"):
-        design(fam, n_drop=200, decay_rate="max")
+        design(fam, n_drop=280, decay_rate="max")
     with pytest.raises(KeyError):  # a time_limit bounds the time: the guard lets it through to ModeSet
-        design(fam, n_drop=200, decay_rate="max", time_limit=10)
+        design(fam, n_drop=280, decay_rate="max", time_limit=10)
     with pytest.raises(InvalidInput, match="limit of 1 MiB"):  # the memory budget is overridable both ways
-        design(fam, n_drop=200, time_limit=10, max_memory=2**20)
+        design(fam, n_drop=280, time_limit=10, max_memory=2**20)
 
 
 def test_memory_estimate_matches_the_measured_peak():
