@@ -210,9 +210,9 @@ def _client(args):
 
 def cmd_design(args) -> int:
     fam = load_plant(args.plant, args.sampling_period)
-    decay_rate = _parse_decay_rate(args.decay_rate)
-    options = {k: v for k, v in (("decay_rate", decay_rate), ("plant_switching", args.plant_switching),
-                                 ("scheme", args.scheme)) if v is not None}
+    options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme)) if v is not None}
+    if args.decay_rate is not None:  # given: 'none' means plain stability (None), not the default "auto"
+        options["decay_rate"] = _parse_decay_rate(args.decay_rate)
     perf = performance_kwargs(args)
     suffix = Path(args.output).suffix.lower() if args.output else None
     if suffix not in (None, ".json", ".mat", ".m"):

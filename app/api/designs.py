@@ -286,7 +286,8 @@ async def design_controller_zip(
     description="The SDP `design` solves for this request (`solver.export_sdpa`), in the coordinates it solves "
                 "it in, with a comment header naming the variables; its optimum is `-t*` with "
                 "`t* = result.history[-1].objective`. Methods `lmi` and `switched` (`ccl` solves a sequence of "
-                "SDPs: 409). With `decay_rate: \"max\"`, the SDP at the certified rate once the design has one.",
+                "SDPs: 409). With `decay_rate: \"auto\"` (the default) or `\"max\"`, the SDP at the design's certified "
+                "rate once it has one.",
     response_class=Response,
     responses={200: {"description": "SDPA sparse text (Content-Disposition: attachment)",
                      "content": {"text/plain": {"schema": {"type": "string"}}}},
@@ -302,7 +303,7 @@ async def design_problem_sdpa(job_id: str, request: Request, db: Database = Depe
         raise ProblemException(409, "ccl solves a sequence of SDPs, each built from the previous iterate: there is "
                                     "no single SDP to export (methods lmi and switched have one)", title="Conflict")
     options = dict(req.get("options") or {})
-    if options.get("decay_rate") == "max":
+    if options.get("decay_rate") in ("max", "auto"):
         rate = (row.result or {}).get("decay_rate") if row.status == Status.SUCCEEDED else None
         if rate is None:
             raise ProblemException(409, f"design {job_id} searches the decay rate (a bisection over many SDPs) "

@@ -92,12 +92,13 @@ def test_client_methods(client, motor):
     data = c.controller_zip(motor["id"], exhausted="zero")
     assert "ncs_controller.c" in zipfile.ZipFile(io.BytesIO(data)).namelist()
     text = c.problem_sdpa(motor["id"])
-    assert text == export_sdpa(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3)
+    # the default design (decay_rate "auto") is exported at its certified rate
+    assert text == export_sdpa(PlantFamily.dc_motor([0.03, 0.05], 0.1), 3, decay_rate=motor["result"]["decay_rate"])
 
 
 def test_cli_codegen_and_export_sdpa(tmp_path):
     (tmp_path / "motor.json").write_text(json.dumps(MOTOR))
-    out = ncs("design", "motor.json", "--n-drop", 3, "--output", "res.json", cwd=tmp_path)
+    out = ncs("design", "motor.json", "--n-drop", 3, "--decay-rate", "none", "--output", "res.json", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     out = ncs("codegen", "res.json", "--out", "c", "--exhausted", "zero", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
@@ -114,14 +115,17 @@ def test_cli_codegen_and_export_sdpa(tmp_path):
 
 
 def test_default_limits_admit_the_measured_lmi_case(module_db):
-    """lmi at n = 60, r = 5, n_drop = 10 (measured in 44 s of CPU: README) passes the default limits;
-    n = 61 is refused naming the field."""
+    """The plain lmi design at n = 60, r = 5, n_drop = 10 (measured in 44 s of CPU: README) passes the default
+    limits; n = 61 is refused naming the field; the default decay_rate="auto" (about 12 SDPs) at n = 60 is
+    refused up front by the job time limit (the tests' 120 s) rather than killed by it."""
     rng = np.random.default_rng(0)
 
-    def body(n):
+    def body(n, **options):
         return {"plant": {"kind": "discrete", "F": (0.1 * rng.standard_normal((5, n, n))).tolist(),
-                          "G": rng.standard_normal((5, n, 2)).tolist()}, "n_drop": 10}
+                          "G": rng.standard_normal((5, n, 2)).tolist()}, "n_drop": 10, "options": options}
 
     with running_client(module_db, run_dispatcher=False) as c:
-        assert c.post("/v1/designs", json=body(60)).status_code == 202
-        assert_problem(c.post("/v1/designs", json=body(61)), 422, "/plant/F")
+        assert c.post("/v1/designs", json=body(60, decay_rate=None)).status_code == 202
+        assert_problem(c.post("/v1/designs", json=body(61, decay_rate=None)), 422, "/plant/F")
+        problem = assert_problem(c.post("/v1/designs", json=body(60)), 422, "/n_drop")
+        assert "NCS_JOB_TIME_LIMIT" in problem["detail"] and "12 solves" in problem["detail"]

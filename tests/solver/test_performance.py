@@ -360,7 +360,8 @@ def test_trace_figure_draws_the_input_limit():
     tr = simulate(fam, res.gains, 3, x0=x0, steps=40, seed=1)
     assert np.max(np.abs(tr.input)) <= 1.5 * (1 + 1e-9)  # the library's own simulator agrees
     fig = trace_figure([tr], u_max=[1.5])
-    lines = [line for line in fig.axes[1].get_lines() if line.get_linestyle() == "--"]
+    inputs = next(ax for ax in fig.axes if ax.get_ylabel() == "input")
+    lines = [line for line in inputs.get_lines() if line.get_linestyle() == "--"]
     assert sorted(float(line.get_ydata()[0]) for line in lines) == [-1.5, 1.5]
 
 

@@ -54,13 +54,13 @@ def badly_scaled():
 
 
 CASES = [
-    ("paper lmi", lambda: PlantFamily.paper_example(0.1), 3, {"method": "lmi"}),
+    ("paper lmi", lambda: PlantFamily.paper_example(0.1), 3, {"method": "lmi", "decay_rate": None}),
     ("paper lmi rate", lambda: PlantFamily.paper_example(0.1), 3, {"method": "lmi", "decay_rate": 0.9}),
-    ("paper lmi hold", lambda: PlantFamily.paper_example(0.2), 3, {"method": "lmi", "scheme": "hold"}),
+    ("paper lmi hold", lambda: PlantFamily.paper_example(0.2), 3, {"method": "lmi", "scheme": "hold", "decay_rate": None}),
     ("paper lmi per-sample", lambda: PlantFamily.paper_example(0.1), 2,
-     {"method": "lmi", "plant_switching": "per_sample"}),
-    ("scaled lmi", badly_scaled, 3, {"method": "lmi"}),
-    ("paper switched", lambda: PlantFamily.paper_example(0.2), 2, {"method": "switched"}),
+     {"method": "lmi", "plant_switching": "per_sample", "decay_rate": None}),
+    ("scaled lmi", badly_scaled, 3, {"method": "lmi", "decay_rate": None}),
+    ("paper switched", lambda: PlantFamily.paper_example(0.2), 2, {"method": "switched", "decay_rate": None}),
     ("paper switched rate", lambda: PlantFamily.paper_example(0.1), 2, {"method": "switched", "decay_rate": 0.95}),
 ]
 
@@ -100,3 +100,12 @@ def test_refusals_name_the_field(kwargs, field):
 def test_solve_only_options_are_accepted():
     fam = PlantFamily.paper_example(0.1)
     assert export_sdpa(fam, 3, solver="CLARABEL", margin=1e-7, time_limit=5) == export_sdpa(fam, 3)
+
+
+def test_the_default_design_is_exported_at_its_certified_rate():
+    """design()'s default (decay_rate="auto") solves a bisection; its last SDP is the one at res.decay_rate."""
+    fam = PlantFamily.paper_example(0.1)
+    res = design(fam, 3)
+    assert res.decay_rate is not None and res.decay_rate < 1
+    text = export_sdpa(fam, 3, decay_rate=res.decay_rate)
+    assert resolve(text) == pytest.approx(-res.history[-1].objective, rel=1e-5, abs=1e-6)
