@@ -189,10 +189,8 @@ def design(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        # "auto" (the default) asks for a usable loop: the cost and l2-gain objectives give one by themselves
         return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                   margin, max_iter, time_limit, callback,
-                                   None if decay_rate == "auto" else decay_rate)
+                                   margin, max_iter, time_limit, callback, decay_rate)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -226,9 +224,10 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
 
     lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
                                             decay_rate)
+    rate = None if decay_rate in (None, "auto") else float(decay_rate)  # "auto": prepare's note
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
-                            decay_rate=None if decay_rate is None else float(decay_rate))
+                            decay_rate=rate)
     return performance.run(lifted, options, objective, x0, u_max)
 
 

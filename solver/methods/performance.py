@@ -143,6 +143,8 @@ def prepare(modes, method: str, objective: str, weights, x0, disturbance, output
     if method != "lmi":
         raise InvalidInput("objective and u_max need method='lmi' (a common quadratic Lyapunov function)",
                            ("method",))
+    if decay_rate == "auto":  # the default asks for a usable loop: these objectives give one by themselves
+        decay_rate = None
     if decay_rate == "max":
         raise InvalidInput("decay_rate='max' cannot be combined with an objective or u_max; give a rate",
                            ("decay_rate",))
