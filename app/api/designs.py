@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -51,6 +51,19 @@ async def submit_design(
     validation.check_performance(req, settings)
     validation.check_design_channel(body, shape, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
+
+
+async def _cached_attachment(request: Request, key: tuple, media: str, filename: str, task: str, *args,
+                             loc: list, plant: dict[str, Any] | None = None) -> Response:
+    """A download made once per ``key`` by a task on the sync pool (kept in the trace cache), sent as an
+    attachment with an ETag."""
+    body = request.app.state.trace_cache.get(key)
+    if body is None:
+        body = await run_sync(request, task, *args, loc=loc, plant=plant)
+        request.app.state.trace_cache.put(key, body)
+    response = etag_response(request, media, body)
+    response.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
+    return response
 
 
 def _parse_x0(raw: str | None, n: int) -> list[float]:
@@ -200,14 +213,8 @@ async def _gains_file(request: Request, job_id: str, fmt: str, db: Database, own
         raise ProblemException(409, f"design {job_id} has no result to export yet (status {row.status!r}); wait "
                                     "for it to succeed (GET with Prefer: wait=60)", title="Conflict")
     media, _ = GAINS_FILES[fmt]
-    key = (job_id, "gains", fmt)
-    body = request.app.state.trace_cache.get(key)
-    if body is None:
-        body = await run_sync(request, "gains_file", row.result, fmt, job_id, loc=["path"], plant=None)
-        request.app.state.trace_cache.put(key, body)
-    response = etag_response(request, media, body)
-    response.headers["Content-Disposition"] = f'attachment; filename="ncs-design-{job_id}.{fmt}"'
-    return response
+    return await _cached_attachment(request, (job_id, "gains", fmt), media, f"ncs-design-{job_id}.{fmt}",
+                                    "gains_file", row.result, fmt, job_id, loc=["path"])
 
 
 @router.get(
@@ -270,15 +277,9 @@ async def design_controller_zip(
     cert = result.get("certificate") or {}
     metadata = {"id": job_id, "method": row.request.get("method"), "outcome": result.get("outcome"),
                 "certificate": cert.get("kind")}
-    key = (job_id, "controller", exhausted, prefix)
-    body = request.app.state.trace_cache.get(key)
-    if body is None:
-        body = await run_sync(request, "controller_zip", result, row.request["n_drop"], exhausted, prefix, metadata,
-                              loc=["query"], plant=None)
-        request.app.state.trace_cache.put(key, body)
-    response = etag_response(request, "application/zip", body)
-    response.headers["Content-Disposition"] = f'attachment; filename="{prefix.lower()}-controller-{job_id}.zip"'
-    return response
+    return await _cached_attachment(request, (job_id, "controller", exhausted, prefix), "application/zip",
+                                    f"{prefix.lower()}-controller-{job_id}.zip", "controller_zip", result,
+                                    row.request["n_drop"], exhausted, prefix, metadata, loc=["query"])
 
 
 @router.get(
@@ -309,12 +310,6 @@ async def design_problem_sdpa(job_id: str, request: Request, db: Database = Depe
             raise ProblemException(409, f"design {job_id} searches the decay rate (a bisection over many SDPs) "
                                         "and has no certified rate yet to export the SDP at", title="Conflict")
         options["decay_rate"] = rate
-    key = (job_id, "sdpa", canonical_json(options))
-    body = request.app.state.trace_cache.get(key)
-    if body is None:
-        body = await run_sync(request, "problem_sdpa", req["plant"], req["n_drop"], req.get("method", "lmi"),
-                              options, loc=["path"], plant=req["plant"])
-        request.app.state.trace_cache.put(key, body)
-    response = etag_response(request, "text/plain; charset=utf-8", body)
-    response.headers["Content-Disposition"] = f'attachment; filename="ncs-design-{job_id}.dat-s"'
-    return response
+    return await _cached_attachment(request, (job_id, "sdpa", canonical_json(options)), "text/plain; charset=utf-8",
+                                    f"ncs-design-{job_id}.dat-s", "problem_sdpa", req["plant"], req["n_drop"],
+                                    req.get("method", "lmi"), options, loc=["path"], plant=req["plant"])
