@@ -313,9 +313,9 @@ class AnalysisResult:
 
 def _channel_json(channel) -> dict:
     """A channel as request JSON: a :class:`solver.channel.Channel` becomes its ``markov`` form."""
-    if hasattr(channel, "transition") and hasattr(channel, "loss"):
-        return {"kind": "markov", "transition": np.asarray(channel.transition).tolist(),
-                "loss": np.asarray(channel.loss).tolist()}
+    if hasattr(channel, "to_dict"):  # the request's markov form has only these fields
+        data = channel.to_dict()
+        return {k: data[k] for k in ("kind", "transition", "loss")}
     return channel
 
 
