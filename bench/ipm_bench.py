@@ -1,4 +1,4 @@
-"""``python -m bench ipm``: the structured IPM (solver/ipm.py) beside Clarabel and CVXOPT on the same lmi SDPs.
+"""``python -m bench ipm``: the structured IPM (solver/ipm/) beside Clarabel and CVXOPT on the same lmi SDPs.
 
 Every (case, solver) cell runs in its own child process with a wall-clock cap
 (a cell that runs out prints "> cap s") and an address-space cap, so a slow

@@ -1,4 +1,4 @@
-"""Cross-check of the structured IPM (solver/ipm.py) against Clarabel on seeded random families.
+"""Cross-check of the structured IPM (solver/ipm/) against Clarabel on seeded random families.
 
 ``python -m bench ipm-check [--count N] [--seed S]`` prints the counts; the CI test
 (tests/solver/test_ipm.py) runs a bounded sample of the same generator.

@@ -39,7 +39,7 @@ cp = _LazyCvxpy()
 
 #: Solvers a user may pick.  "AUTO" (the default) is the fastest one that gives the same verdicts,
 #: per problem (:func:`resolve_solver`).  "IPM" is the structured interior-point solver
-#: (solver/ipm.py) for the lmi, switched and ccl designs and the common fixed-gain certificate LMI;
+#: (solver/ipm/) for the lmi, switched and ccl designs and the common fixed-gain certificate LMI;
 #: the switched fixed-gain LMI falls back to Clarabel under both names.
 #: "CLARABEL" (interior point through cvxpy) and "SCS" (first order) stay selectable.
 SOLVERS = {"AUTO": "CLARABEL", "IPM": "CLARABEL", "CLARABEL": "CLARABEL", "SCS": "SCS"}  # cvxpy solver names
@@ -83,7 +83,7 @@ MAX_SOLVER_MEMORY = int(float(os.environ.get("NCS_SOLVER_MAX_MEMORY", 4 * 2**30)
 
 
 def ipm_memory(n_full: int, p: int, n_blocks: int, side: int, largest_variable: int) -> int:
-    """Bytes the structured IPM (solver/ipm.py) needs at its peak, estimated from its arrays.
+    """Bytes the structured IPM (solver/ipm/) needs at its peak, estimated from its arrays.
 
     The full-coordinate Schur matrix and its projection (``n_full^2 + p n_full + p^2``), the Cholesky
     factor (``p^2``), the Kronecker pieces of the largest variable's pair (up to four of

@@ -85,7 +85,7 @@ def design(
     solver : {"AUTO", "IPM", "CLARABEL", "SCS"}
         Conic solver.  ``"AUTO"`` (default): the fastest with the same verdicts, per problem
         (:func:`solver.compiled.resolve_solver`): the structured interior-point solver
-        (solver/ipm.py) for ``lmi``, every decay-rate bisection step, ``switched`` and the common
+        (solver/ipm/) for ``lmi``, every decay-rate bisection step, ``switched`` and the common
         fixed-gain certificate LMI, and ``ccl`` except a paper-sized problem (block side
         ``2 n n_drop <= 12``) with ``ccl_start="feasibility"``; Clarabel there and for the switched
         fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel

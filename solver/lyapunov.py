@@ -253,7 +253,7 @@ def common_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "AUTO
     t : float
     info : SolveInfo
     """
-    if resolve_solver(solver, "common_lmi") == "IPM":  # solver/ipm.py; its t bounds the whole block: only its sign compares
+    if resolve_solver(solver, "common_lmi") == "IPM":  # solver/ipm/; its t bounds the whole block: only its sign compares
         from .ipm import design_solve_fixed_gain
 
         return design_solve_fixed_gain(A, rho, time_limit)

@@ -86,7 +86,7 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
         ``c_s = lambda^(-eta_s)`` (ones for plain stability).
     """
     solver = resolve_solver(solver, "lmi", modes.n_modes)
-    if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
+    if solver == "IPM":  # the structured interior-point solver (solver/ipm/), same SDP and dual convention
         return ipm_sdp(modes, "lmi", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "lmi", build)
     if clock is not None:

@@ -58,7 +58,7 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
               clock=None) -> DesignSdpSolution:
     """Solve the congruent switched SDP once; ``duals`` has S^2 blocks, pair (s, u) at ``s * S + u``."""
     solver = resolve_solver(solver, "switched", modes.n_modes)
-    if solver == "IPM":  # the structured interior-point solver (solver/ipm.py), same SDP and dual convention
+    if solver == "IPM":  # the structured interior-point solver (solver/ipm/), same SDP and dual convention
         return ipm_sdp(modes, "switched", scale, time_limit)
     compiled, cached, setup = compiled_for(modes, "switched", build)
     if clock is not None:

@@ -1,4 +1,4 @@
-"""The structured interior-point solver (solver/ipm.py) against Clarabel and against itself.
+"""The structured interior-point solver (solver/ipm/) against Clarabel and against itself.
 
 No timed assertions: speed is measured by ``python -m bench ipm``.
 """

@@ -1,0 +1,298 @@
+"""The structured LMI model: matrix variables, their Kronecker-structured terms, the blocks (docs/design.md).
+
+A :class:`BlockLMI` says *which* blocks and *which* variables; the algorithm that solves it lives in
+:mod:`solver.ipm.algorithm`, the Schur complement assembly in :mod:`solver.ipm.schur`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .schur import _onehot, assemble
+
+__all__ = ["BlockLMI", "MatrixVariable"]
+
+
+@dataclass
+class MatrixVariable:
+    """One matrix variable and the terms through which it enters the blocks.
+
+    Parameters
+    ----------
+    name : str
+    shape : (int, int)
+        ``(r, c)``.
+    sym_block : int or None
+        If set, the variable is a vertical stack of ``r / sym_block`` symmetric
+        ``sym_block x sym_block`` matrices (``sym_block = r = c`` for one
+        symmetric matrix); otherwise it is general.
+    terms : list of (L, R, coef) or (L, R, coef, sel)
+        ``L`` of shape (nb, k, r), ``R`` of shape (nb, c, k), ``coef`` a float:
+        the variable contributes ``coef (L_b V R_b + (L_b V R_b)^T)`` to block b.
+        ``R = None`` (symmetric variables only) means ``coef L_b V L_b^T``.
+        With ``sel`` (int array (nb,)) the variable is a stack of ``r / r_s`` row blocks of
+        ``r_s = L.shape[2]`` rows and block b sees only row block ``sel[b]`` (``V`` above is
+        that row block): the switched design's per-mode ``S_s``.  The Schur complement then
+        sums each block's Kronecker pieces only into the row blocks it touches.
+    """
+
+    name: str
+    shape: tuple
+    sym_block: int | None
+    terms: list = field(default_factory=list)
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+
+class _Sel:
+    """A 0/1 selection matrix that is the same for every block (``[0; I]``, ``[I 0]``, ...), as a factor.
+
+    Stands for the stack ``E`` (nb, m, q) with ``E_b = I_m[:, idx]`` (``t=False``) or its
+    transpose ``I_m[idx, :]`` (``t=True``): a product with it is an index (no arithmetic).
+    The Schur assembly multiplies every term's ``L``, ``R`` with ``X_b``, ``S_b^{-1}`` and with
+    each other; in the design families most of these factors are such selectors, so most of
+    those batched products become slices.
+    """
+
+    __array_ufunc__ = None  # ndarray @ _Sel defers to __rmatmul__
+
+    def __init__(self, idx: np.ndarray, m: int, t: bool, _ix=None):
+        self.idx, self.m, self.t = idx, m, t
+        q = len(idx)
+        self.shape = (1, q, m) if t else (1, m, q)
+        if _ix is None:
+            r = np.arange(idx[0], idx[0] + q) if q else idx
+            _ix = slice(int(idx[0]), int(idx[0]) + q) if q and np.array_equal(idx, r) else idx
+        self._ix = _ix
+        self._T = None
+
+    def swapaxes(self, a, b):
+        if self._T is None:
+            self._T = _Sel(self.idx, self.m, not self.t, self._ix)
+            self._T._T = self
+        return self._T
+
+    def __rmatmul__(self, Z):  # Z @ E
+        if not self.t:
+            return Z[..., self._ix]
+        out = np.zeros(Z.shape[:-1] + (self.m,))
+        out[..., self._ix] = Z
+        return out
+
+    def __matmul__(self, Z):  # E @ Z
+        if self.t:
+            return Z[..., self._ix, :]
+        out = np.zeros(Z.shape[:-2] + (self.m, Z.shape[-1]))
+        out[..., self._ix, :] = Z
+        return out
+
+    @staticmethod
+    def of(M):
+        """``M`` (nb, a, b) as a :class:`_Sel` if it is one 0/1 selector broadcast over the blocks, else ``M``."""
+        if not isinstance(M, np.ndarray) or M.ndim != 3 or (M.shape[0] > 1 and M.strides[0] != 0):
+            return M
+        E = M[0]
+        if E.size == 0 or not np.all((E == 0.0) | (E == 1.0)):
+            return M
+        if np.all(E.sum(axis=0) == 1.0):
+            return _Sel(np.argmax(E, axis=0), E.shape[0], False)
+        if np.all(E.sum(axis=1) == 1.0):
+            return _Sel(np.argmax(E, axis=1), E.shape[1], True)
+        return M
+
+
+#: Basis matrices T per variable structure (they depend on shapes only, not on the plant data).
+_BASIS_CACHE: dict = {}
+
+
+@dataclass
+class BlockLMI:
+    """``max t`` s.t. ``C_b + sum_V terms_b(V) - t I >= 0`` and ``<a, vec V> = beta``.
+
+    Parameters
+    ----------
+    C : ndarray, shape (nb, k, k)
+        Constant part of the blocks at ``V = V0``.
+    variables : list of MatrixVariable
+    V0 : list of ndarray
+        A point satisfying the equality (the start; ``C`` is the blocks' value there).
+    equality : ndarray, shape (n_full,) or None
+        Coefficients ``a`` of the one linear equality on the row-major
+        concatenation of the variables (``beta`` is implied by ``V0``).
+    """
+
+    C: np.ndarray
+    variables: list
+    V0: list
+    equality: np.ndarray | None = None
+    #: ``None``: ``max t`` as above.  Otherwise coefficients ``c`` (row-major concatenation of the
+    #: variables): the problem is ``min <c, vec V>`` s.t. ``C_b + sum terms_b(V) >= 0`` -- no ``t``,
+    #: and ``V0`` must be strictly feasible (``C`` positive definite), since the start is ``y = 0``.
+    objective: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.nb, self.k = self.C.shape[0], self.C.shape[1]
+        offsets = np.cumsum([0] + [v.size for v in self.variables])
+        self.slices = [slice(int(offsets[i]), int(offsets[i + 1])) for i in range(len(self.variables))]
+        self.n_full = int(offsets[-1]) + 1  # + t, the last entry
+        self.with_t = self.objective is None
+        key = (tuple((v.shape, v.sym_block) for v in self.variables),
+               None if self.equality is None else self.equality.tobytes(), self.with_t)
+        if key not in _BASIS_CACHE:
+            if len(_BASIS_CACHE) > 64:
+                _BASIS_CACHE.clear()
+            T = self._basis()
+            _BASIS_CACHE[key] = (T, np.asarray(T[-1, :].todense()).ravel(), None)
+        self.T, self.b, _ = _BASIS_CACHE[key]
+        if not self.with_t:
+            self.b = -(self.T.T @ np.append(np.asarray(self.objective, dtype=np.float64), 0.0))
+        self.p = self.T.shape[1]
+        self._key = key
+
+    @property
+    def sel_terms(self) -> list:
+        """Every variable's terms with block-constant selector factors as :class:`_Sel` (built once)."""
+        terms = self.__dict__.get("_sel_terms")
+        if terms is None:
+            terms = self._sel_terms = [[(_Sel.of(t[0]), _Sel.of(t[1]), *t[2:]) for t in var.terms]
+                                       for var in self.variables]
+        return terms
+
+    @property
+    def Tt(self) -> sp.csr_matrix:
+        """``T^T`` as CSR (kept: a sparse transpose per call cost as much as the product)."""
+        Tt = self.__dict__.get("_Tt")
+        if Tt is None:
+            Tt = self._Tt = self.T.T.tocsr()
+        return Tt
+
+    def _basis(self) -> sp.csr_matrix:
+        """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
+        rows, cols, vals = [], [], []
+        col = 0
+        for var, sl in zip(self.variables, self.slices):
+            r, c = var.shape
+            base = sl.start
+            if var.sym_block is None:
+                for e in range(r * c):
+                    rows.append(base + e), cols.append(col), vals.append(1.0)
+                    col += 1
+            else:
+                q = var.sym_block
+                for blk in range(r // q):
+                    for i in range(q):
+                        for j in range(i, q):
+                            rows.append(base + (blk * q + i) * c + j), cols.append(col), vals.append(1.0)
+                            if i != j:
+                                rows.append(base + (blk * q + j) * c + i), cols.append(col), vals.append(1.0)
+                            col += 1
+        if self.with_t:
+            rows.append(self.n_full - 1), cols.append(col), vals.append(1.0)  # t
+            col += 1
+        T = sp.csr_matrix((vals, (rows, cols)), shape=(self.n_full, col))
+        if self.equality is None:
+            return T
+        a = T.T @ np.append(self.equality, 0.0)
+        piv = int(np.argmax(np.abs(a)))
+        # Eliminate the pivot parameter: y_piv = -(sum_{j != piv} a_j y_j) / a_piv (x0 already satisfies it).
+        keep = np.array([j for j in range(col) if j != piv])
+        E = sp.lil_matrix((col, col - 1))
+        E[keep, np.arange(col - 1)] = 1.0
+        E[piv, :] = -a[keep] / a[piv]
+        return (T @ E.tocsr()).tocsr()
+
+    # ----------------------------------------------------------------- the operator and its adjoint
+    def full(self, y: np.ndarray) -> np.ndarray:
+        return self.T @ y
+
+    def op(self, y: np.ndarray) -> np.ndarray:
+        """``A(y)``: the blocks' change for a step ``y``, shape (nb, k, k)."""
+        x = self.T @ y
+        out = np.multiply(-x[-1], np.eye(self.k))[None].repeat(self.nb, axis=0)
+        for var, sl, terms in zip(self.variables, self.slices, self.sel_terms):
+            V = x[sl].reshape(var.shape)
+            for L, R, coef, *sel in terms:
+                Vb = V.reshape(-1, L.shape[2], var.shape[1])[sel[0]] if sel else V
+                if R is None:
+                    out += coef * (L @ Vb @ np.swapaxes(L, 1, 2))
+                else:
+                    LVR = L @ Vb @ R
+                    out += coef * (LVR + np.swapaxes(LVR, 1, 2))
+        return out
+
+    def adj_full(self, U: np.ndarray, plain: bool = False) -> np.ndarray:
+        """``A_full^*(U)``: ``sum_b tr(A_i U_b)`` per full coordinate (U may be nonsymmetric).
+
+        ``plain``: with the terms as given (no selector detection).
+        """
+        Us = U + np.swapaxes(U, 1, 2)
+        Ut = np.swapaxes(U, 1, 2)
+        g = np.empty(self.n_full)
+        all_terms = [var.terms for var in self.variables] if plain else self.sel_terms
+        for var, sl, terms in zip(self.variables, self.slices, all_terms):
+            acc = np.zeros(var.shape)
+            for L, R, coef, *sel in terms:
+                Lt = np.swapaxes(L, 1, 2)
+                if R is None:  # tr(L E_ab L^T U) = (L^T U^T L)_ab
+                    per = Lt @ Ut @ L
+                else:
+                    per = Lt @ Us @ np.swapaxes(R, 1, 2)
+                if sel:
+                    acc += coef * (_onehot(sel[0], var.shape[0] // L.shape[2]) @ per.reshape(self.nb, -1)).reshape(
+                        var.shape)
+                else:
+                    acc += coef * per.sum(axis=0)
+            g[sl] = acc.ravel()
+        g[-1] = -np.trace(U, axis1=1, axis2=2).sum()
+        return g
+
+    def adj(self, U: np.ndarray) -> np.ndarray:
+        return self.Tt @ self.adj_full(U)
+
+    # ----------------------------------------------------------------- Schur complement (HKM)
+    def schur(self, X: np.ndarray, G: np.ndarray) -> np.ndarray:
+        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p) (:func:`solver.ipm.schur.assemble`)."""
+        return assemble(self, X, G)
+
+    def dense_operator(self) -> np.ndarray:
+        """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
+        T = _BASIS_CACHE[self._key][2]
+        if T is None:
+            T = self.T.toarray()
+            _BASIS_CACHE[self._key] = _BASIS_CACHE[self._key][:2] + (T,)
+        p, k, nb = self.p, self.k, self.nb
+        if not any(len(term) > 3 for var in self.variables for term in var.terms):
+            # Each full coordinate's matrices (unit entry E_ab of a variable: sym(c L E_ab R) = c
+            # L[:, a] R[b, :] + transpose, or c L[:, a] L[:, b]^T), then one GEMM with the basis.
+            full = np.zeros((self.n_full, nb, k, k))
+            full[-1] = -np.eye(k)
+            for var, sl in zip(self.variables, self.slices):
+                acc = full[sl].reshape(var.shape[0], var.shape[1], nb, k, k)
+                for L, R, coef in var.terms:
+                    Lt = L.transpose(2, 0, 1)[:, None, :, :, None]  # (r, 1, nb, k, 1)
+                    if R is None:
+                        acc += coef * (Lt * L.transpose(2, 0, 1)[None, :, :, None, :])
+                    else:
+                        P = Lt * R.transpose(1, 0, 2)[None, :, :, None, :]
+                        acc += coef * (P + P.transpose(0, 1, 2, 4, 3))
+            if self.equality is not None:  # the equality's direction, for its multiplier (solve_block_lmi)
+                self._eq_dir = (self.equality @ full[:-1].reshape(self.n_full - 1, -1)).reshape(nb, k, k)
+            return (T.T @ full.reshape(self.n_full, -1)).reshape(p, nb, k, k)
+        out = np.zeros((p, nb, k, k))
+        out -= T[-1][:, None, None, None] * np.eye(k)
+        for var, sl in zip(self.variables, self.slices):
+            for L, R, coef, *sel in var.terms:
+                Vs = T[sl].T.reshape(p, 1, *var.shape)
+                if sel:
+                    Vs = Vs.reshape(p, -1, L.shape[2], var.shape[1])[:, sel[0]]
+                if R is None:
+                    out += coef * (L @ Vs @ np.swapaxes(L, 1, 2))
+                else:
+                    LVR = L @ Vs @ R
+                    out += coef * (LVR + np.swapaxes(LVR, 2, 3))
+        return out
