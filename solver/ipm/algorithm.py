@@ -308,13 +308,15 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
             M[dead, :] = 0.0
             M[:, dead] = 0.0
             M[dead, dead] = 1.0
-        fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
+        # M's upper triangle (all a structured assembly fills) is the lower one of M.T, F-ordered: no copy to
+        # Fortran order beyond the one that keeps M for a retry.
+        fac, info = _potrf(M.T, lower=1, clean=0, overwrite_a=0)
         for reg in (1e-12, 1e-10, 1e-8):
             # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
             # a growing diagonal shift still gives a descent direction (the residuals decide).
             if info == 0:
                 break
-            fac, info = _potrf(M + np.diag(d * reg + 1e-300), lower=1, clean=0)
+            fac, info = _potrf((M + np.diag(d * reg + 1e-300)).T, lower=1, clean=0, overwrite_a=1)
         if info != 0:
             status = "numerical_error"
             break
@@ -386,7 +388,10 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         if dense:
             op, adj, schur = dense_ops(problem.dense_operator())
         else:
-            op, adj, schur = problem.op, problem.adj, problem.schur
+            op, adj = problem.op, problem.adj
+
+            def schur(X, G):
+                return problem.schur(X, G, upper=True)
         x_start = None
         if not problem.with_t:
             # A general objective fixes the multipliers' scale (A^*(X) = -b): start X = xi I with
