@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg.blas import dsyr2k as _syr2k
 
 __all__ = ["assemble", "dense_ops", "pair", "pieces"]
 
@@ -241,41 +242,73 @@ def _strides(layout, dims_i, dims_j):
     return (c * r2 * c2, r2 * c2), (c2, 1)
 
 
-def _gather(out, row0, col0, rows, cols, pieces, upper, band=96):
-    """``out[row0 + I, col0 + J] = sum`` over the pieces of ``K`` at every pair of positions (the projection).
+def _gather(out, row0, col0, pieces, upper, band=96):
+    """``out[row0 + I, col0 + J] = sum`` over the pieces' takes of ``K.flat[rp[I] + cp[J]]`` (the projection).
 
-    ``rows``, ``cols``: per piece, the lists of position vectors (one per full entry of a coordinate);
-    symmetric coordinates on the diagonal (both entries the same) are counted once.  ``upper``: only
-    ``J >= I`` is needed (a diagonal block of the symmetric matrix), done in bands of rows.
+    ``pieces``: ``(Kflat, takes, halve_rows, halve_cols)``, ``takes`` a list of ``(rp, cp, zero_rows,
+    zero_cols)`` (index arrays of rows/columns whose take is dropped, or None); ``halve_*``: local
+    indices of rows/columns counted twice (symmetric coordinates on the diagonal, whose two full
+    entries are one).  ``upper``: only ``J >= I`` is needed (a diagonal block), done in bands of rows.
     """
-    nI = len(rows[0][0][0])
-    nJ = len(cols[0][0][0])
+    nI = len(pieces[0][1][0][0])
+    nJ = len(pieces[0][1][0][1])
     for b0 in range(0, nI, band):
         b1 = min(nI, b0 + band)
         j0 = b0 if upper else 0
         acc = None
-        for K, (rps, rdiag), (cps, cdiag) in zip(pieces, rows, cols):
-            Kf = K.reshape(-1)
+        for Kf, takes, halve_rows, halve_cols in pieces:
             part = None
-            for rp in rps:
-                for cp in cps:
-                    idx = rp[b0:b1, None] + cp[None, j0:]
-                    g = np.take(Kf, idx)
-                    if part is None:
-                        part = g
-                    else:
-                        part += g
-            if rdiag is not None:
-                d = rdiag[(rdiag >= b0) & (rdiag < b1)] - b0
-                part[d] *= 0.5
-            if cdiag is not None:
-                d = cdiag[cdiag >= j0] - j0
-                part[:, d] *= 0.5
+            for rp, cp, zero_rows, zero_cols in takes:
+                g = np.take(Kf, rp[b0:b1, None] + cp[None, j0:])
+                if zero_rows is not None:
+                    g[zero_rows[(zero_rows >= b0) & (zero_rows < b1)] - b0] = 0.0
+                if zero_cols is not None:
+                    g[:, zero_cols[zero_cols >= j0] - j0] = 0.0
+                if part is None:
+                    part = g
+                else:
+                    part += g
+            if halve_rows is not None:
+                part[halve_rows[(halve_rows >= b0) & (halve_rows < b1)] - b0] *= 0.5
+            if halve_cols is not None:
+                part[:, halve_cols[halve_cols >= j0] - j0] *= 0.5
             if acc is None:
                 acc = part
             else:
                 acc += part
         out[row0 + b0: row0 + b1, col0 + j0: col0 + nJ] = acc
+
+
+def _takes(plan, i, j, rs, cs):
+    """Every pair of full entries of the coordinates: ``(rp, cp, None, None)`` for the strides ``rs``, ``cs``."""
+    return [(rp, cp, None, None) for rp in plan.positions(i, rs) for cp in plan.positions(j, cs)]
+
+
+def _sym_pieces(plan, i, Ps, Qs, both):
+    """The pieces of a symmetric variable's diagonal block from ``Y = K + K^T`` (``K = Ps^T Qs``, layout "ac").
+
+    With ``Y`` the projection needs two takes instead of four: for coordinates ``(a, b)``, ``(c, d)``
+    (``a <= b``, ``c <= d``, ``(a, b) <= (c, d)``) it is ``Y[(a, c), (b, d)] + Y[(a, d), (b, c)]``; the
+    transposed pair's (``both``) ``Y[(c, a), (d, b)] + Y[(c, b), (d, a)]``.  ``Y`` is one ``dsyr2k``
+    (the flops of the GEMM ``K``) that fills only its upper triangle in these coordinates; the second
+    take would read the lower one exactly where its row (column) is a diagonal coordinate, where the
+    first take alone is the value.
+    """
+    n2 = Ps.shape[1]
+    n = int(round(n2 ** 0.5))
+    Y = _syr2k(1.0, Ps.T, Qs.T, trans=0, lower=1)  # F-ordered: Y.T is C-ordered with the upper triangle set
+    Yf = Y.T.reshape(-1)
+    (sa, sb), (sc, sd) = _strides("ac", (n, n), (n, n))
+    A1, B1, A2, B2 = plan.coords[i]
+    diag = _diag(plan, i)
+    r1, r2 = A1 * sa + B1 * sb, A2 * sa + B2 * sb  # row parts of (a, b), (b, a)
+    c1, c2 = A1 * sc + B1 * sd, A2 * sc + B2 * sd  # column parts of (c, d), (d, c)
+    out = [(Yf, [(r1, c1, None, None), (r1, c2, diag, None)], None, diag)]
+    if both:
+        t1, t2 = A1 * sc + B1 * sd, A2 * sc + B2 * sd  # (a, b), (b, a) with the column strides
+        u1 = A1 * sa + B1 * sb
+        out.append((Yf, [(t1, u1, None, None), (t2, u1, None, diag)], diag, None))
+    return out
 
 
 def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.ndarray:
@@ -313,6 +346,7 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
             vj = variables[j]
             dims_i, dims_j = vi.shape, vj.shape
             parts = []  # (K, layout, with its transpose)
+            sym_parts = []
             if has_sel[i] or has_sel[j]:
                 if old is None:
                     old = [[pieces(*term[:3], X, G, *term[3:]) for term in terms] for terms in sel_terms]
@@ -341,25 +375,24 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                 for (layout, both), ops in groups.items():
                     Ps = ops[0][0] if len(ops) == 1 else np.concatenate([o[0] for o in ops])
                     Qs = ops[0][1] if len(ops) == 1 else np.concatenate([o[1] for o in ops])
-                    parts.append((Ps.T @ Qs, layout, both))
+                    if i == j and i_sym:
+                        sym_parts += _sym_pieces(plan, i, Ps, Qs, both)
+                    else:
+                        parts.append((Ps.T @ Qs, layout, both))
             si, sj = int(plan.offsets[i]), int(plan.offsets[j])
             ni, nj = int(plan.offsets[i + 1]) - si, int(plan.offsets[j + 1]) - sj
-            if not parts:
+            if not parts and not sym_parts:
                 M0[si:si + ni, sj:sj + nj] = 0.0
                 continue
-            rows, cols, Ks = [], [], []
-            diag_i = _diag(plan, i)
-            diag_j = _diag(plan, j)
+            halve_i, halve_j = _diag(plan, i), _diag(plan, j)
+            specs = list(sym_parts)
             for K, layout, both in parts:
-                (sa, sb), (sc, sd) = _strides(layout, dims_i, dims_j)
-                Ks.append(K)
-                rows.append((plan.positions(i, (sa, sb)), diag_i))
-                cols.append((plan.positions(j, (sc, sd)), diag_j))
+                rs, cs = _strides(layout, dims_i, dims_j)
+                Kf = K.reshape(-1)
+                specs.append((Kf, _takes(plan, i, j, rs, cs), halve_i, halve_j))
                 if both:  # the transposed pair: (tb, ta)'s block is (ta, tb)'s transposed
-                    Ks.append(K)
-                    rows.append((plan.positions(i, (sc, sd)), diag_i))
-                    cols.append((plan.positions(j, (sa, sb)), diag_j))
-            _gather(M0, si, sj, rows, cols, Ks, upper=(i == j))
+                    specs.append((Kf, _takes(plan, i, j, cs, rs), halve_i, halve_j))
+            _gather(M0, si, sj, specs, upper=(i == j))
     if problem.with_t:
         # t column: A_t = -I, so M[t, v] = -sum tr(A_v G X) (tr(A X A_t G) = -tr(A X G)).
         col = -problem.adj_full(G @ X)
