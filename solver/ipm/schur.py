@@ -368,10 +368,15 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                     for tb, prods_b in enumerate(products[j]):
                         if i == j and tb < ta:
                             continue  # added as the transpose of (tb, ta): M is symmetric
-                        for u in prods_a:
-                            for v in prods_b:
-                                _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache,
-                                          i == j and ta != tb)
+                        for iu, u in enumerate(prods_a):
+                            for iv, v in enumerate(prods_b):
+                                both = i == j and ta != tb
+                                if i == j and ta == tb and len(prods_a) == 2 and iu == iv:
+                                    # (u^T, u^T) is (u, u) transposed: tr(A_u(E) G A_u(E') X) = tr(A_u(E') X A_u(E) G)
+                                    if iu == 1:
+                                        continue
+                                    both = True
+                                _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache, both)
                 for (layout, both), ops in groups.items():
                     Ps = ops[0][0] if len(ops) == 1 else np.concatenate([o[0] for o in ops])
                     Qs = ops[0][1] if len(ops) == 1 else np.concatenate([o[1] for o in ops])
