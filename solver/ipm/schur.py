@@ -107,6 +107,10 @@ def _coords(var):
     return blk * q + i, j, blk * q + j, i
 
 
+#: Rows per band of a diagonal block's gather (the band's takes stay in cache).
+_BAND = 96
+
+
 class _Plan:
     """What the assembly needs besides X and G, built once per problem (shapes and the basis only).
 
@@ -163,6 +167,52 @@ class _Plan:
         if A2 is not None:
             out.append(A2 * strides[0] + B2 * strides[1])
         return out
+
+
+    def pairs(self, i):
+        """Upper-triangle index pairs ``(a <= c)`` of a square symmetric variable (the packed pieces' order)."""
+        n = int(self.coords[i][1].max()) + 1
+        return np.triu_indices(n)
+
+    def packed_positions(self, i, band=_BAND):
+        """Per band of rows (as :func:`_gather` cuts a diagonal block): the positions of
+        ``Y[{a, c}, {b, d}]`` and ``Y[{a, d}, {b, c}]`` in the packed ``Y`` (upper triangle, pairs ``{x, y}``
+        numbered as :meth:`pairs`), for coordinates ``(a, b)`` rows and ``(c, d)`` columns.
+        """
+        key = ("packed", i, band)
+        got = self.__dict__.get("_cache", {}).get(key)
+        if got is not None:
+            return got
+        A, B = self.coords[i][0], self.coords[i][1]
+        n = int(B.max()) + 1
+        num = np.zeros((n, n), dtype=np.intp)
+        iu0, iu1 = np.triu_indices(n)
+        num[iu0, iu1] = np.arange(len(iu0))
+        num[iu1, iu0] = np.arange(len(iu0))
+        m = len(iu0)
+        first, second = [], []
+        for b0 in range(0, len(A), band):
+            b1 = min(len(A), b0 + band)
+            a, b = A[b0:b1, None], B[b0:b1, None]
+            c, d = A[None, b0:], B[None, b0:]
+            for out, (x, y) in ((first, (num[a, c], num[b, d])), (second, (num[a, d], num[b, c]))):
+                out.append(np.minimum(x, y) * m + np.maximum(x, y))
+        got = (first, second)
+        self.__dict__.setdefault("_cache", {})[key] = got
+        return got
+
+
+def _packed_pieces(plan, i, Ps, Qs):
+    """The pieces of pairs with symmetric ``P``, ``Q`` (``L^T G L``, ``R X R^T``) of a symmetric variable.
+
+    ``K[(a, c), (b, d)]`` is then symmetric in ``a <-> c`` and in ``b <-> d``: the GEMM runs on the
+    packed upper triangles (a quarter of the flops), as ``Y = K + K^T`` (one ``dsyr2k``), and the
+    projection is ``Y[{a, c}, {b, d}] + Y[{a, d}, {b, c}]`` (positions precomputed per band).
+    """
+    Y = _syr2k(1.0, Ps.reshape(Ps.shape[0], -1).T, Qs.reshape(Qs.shape[0], -1).T, trans=0, lower=1)
+    first, second = plan.packed_positions(i)
+    diag = _diag(plan, i)
+    return [(Y.T.reshape(-1), [(None, first, None, None), (None, second, None, None)], diag, diag)]
 
 
 def _plan(problem) -> _Plan:
@@ -242,24 +292,24 @@ def _strides(layout, dims_i, dims_j):
     return (c * r2 * c2, r2 * c2), (c2, 1)
 
 
-def _gather(out, row0, col0, pieces, upper, band=96):
+def _gather(out, row0, col0, pieces, upper, out_shape, band=_BAND):
     """``out[row0 + I, col0 + J] = sum`` over the pieces' takes of ``K.flat[rp[I] + cp[J]]`` (the projection).
 
     ``pieces``: ``(Kflat, takes, halve_rows, halve_cols)``, ``takes`` a list of ``(rp, cp, zero_rows,
     zero_cols)`` (index arrays of rows/columns whose take is dropped, or None); ``halve_*``: local
     indices of rows/columns counted twice (symmetric coordinates on the diagonal, whose two full
     entries are one).  ``upper``: only ``J >= I`` is needed (a diagonal block), done in bands of rows.
+    ``rp = None``: ``cp`` is the list of each band's precomputed 2-D positions.
     """
-    nI = len(pieces[0][1][0][0])
-    nJ = len(pieces[0][1][0][1])
-    for b0 in range(0, nI, band):
+    nI, nJ = out_shape
+    for bi, b0 in enumerate(range(0, nI, band)):
         b1 = min(nI, b0 + band)
         j0 = b0 if upper else 0
         acc = None
         for Kf, takes, halve_rows, halve_cols in pieces:
             part = None
             for rp, cp, zero_rows, zero_cols in takes:
-                g = np.take(Kf, rp[b0:b1, None] + cp[None, j0:])
+                g = np.take(Kf, cp[bi] if rp is None else rp[b0:b1, None] + cp[None, j0:])
                 if zero_rows is not None:
                     g[zero_rows[(zero_rows >= b0) & (zero_rows < b1)] - b0] = 0.0
                 if zero_cols is not None:
@@ -371,6 +421,12 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                         for iu, u in enumerate(prods_a):
                             for iv, v in enumerate(prods_b):
                                 both = i == j and ta != tb
+                                if i == j and i_sym and ta == tb and (len(prods_a) == 1 or iu != iv):
+                                    # (u, u^T), (u^T, u), (N, N): symmetric pieces L^T G L, R X R^T
+                                    P, Q = _operands(u, v, X, G, cache)
+                                    iu0, iu1 = plan.pairs(i)
+                                    groups.setdefault(("sym", False), []).append((P[:, iu0, iu1], Q[:, iu0, iu1]))
+                                    continue
                                 if i == j and ta == tb and len(prods_a) == 2 and iu == iv:
                                     # (u^T, u^T) is (u, u) transposed: tr(A_u(E) G A_u(E') X) = tr(A_u(E') X A_u(E) G)
                                     if iu == 1:
@@ -380,7 +436,9 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                 for (layout, both), ops in groups.items():
                     Ps = ops[0][0] if len(ops) == 1 else np.concatenate([o[0] for o in ops])
                     Qs = ops[0][1] if len(ops) == 1 else np.concatenate([o[1] for o in ops])
-                    if i == j and i_sym:
+                    if layout == "sym":
+                        sym_parts += _packed_pieces(plan, i, Ps, Qs)
+                    elif i == j and i_sym:
                         sym_parts += _sym_pieces(plan, i, Ps, Qs, both)
                     else:
                         parts.append((Ps.T @ Qs, layout, both))
@@ -397,7 +455,7 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                 specs.append((Kf, _takes(plan, i, j, rs, cs), halve_i, halve_j))
                 if both:  # the transposed pair: (tb, ta)'s block is (ta, tb)'s transposed
                     specs.append((Kf, _takes(plan, i, j, cs, rs), halve_i, halve_j))
-            _gather(M0, si, sj, specs, upper=(i == j))
+            _gather(M0, si, sj, specs, upper=(i == j), out_shape=(ni, nj))
     if problem.with_t:
         # t column: A_t = -I, so M[t, v] = -sum tr(A_v G X) (tr(A X A_t G) = -tr(A X G)).
         col = -problem.adj_full(G @ X)
