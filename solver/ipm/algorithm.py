@@ -153,6 +153,22 @@ def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
     return ax, as_
 
 
+#: Block side from which :func:`_not_definite` factors block by block with LAPACK (no copies, stops at the
+#: first failed pivot) instead of with the batched gufunc (fewer calls): measured crossover 24-32, side 100
+#: 1.8x faster.
+_CHOL_LOOP_FROM = 32
+
+
+def _not_definite(T: np.ndarray) -> np.ndarray:
+    """Which of the symmetric blocks ``T`` (overwritten) are not positive definite (a Cholesky failure)."""
+    if T.shape[1] < _CHOL_LOOP_FROM:
+        return np.isnan(_cholesky(T)[:, -1, -1])
+    bad = np.empty(T.shape[0], dtype=bool)
+    for i in range(T.shape[0]):
+        bad[i] = _potrf(T[i].T, lower=1, clean=0, overwrite_a=1)[1] != 0  # T[i].T: F-ordered, same matrix
+    return bad
+
+
 def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
     """``min(cap, alpha*)`` per half from below, to within a factor ``1 + rtol``, by Cholesky trials.
 
@@ -170,12 +186,14 @@ def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
     side = cand >= nb  # half of each candidate (False: X, True: S)
     active = [True, True]
     for _ in range(64):
-        bvec = np.where(side, beta[1], beta[0])
+        bvec = np.where(side, beta[1], beta[0])[:, None, None]
         if len(cand) == n2:
-            T = Z + bvec[:, None, None] * dZ
+            T = dZ * bvec
+            T += Z
         else:
-            T = Z[cand] + bvec[:, None, None] * dZ[cand]
-        bad = np.isnan(_cholesky(T)[:, -1, -1])
+            T = dZ[cand] * bvec
+            T += Z[cand]
+        bad = _not_definite(T)
         keep = np.zeros(len(cand), dtype=bool)
         for h in (0, 1):
             if not active[h]:
