@@ -255,7 +255,7 @@ def _operands(u, v, X, G, cache):
     GRv, XLv = cache[key]
     P = np.swapaxes(Lu, 1, 2) @ GRv
     Q = Ru @ XLv
-    return (cu * cv) * P, Q
+    return (P if cu * cv == 1.0 else (cu * cv) * P), Q
 
 
 def _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache, transposed_too):
