@@ -162,11 +162,23 @@ class _Plan:
 
     def positions(self, i, strides):
         """Flat positions of variable i's coordinates ``V[A, B]`` in a piece with strides ``(s_A, s_B)``."""
-        A1, B1, A2, B2 = self.coords[i]
-        out = [A1 * strides[0] + B1 * strides[1]]
-        if A2 is not None:
-            out.append(A2 * strides[0] + B2 * strides[1])
+        cache = self.__dict__.setdefault("_cache", {})
+        key = ("positions", i, strides)
+        out = cache.get(key)
+        if out is None:
+            A1, B1, A2, B2 = self.coords[i]
+            out = cache[key] = [A1 * strides[0] + B1 * strides[1]] + (
+                [] if A2 is None else [A2 * strides[0] + B2 * strides[1]])
         return out
+
+    def diag(self, i):
+        """Local indices of variable i's symmetric coordinates on the diagonal (counted twice by a gather)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        key = ("diag", i)
+        if key not in cache:
+            A1, B1, A2, B2 = self.coords[i]
+            cache[key] = None if A2 is None else np.flatnonzero((A1 == A2) & (B1 == B2))
+        return cache[key]
 
 
     def pairs(self, i):
@@ -211,7 +223,7 @@ def _packed_pieces(plan, i, Ps, Qs):
     """
     Y = _syr2k(1.0, Ps.reshape(Ps.shape[0], -1).T, Qs.reshape(Qs.shape[0], -1).T, trans=0, lower=1)
     first, second = plan.packed_positions(i)
-    diag = _diag(plan, i)
+    diag = plan.diag(i)
     return [(Y.T.reshape(-1), [(None, first, None, None), (None, second, None, None)], diag, diag)]
 
 
@@ -350,7 +362,7 @@ def _sym_pieces(plan, i, Ps, Qs, both):
     Yf = Y.T.reshape(-1)
     (sa, sb), (sc, sd) = _strides("ac", (n, n), (n, n))
     A1, B1, A2, B2 = plan.coords[i]
-    diag = _diag(plan, i)
+    diag = plan.diag(i)
     r1, r2 = A1 * sa + B1 * sb, A2 * sa + B2 * sb  # row parts of (a, b), (b, a)
     c1, c2 = A1 * sc + B1 * sd, A2 * sc + B2 * sd  # column parts of (c, d), (d, c)
     out = [(Yf, [(r1, c1, None, None), (r1, c2, diag, None)], None, diag)]
@@ -447,7 +459,7 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
             if not parts and not sym_parts:
                 M0[si:si + ni, sj:sj + nj] = 0.0
                 continue
-            halve_i, halve_j = _diag(plan, i), _diag(plan, j)
+            halve_i, halve_j = plan.diag(i), plan.diag(j)
             specs = list(sym_parts)
             for K, layout, both in parts:
                 rs, cs = _strides(layout, dims_i, dims_j)
@@ -467,14 +479,6 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
         il = np.tril_indices(p0, -1)
         M0[il] = M0.T[il]
     return _eliminate(plan, M0, upper)
-
-
-def _diag(plan, i):
-    """Local indices of variable i's symmetric coordinates on the diagonal (counted twice by the gather)."""
-    A1, B1, A2, B2 = plan.coords[i]
-    if A2 is None:
-        return None
-    return np.flatnonzero((A1 == A2) & (B1 == B2))
 
 
 def _eliminate(plan, M0, upper):
