@@ -153,6 +153,22 @@ def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
     return ax, as_
 
 
+#: Block side from which :func:`_not_definite` factors block by block with LAPACK (no copies, stops at the
+#: first failed pivot) instead of with the batched gufunc (fewer calls): measured crossover 24-32, side 100
+#: 1.8x faster.
+_CHOL_LOOP_FROM = 32
+
+
+def _not_definite(T: np.ndarray) -> np.ndarray:
+    """Which of the symmetric blocks ``T`` (overwritten) are not positive definite (a Cholesky failure)."""
+    if T.shape[1] < _CHOL_LOOP_FROM:
+        return np.isnan(_cholesky(T)[:, -1, -1])
+    bad = np.empty(T.shape[0], dtype=bool)
+    for i in range(T.shape[0]):
+        bad[i] = _potrf(T[i].T, lower=1, clean=0, overwrite_a=1)[1] != 0  # T[i].T: F-ordered, same matrix
+    return bad
+
+
 def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
     """``min(cap, alpha*)`` per half from below, to within a factor ``1 + rtol``, by Cholesky trials.
 
@@ -170,12 +186,14 @@ def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
     side = cand >= nb  # half of each candidate (False: X, True: S)
     active = [True, True]
     for _ in range(64):
-        bvec = np.where(side, beta[1], beta[0])
+        bvec = np.where(side, beta[1], beta[0])[:, None, None]
         if len(cand) == n2:
-            T = Z + bvec[:, None, None] * dZ
+            T = dZ * bvec
+            T += Z
         else:
-            T = Z[cand] + bvec[:, None, None] * dZ[cand]
-        bad = np.isnan(_cholesky(T)[:, -1, -1])
+            T = dZ[cand] * bvec
+            T += Z[cand]
+        bad = _not_definite(T)
         keep = np.zeros(len(cand), dtype=bool)
         for h in (0, 1):
             if not active[h]:
@@ -308,13 +326,15 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
             M[dead, :] = 0.0
             M[:, dead] = 0.0
             M[dead, dead] = 1.0
-        fac, info = _potrf(M, lower=1, clean=0, overwrite_a=0)
+        # M's upper triangle (all a structured assembly fills) is the lower one of M.T, F-ordered: no copy to
+        # Fortran order beyond the one that keeps M for a retry.
+        fac, info = _potrf(M.T, lower=1, clean=0, overwrite_a=0)
         for reg in (1e-12, 1e-10, 1e-8):
             # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
             # a growing diagonal shift still gives a descent direction (the residuals decide).
             if info == 0:
                 break
-            fac, info = _potrf(M + np.diag(d * reg + 1e-300), lower=1, clean=0)
+            fac, info = _potrf((M + np.diag(d * reg + 1e-300)).T, lower=1, clean=0, overwrite_a=1)
         if info != 0:
             status = "numerical_error"
             break
@@ -386,7 +406,10 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         if dense:
             op, adj, schur = dense_ops(problem.dense_operator())
         else:
-            op, adj, schur = problem.op, problem.adj, problem.schur
+            op, adj = problem.op, problem.adj
+
+            def schur(X, G):
+                return problem.schur(X, G, upper=True)
         x_start = None
         if not problem.with_t:
             # A general objective fixes the multipliers' scale (A^*(X) = -b): start X = xi I with

@@ -255,9 +255,12 @@ class BlockLMI:
         return self.Tt @ self.adj_full(U)
 
     # ----------------------------------------------------------------- Schur complement (HKM)
-    def schur(self, X: np.ndarray, G: np.ndarray) -> np.ndarray:
-        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p) (:func:`solver.ipm.schur.assemble`)."""
-        return assemble(self, X, G)
+    def schur(self, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.ndarray:
+        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p) (:func:`solver.ipm.schur.assemble`).
+
+        ``upper``: only the upper triangle is filled (what the interior-point iteration factors).
+        """
+        return assemble(self, X, G, upper=upper)
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""

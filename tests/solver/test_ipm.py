@@ -35,6 +35,69 @@ def test_structured_schur_equals_dense(builder, n_drop):
     assert np.isclose(np.sum(prob.op(y) * U), y @ prob.adj(U))
 
 
+@pytest.mark.parametrize("builder", [ipm.lmi_problem, ipm.switched_problem])
+def test_upper_triangle_assembly_is_the_full_ones(builder):
+    """What the iteration factors (``upper=True``) is the upper triangle of the dense Schur complement."""
+    rng = np.random.default_rng(7)
+    fam = PlantFamily(F=[rng.standard_normal((4, 4)) for _ in range(3)], G=[rng.standard_normal((4, 2))] * 3)
+    modes = ModeSet.from_family(fam, 2)
+    coef, active = modes.scheme_coef()
+    prob = builder(modes.free, coef, active)
+    X, G = _rand_psd(rng, prob.nb, prob.k), _rand_psd(rng, prob.nb, prob.k)
+    A = prob.dense_operator()
+    dense = np.einsum("ibjk,bkl,mblo,boj->im", A, X, A, G)
+    upper = prob.schur(X, G, upper=True)
+    iu = np.triu_indices(prob.p)
+    assert np.allclose(upper[iu], dense[iu], rtol=1e-10, atol=1e-10 * np.abs(dense).max())
+
+
+def _random_block_lmi(rng, equality, objective: bool):
+    """Every kind of variable and term the Schur assembly distinguishes, with dense random factors."""
+    from solver.ipm.model import BlockLMI, MatrixVariable
+
+    nb, k, q = 3, 7, 3
+
+    def fac(a, b):
+        return rng.standard_normal((nb, a, b))
+
+    sel = np.zeros((nb, k, q))  # a 0/1 selector broadcast over the blocks (taken as an index, not a product)
+    sel[:, 2:5] = np.eye(q)
+    variables = [
+        MatrixVariable("S", (q, q), q, [(fac(k, q), fac(q, k), 0.7), (fac(k, q), None, -0.4), (sel, None, 1.0)]),
+        MatrixVariable("V", (2, q), None, [(fac(k, 2), fac(q, k), 1.3), (sel[:, :, :2], sel.transpose(0, 2, 1),
+                                                                          0.5)]),
+        MatrixVariable("T", (2 * q, q), q, [(fac(k, 2 * q), fac(q, k), 0.9)]),  # stacked symmetric blocks
+        MatrixVariable("U", (q, q), q, [(fac(k, q), None, 1.1)]),  # sym-kind only
+    ]
+    C = _rand_psd(rng, nb, k)
+    V0 = [np.zeros(v.shape) for v in variables]
+    size = sum(v.size for v in variables)
+    eq = None
+    if equality:
+        eq = np.zeros(size)
+        eq[: q * q: q + 1] = 1.0  # trace S
+        eq[q * q + 1] = 0.5 if equality == "first" else 3.0  # the eliminated coordinate: S[0, 0] or V[0, 1]
+    obj = rng.standard_normal(size) if objective else None
+    return BlockLMI(C=C, variables=variables, V0=V0, equality=eq, objective=obj)
+
+
+@pytest.mark.parametrize("equality", [None, "first", "inner"])
+@pytest.mark.parametrize("objective", [True, False])
+def test_schur_of_every_variable_kind_equals_dense(equality, objective):
+    """Symmetric, general, stacked-symmetric and sym-kind variables, selector and dense factors, with and
+    without the equality and the t coordinate: the assembly equals ``sum_b tr(A_i X_b A_j G_b)`` from the
+    explicit basis matrices."""
+    rng = np.random.default_rng(11 + 2 * len(equality or "") + objective)
+    prob = _random_block_lmi(rng, equality, objective)
+    X, G = _rand_psd(rng, prob.nb, prob.k), _rand_psd(rng, prob.nb, prob.k)
+    A = prob.dense_operator()
+    dense = np.einsum("ibjk,bkl,mblo,boj->im", A, X, A, G)
+    tol = 1e-10 * np.abs(dense).max()
+    assert np.allclose(prob.schur(X, G), dense, rtol=1e-10, atol=tol)
+    iu = np.triu_indices(prob.p)
+    assert np.allclose(prob.schur(X, G, upper=True)[iu], dense[iu], rtol=1e-10, atol=tol)
+
+
 def test_paper_example_primal_and_dual_match_clarabel():
     import cvxpy as cp
 
