@@ -138,8 +138,6 @@ if _chol is not np.linalg.cholesky:
 #: of side 4, 45 us vs 8 us; 100 of side 24, 4.7 ms vs 0.06-0.5 ms), and the bisection needs about 6-9
 #: trials on a shrinking set of candidate blocks.
 _CHOL_STEPS_FROM = 10
-import os
-_DEBUG = bool(os.environ.get('IPM_DEBUG'))
 
 
 def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
@@ -377,8 +375,6 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         t4 = perf()
         ap, ad = step_lengths(dX, dS, cap, 0.02)
         ap, ad = min(1.0, o.step * ap), min(1.0, o.step * ad)
-        if _DEBUG:
-            print(f"it {it} rp {rp:.2e} gap {gap:.2e} pobj {pobj:.6g} dobj {dobj:.6g} mu {mu:.2e} sigma {sigma:.2f} ap {ap:.2e} ad {ad:.2e}")
         tim["line_search"] += perf() - t4
         y_prev, X_prev = y, X
         X = [x + ap * d for x, d in zip(X, dX)]
