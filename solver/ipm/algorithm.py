@@ -138,6 +138,9 @@ if _chol is not np.linalg.cholesky:
 #: of side 4, 45 us vs 8 us; 100 of side 24, 4.7 ms vs 0.06-0.5 ms), and the bisection needs about 6-9
 #: trials on a shrinking set of candidate blocks.
 _CHOL_STEPS_FROM = 10
+#: ... and, in a problem of several groups, from ``nb k^3`` (a group's Cholesky work) this large: the paper
+#: example's cost SDP has groups of 1-3 blocks of side 10-13, whose step lengths took half the solve by trials.
+_CHOL_STEPS_WORK = 1e5
 
 
 def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
@@ -240,6 +243,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     N = sum(c.shape[0] * c.shape[1] for c in C)
     # Step lengths: eigenvalues for small blocks (one batched call), Cholesky trials for larger ones.
     chol = [c.shape[1] >= _CHOL_STEPS_FROM for c in C]
+    if ng > 1:  # groups: a few blocks each, where one eigvalsh call beats the trials' per-call overhead
+        chol = [ch and c.shape[0] * c.shape[1]**3 >= _CHOL_STEPS_WORK for ch, c in zip(chol, C)]
     cap = 1.0 / o.step
     eyes = [np.eye(c.shape[1]) for c in C]
     Cf = [c.reshape(-1) for c in C]
