@@ -236,6 +236,8 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
 
 
 def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=None, phase1=False) -> _Core:
+    fixed_dead = len(C) > 1 or offset is not None
+    dead0 = None
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
     perf = time.perf_counter
     ng = len(C)
@@ -322,9 +324,17 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         tim["assembly"] += t1 - t0
         d = M.diagonal()
         dmax = float(d.max())
-        anydead = float(d.min()) <= 1e-14 * dmax
+        if fixed_dead and dead0 is not None:
+            # grouped problems: only the directions unseen at the start are pinned; later the diagonal's range
+            # grows with the scalings (X_b -> rank deficient) and a relative threshold froze live directions
+            # (phase 2 stalled 1e-4 above the optimum)
+            dead = dead0
+            anydead = bool(dead.any())
+        else:
+            anydead = float(d.min()) <= 1e-14 * dmax
+            dead = d <= 1e-14 * dmax if anydead else np.zeros(d.shape, dtype=bool)
+            dead0 = dead
         if anydead:
-            dead = d <= 1e-14 * dmax
             # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
             # instead of regularizing all of M, which stalls the residuals.
             M = M.copy()
