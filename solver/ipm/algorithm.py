@@ -332,8 +332,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             anydead = bool(dead.any())
         else:
             anydead = float(d.min()) <= 1e-14 * dmax
-            dead = d <= 1e-14 * dmax if anydead else np.zeros(d.shape, dtype=bool)
-            dead0 = dead
+            if anydead:
+                dead = d <= 1e-14 * dmax
+            if fixed_dead:
+                dead0 = dead if anydead else np.zeros(d.shape, dtype=bool)
         if anydead:
             # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
             # instead of regularizing all of M, which stalls the residuals.
