@@ -471,7 +471,8 @@ class GroupedSolution(_SolveStatus):
     ----------
     status : {"optimal", "inaccurate", "infeasible", "no_interior", "max_iterations", "time_limit", \
               "numerical_error", "stalled"}
-        ``"infeasible"``: phase 1 ended with ``t* < 0`` (``upper < 0`` with a small primal residual);
+        ``"infeasible"``: phase 1 ended with ``t_upper < -1e-6`` times the constants' size (and a primal
+        residual below 1e-6);
         then ``X`` is a Farkas certificate (below).  Otherwise the status of the last phase run.
     V : dict
         Variable name -> value (matrix variables as arrays, scalars as floats).  Whatever the status,
@@ -522,6 +523,12 @@ def _x_start(adj, b, C) -> list:
     return [np.broadcast_to(np.eye(c.shape[1]) * (X_START_FACTOR * xs), c.shape).copy() for c in C]
 
 
+#: Phase 1 calls a problem infeasible only when ``max t`` is below ``-INFEASIBLE_T`` times the constants' size:
+#: the performance SDPs are weakly feasible at ``V = 0`` (``t* = 0`` there) and near-marginal loops (P ~ 1e6)
+#: have ``t* ~ 1e-11``, which the multipliers' ``upper ~ -1e-11`` cannot tell apart (seeded random families).
+INFEASIBLE_T = 1e-6
+
+
 def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
                   options: IPMOptions | None = None) -> GroupedSolution:
     """Solve a :class:`GroupedLMI` in two phases (docs/design.md, §7 "Objectives").
@@ -558,7 +565,9 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
         out = dict(V=dict(zip(problem.names, V1)), value=float("nan"), lower=float("nan"), t=t,
                    t_upper=core.upper, X=dict(zip(names, core.X)), phase1_iterations=it1, status=core.status,
                    iterations=it1, primal_residual=core.primal_residual, dual_residual=0.0, gap=core.gap)
-        if core.status in ("optimal", "inaccurate", "stalled") and core.upper < 0 and core.primal_residual < 1e-6:
+        scale = max(1.0, max(float(np.abs(c).max()) for c in problem.C))
+        if core.status in ("optimal", "inaccurate", "stalled") and core.upper < -INFEASIBLE_T * scale \
+                and core.primal_residual < 1e-6:
             out["status"] = "infeasible"
         elif objective is not None and t > 0:
             two = problem.at(core.y, objective)
