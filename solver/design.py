@@ -88,7 +88,8 @@ def design(
         (solver/ipm/) for ``lmi``, every decay-rate bisection step, ``switched`` and the common
         fixed-gain certificate LMI, and ``ccl`` except a paper-sized problem (block side
         ``2 n n_drop <= 12``) with ``ccl_start="feasibility"``; Clarabel there and for the switched
-        fixed-gain LMI.  ``"IPM"`` forces the structured solver where it applies (Clarabel
+        fixed-gain LMI.  The performance designs (``objective``, ``u_max``) run on the structured
+        solver too, with Clarabel when it ends without an answer.  ``"IPM"`` forces the structured solver where it applies (Clarabel
         elsewhere); ``"CLARABEL"`` and ``"SCS"`` (first order) run through cvxpy.
     margin : float
         Strictness margin of the LMIs (normalized; must exceed the solver
@@ -158,8 +159,8 @@ def design(
         Performance output ``z = C x + D u`` (one pair or one per mode; D may be None); default ``z = [x; u]``.
     u_max : array_like of m, optional
         Input limits: every applied input must satisfy ``|u_j(k)| <= u_max[j]`` from every initial state
-        of ``res.invariant_set`` (X of ``x' X x <= 1``; as large as the design can make it, or containing
-        ``x0``) under every allowed pattern.  With ``objective="cost"`` it needs ``x0``; not with "hinf".
+        of ``res.invariant_set`` (X of ``x' X x <= 1``; with the largest ball around 0 the design can fit in it,
+        and ``x0`` when given) under every allowed pattern.  With ``objective="cost"`` it needs ``x0``; not with "hinf".
 
     Returns
     -------

@@ -38,9 +38,10 @@ Public entry points: :func:`solve_lmi` (the ``lmi`` design),
 :class:`BlockLMI` / :func:`solve_block_lmi` they are built on.
 """
 
-from .algorithm import IPMOptions, IPMSolution, solve_block_lmi
+from .algorithm import GroupedSolution, IPMOptions, IPMSolution, solve_block_lmi, solve_grouped
 from .blas import blas_threads, heap_reuse
-from .model import BlockLMI, MatrixVariable
+from .model import BlockGroup, BlockLMI, GroupedLMI, MatrixVariable
+from .performance import PerformanceProblem, PerformanceSolution, performance_problem, solve_performance
 from .problems import (LMISolution, SwitchedSolution, _gain_L, _gain_scale, _split_Y, design_solve,
                        design_solve_fixed_gain, lmi_problem, solve_common_fixed_gain, solve_lmi, solve_switched,
                        switched_problem)
@@ -48,6 +49,14 @@ from .problems import (LMISolution, SwitchedSolution, _gain_L, _gain_scale, _spl
 __all__ = [
     "MatrixVariable",
     "BlockLMI",
+    "BlockGroup",
+    "GroupedLMI",
+    "GroupedSolution",
+    "PerformanceProblem",
+    "PerformanceSolution",
+    "performance_problem",
+    "solve_performance",
+    "solve_grouped",
     "IPMOptions",
     "IPMSolution",
     "LMISolution",

@@ -16,10 +16,10 @@ import scipy.linalg
 import scipy.linalg.lapack
 
 from .blas import blas_threads, heap_reuse
-from .model import BlockLMI
+from .model import BlockLMI, GroupedLMI
 from .schur import dense_ops
 
-__all__ = ["IPMOptions", "IPMSolution", "solve_block_lmi"]
+__all__ = ["GroupedSolution", "IPMOptions", "IPMSolution", "solve_block_lmi", "solve_grouped"]
 
 
 @dataclass
@@ -138,6 +138,9 @@ if _chol is not np.linalg.cholesky:
 #: of side 4, 45 us vs 8 us; 100 of side 24, 4.7 ms vs 0.06-0.5 ms), and the bisection needs about 6-9
 #: trials on a shrinking set of candidate blocks.
 _CHOL_STEPS_FROM = 10
+#: ... and, in a problem of several groups, from ``nb k^3`` (a group's Cholesky work) this large: the paper
+#: example's cost SDP has groups of 1-3 blocks of side 10-13, whose step lengths took half the solve by trials.
+_CHOL_STEPS_WORK = 1e5
 
 
 def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float) -> tuple[float, float]:
@@ -219,10 +222,10 @@ def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
 
 @dataclass
 class _Core:
-    """What the iteration returns, in the solver's coordinates."""
+    """What the iteration returns, in the solver's coordinates (``X``: one array per group)."""
 
     y: np.ndarray
-    X: np.ndarray
+    X: list
     status: str
     iterations: int
     primal_residual: float
@@ -232,76 +235,98 @@ class _Core:
 
 
 def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_start: bool = False,
-              x_start: float | None = None) -> _Core:
-    """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S = C + A(y) >= 0``.
+              x_start: float | None = None, offset: float | None = None, phase1: bool = False) -> _Core:
+    """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S_g = C_g + A_g(y) >= 0``.
 
-    The ``y`` iterates stay feasible: ``S`` is recomputed as ``C + A(y)`` (no
-    drift), so the dual residual is zero and the predictor's right-hand side
-    is just ``b``; ``X`` starts infeasible (``A^*(X) + b != 0``) and its
+    ``C`` is a list of block arrays (one per group, shape (nb_g, k_g, k_g)); ``op(y)`` returns the list of
+    the groups' changes, ``adj`` takes such a list and ``schur(X, G)`` two of them.  The ``y`` iterates
+    stay feasible: ``S`` is recomputed as ``C + A(y)`` (no drift), so the dual residual is zero and the
+    predictor's right-hand side is just ``b``; ``X`` starts infeasible (``A^*(X) + b != 0``) and its
     residual is driven to zero by the Newton steps.
+
+    ``offset``: a general objective ``f = offset - b^T y`` (the relative gap is taken on f's values, with
+    no ``1 +`` floor).  ``phase1``: the max-t form stopped early (status ``"feasible"``) at the first
+    iterate with ``t > 0`` and ``t`` at least half the current upper bound (so the start of the next
+    phase is strictly feasible and away from the boundary).
     """
     with np.errstate(invalid="ignore"):  # a failed Cholesky factor is NaNs (checked), not a warning
-        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start)
+        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1)
 
 
-def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Core:
+def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=None, phase1=False) -> _Core:
+    fixed_dead = len(C) > 1 or offset is not None
+    dead0 = None
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
     perf = time.perf_counter
-    nb, k = C.shape[0], C.shape[1]
-    N = nb * k
+    ng = len(C)
+    nbs = [c.shape[0] for c in C]
+    N = sum(c.shape[0] * c.shape[1] for c in C)
     # Step lengths: eigenvalues for small blocks (one batched call), Cholesky trials for larger ones.
-    chol_steps = k >= _CHOL_STEPS_FROM
-    steps = _steps_chol if chol_steps else _steps_eig
+    chol = [c.shape[1] >= _CHOL_STEPS_FROM for c in C]
+    if ng > 1:  # groups: a few blocks each, where one eigvalsh call beats the trials' per-call overhead
+        chol = [ch and c.shape[0] * c.shape[1]**3 >= _CHOL_STEPS_WORK for ch, c in zip(chol, C)]
     cap = 1.0 / o.step
-    eye = np.eye(k)
-    Cf = C.reshape(-1)
+    eyes = [np.eye(c.shape[1]) for c in C]
+    Cf = [c.reshape(-1) for c in C]
     y = np.zeros(b.shape[0])
     # t far enough below every block's smallest eigenvalue: S = C - t I > 0.
     # (feasible_start: C itself is positive definite and y = 0 is the start; no t coordinate.)
     if not feasible_start:
-        y[-1] = float(_eigvalsh(C)[:, 0].min()) - max(1.0, float(np.abs(C).max()))
-    S = C + op(y)
+        y[-1] = min(float(_eigvalsh(c)[:, 0].min()) for c in C) - max(1.0, max(float(np.abs(c).max()) for c in C))
+    S = [c + d for c, d in zip(C, op(y))]
     # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
-    X = np.broadcast_to(eye * (1.0 / N if x_start is None else x_start), (nb, k, k)).copy()
+    if isinstance(x_start, list):  # given multipliers (phase 2: centred on the start's S)
+        X = x_start
+    else:
+        xs = 1.0 / N if x_start is None else x_start
+        X = [np.broadcast_to(e * xs, c.shape).copy() for e, c in zip(eyes, C)]
     normb = 1.0 + math.sqrt(float(b @ b))
+    floor, off = (1.0, 0.0) if offset is None else (1e-300, offset)
     status = "max_iterations"
     best = None
     it = 0
     ad = 0.0
     for it in range(o.max_iter + 1):
-        Z = np.concatenate([X, S])
-        LL = _cholesky(Z)
-        if np.isnan(LL[:, -1, -1]).any():
+        Z = [np.concatenate([x, s]) for x, s in zip(X, S)]
+        LL = [_cholesky(z) for z in Z]
+        if any(np.isnan(ll[:, -1, -1]).any() for ll in LL):
             # Rounding made the new S (recomputed from y) or X singular: shorten the last step.
             if best is None or ad < 1e-12:
                 status = "numerical_error"
                 break
             ad *= 0.5
             y = y_prev + ad * dy
-            S = C + op(y)
-            X = X_prev + ad * dX if ap > ad else X
+            S = [c + d for c, d in zip(C, op(y))]
+            X = [xp + ad * d for xp, d in zip(X_prev, dX)] if ap > ad else X
             continue
-        if chol_steps:
-            Li = None
-            LSi = _inv(LL[nb:])
-        else:
-            Li = _inv(LL)
-            LSi = Li[nb:]
-        G = LSi.transpose(0, 2, 1) @ LSi
+        Li, G = [], []
+        for g in range(ng):
+            nb = nbs[g]
+            if chol[g]:
+                Li.append(None)
+                LSi = _inv(LL[g][nb:])
+            else:
+                Li.append(_inv(LL[g]))
+                LSi = Li[g][nb:]
+            G.append(LSi.transpose(0, 2, 1) @ LSi)
         r_p = -b - adj(X)
-        Xf = X.reshape(-1)
-        pobj = float(Cf @ Xf)
+        Xf = [x.reshape(-1) for x in X]
+        pobj = sum(float(c @ x) for c, x in zip(Cf, Xf))
         dobj = float(b @ y)
-        XS = float(Xf @ S.reshape(-1))
+        XS = sum(float(x @ s.reshape(-1)) for x, s in zip(Xf, S))
         mu = XS / N
         rp = math.sqrt(float(r_p @ r_p)) / normb
-        denom = 1.0 + abs(pobj) + abs(dobj)
+        denom = floor + abs(off - pobj) + abs(off - dobj)
         gap = max(abs(pobj - dobj), XS) / denom
         score = max(rp, gap)
         if best is None or score < best[0]:
             best = (score, it, y, X, rp, gap, pobj)
         if rp < o.feas_tol and gap < o.gap_tol:
             status = "optimal"
+            break
+        if phase1 and dobj > 0.0 and rp < 1e-3 and dobj >= 0.5 * pobj:
+            best = (score, it, y, X, rp, gap, pobj)
+            status = "feasible"
             break
         if it - best[1] >= 8 and best[0] < 1e-6:
             status = "stalled"  # no progress for 8 iterations near the optimum: rounding floor reached
@@ -317,9 +342,19 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
         tim["assembly"] += t1 - t0
         d = M.diagonal()
         dmax = float(d.max())
-        anydead = float(d.min()) <= 1e-14 * dmax
+        if fixed_dead and dead0 is not None:
+            # grouped problems: only the directions unseen at the start are pinned; later the diagonal's range
+            # grows with the scalings (X_b -> rank deficient) and a relative threshold froze live directions
+            # (phase 2 stalled 1e-4 above the optimum)
+            dead = dead0
+            anydead = bool(dead.any())
+        else:
+            anydead = float(d.min()) <= 1e-14 * dmax
+            if anydead:
+                dead = d <= 1e-14 * dmax
+            if fixed_dead:
+                dead0 = dead if anydead else np.zeros(d.shape, dtype=bool)
         if anydead:
-            dead = d <= 1e-14 * dmax
             # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
             # instead of regularizing all of M, which stalls the residuals.
             M = M.copy()
@@ -343,36 +378,49 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
         def direction(h, RcG):
             dy = _potrs(fac, h, lower=1)[0]
             dS = op(dy)
-            W = RcG - X @ dS @ G
-            return dy, dS, 0.5 * (W + W.transpose(0, 2, 1))
+            dX = []
+            for x, ds, g, rc in zip(X, dS, G, RcG):
+                W = rc - x @ ds @ g
+                dX.append(0.5 * (W + W.transpose(0, 2, 1)))
+            return dy, dS, dX
+
+        def step_lengths(dX, dS, cap_, rtol):
+            ap_, ad_ = cap_, cap_
+            for g in range(ng):
+                a1, a2 = (_steps_chol if chol[g] else _steps_eig)(Z[g] if chol[g] else Li[g],
+                                                                  np.concatenate([dX[g], dS[g]]), nbs[g], cap_, rtol)
+                ap_, ad_ = min(ap_, a1), min(ad_, a2)
+            return ap_, ad_
 
         # Predictor (affine scaling), R_c = -X S: the right-hand side adj(R_c G) - r_p is b.
         hb = np.where(dead, 0.0, b) if anydead else b
-        dy, dS, dX = direction(hb, -X)
+        dy, dS, dX = direction(hb, [-x for x in X])
         t3 = perf()
-        ap, ad = steps(Z if chol_steps else Li, np.concatenate([dX, dS]), nb, 1.0, 0.1)
+        ap, ad = step_lengths(dX, dS, 1.0, 0.1)
         tim["line_search"] += perf() - t3
-        Sf, dXf, dSf = S.reshape(-1), dX.reshape(-1), dS.reshape(-1)
-        mu_aff = (XS + ad * float(Xf @ dSf) + ap * float(dXf @ Sf) + ap * ad * float(dXf @ dSf)) / N
+        xds = sum(float(x @ ds.reshape(-1)) for x, ds in zip(Xf, dS))
+        dxs = sum(float(dx.reshape(-1) @ s.reshape(-1)) for dx, s in zip(dX, S))
+        dxds = sum(float(dx.reshape(-1) @ ds.reshape(-1)) for dx, ds in zip(dX, dS))
+        mu_aff = (XS + ad * xds + ap * dxs + ap * ad * dxds) / N
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
-        RcG = sigma * mu * G - X - dX @ dS @ G
+        RcG = [sigma * mu * g - x - dx @ ds @ g for g, x, dx, ds in zip(G, X, dX, dS)]
         h = adj(RcG) - r_p
         if anydead:
             h[dead] = 0.0
         dy, dS, dX = direction(h, RcG)
         t4 = perf()
-        ap, ad = steps(Z if chol_steps else Li, np.concatenate([dX, dS]), nb, cap, 0.02)
+        ap, ad = step_lengths(dX, dS, cap, 0.02)
         ap, ad = min(1.0, o.step * ap), min(1.0, o.step * ad)
         tim["line_search"] += perf() - t4
         y_prev, X_prev = y, X
-        X = X + ap * dX
+        X = [x + ap * d for x, d in zip(X, dX)]
         y = y + ad * dy
-        S = C + op(y)
-        if not math.isfinite(float(y.sum()) + float(X.sum())):
+        S = [c + d for c, d in zip(C, op(y))]
+        if not math.isfinite(float(y.sum()) + sum(float(x.sum()) for x in X)):
             status = "numerical_error"
             break
-    if status != "optimal" and best is not None:
+    if status not in ("optimal", "feasible") and best is not None:
         _, _, y, X, rp, gap, pobj = best
         if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
             # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
@@ -380,7 +428,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start) -> _Cor
     tim["total"] = perf() - t_start
     tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
     return _Core(y=y, X=X, status=status, iterations=it, primal_residual=float(rp), gap=float(gap),
-                 upper=float(np.vdot(C, X)), timings=tim)
+                 upper=sum(float(np.vdot(c, x)) for c, x in zip(C, X)), timings=tim)
 
 
 def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPMSolution:
@@ -419,8 +467,10 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
             x_start = 1.0 / (problem.nb * problem.k)
             if gg > 0:  # least-squares xi for A^*(xi I) = -b, at least |b| / |A^*(I)|
                 x_start = max(x_start, -float(problem.b @ g) / gg, float(np.linalg.norm(problem.b)) / np.sqrt(gg))
-        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, feasible_start=not problem.with_t,
+        core = _ipm_core([problem.C], problem.b, lambda y: [op(y)], lambda U: adj(U[0]),
+                         lambda X, G: schur(X[0], G[0]), o, t_start, feasible_start=not problem.with_t,
                          x_start=x_start)
+        core.X = core.X[0]
         x = problem.full(core.y)
         V = [v0 + x[sl].reshape(var.shape) for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0)]
         nu = 0.0
@@ -434,3 +484,132 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
         return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
                            status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
                            dual_residual=0.0, gap=core.gap, timings=core.timings)
+
+
+@dataclass(kw_only=True)
+class GroupedSolution(_SolveStatus):
+    """Result of :func:`solve_grouped`.
+
+    Attributes
+    ----------
+    status : {"optimal", "inaccurate", "infeasible", "no_interior", "max_iterations", "time_limit", \
+              "numerical_error", "stalled"}
+        ``"infeasible"``: phase 1 ended with ``t_upper < -1e-6`` times the constants' size (and a primal
+        residual below 1e-6);
+        then ``X`` is a Farkas certificate (below).  Otherwise the status of the last phase run.
+    V : dict
+        Variable name -> value (matrix variables as arrays, scalars as floats).  Whatever the status,
+        every block at V is positive definite when ``t > 0`` (phase 2 keeps its iterates strictly feasible).
+    value : float
+        ``<c, V>`` at the returned V (attained); ``nan`` without phase 2.
+    lower : float
+        ``value - gap``: a lower bound on the optimum up to the primal residual (``nan`` without phase 2).
+    t : float
+        Phase 1's attained ``t`` (every block ``>= t I`` at its point).
+    t_upper : float
+        Phase 1's ``sum_g <C_g, X_g>``: an upper bound on ``max t`` up to its primal residual.
+    X : dict
+        Group name -> multipliers, shape (nb_g, k_g, k_g), PSD, in the blocks' order.  After phase 2:
+        the objective's multipliers.  When infeasible: phase 1's, normalized ``sum_g sum_b trace X_b = 1``,
+        with ``sum_g A_g^*(X_g) = 0`` on every variable direction up to ``primal_residual`` and
+        ``sum_g <C_g, X_g> = t_upper < 0`` (``C_g``: the groups' constant parts, ``problem.C``).
+    phase1_iterations : int
+    iterations, primal_residual, dual_residual, gap, timings
+        As in :class:`IPMSolution` (of the last phase; ``iterations`` counts both phases).
+    """
+
+    V: dict
+    value: float
+    lower: float
+    t: float
+    t_upper: float
+    X: dict
+    phase1_iterations: int
+
+
+#: Phase 2's multipliers start this many times above the least-squares fit of ``A^*(xi I) = -b``: from the fit
+#: itself (or from ``xi S^{-1}``, centred) the first directions are huge and the iterates run away along
+#: directions the objective barely sees (paper example, cost from x0: no convergence in 100 iterations);
+#: from 10-1000 times above, 13-20 iterations (measured on the paper example's cost, x0 and hinf SDPs).
+X_START_FACTOR = 100.0
+
+
+def _x_start(adj, b, C) -> list:
+    """Phase 2's multipliers ``X_g = xi I``: ``xi`` is :data:`X_START_FACTOR` times the least-squares
+    fit of ``A^*(xi I) = -b`` (a general objective fixes the multipliers' scale), or ``|b| / |A^*(I)|``.
+    """
+    g = adj([np.broadcast_to(np.eye(c.shape[1]), c.shape) for c in C])  # A^*(I)
+    gg = float(g @ g)
+    xs = 1.0 / sum(c.shape[0] * c.shape[1] for c in C)
+    if gg > 0:
+        xs = max(xs, -float(b @ g) / gg, float(np.linalg.norm(b)) / np.sqrt(gg))
+    return [np.broadcast_to(np.eye(c.shape[1]) * (X_START_FACTOR * xs), c.shape).copy() for c in C]
+
+
+#: Phase 1 calls a problem infeasible only when ``max t`` is below ``-INFEASIBLE_T`` times the constants' size:
+#: the performance SDPs are weakly feasible at ``V = 0`` (``t* = 0`` there) and near-marginal loops (P ~ 1e6)
+#: have ``t* ~ 1e-11``, which the multipliers' ``upper ~ -1e-11`` cannot tell apart (seeded random families).
+INFEASIBLE_T = 1e-6
+
+
+def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
+                  options: IPMOptions | None = None) -> GroupedSolution:
+    """Solve a :class:`GroupedLMI` in two phases (docs/design.md, §7 "Objectives").
+
+    Phase 1: ``max t`` s.t. every block ``- t I >= 0`` from ``problem`` (built without an objective),
+    stopped at the first iterate with ``t > 0`` and ``t >= upper / 2`` (strictly feasible, away from the
+    boundary).  When it ends with ``t* < 0`` the problem is infeasible and the multipliers are the
+    certificate.  Phase 2: ``min <c, V>`` (``objective``: variable name -> coefficients) from phase 1's
+    point, which keeps every block positive definite.
+
+    Parameters
+    ----------
+    problem : GroupedLMI
+        The max-t form (``objective=None``).
+    objective : dict, optional
+        Without it only phase 1 runs, to its optimum.
+    options : IPMOptions, optional
+
+    Returns
+    -------
+    GroupedSolution
+    """
+    o = options or IPMOptions()
+    large = problem.n_full**2 > 2**20
+    names = [g.name for g in problem.groups_spec]
+    with blas_threads(o.threads), heap_reuse(large):
+        t_start = time.perf_counter()
+        op, adj, schur = problem.ops(o.dense)
+        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, phase1=objective is not None)
+        t = float(problem.full(core.y)[-1])
+        it1 = core.iterations
+        timings = dict(core.timings)
+        V1 = problem.variables_at(core.y)
+        out = dict(V=dict(zip(problem.names, V1)), value=float("nan"), lower=float("nan"), t=t,
+                   t_upper=core.upper, X=dict(zip(names, core.X)), phase1_iterations=it1, status=core.status,
+                   iterations=it1, primal_residual=core.primal_residual, dual_residual=0.0, gap=core.gap)
+        scale = max(1.0, max(float(np.abs(c).max()) for c in problem.C))
+        if core.status in ("optimal", "inaccurate", "stalled") and core.upper < -INFEASIBLE_T * scale \
+                and core.primal_residual < 1e-6:
+            out["status"] = "infeasible"
+        elif objective is not None and t > 0:
+            two = problem.at(core.y, objective)
+            op2, adj2, schur2 = two.ops(o.dense)
+            c_full = np.concatenate([np.broadcast_to(np.asarray(objective.get(nm, 0.0), dtype=np.float64),
+                                                     sh).ravel() for nm, sh in zip(two.names, two.shapes)])
+            offset = float(c_full @ np.concatenate([v.ravel() for v in two.V0]))
+            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
+                              x_start=_x_start(adj2, two.b, two.C), offset=offset)
+            V2 = two.variables_at(core2.y)
+            value = offset - float(two.b @ core2.y)
+            for key in ("assembly", "factorization", "line_search"):
+                timings[key] += core2.timings[key]
+            out.update(V=dict(zip(two.names, V2)), value=value, lower=offset - core2.upper,
+                       X=dict(zip(names, core2.X)), status=core2.status, iterations=it1 + core2.iterations,
+                       primal_residual=core2.primal_residual, gap=core2.gap)
+        elif objective is not None:
+            out["status"] = "no_interior"  # phase 1 found no t > 0 and no certificate either
+    timings["total"] = time.perf_counter() - t_start
+    timings["other"] = timings["total"] - timings["assembly"] - timings["factorization"] - timings["line_search"]
+    out["V"] = {k: (float(v[0, 0]) if k in problem.scalar_names else v) for k, v in out["V"].items()}
+    return GroupedSolution(timings=timings, **out)

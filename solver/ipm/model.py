@@ -13,7 +13,7 @@ import scipy.sparse as sp
 
 from .schur import _onehot, assemble
 
-__all__ = ["BlockLMI", "MatrixVariable"]
+__all__ = ["BlockGroup", "BlockLMI", "GroupedLMI", "MatrixVariable"]
 
 
 @dataclass
@@ -299,3 +299,160 @@ class BlockLMI:
                     LVR = L @ Vs @ R
                     out += coef * (LVR + np.swapaxes(LVR, 2, 3))
         return out
+
+
+@dataclass
+class BlockGroup:
+    """One group of blocks of one side: ``C_b + sum_V terms_b(V) + sum_s v_s D_{s,b} >= 0``, b = 1..nb.
+
+    Parameters
+    ----------
+    name : str
+        How the result names the group's multipliers (:class:`solver.ipm.algorithm.GroupedSolution`).
+    C : ndarray, shape (nb, k, k)
+        The blocks at ``V = V0``.
+    terms : dict
+        Matrix variable name -> its Kronecker terms in this group (as :attr:`MatrixVariable.terms`).
+    scalars : dict
+        Scalar variable name -> ``D`` of shape (nb, k, k): the variable enters as ``v D_b``.
+    """
+
+    name: str
+    C: np.ndarray
+    terms: dict = field(default_factory=dict)
+    scalars: dict = field(default_factory=dict)
+
+
+class GroupedLMI:
+    """Several groups of blocks, each of one side, in the same variables (docs/design.md, §7 "Groups").
+
+    ``max t`` s.t. every block ``- t I >= 0`` (``objective=None``: phase 1), or ``min <c, vec V>`` s.t.
+    every block ``>= 0`` from a strictly feasible ``V0`` (phase 2).  Matrix variables enter through
+    Kronecker terms (each group is a :class:`BlockLMI` over them, and its Schur complement is
+    :func:`solver.ipm.schur.assemble` of that group); scalar variables (``1 x 1``) through explicit
+    matrices ``D`` (their Schur rows are adjoints, like ``t``'s).  No equality constraint.
+
+    Parameters
+    ----------
+    matrices : list of (name, shape, sym_block)
+        The matrix variables (see :class:`MatrixVariable`).
+    scalars : list of str
+        The scalar variables, after the matrix variables in the coordinates.
+    groups : list of BlockGroup
+    V0 : list of ndarray
+        The start (matrix variables, then scalars as (1, 1) arrays); the groups' ``C`` are the blocks there.
+    objective : dict or None
+        Variable name -> coefficient array of its shape (``<c, V>`` is summed over the named variables).
+    """
+
+    def __init__(self, matrices: list, scalars: list, groups: list, V0: list, objective: dict | None = None):
+        self.matrices, self.scalar_names, self.groups_spec, self.V0 = list(matrices), list(scalars), groups, V0
+        self.objective = objective
+        names = [m[0] for m in matrices] + list(scalars)
+        shapes = [tuple(m[1]) for m in matrices] + [(1, 1)] * len(scalars)
+        self.names, self.shapes = names, shapes
+        c = None
+        if objective is not None:
+            c = np.concatenate([np.broadcast_to(np.asarray(objective.get(nm, 0.0), dtype=np.float64), sh).ravel()
+                                for nm, sh in zip(names, shapes)])
+        self.groups = []
+        for g in groups:
+            variables = [MatrixVariable(nm, tuple(sh), sb, list(g.terms.get(nm, []))) for nm, sh, sb in matrices]
+            variables += [MatrixVariable(nm, (1, 1), 1, []) for nm in scalars]
+            self.groups.append(BlockLMI(C=np.ascontiguousarray(g.C, dtype=np.float64), variables=variables,
+                                        V0=V0, objective=c))
+        g0 = self.groups[0]
+        self.T, self.Tt, self.b, self.p, self.slices, self.n_full = g0.T, g0.Tt, g0.b, g0.p, g0.slices, g0.n_full
+        self.with_t = g0.with_t
+        # reduced coordinate of each scalar (no equality: a 1 x 1 symmetric variable is one column of T)
+        self.scalar_cols = {nm: int(self.T[self.slices[len(matrices) + i].start].indices[0])
+                            for i, nm in enumerate(scalars)}
+        self.D = [[(self.scalar_cols[nm], np.asarray(D, dtype=np.float64)) for nm, D in g.scalars.items()]
+                  for g in groups]
+        self.C = [grp.C for grp in self.groups]
+
+    @property
+    def sides(self) -> list:
+        return [c.shape[1] for c in self.C]
+
+    def full(self, y: np.ndarray) -> np.ndarray:
+        return self.T @ y
+
+    def variables_at(self, y: np.ndarray) -> list:
+        """``V0 + dV(y)``: the variables (matrix variables, then scalars as (1, 1) arrays)."""
+        x = self.T @ y
+        return [v0 + x[sl].reshape(sh) for v0, sl, sh in zip(self.V0, self.slices, self.shapes)]
+
+    def ops(self, dense: bool | None = None):
+        """``op``, ``adj``, ``schur`` over the list of groups (per group: dense basis or Kronecker pieces)."""
+        per = []
+        for grp, D in zip(self.groups, self.D):
+            use_dense = dense if dense is not None else (grp.p * grp.nb * grp.k**2 <= 60000)
+            if use_dense:
+                from .schur import dense_ops
+
+                A = grp.dense_operator()
+                if D:
+                    A = A.copy()
+                    for col, Dm in D:
+                        A[col] += Dm
+                per.append(dense_ops(A))
+            else:
+                per.append(self._kron_ops(grp, D))
+
+        def op(y):
+            return [o[0](y) for o in per]
+
+        def adj(U):
+            out = per[0][1](U[0])
+            for o, u in zip(per[1:], U[1:]):
+                out = out + o[1](u)
+            return out
+
+        def schur(X, G):
+            M = per[0][2](X[0], G[0])
+            for o, x, g in zip(per[1:], X[1:], G[1:]):
+                M = M + o[2](x, g)
+            return M
+
+        return op, adj, schur
+
+    @staticmethod
+    def _kron_ops(grp: BlockLMI, D: list):
+        """One group's Kronecker-path ``op``, ``adj``, ``schur``, with its scalars' ``D`` terms added."""
+        if not D:
+            return grp.op, grp.adj, grp.schur
+
+        def op(y):
+            out = grp.op(y)
+            for col, Dm in D:
+                out = out + y[col] * Dm
+            return out
+
+        def adj(U):
+            g = grp.adj(U)
+            for col, Dm in D:
+                g[col] += float(np.vdot(Dm, U))
+            return g
+
+        def schur(X, G):
+            M = grp.schur(X, G)
+            # tr(A_s X A_i G) = tr(A_i (G D_s X)): the scalar's row is an adjoint (like t's in assemble)
+            for col, Dm in D:
+                row = adj(G @ Dm @ X)
+                M[col, :] = row
+                M[:, col] = row
+            return M
+
+        return op, adj, schur
+
+    def at(self, y: np.ndarray, objective: dict) -> "GroupedLMI":
+        """The phase-2 problem: the same blocks, ``min <c, V>``, started at the phase-1 point ``y``."""
+        V = self.variables_at(y)
+        t = float(self.full(y)[-1]) if self.with_t else 0.0
+        groups = []
+        op, _, _ = self.ops(dense=False)
+        for g, c, d in zip(self.groups_spec, self.C, op(y)):
+            C2 = c + d + t * np.eye(c.shape[1])  # the blocks at V (d holds -t I)
+            groups.append(BlockGroup(g.name, C2, g.terms, g.scalars))
+        return GroupedLMI(self.matrices, self.scalar_names, groups, V, objective)

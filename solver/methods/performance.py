@@ -11,13 +11,17 @@ scalars; the lifted data come from :mod:`solver.lifting` (``rows.times_w(W, Y)``
   minimize ``g = gamma^2``;
 * input limits:  ``[[u_j^2, (Y_q)_j], [(Y_q)_j', W]] >= 0`` for every buffered gain q and input j; with
   the plain objective the stability blocks ``[[W, c_s (A_s W)'], [c_s A_s W, W]] >= 0`` and
-  ``max log det W`` (the largest invariant ellipsoid), x0 inside when given.
+  ``max tau`` s.t. ``W >= tau I`` (the largest ball inside the invariant ellipsoid), x0 inside when given.
 
 Every figure the result reports passes the float64 re-checks of :mod:`solver.performance`.
-Solved by Clarabel through cvxpy (tight tolerances); the structured IPM does not take these blocks yet.
+Solved by the structured IPM (:mod:`solver.ipm.performance`, the same blocks; ``solver="AUTO"``, ``"IPM"``)
+or by Clarabel through cvxpy (``"CLARABEL"``, tight tolerances; also ``"AUTO"``'s fallback when the IPM
+ends without an answer).
 """
 
 from __future__ import annotations
+
+import time
 
 import cvxpy as cp
 import numpy as np
@@ -38,6 +42,9 @@ OBJECTIVES = ("stability", "cost", "hinf")
 TIE_BREAK = 1e-9
 #: Relative slack on u_max inside the SDP (the re-check uses u_max itself).
 LIMIT_SLACK = 1e-6
+#: The IPM's gap and residual tolerances here: the LQR reproduction (gains to 1e-6) needs about 1e-10
+#: (the gains' error is ~1e4 times the gap), as it needs Clarabel's tolerances at 1e-11.
+IPM_TOL = 1e-11
 #: Largest semi-axis of the invariant ellipsoid the plain input-limited design looks for (times max(1, |x0|)).
 MAX_RADIUS = 1e3
 
@@ -120,12 +127,71 @@ def build(lifted: Lifted, objective: str, x0, u_max, rate: float | None, cap: fl
         # K = 0 may keep an open-loop stable plant inside any ellipsoid: cap the radius so the SDP is bounded
         radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
         cons.append(W << radius**2 * np.eye(n))
-        objective_expr = cp.Maximize(cp.log_det(W))
+        # the largest ball inside the invariant ellipsoid (the IPM's objective too; docs/design.md §8.3)
+        tau = cp.Variable()
+        cons.append(W >> tau * np.eye(n))
+        objective_expr = cp.Maximize(tau)
     if u_max is not None:
         cons += input_blocks(modes, W, Y, u_max)
     if x0 is not None and u_max is not None and objective != "cost":
         cons.append(schur_block(np.ones((1, 1)), x0.reshape(-1, 1), W) >> 0)
     return cp.Problem(objective_expr, cons), W, Y, extra
+
+
+def _ipm_status(status: str) -> str | None:
+    return {"optimal": cp.OPTIMAL, "inaccurate": cp.OPTIMAL_INACCURATE, "infeasible": cp.INFEASIBLE}.get(status)
+
+
+def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver: str,
+          time_limit: float | None = None, cap: float | None = None):
+    """Build and solve one design SDP: ``(info, W, Y, scalars)`` (``W``, ``Y`` None without an answer).
+
+    ``solver``: ``"AUTO"``/``"IPM"``: the structured IPM (:func:`solver.ipm.solve_performance`), ``"AUTO"``
+    falling back to Clarabel when it ends without an answer or a proof; ``"CLARABEL"``/``"SCS"``: cvxpy.
+    ``scalars``: ``gamma`` (cost from x0), ``g`` (hinf) as floats when the problem has them.  ``info.setup``
+    holds the seconds spent building the problem (cvxpy's canonicalization included).
+    """
+    from .. import ipm
+
+    name = str(solver).upper()
+    start = time.perf_counter()
+    # The tie-break stage's feasible set is a slice of relative width TIE_BREAK along the optimal face: every
+    # point of it is that close to the boundary, phase 1 finds no centred start and phase 2 stalls (paper
+    # example: 114 iterations, no answer), so "AUTO" solves it with Clarabel; "IPM" tries (and may fail).
+    if name == "IPM" or (name == "AUTO" and cap is None):
+        modes = lifted.modes
+        c = congruent_scale(modes, rate) * (1 + STRICT) if objective == "stability" else None
+        radius = None
+        if objective == "stability":
+            radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
+        prob = ipm.performance_problem(lifted, objective, x0, u_max, c=c, cap=cap, radius=radius,
+                                       limit_slack=LIMIT_SLACK)
+        setup = time.perf_counter() - start
+        sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=time_limit))
+        status = _ipm_status(sol.status)
+        info = SolveInfo(status=status or sol.status, solver="IPM", solve_time=sol.raw.timings["total"],
+                         wall_time=time.perf_counter() - start,
+                         objective=sol.value if status != cp.INFEASIBLE else sol.raw.t_upper,
+                         iterations=sol.raw.iterations)
+        info.setup = setup
+        if status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return info, sol.W, sol.Y, dict(sol.scalars, ipm=sol)
+        if status == cp.INFEASIBLE or name == "IPM":
+            if status is None and name == "IPM":
+                raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.raw.iterations} iterations "
+                                   f"(primal residual {sol.raw.primal_residual:.1e}, gap {sol.raw.gap:.1e})",
+                                   status=sol.status)
+            return info, None, None, {"ipm": sol}
+        time_limit = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        start = time.perf_counter()
+    problem, Wv, Yv, extra = build(lifted, "stability" if objective == "stability" else objective, x0, u_max,
+                                   rate, cap=cap)
+    info = solve_sdp(problem, "CLARABEL" if name in ("AUTO", "IPM") else name, time_limit)
+    info.setup = max(info.wall_time - info.solve_time, 0.0) if np.isfinite(info.solve_time) else 0.0
+    if Wv.value is None or info.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        return info, None, None, {}
+    scalars = {k: float(v.value) for k, v in extra.items() if k in ("gamma", "g") and v.value is not None}
+    return info, Wv.value, [np.array(y.value, dtype=float) for y in Yv], scalars
 
 
 def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate):
@@ -194,36 +260,34 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     clock = RunClock()
     clock.cached = False
     rate = options.decay_rate
-    build_start = clock.elapsed
-    prob, Wv, Yv, extra = build(lifted, objective, x0, u_max, rate)
-    clock.setup = clock.elapsed - build_start
     try:
-        info = solve_sdp(prob, options.solver, options.time_limit)
+        info, Wv, Yv, extra = solve(lifted, objective, x0, u_max, rate, options.solver, options.time_limit)
     except SolverFailed as err:
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP failed ({err})", None)
+    clock.setup += info.setup
     clock.add(info)
-    if np.isfinite(info.solve_time):  # cvxpy's canonicalization happens inside solve(): count it as setup
-        clock.setup += max(info.wall_time - info.solve_time, 0.0)
     record = IterationRecord(0, info.objective, None, False, None, info.solve_time, clock.elapsed)
     if info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP is reported infeasible by "
                           f"{info.solver} ({info.status})", info)
-    if Wv.value is None or info.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+    if Wv is None:
         return _no_design(lifted, options, clock, objective,
                           f"the {objective} SDP ended with status {info.status!r}", info)
+    kothare = objective == "cost" and u_max is not None
     if objective == "cost" and x0 is not None and u_max is None:
         # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P
-        cap = float(extra["gamma"].value) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
-        second, W2, Y2, extra2 = build(lifted, objective, x0, u_max, rate, cap=cap)
+        cap = float(extra["gamma"]) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
         try:
-            info2 = solve_sdp(second, options.solver, clock.remaining(options.time_limit))
+            info2, W2, Y2, extra2 = solve(lifted, objective, x0, u_max, rate, options.solver,
+                                          clock.remaining(options.time_limit), cap=cap)
         except SolverFailed:
-            info2 = None
-        if info2 is not None and info2.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) and W2.value is not None:
+            info2 = W2 = None
+        if W2 is not None:
+            clock.setup += info2.setup
             clock.add(info2)
             Wv, Yv, extra, info = W2, Y2, extra2, info2
-    W = 0.5 * (Wv.value + Wv.value.T)
-    Y = [np.array(y.value, dtype=float) for y in Yv]
+    W = 0.5 * (Wv + Wv.T)
+    Y = Yv
     try:
         gains = _gains_of(modes, W, Y)
         Winv = np.linalg.inv(W)
@@ -231,7 +295,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         return _no_design(lifted, options, clock, objective, "the SDP's W is singular", info)
     performance, P0, X0 = None, None, Winv
     if objective == "cost":
-        P0 = float(extra["gamma"].value) * Winv if extra["kothare"] else Winv
+        P0 = float(extra["gamma"]) * Winv if kothare else Winv
         performance = bracket(lifted, gains, "cost", P0=P0, x0=x0, solver=options.solver)
     elif objective == "hinf":
         P0 = Winv

@@ -1,0 +1,296 @@
+"""The performance designs' SDPs as grouped structured LMIs (docs/design.md, §7 and §8.3).
+
+:func:`performance_problem` builds the :class:`solver.ipm.model.GroupedLMI` of a cost, H-infinity or
+input-limited design from the lifted data (:mod:`solver.lifting`); :func:`solve_performance` solves it
+(:func:`solver.ipm.algorithm.solve_grouped`) and returns ``W``, the gains' ``Y_j`` and the scalars in the
+design's coordinates.  The blocks are those of :func:`solver.methods.performance.build` (the cvxpy form the
+Clarabel path solves), one group per block kind and side:
+
+========================  ======================================================  =============
+group                     blocks (in this order)                                  side
+========================  ======================================================  =============
+``cost_eta{e}``           ``[[W, V_s'], [V_s, diag(W, I or gamma I)]]``, the      2n + e(n+m)
+                          modes s with ``eta_s = e`` (``modes`` lists them)
+``hinf_eta{e}``           ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]]``           2n + e(p_w+p_z)
+``stability``             ``[[W, c_s (A_s W)'], [c_s A_s W, W]]``, every mode     2n
+``Z``                     ``[[Z, I], [I, W]]``                                    2n
+``x0``                    ``[[level, x0'], [x0, W]]`` (level 1 or gamma)          n + 1
+``input``                 ``[[u_j^2, (Y_q)_j], [(Y_q)_j', W]]``, (q, j) in        n + 1
+                          ``input_index`` order (q-major; gains that are zero
+                          under the scheme left out)
+``radius``                ``radius^2 I - W``                                      n
+``ball``                  ``W - tau I``                                           n
+``cap``                   ``cap - gamma``                                         1
+========================  ======================================================  =============
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .algorithm import GroupedSolution, IPMOptions, solve_grouped
+from .model import BlockGroup, GroupedLMI
+
+__all__ = ["PerformanceProblem", "PerformanceSolution", "performance_problem", "solve_performance"]
+
+
+@dataclass
+class PerformanceProblem:
+    """A performance design's SDP on the structured solver, with what maps its answer back.
+
+    Attributes
+    ----------
+    lmi : GroupedLMI
+        The max-t (phase 1) form.
+    objective : dict
+        Phase 2's ``min <c, V>`` (variable name -> coefficients).
+    gain_scale : ndarray, shape (J,)
+        ``Y_j = Y'_j / gain_scale[j]`` (the solver's ``Y'`` has unit-size coefficients).
+    modes : dict
+        Group name -> the loop-mode indices of its blocks (``cost_eta*``, ``hinf_eta*``, ``stability``).
+    input_index : list of (q, j)
+        The ``input`` group's blocks: gain ``K_{q+1}``, input j.
+    """
+
+    lmi: GroupedLMI
+    objective: dict
+    gain_scale: np.ndarray
+    modes: dict = field(default_factory=dict)
+    input_index: list = field(default_factory=list)
+
+
+def _scheme(rows, gain_map, scale) -> np.ndarray:
+    """``[c_1 ... c_J] / scale`` of affine rows under the scheme: shape (k, J m)."""
+    c = rows.scheme(gain_map) / scale[:, None, None]  # (J, k, m)
+    return c.transpose(1, 0, 2).reshape(c.shape[1], -1)
+
+
+def _stack(items: list, nb: int, k: int, cols: int) -> np.ndarray:
+    out = np.zeros((nb, k, cols))
+    for b, (r0, M) in enumerate(items):
+        out[b, r0:r0 + M.shape[0]] = M
+    return out
+
+
+def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool):
+    """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side)."""
+    lms = [lifted.lifted[s] for s in s_list]
+    nb = len(lms)
+    if kind == "cost":
+        extra, tail = 0, lms[0].cost.free.shape[0]
+    elif kind == "hinf":
+        extra, tail = lms[0].B.shape[1], lms[0].D.shape[0]
+    else:
+        extra, tail = 0, 0
+    k = 2 * n + extra + tail
+    a0 = n + extra  # first row of A_s W
+    Lf = np.zeros((nb, k, n))
+    Lf[:, :n] = 0.5 * np.eye(n)  # sym([I/2; F] W [I 0]) = [[W, (F W)'], [F W, 0]]
+    LY = np.zeros((nb, k, JM))
+    C = np.zeros((nb, k, k))
+    for b, (s, lm) in enumerate(zip(s_list, lms)):
+        Lf[b, a0:a0 + n] = c[s] * lm.state.free
+        if JM:
+            LY[b, a0:a0 + n] = c[s] * _scheme(lm.state, M, scale)
+        rows = lm.cost if kind == "cost" else lm.output if kind == "hinf" else None
+        if rows is not None:
+            Lf[b, a0 + n:] = rows.free
+            if JM:
+                LY[b, a0 + n:] = _scheme(rows, M, scale)
+        if kind == "hinf":
+            C[b, a0:a0 + n, n:a0] = lm.B
+            C[b, a0 + n:, n:a0] = lm.D
+            C[b, n:a0, a0:] = np.vstack([lm.B, lm.D]).T
+    R = np.broadcast_to(np.eye(n, k), (nb, n, k))
+    Lb = np.zeros((1, k, n))
+    Lb[0, a0:a0 + n] = np.eye(n)
+    terms = {"W": [(Lf, R, 1.0), (np.broadcast_to(Lb, (nb, k, n)), None, 1.0)]}
+    if JM:
+        terms["Y"] = [(LY, R, 1.0)]
+    scalars = {}
+    if kind == "cost":
+        D = np.zeros((nb, k, k))
+        D[:, a0 + n:, a0 + n:] = np.eye(tail)
+        if kothare:
+            scalars["gamma"] = D
+        else:
+            C += D
+    elif kind == "hinf":
+        D = np.zeros((nb, k, k))
+        D[:, n:a0, n:a0] = np.eye(extra)
+        scalars["g"] = D
+        C[:, a0 + n:, a0 + n:] += np.eye(tail)
+    return C, terms, scalars
+
+
+def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
+    """``[[corner, border'], [border, 0]]``, shape (1, n + 1, n + 1)."""
+    C = np.zeros((1, n + 1, n + 1))
+    C[0, 0, 0] = corner
+    C[0, 1:, 0] = border
+    C[0, 0, 1:] = border
+    return C
+
+
+def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
+                        c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
+                        limit_slack: float = 0.0) -> PerformanceProblem:
+    """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
+
+    Parameters
+    ----------
+    lifted : solver.lifting.Lifted
+    objective : {"cost", "hinf", "stability"}
+        ``"stability"``: the plain input-limited design (``u_max`` required), maximize ``tau`` with
+        ``W >= tau I`` (the largest ball inside the invariant ellipsoid).
+    x0 : ndarray, shape (n,), or None
+    u_max : ndarray, shape (m,), or None
+    c : ndarray, shape (S,), optional
+        Stability blocks' factors (``objective="stability"``).
+    cap : float, optional
+        Cost from x0 without limits: the tie-break stage (``gamma <= cap``, minimize ``trace Z``).
+    radius : float, optional
+        ``W <= radius^2 I`` (``objective="stability"``).
+    limit_slack : float
+        ``u_max (1 - limit_slack)`` in the input blocks.
+    """
+    modes = lifted.modes
+    n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
+    M = modes.gain_map
+    JM = J * m
+    kinds = [lm.state for lm in lifted.lifted] + [lm.cost for lm in lifted.lifted if lm.cost is not None] + \
+        [lm.output for lm in lifted.lifted if lm.output is not None]
+    scale = np.ones(J)
+    if J:
+        scale = np.max([np.abs(r.scheme(M)).max(axis=(1, 2)) for r in kinds], axis=0)
+        scale = np.where(scale > 0, scale, 1.0)
+    S = len(lifted.lifted)
+    kothare = objective == "cost" and u_max is not None
+    groups, group_modes, input_index = [], {}, []
+    scalars = []
+    if objective in ("cost", "hinf", "stability"):
+        kind = objective
+        cs = np.ones(S) if c is None or objective != "stability" else np.asarray(c, dtype=np.float64)
+        if kind == "stability":
+            by_side = {0: list(range(S))}
+        else:
+            by_side = {}
+            for s, lm in enumerate(lifted.lifted):
+                by_side.setdefault(lm.eta, []).append(s)
+        for eta, s_list in sorted(by_side.items()):
+            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare)
+            name = "stability" if kind == "stability" else f"{kind}_eta{eta}"
+            groups.append(BlockGroup(name, C, terms, sc))
+            group_modes[name] = s_list
+    else:
+        raise ValueError(f"objective must be 'cost', 'hinf' or 'stability', got {objective!r}")
+    Ltop = np.zeros((1, 2 * n, n))
+    Ltop[0, :n] = np.eye(n)
+    Lbot = np.zeros((1, 2 * n, n))
+    Lbot[0, n:] = np.eye(n)
+    Lb1 = np.zeros((1, n + 1, n))
+    Lb1[0, 1:] = np.eye(n)
+    eye_n = np.eye(n)[None]
+    use_Z = objective == "cost" and (x0 is None or cap is not None)
+    if use_Z:
+        C = np.zeros((1, 2 * n, 2 * n))
+        C[0, :n, n:] = C[0, n:, :n] = np.eye(n)
+        groups.append(BlockGroup("Z", C, {"Z": [(Ltop, None, 1.0)], "W": [(Lbot, None, 1.0)]}))
+    if objective == "cost":
+        scalars = ["gamma"] if (kothare or x0 is not None) else []
+    elif objective == "hinf":
+        scalars = ["g"]
+    else:
+        scalars = ["tau"]
+    if x0 is not None:
+        level_var = objective == "cost" and not kothare
+        D = {"gamma": _bordered(n, 1.0, np.zeros(n))} if level_var else {}
+        groups.append(BlockGroup("x0", _bordered(n, 0.0 if level_var else 1.0, x0), {"W": [(Lb1, None, 1.0)]}, D))
+    if cap is not None:
+        groups.append(BlockGroup("cap", np.full((1, 1, 1), float(cap)), {}, {"gamma": -np.ones((1, 1, 1))}))
+    if u_max is not None:
+        rows = []
+        for q in range(modes.n_drop):
+            if not np.any(M[q]):
+                continue  # K_q = 0 under this scheme
+            for j in range(m):
+                L = np.zeros((n + 1, JM))
+                for jj in range(J):
+                    L[0, jj * m + j] = M[q, jj] / scale[jj]
+                rows.append(L)
+                input_index.append((q, j))
+        nb = len(rows)
+        if nb:
+            C = np.zeros((nb, n + 1, n + 1))
+            C[:, 0, 0] = (np.asarray(u_max, dtype=np.float64)[[j for _, j in input_index]] * (1 - limit_slack))**2
+            R = np.broadcast_to(np.eye(n, n + 1, 1), (nb, n, n + 1))
+            groups.append(BlockGroup("input", C, {"W": [(np.broadcast_to(Lb1, (nb, n + 1, n)), None, 1.0)],
+                                                  "Y": [(np.stack(rows), R, 1.0)]}))
+    if objective == "stability":
+        if radius is not None:
+            groups.append(BlockGroup("radius", float(radius)**2 * eye_n, {"W": [(eye_n, None, -1.0)]}))
+        groups.append(BlockGroup("ball", np.zeros((1, n, n)), {"W": [(eye_n, None, 1.0)]}, {"tau": -eye_n}))
+    matrices = [("W", (n, n), n)]
+    if JM:
+        matrices.append(("Y", (JM, n), None))
+    if use_Z:
+        matrices.append(("Z", (n, n), n))
+    if not JM:
+        for g in groups:
+            g.terms.pop("Y", None)
+    V0 = [np.zeros(sh) for _, sh, _ in matrices] + [np.zeros((1, 1)) for _ in scalars]
+    lmi = GroupedLMI(matrices, scalars, groups, V0)
+    if objective == "cost":
+        obj = {"Z": np.eye(n)} if use_Z else {"gamma": 1.0}
+    elif objective == "hinf":
+        obj = {"g": 1.0}
+    else:
+        obj = {"tau": -1.0}
+    return PerformanceProblem(lmi=lmi, objective=obj, gain_scale=scale, modes=group_modes, input_index=input_index)
+
+
+@dataclass
+class PerformanceSolution:
+    """Result of :func:`solve_performance`.
+
+    Attributes
+    ----------
+    status : str
+        :class:`solver.ipm.algorithm.GroupedSolution`'s.
+    W : ndarray, shape (n, n)
+    Y : list of ndarray, shape (m, n) each
+        ``Y_j = Theta_j W`` (the scheme's free gains times W).
+    scalars : dict
+        ``gamma``, ``g`` or ``tau`` (whichever the problem has); ``Z`` when present.
+    value : float
+        The attained objective (``trace Z``, ``gamma``, ``g`` or ``-tau``).
+    raw : GroupedSolution
+        Everything else: ``X`` per group (Farkas certificate when infeasible), ``t``, iterations, timings.
+    problem : PerformanceProblem
+    """
+
+    status: str
+    W: np.ndarray
+    Y: list
+    scalars: dict
+    value: float
+    raw: GroupedSolution
+    problem: PerformanceProblem
+
+
+def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = None) -> PerformanceSolution:
+    """Solve a :class:`PerformanceProblem` (phase 1, then the objective) and map the answer back."""
+    sol = solve_grouped(problem.lmi, problem.objective, options)
+    W = sol.V["W"]
+    W = 0.5 * (W + W.T)
+    n = W.shape[0]
+    J = len(problem.gain_scale)
+    Ys = sol.V.get("Y")
+    m = 0 if Ys is None or J == 0 else Ys.shape[0] // J
+    Y = [Ys[j * m:(j + 1) * m] / problem.gain_scale[j] for j in range(J)] if Ys is not None else []
+    scalars = {k: v for k, v in sol.V.items() if k not in ("W", "Y")}
+    return PerformanceSolution(status=sol.status, W=W, Y=Y, scalars=scalars, value=sol.value, raw=sol,
+                               problem=problem)
