@@ -479,10 +479,12 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         skipped = int(np.sum(unstable))
         _sweep_pruned(systems, approx)
         best, witness = -np.inf, None
-        for i in _top(approx, REFINED):
-            fine = hinf_norm_lower(period_system(data, pats[i]))
-            if fine > best:
-                best, witness = fine, pats[i]
+        top = _top(approx, REFINED)
+        if top:  # the best coarse patterns refined (golden section), the winner's value re-evaluated on its own
+            fine = [float(periodic.refined_peaks(periodic.period_stack(arrays, np.array([pats[i]]), kind), SWEEP)[0])
+                    for i in top]
+            win = top[int(np.argmax(fine))]
+            best, witness = hinf_norm_lower(period_system(data, pats[win])), pats[win]
     if witness is None:
         return None, [], len(pats), f"no stable periodic pattern ({skipped} unstable)"
     labels = []
