@@ -8,7 +8,10 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
 ``python -m bench ccl-check [--count N]`` cross-checks the two ccl paths (``bench/ccl_check.py``);
 ``python -m bench methods`` measures which method when (``bench/methods_bench.py``);
-``python -m bench performance`` prints the cost/H-infinity brackets on the paper's motor (``bench/performance_bench.py``).
+``python -m bench performance`` prints the cost/H-infinity brackets on the paper's motor (``bench/performance_bench.py``);
+``python -m bench performance --speed`` times each objective on the IPM, Clarabel and CVXOPT;
+``python -m bench perf-check [--count N]`` cross-checks the performance designs on the IPM against Clarabel
+(``bench/perf_check.py``).
 ``python -m bench speed [--quick]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
 feasible and infeasible families (``bench/speed_bench.py``).
 ``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
@@ -91,6 +94,9 @@ def main(argv=None) -> int:
         from . import startup_bench
 
         return startup_bench.main(argv[1:])
+    if argv and argv[0] == "perf-check":
+        from . import perf_check
+        return perf_check.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

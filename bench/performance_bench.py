@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -50,6 +51,11 @@ def fmt(v, digits=6):
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--speed" in argv:  # the timing table (bench/perf_speed.py)
+        from . import perf_speed
+
+        return perf_speed.main([x for x in argv if x != "--speed"])
     p = argparse.ArgumentParser(prog="python -m bench performance")
     p.add_argument("--n-drop", default="1,2,3,4,5")
     p.add_argument("--repeats", type=int, default=1)

@@ -390,15 +390,20 @@ def _retry_exact(check, *args):
     return again if again.verified and (again.any_margin or not cert.verified) else cert
 
 
-def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prover):
-    Z = _sym(np.asarray(multipliers, dtype=np.float64))
+def stability_adjoint(Z: np.ndarray, free: np.ndarray, coef: np.ndarray, dfree: np.ndarray, dcoef: np.ndarray):
+    """The adjoint of the stability blocks ``L_s(W, Y)`` applied to multipliers, with rounding bounds.
+
+    ``sum_s <Z_s, L_s(W, Y)> = <Q, W> + sum_j <E_j, Y_j>`` with ``Q = sum_s (Z11_s + Z22_s + Z21_s^T free_s
+    + free_s^T Z21_s)`` and ``E_j = 2 sum_s coef_{s,j}^T Z21_s``.
+
+    Returns
+    -------
+    Q, errQ : ndarray, shape (n, n)
+        ``Q`` (symmetrized) and an elementwise bound of ``|computed - exact|`` (exact: from the exact data).
+    E, errE : ndarray, shape (J, m, n)
+    """
     S, n2, _ = Z.shape
     n = n2 // 2
-    J = coef.shape[1]
-    dfree = np.zeros_like(free) if dfree is None else dfree
-    dcoef = np.zeros_like(coef) if dcoef is None else dcoef
-    if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
-        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, decay_rate=decay_rate), -np.inf, prover
     Z11, Z21, Z22 = Z[:, :n, :n], Z[:, n:, :n], Z[:, n:, n:]
     FtZ = np.swapaxes(free, 1, 2) @ Z21  # (S, n, n): free_s^T Z21_s
     Q = np.sum(Z11 + Z22 + FtZ + np.swapaxes(FtZ, 1, 2), axis=0)
@@ -412,6 +417,18 @@ def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prove
     E = 2 * np.einsum("sjab,sac->jbc", coef, Z21)  # (J, m, n)
     errE = 2 * gamma(n + S + 2) * np.einsum("sjab,sac->jbc", np.abs(coef), absZ21)
     errE = errE + 2 * np.einsum("sjab,sac->jbc", dcoef, absZ21)
+    return Q, errQ, E, errE
+
+
+def _farkas_lmi(multipliers, free, coef, dfree, dcoef, decay_rate, margin, prover):
+    Z = _sym(np.asarray(multipliers, dtype=np.float64))
+    S, n2, _ = Z.shape
+    n = n2 // 2
+    dfree = np.zeros_like(free) if dfree is None else dfree
+    dcoef = np.zeros_like(coef) if dcoef is None else dcoef
+    if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(free)) and np.all(np.isfinite(coef))):
+        return FarkasCertificate(Z, 0.0, -np.inf, np.inf, False, decay_rate=decay_rate), -np.inf, prover
+    Q, errQ, E, errE = stability_adjoint(Z, free, coef, dfree, dcoef)
     mu = np.maximum(0.0, -prover.min_lower_many(Z))
     lam_q = prover.max_upper(Q, float(np.linalg.norm(errQ)))
     delta = -lam_q - 2.0 * float(np.sum(mu)) * (1 + 4 * U)

@@ -424,44 +424,67 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 data: list[dict] | None = None, max_length: int = PATTERN_LENGTH, max_count: int | None = None):
     """Worst periodic allowed pattern: ``(value, witness, patterns searched, note)``.
 
-    cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per`` (scipy's
-    ``solve_discrete_lyapunov``): the exact cost of repeating the pattern from the period's start.
-    hinf: the H-infinity norm of the period's lifted LTI system (a sweep: a lower bound by construction).
-    An unstable period gives ``inf`` for the cost (it has a nonzero stage cost) and is skipped for hinf.
+    cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per``: the exact cost of
+    repeating the pattern from the period's start.  hinf: the H-infinity norm of the period's lifted LTI system
+    (a sweep: a lower bound by construction).  An unstable period gives ``inf`` for the cost (it has a nonzero
+    stage cost) and is skipped for hinf.
+
+    Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling, sweeps through
+    Gram matrices; H-infinity patterns whose cheap upper bound cannot beat the best sweep are skipped); the
+    ``REFINED`` best are then re-evaluated one by one (``scipy.linalg.solve_discrete_lyapunov``; sweep plus
+    bounded refinement), and the value reported is the re-evaluated one of the witness.
     """
+    from . import periodic
+
     data = lifted.numeric(gains) if data is None else data
     if max_count is None:
         max_count = MAX_PATTERNS if kind == "cost" else MAX_PATTERNS_HINF
     pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
-    best, witness, note = -np.inf, None, ""
-    skipped = 0
-    coarse = []
-    for seq in pats:
-        sys = period_system(data, seq)
-        rho = float(np.max(np.abs(np.linalg.eigvals(sys["Phi"]))))
+    arrays = periodic.mode_arrays(data)
+    approx = np.full(len(pats), np.nan)  # nan: skipped (unstable hinf, unstable cost-free, or pruned)
+    unstable = np.zeros(len(pats), dtype=bool)
+    systems = []
+    for pos, idx in periodic.group_by_length(pats).values():
+        sys = periodic.period_stack(arrays, idx, kind)
+        rho = periodic.spectral_radius(sys["Phi"])
+        bad = ~(rho < 1)
+        unstable[pos] = bad
         if kind == "cost":
-            if rho >= 1:
-                if np.linalg.norm(sys["L"]) == 0:
-                    continue
-                value = np.inf
-                note = "a periodic pattern is unstable (float64 spectral radius >= 1): its cost is unbounded"
-            else:
+            costly = np.any(sys["S"] != 0, axis=(1, 2))
+            approx[pos[bad & costly]] = np.inf
+            good = ~bad
+            if np.any(good):
+                Pp, done = periodic.stein_doubling(sys["Phi"][good], sys["S"][good])
+                vals = (np.trace(Pp, axis1=1, axis2=2) if x0 is None else np.einsum("i,pij,j->p", x0, Pp, x0))
+                vals[~done] = np.inf  # radius within rounding of 1: re-evaluated exactly below if it matters
+                approx[pos[good]] = vals
+        else:
+            good = ~bad
+            systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+    note, skipped = "", 0
+    if kind == "cost":
+        if np.any(np.isinf(approx) & unstable):
+            first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
+            best, witness = np.inf, pats[first]
+            note = "a periodic pattern is unstable (float64 spectral radius >= 1): its cost is unbounded"
+        else:
+            best, witness = -np.inf, None
+            for i in _top(approx, REFINED):
+                sys = period_system(data, pats[i])
                 Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
                 value = float(np.trace(Pp) if x0 is None else x0 @ Pp @ x0)
-        else:
-            if rho >= 1:
-                skipped += 1
-                continue
-            value = hinf_norm_lower(sys, refine=False)
-            coarse.append((value, seq, sys))
-        if value > best:
-            best, witness = value, seq
-        if value == np.inf:
-            break
-    for value, seq, sys in sorted(coarse, key=lambda item: -item[0])[:REFINED]:
-        fine = hinf_norm_lower(sys)
-        if fine > best:
-            best, witness = fine, seq
+                if value > best:
+                    best, witness = value, pats[i]
+    else:
+        skipped = int(np.sum(unstable))
+        _sweep_pruned(systems, approx)
+        best, witness = -np.inf, None
+        top = _top(approx, REFINED)
+        if top:  # the best coarse patterns refined (golden section), the winner's value re-evaluated on its own
+            fine = [float(periodic.refined_peaks(periodic.period_stack(arrays, np.array([pats[i]]), kind), SWEEP)[0])
+                    for i in top]
+            win = top[int(np.argmax(fine))]
+            best, witness = hinf_norm_lower(period_system(data, pats[win])), pats[win]
     if witness is None:
         return None, [], len(pats), f"no stable periodic pattern ({skipped} unstable)"
     labels = []
@@ -472,6 +495,38 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
     return best, labels, len(pats), note
+
+
+def _top(values: np.ndarray, count: int) -> list[int]:
+    """Positions of the ``count`` largest non-NaN values, largest first (earliest position on ties)."""
+    order = [int(i) for i in np.argsort(-np.nan_to_num(values, nan=-np.inf), kind="stable") if not np.isnan(values[i])]
+    return order[:count]
+
+
+def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
+    """Coarse sweeps (``SWEEP`` points on [0, pi]) into ``coarse``, skipping patterns that cannot win.
+
+    A pattern whose upper bound (:func:`solver.periodic.gain_upper_bounds`) is below the best sweep value
+    already found cannot reach it after refinement either; its entry stays NaN.
+    """
+    from . import periodic
+
+    omega = np.linspace(0.0, np.pi, SWEEP)
+    bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems if pos.size]
+    entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
+                     key=lambda e: -e[0])
+    best, start = -np.inf, 0
+    while start < len(entries) and entries[start][0] > best:
+        batch = []
+        while start < len(entries) and len(batch) < 64 and entries[start][0] > best:
+            batch.append(entries[start])
+            start += 1
+        for g in {e[1] for e in batch}:
+            pos, sys, _ = bounds[g]
+            rows = np.array([e[2] for e in batch if e[1] == g])
+            vals = periodic.sweep_gains({k: v[rows] for k, v in sys.items()}, omega)
+            coarse[pos[rows]] = vals
+            best = max(best, float(np.max(vals)))
 
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,

@@ -213,7 +213,7 @@ class DesignResult:
         if self.certificate is not None:
             cert = self.certificate.to_dict()
             if not include_certificate_matrix:
-                for key in ("P", "X", "multipliers", "left_vector"):
+                for key in ("P", "X", "multipliers", "limit_multipliers", "left_vector"):
                     cert.pop(key, None)
         return {
             "outcome": self.outcome,

@@ -173,7 +173,7 @@ def proof_outcome(proof) -> str:
     uncontrollable unstable mode: no gains at all); "marginal": the Farkas multipliers exclude only
     designs whose relative margin reaches ``proof.margin``.
     """
-    return "marginal" if proof.kind == "farkas" and not proof.any_margin else "infeasible"
+    return "marginal" if proof.kind in ("farkas", "farkas_limits") and not proof.any_margin else "infeasible"
 
 
 def prove_infeasible(modes: ModeSet, method: str, duals: np.ndarray | None, rate: float | None,

@@ -33,7 +33,7 @@ from ..lifting import Lifted, lift_modes
 from ..performance import bracket, check_invariant, check_x0, solve_sdp
 from ..result import DesignResult, IterationRecord
 from . import lmi
-from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish
+from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
 
 #: Extra strictness of the stability blocks of an input-limited design (the ellipsoid shrinks by it).
 STRICT = 1e-5
@@ -263,16 +263,17 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     try:
         info, Wv, Yv, extra = solve(lifted, objective, x0, u_max, rate, options.solver, options.time_limit)
     except SolverFailed as err:
-        return _no_design(lifted, options, clock, objective, f"the {objective} SDP failed ({err})", None)
+        return _no_design(lifted, options, clock, objective, f"the {objective} SDP failed ({err})", None,
+                          x0, u_max)
     clock.setup += info.setup
     clock.add(info)
     record = IterationRecord(0, info.objective, None, False, None, info.solve_time, clock.elapsed)
     if info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP is reported infeasible by "
-                          f"{info.solver} ({info.status})", info)
+                          f"{info.solver} ({info.status})", info, x0, u_max)
     if Wv is None:
         return _no_design(lifted, options, clock, objective,
-                          f"the {objective} SDP ended with status {info.status!r}", info)
+                          f"the {objective} SDP ended with status {info.status!r}", info, x0, u_max)
     kothare = objective == "cost" and u_max is not None
     if objective == "cost" and x0 is not None and u_max is None:
         # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P
@@ -292,7 +293,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         gains = _gains_of(modes, W, Y)
         Winv = np.linalg.inv(W)
     except np.linalg.LinAlgError:
-        return _no_design(lifted, options, clock, objective, "the SDP's W is singular", info)
+        return _no_design(lifted, options, clock, objective, "the SDP's W is singular", info, x0, u_max)
     performance, P0, X0 = None, None, Winv
     if objective == "cost":
         P0 = float(extra["gamma"]) * Winv if kothare else Winv
@@ -338,12 +339,28 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
 
 
 def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objective: str, reason: str,
-               info: SolveInfo | None) -> DesignResult:
-    """No certified design: the plain stability design decides: "infeasible"/"marginal" (proven) or "not_converged".
+               info: SolveInfo | None, x0: np.ndarray | None = None, u_max: np.ndarray | None = None) -> DesignResult:
+    """No certified design: "infeasible"/"marginal" (proven) or "not_converged".
+
+    With input limits and ``x0``, a Farkas certificate of the limits (:mod:`solver.limit_proofs`) decides
+    first; otherwise the plain stability design.
 
     Every objective here asks for a common quadratic Lyapunov function that the plain ``lmi`` design also
     needs (cost with Q > 0 and input limits imply its strict inequality), so its Farkas proof excludes them too.
     """
+    if u_max is not None and x0 is not None:  # the limits themselves may be what no design meets
+        from ..limit_proofs import prove_limits_infeasible
+
+        proof, why_not = prove_limits_infeasible(lifted.modes, u_max, x0, options.decay_rate, options.margin,
+                                                 strict=STRICT if objective == "stability" else None,
+                                                 time_limit=clock.remaining(options.time_limit))
+        if proof is not None:
+            res = finish(lifted.modes, "lmi", proof_outcome(proof), None, proof, None,
+                         clock, "CLARABEL", "" if info is None else info.status, f"{reason}; {proof.statement()}",
+                         [IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)], options)
+            res.objective = objective
+            return res
+        reason = f"{reason}; {why_not}"
     base = lmi.run(lifted.modes, options)
     if base.outcome in ("infeasible", "marginal"):  # each names what its Farkas certificate proves
         base.message = f"{reason}; {base.message}"

@@ -256,12 +256,17 @@ def test_inputs_stay_within_limits_from_the_invariant_set(kwargs):
     assert biggest >= 0.5 * u_max  # the set is not needlessly small: some boundary point uses the limit
 
 
-def test_input_limits_unreachable_x0_is_not_called_infeasible_without_proof():
+def test_input_limits_unreachable_x0_is_infeasible_with_a_proof_of_the_limits():
+    from solver.limit_proofs import check_limits_farkas
+    from solver.network import ModeSet
+
     fam = unstable_family()
     res = design(fam, 3, u_max=[0.1], x0=[100.0, 100.0])
-    assert res.outcome == "not_converged"
-    assert "no certificate" in res.message
-    assert res.invariant_set is None
+    assert res.outcome == "infeasible" and res.certificate.kind == "farkas_limits", res.message
+    assert res.invariant_set is None and res.gains is None
+    again = check_limits_farkas(ModeSet.from_family(fam, 3), res.certificate.multipliers, [0.1], [100.0, 100.0],
+                                res.certificate.decay_rate)
+    assert again.verified and again.any_margin
 
 
 def test_uncontrollable_family_is_infeasible_with_a_proof_for_every_objective():

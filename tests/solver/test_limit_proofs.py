@@ -1,0 +1,120 @@
+"""Input limits no design can meet from x0: a Farkas certificate, re-checked from the plant (issue 17 item 3)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from solver import PlantFamily, design
+from solver.limit_proofs import (LimitMultipliers, check_limits_farkas, limits_multipliers,
+                                 prove_limits_infeasible)
+from solver.network import ModeSet
+
+X0 = np.array([-3.0, 2.0])
+
+
+@pytest.fixture(scope="module")
+def motor():
+    return PlantFamily.paper_example(0.1)
+
+
+@pytest.fixture(scope="module")
+def tight(motor):
+    """The motor at decay rate 0.5 with |u| <= 0.01 from x0 = (-3, 2): no design (the plant is open-loop stable
+    with eigenvalues near 0.67, so only a rate makes the limits bind)."""
+    return design(motor, 3, decay_rate=0.5, u_max=[0.01], x0=X0)
+
+
+def _weighted_sum(modes, mult, W, theta, u_max, x0, rate):
+    """``sum_b <Z_b, F_b(W, Y)>`` from blocks assembled directly from the closed-loop interval matrices."""
+    n = modes.n_states
+    gains = modes.expand(theta)
+    A = modes.closed_loops(gains) * (rate ** -modes.eta.astype(float))[:, None, None]
+    total = 0.0
+    for s in range(modes.n_modes):
+        AW = A[s] @ W
+        L = np.block([[W, AW.T], [AW, W]])
+        total += np.sum(mult.stability[s] * L)
+    for q in range(modes.n_drop):
+        KW = gains[q] @ W  # Y_q = K_q W
+        for j, u in enumerate(u_max):
+            blk = np.block([[np.array([[u ** 2]]), KW[j:j + 1]], [KW[j:j + 1].T, W]])
+            total += np.sum(mult.inputs[q, j] * blk)
+    xb = np.block([[np.ones((1, 1)), x0[None]], [x0[:, None], W]])
+    return total + np.sum(mult.x0 * xb), n
+
+
+def test_tiny_input_limit_is_infeasible_with_a_rechecked_certificate(motor, tight):
+    assert tight.outcome == "infeasible", tight.message
+    cert = tight.certificate
+    assert cert.kind == "farkas_limits" and cert.verified and cert.any_margin
+    assert "no gains with a common quadratic Lyapunov function at decay rate 0.5" in tight.message
+    assert cert.radius > 1e3 * np.linalg.norm(X0)  # excludes ellipsoids far larger than the one x0 needs
+    # the independent re-check, on a ModeSet rebuilt from the plant
+    again = check_limits_farkas(ModeSet.from_family(motor, 3), cert.multipliers, [0.01], X0, 0.5)
+    assert again.verified and again.any_margin and again.constant < 0
+    d = tight.to_dict()["certificate"]
+    assert d["kind"] == "farkas_limits" and d["statement"] == cert.statement()
+
+
+def test_the_multipliers_contradict_every_candidate_design(motor, tight):
+    """The Farkas identity: sum_b <Z_b, F_b(W, Y)> is the same negative number t* for every (W, Y) (the adjoint
+    vanishes), computed here from blocks built out of the closed loops, not from the checker's interval data."""
+    modes = ModeSet.from_family(motor, 3)
+    mult = tight.certificate.multipliers
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        R = rng.standard_normal((2, 2)) * rng.uniform(0.1, 30)
+        W = R @ R.T + 0.1 * np.eye(2)
+        theta = rng.standard_normal((modes.n_free_gains, 1, 2)) * rng.uniform(0.01, 10)
+        value, _ = _weighted_sum(modes, mult, W, theta, [0.01], X0, 0.5)
+        scale = np.linalg.norm(W) * (1 + np.linalg.norm(theta)) ** 2
+        assert value == pytest.approx(mult.t, abs=1e-7 * scale)
+    assert mult.t < 0
+
+
+@pytest.mark.parametrize("part", ["stability", "inputs", "x0", "sign"])
+def test_a_perturbed_certificate_is_rejected(motor, tight, part):
+    """A perturbation breaks the identity: the proof reaches less far (a tiny one) or nowhere (a large one)."""
+    modes = ModeSet.from_family(motor, 3)
+    mult = tight.certificate.multipliers
+    rng = np.random.default_rng(1)
+    if part == "sign":  # the multipliers of the feasible direction: -Z is not PSD
+        assert not check_limits_farkas(modes, LimitMultipliers(-mult.stability, -mult.inputs, -mult.x0), [0.01],
+                                       X0, 0.5).verified
+        # nor do the true multipliers prove anything for limits 10^4 times larger
+        assert not check_limits_farkas(modes, mult, [100.0], X0, 0.5).verified
+        return
+    arr = getattr(mult, part)
+    noise = rng.standard_normal(arr.shape)
+    noise = noise + np.swapaxes(noise, -1, -2)
+    for eps, verdict in ((1e-6, True), (0.1, False)):
+        bad = dataclasses.replace(mult, **{part: arr + eps * np.abs(arr).max() * noise})
+        cert = check_limits_farkas(modes, bad, [0.01], X0, 0.5)
+        assert cert.verified is verdict
+        assert cert.radius < 1e-2 * tight.certificate.radius
+
+
+def test_feasible_limits_are_never_infeasible(motor):
+    res = design(motor, 3, decay_rate=0.5, u_max=[100.0], x0=X0)
+    assert res.outcome == "stabilized"
+    modes = ModeSet.from_family(motor, 3)
+    assert limits_multipliers(modes, [100.0], X0, 0.5) is None  # t* >= 0: nothing to prove
+    proof, reason = prove_limits_infeasible(modes, [100.0], X0, 0.5, strict=1e-5)
+    assert proof is None and "t* < 0" in reason
+    # the plain motor (open-loop stable) meets any limit with small gains: never "infeasible" without a rate
+    assert design(motor, 3, u_max=[1e-3], x0=X0).outcome != "infeasible"
+
+
+def test_cost_design_with_an_unmeetable_limit_is_infeasible():
+    fam = PlantFamily(F=[np.array([[1.3, 0.2], [0.0, 0.8]])], G=[np.array([[1.0], [0.5]])])
+    res = design(fam, 2, objective="cost", u_max=[0.01], x0=[5.0, -4.0])
+    assert res.outcome == "infeasible", res.message
+    assert res.objective == "cost" and res.certificate.kind == "farkas_limits"
+    assert res.certificate.decay_rate is None  # the non-strict class: every common quadratic Lyapunov function
+    ok = check_limits_farkas(ModeSet.from_family(fam, 2), res.certificate.multipliers, [0.01], [5.0, -4.0])
+    assert ok.verified
+    # a generous limit: designed, never called infeasible
+    assert design(fam, 2, objective="cost", u_max=[50.0], x0=[5.0, -4.0]).outcome == "stabilized"

@@ -1,0 +1,114 @@
+"""The batched pattern search (solver/periodic.py) against one-pattern-at-a-time references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from solver import PlantFamily, design
+from solver import periodic
+from solver.lifting import lift_modes
+from solver.network import ModeSet
+from solver.performance import hinf_norm_lower, lower_bound, patterns, period_system
+
+
+@pytest.fixture(scope="module")
+def motor_data():
+    fam = PlantFamily.paper_example(0.1)
+    modes = ModeSet.from_family(fam, 3, plant_switching="per_sample")  # channels of different widths
+    gains = design(fam, 3, plant_switching="per_sample").gains
+    cost = lift_modes(modes, None, None, None, cost=True)
+    # two disturbances, one output: the sweep's Gram matrix is taken on the output side (fewer rows)
+    hinf = lift_modes(modes, None, np.eye(2), (np.array([[1.0, 0.0]]), None), cost=False)
+    return cost, hinf, gains
+
+
+def test_stein_doubling_matches_scipy_even_near_the_unit_circle():
+    rng = np.random.default_rng(3)
+    Phi, S = [], []
+    for radius in (0.1, 0.9, 0.999, 0.99999):
+        A = rng.standard_normal((4, 4))
+        Phi.append(A * radius / np.max(np.abs(np.linalg.eigvals(A))))
+        L = rng.standard_normal((3, 4))
+        S.append(L.T @ L)
+    P, done = periodic.stein_doubling(np.array(Phi), np.array(S))
+    assert done.all()
+    for i in range(4):
+        ref = scipy.linalg.solve_discrete_lyapunov(Phi[i].T, S[i])
+        np.testing.assert_allclose(P[i], ref, rtol=1e-7 if i == 3 else 1e-10, atol=0)
+
+
+def test_period_stacks_are_the_one_pattern_systems(motor_data):
+    cost, hinf, gains = motor_data
+    for lifted, kind in ((cost, "cost"), (hinf, "hinf")):
+        data = lifted.numeric(gains)
+        arrays = periodic.mode_arrays(data)
+        pats = patterns(len(data), 3, 60)
+        for pos, idx in periodic.group_by_length(pats).values():
+            stack = periodic.period_stack(arrays, idx, kind)
+            for row, p in enumerate(pos):
+                ref = period_system(data, pats[p])
+                np.testing.assert_allclose(stack["Phi"][row], ref["Phi"], atol=1e-14)
+                if kind == "cost":
+                    np.testing.assert_allclose(stack["S"][row], ref["L"].T @ ref["L"], rtol=1e-12, atol=1e-12)
+                else:  # zero-padded channels: the same singular values at every frequency
+                    sys = {k: v[row] for k, v in stack.items()}
+                    for w in (0.0, 0.7, np.pi):
+                        z = np.exp(1j * w) * np.eye(2)
+                        H = sys["D"] + sys["C"] @ np.linalg.solve(z - sys["Phi"], sys["B"])
+                        Href = ref["D"] + ref["C"] @ np.linalg.solve(z - ref["Phi"], ref["B"])
+                        sv, sv_ref = np.linalg.svd(H, compute_uv=False), np.linalg.svd(Href, compute_uv=False)
+                        np.testing.assert_allclose(sv[:sv_ref.size], sv_ref, rtol=1e-12, atol=1e-14)
+                        assert np.all(sv[sv_ref.size:] <= 1e-14 * sv_ref[0])
+
+
+def test_sweeps_and_refinement_match_the_one_pattern_sweep(motor_data):
+    _, hinf, gains = motor_data
+    data = hinf.numeric(gains)
+    arrays = periodic.mode_arrays(data)
+    pats = patterns(len(data), 2, 80, rotations=False)
+    omega = np.linspace(0.0, np.pi, 97)
+    for pos, idx in periodic.group_by_length(pats).values():
+        stack = periodic.period_stack(arrays, idx, "hinf")
+        coarse = periodic.sweep_gains(stack, omega)
+        for row, p in enumerate(pos):
+            ref = period_system(data, pats[p])
+            assert coarse[row] == pytest.approx(hinf_norm_lower(ref, refine=False), rel=1e-12)
+        for row in range(min(3, len(pos))):
+            one = {k: v[row:row + 1] for k, v in stack.items()}
+            fine = periodic.refined_peaks(one, 97)[0]
+            assert coarse[row] <= fine * (1 + 1e-12)
+            assert fine == pytest.approx(hinf_norm_lower(period_system(data, pats[pos[row]])), rel=1e-9)
+
+
+def test_the_cheap_gain_bound_is_an_upper_bound(motor_data):
+    _, hinf, gains = motor_data
+    data = hinf.numeric(gains)
+    pats = patterns(len(data), 2, 60, rotations=False)
+    arrays = periodic.mode_arrays(data)
+    for pos, idx in periodic.group_by_length(pats).values():
+        stack = periodic.period_stack(arrays, idx, "hinf")
+        fine = np.array([hinf_norm_lower(period_system(data, pats[p])) for p in pos])
+        assert np.all(periodic.gain_upper_bounds(stack) >= fine)
+
+
+@pytest.mark.parametrize("kind", ["cost", "hinf"])
+def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
+    cost, hinf, gains = motor_data
+    lifted = cost if kind == "cost" else hinf
+    value, witness, count, _ = lower_bound(lifted, gains, kind)
+    data = lifted.numeric(gains)
+    pats = patterns(len(data), 3, 4000 if kind == "cost" else 500, rotations=kind == "cost")
+    labels = {}
+    for seq in pats:  # every pattern's exact value, one at a time: the batched search found the worst
+        sys = period_system(data, seq)
+        if np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) >= 1:
+            continue
+        if kind == "cost":
+            v = float(np.trace(scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])))
+        else:
+            v = hinf_norm_lower(sys, refine=False)
+        labels[seq] = v
+    assert count == len(pats)
+    assert value >= max(labels.values()) * (1 - 1e-12)
