@@ -50,10 +50,13 @@ class JobWatch:
         (the dispatcher's finishing write returns it), handed to the waiters."""
         self.finished_many([(job_id, record)])
 
-    def finished_many(self, ended: list[tuple[str, Any]]) -> None:
+    def finished_many(self, ended: list[tuple[str, Any]],
+                      also: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = ()) -> None:
         """:meth:`finished` for several jobs: one wake-up per event loop, not one per waiter (waking a loop
-        from another thread is a system call that, under load, costs more than the rest of the hand-over)."""
-        answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = []
+        from another thread is a system call that, under load, costs more than the rest of the hand-over).
+        ``also``: more answers for :func:`resolve_from_thread` (the dispatcher's answers to the submissions it
+        wrote in the same transaction), delivered with the same wake-up."""
+        answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = list(also)
         with self._lock:
             for job_id, record in ended:
                 for loop, fut in self._waiters.pop(job_id, ()):
