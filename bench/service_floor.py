@@ -2,17 +2,20 @@
 
 In one run:
 
-1. **the floor**: N processes (N = the service's worker count, one per CPU by default), each running
-   ``solver.design()`` of the benchmark's request in a loop for ``--seconds`` (one BLAS thread, the family
-   built once, as a warm worker has it); designs/s = all designs / wall time. ``run_design`` (what a worker
-   runs for a job: the request validated, the result as JSON) is measured the same way and printed beside it;
+1. **the floor**: N warm processes (N = the service's worker count, one per CPU by default), each running
+   ``solver.design()`` of the benchmark's request in a loop (one BLAS thread, the family built once, as a
+   warm worker has it), in bursts of ``--seconds`` right before and after every service run; a row's floor
+   is the mean of its two bursts (designs/s over all processes), so the floor and the service see the same
+   machine. ``run_design`` (the worker's whole job: the request validated, the result as JSON) is measured
+   once at the start;
 2. per database (a fresh SQLite file; a throw-away PostgreSQL database when ``--pg-url`` is reachable):
    ``ncs-design serve`` on a free loopback port, driven by ``wrk`` (its own process, one thread) at 1, 4, 16
    and 64 connections for ``--seconds`` each. Every request is ``POST /v1/designs`` with ``Prefer: wait=30``;
    wrk's Lua script counts the answers that are not 2xx and the 2xx answers whose job is not ``succeeded``
    (both printed; a run with either is flagged). Printed per row: designs/s (succeeded answers / wall time),
-   its ratio to the floor, p50 / p99 latency (wrk's), and CPU milliseconds per design of the service process,
-   its workers and wrk (psutil / rusage over the run).
+   the floor and the ratio, p50 / p99 latency (wrk's), CPU milliseconds per design of the service's event
+   loop (main thread) and its other threads, its workers, wrk and the PostgreSQL server processes (psutil,
+   rusage), and the CPU-bound ratio: the floor's CPU per design over that sum.
 
 The request is the plain stability design of the paper example (``method = "lmi"``, ``n_drop = 3``,
 ``decay_rate = null``: one SDP), the one ``bench/service_bench.py`` measures; ``--request auto`` takes the
@@ -51,8 +54,8 @@ def request_body(kind: str) -> dict:
 
 # -- the floor -------------------------------------------------------------------------
 FLOOR_CHILD = textwrap.dedent("""
-    import json, os, sys, time
-    req = json.loads(sys.argv[1]); seconds = float(sys.argv[2]); what = sys.argv[3]; start_at = float(sys.argv[4])
+    import json, sys, time
+    req = json.loads(sys.argv[1]); what = sys.argv[2]
     from solver import design
     from app.compute.requests import DesignRequest
     from app.compute.tasks import build_family, design_options, run_design
@@ -62,28 +65,48 @@ FLOOR_CHILD = textwrap.dedent("""
     one = (lambda: design(fam, **kwargs)) if what == "design" else (lambda: run_design(req))
     for _ in range(20):
         one()
-    while time.time() < start_at:
-        time.sleep(0.005)
-    t0, c0, n = time.perf_counter(), time.process_time(), 0
-    while time.perf_counter() - t0 < seconds:
-        one(); n += 1
-    print(json.dumps({"n": n, "wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}))
+    print("ready", flush=True)
+    for line in sys.stdin:  # "<start at (time.time())> <seconds>": one burst
+        start_at, seconds = map(float, line.split())
+        while time.time() < start_at:
+            time.sleep(0.002)
+        t0, c0, n = time.perf_counter(), time.process_time(), 0
+        while time.perf_counter() - t0 < seconds:
+            one(); n += 1
+        print(json.dumps({"n": n, "wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}), flush=True)
 """)
 
 
-def floor(req: dict, processes: int, seconds: float, what: str = "design") -> dict:
-    """``processes`` processes running ``what`` (``design`` or ``run_design``) of ``req`` in a loop at the same
-    time: designs/s over all of them and CPU ms per design."""
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-           "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
-    start_at = time.time() + 8.0  # all start together, after their imports and warm-up
-    procs = [subprocess.Popen([sys.executable, "-c", FLOOR_CHILD, json.dumps(req), str(seconds), what,
-                               str(start_at)], stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
-             for _ in range(processes)]
-    outs = [json.loads(p.communicate()[0]) for p in procs]
-    n = sum(o["n"] for o in outs)
-    wall = max(o["wall"] for o in outs)
-    return {"rate": n / wall, "cpu_ms": sum(o["cpu"] for o in outs) / n * 1e3, "n": n}
+class Floor:
+    """``processes`` warm processes running ``what`` (``design``: ``solver.design()``; ``run_design``: the
+    worker's whole job) of the request in a loop, in bursts on demand, all at once: the floor is measured
+    right before and after every service run, so both see the same machine (the other load of a shared
+    machine changes by the minute)."""
+
+    def __init__(self, req: dict, processes: int, what: str = "design"):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+               "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+        self.procs = [subprocess.Popen([sys.executable, "-c", FLOOR_CHILD, json.dumps(req), what],
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
+                      for _ in range(processes)]
+        for p in self.procs:
+            if p.stdout.readline().strip() != "ready":
+                raise RuntimeError("a floor process did not start")
+
+    def burst(self, seconds: float) -> dict:
+        """designs/s over all processes and CPU ms per design, of one burst of ``seconds``."""
+        start_at = time.time() + 0.2
+        for p in self.procs:
+            p.stdin.write(f"{start_at} {seconds}\n")
+            p.stdin.flush()
+        outs = [json.loads(p.stdout.readline()) for p in self.procs]
+        n = sum(o["n"] for o in outs)
+        return {"rate": n / max(o["wall"] for o in outs), "cpu_ms": sum(o["cpu"] for o in outs) / n * 1e3, "n": n}
+
+    def close(self) -> None:
+        for p in self.procs:
+            p.stdin.close()
+            p.wait(10)
 
 
 # -- wrk -----------------------------------------------------------------------------------
@@ -130,23 +153,33 @@ def run_wrk(base: str, body_path: Path, lua_path: Path, connections: int, second
     return json.loads(match.group(1)), cpu
 
 
-def tree_cpu(pid: int) -> tuple[float, float]:
-    """CPU seconds (user + system) of the service process and of its child processes (the workers)."""
+def cpu_split(pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) so far: the service's event loop (its main thread), its other threads
+    (dispatcher, thread pool, job watch), its child processes (the workers) and every PostgreSQL server
+    process of the machine (the database's share of the work; 0 on SQLite)."""
     import psutil
 
     proc = psutil.Process(pid)
-    t = proc.cpu_times()
+    threads = {t.id: t.user_time + t.system_time for t in proc.threads()}
+    main = threads.pop(pid, 0.0)
     kids = 0.0
     for c in proc.children(recursive=True):
         try:
-            ct = c.cpu_times()
-            kids += ct.user + ct.system
+            kids += sum(c.cpu_times()[:2])
         except psutil.Error:
             pass
-    return t.user + t.system, kids
+    pg = 0.0
+    for q in psutil.process_iter(["name"]):
+        if (q.info["name"] or "").startswith("postgres"):
+            try:
+                pg += sum(q.cpu_times()[:2])
+            except psutil.Error:
+                pass
+    return {"loop": main, "threads": sum(threads.values()), "workers": kids, "postgres": pg}
 
 
-def measure(label: str, url: str, body: dict, a, floor_rate: float, tmp: Path) -> list[dict]:
+def measure(label: str, url: str, body: dict, a, floor: Floor, tmp: Path) -> list[dict]:
+    """One server on ``url``, wrk at every client count, each run bracketed by floor bursts."""
     from bench.harness import Server
     from bench.service_bench import sequential
 
@@ -159,38 +192,46 @@ def measure(label: str, url: str, body: dict, a, floor_rate: float, tmp: Path) -
     try:
         server.wait_ready(120)
         sequential(server.base, json.dumps(body).encode(), 10)  # warm: every worker has designed it
+        before = floor.burst(a.seconds)
         for clients in a.clients:
-            cpu0 = tree_cpu(server.proc.pid)
+            cpu0 = cpu_split(server.proc.pid)
             res, wrk_cpu = run_wrk(server.base, body_path, lua_path, clients, a.seconds)
-            cpu1 = tree_cpu(server.proc.pid)
+            cpu1 = cpu_split(server.proc.pid)
+            after = floor.burst(a.seconds)
+            floor_rate = (before["rate"] + after["rate"]) / 2
+            floor_cpu = (before["cpu_ms"] + after["cpu_ms"]) / 2
             n = max(1, res["succeeded"])
             rate = res["succeeded"] / (res["duration_us"] / 1e6)
-            rows.append({"db": label, "clients": clients, "rate": rate, "ratio": rate / floor_rate,
+            ms = {k: (cpu1[k] - cpu0[k]) / n * 1e3 for k in cpu0}
+            ms["wrk"] = wrk_cpu / n * 1e3
+            total = sum(ms.values())
+            rows.append({"db": label, "clients": clients, "rate": rate, "floor": floor_rate, "ratio": rate / floor_rate,
+                         "floor_cpu": floor_cpu, "cpu_ratio": floor_cpu / total, "total_ms": total, **ms,
                          "p50": res["p50_us"] / 1e3, "p99": res["p99_us"] / 1e3,
-                         "service_ms": (cpu1[0] - cpu0[0]) / n * 1e3, "workers_ms": (cpu1[1] - cpu0[1]) / n * 1e3,
-                         "wrk_ms": wrk_cpu / n * 1e3, "bad": res["non2xx"] + res["not_succeeded"],
                          "non2xx": res["non2xx"], "not_succeeded": res["not_succeeded"],
-                         "socket_errors": res["socket_errors"], "jobs": res["succeeded"],
-                         "load": os.getloadavg()[0]})
-            print(f"  {label}, {clients} clients: {rate:.1f} designs/s ({rows[-1]['ratio']:.2f} of the floor), "
-                  f"non-2xx {res['non2xx']}, not succeeded {res['not_succeeded']}", flush=True)
+                         "socket_errors": res["socket_errors"], "jobs": res["succeeded"], "load": os.getloadavg()[0]})
+            print(f"  {label}, {clients} clients: {rate:.1f} designs/s, floor {floor_rate:.1f}/s "
+                  f"({rows[-1]['ratio']:.2f}); {total:.1f} ms CPU per design against the floor's {floor_cpu:.2f}; "
+                  f"non-2xx {res['non2xx']}, not succeeded {res['not_succeeded']}, load {rows[-1]['load']:.1f}",
+                  flush=True)
+            before = after
     finally:
         server.stop()
     return rows
 
 
-def table(rows: list[dict], floor_rate: float, target: float) -> str:
-    head = ("| clients | designs/s | / floor | p50 / p99 latency | CPU per design: service / workers / wrk "
-            "| not 2xx / not succeeded |")
-    out = [head, "|---|---|---|---|---|---|"]
+def table(rows: list[dict], target: float) -> str:
+    out = ["| clients | designs/s | floor designs/s | / floor | CPU-bound / floor | p50 / p99 latency "
+           "| CPU ms per design: event loop + other threads / workers / wrk / PostgreSQL | not 2xx / not succeeded |",
+           "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r['clients']} | {r['rate']:.1f} | {r['ratio']:.2f} | {r['p50']:.1f} / {r['p99']:.1f} ms "
-                   f"| {r['service_ms']:.2f} / {r['workers_ms']:.2f} / {r['wrk_ms']:.2f} ms "
-                   f"| {r['non2xx']} / {r['not_succeeded']} |")
+        out.append(f"| {r['clients']} | {r['rate']:.1f} | {r['floor']:.1f} | {r['ratio']:.2f} | {r['cpu_ratio']:.2f} "
+                   f"| {r['p50']:.1f} / {r['p99']:.1f} ms | {r['loop']:.2f} + {r['threads']:.2f} / {r['workers']:.2f} "
+                   f"/ {r['wrk']:.2f} / {r['postgres']:.2f} | {r['non2xx']} / {r['not_succeeded']} |")
     rates = [r["rate"] for r in rows]
     monotonic = all(b >= a * 0.97 for a, b in zip(rates, rates[1:]))  # within 3 %: the noise of a shared machine
     at16 = next((r["ratio"] for r in rows if r["clients"] == 16), None)
-    verdict = [f"monotonic in clients (within 3 %): {'yes' if monotonic else 'NO'}"]
+    verdict = [f"designs/s monotonic in clients (within 3 %): {'yes' if monotonic else 'NO'}"]
     if at16 is not None:
         verdict.append(f"16 clients: {at16:.2f} of the floor (target >= {target:g}): "
                        f"{'met' if at16 >= target else 'NOT met'}")
@@ -205,7 +246,7 @@ def main(argv=None) -> int:
     p.add_argument("--pg-url", default=os.environ.get("NCS_BENCH_PG_URL", DEFAULT_PG))
     p.add_argument("--workers", type=int, default=None, help="NCS_WORKERS (default: the service's, one per CPU)")
     p.add_argument("--clients", default=",".join(map(str, CLIENTS)), help="wrk connections, comma-separated")
-    p.add_argument("--seconds", type=float, default=10.0, help="length of each wrk run and of the floor")
+    p.add_argument("--seconds", type=float, default=10.0, help="length of each wrk run and of each floor burst")
     p.add_argument("--request", choices=["plain", "auto"], default="plain",
                    help="plain: decay_rate null (one SDP, default); auto: the default design")
     a = p.parse_args(argv)
@@ -222,10 +263,10 @@ def main(argv=None) -> int:
     print(f"service vs floor: commit {rev}, {os.cpu_count()} cpus, {workers} workers, load average "
           f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; request: paper example, lmi, n_drop = 3, "
           f"decay_rate {'null' if a.request == 'plain' else 'auto'}", flush=True)
-    fl = floor(body, workers, a.seconds)
-    fr = floor(body, workers, a.seconds, "run_design")
-    print(f"floor: {workers} processes of design(): {fl['rate']:.1f} designs/s ({fl['cpu_ms']:.2f} ms CPU per "
-          f"design); of run_design() (the worker's job): {fr['rate']:.1f}/s ({fr['cpu_ms']:.2f} ms)", flush=True)
+    job = Floor(body, workers, "run_design")
+    fr = job.burst(a.seconds)
+    job.close()
+    floor = Floor(body, workers)
     tmp = Path(tempfile.mkdtemp(prefix="ncs-service-floor-"))
     dbs: list[tuple[str, str, object]] = []
     if a.db in ("sqlite", "both"):
@@ -241,18 +282,22 @@ def main(argv=None) -> int:
     results = []
     try:
         for label, url, _ in dbs:
-            results.append((label, measure(label, url, body, a, fl["rate"], tmp)))
+            results.append((label, measure(label, url, body, a, floor, tmp)))
     finally:
+        floor.close()
         for _, _, pg in dbs:
             if pg is not None:
                 pg.drop()
     load = os.getloadavg()
+    print(f"\nfloor: {workers} processes of design() in a loop, measured right before and after every row (the "
+          f"mean); the worker's whole job, run_design(), {fr['cpu_ms']:.2f} ms CPU per design at the start. "
+          f"CPU-bound / floor: design()'s CPU per design over the sum of the row's CPU per design (what the "
+          f"ratio is when the CPU is all that limits it).")
     for label, rows in results:
-        print(f"\n{label} (floor {fl['rate']:.1f} designs/s; design() {fl['cpu_ms']:.2f} ms CPU, run_design() "
-              f"{fr['cpu_ms']:.2f} ms):\n")
-        print(table(rows, fl["rate"], TARGETS[label]))
+        print(f"\n{label}:\n")
+        print(table(rows, TARGETS[label]))
     print(f"\n(load average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f})")
-    bad = sum(r["bad"] + r["socket_errors"] for _, rows in results for r in rows)
+    bad = sum(r["non2xx"] + r["not_succeeded"] + r["socket_errors"] for _, rows in results for r in rows)
     if bad:
         print(f"WARNING: {bad} answers were not 2xx + succeeded, or failed on the socket")
     return 1 if bad else 0
