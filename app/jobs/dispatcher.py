@@ -204,6 +204,14 @@ class Dispatcher:
     def ready_workers(self) -> int:
         return self.executor.ready_workers()
 
+    def holds(self, job_ids: list[str]) -> set[str]:
+        """Those of ``job_ids`` this dispatcher runs or is recording the end of: it will call ``on_finished``
+        for each (from any thread; empty once its thread has ended)."""
+        if not self.thread_alive():
+            return set()
+        running, pending = self.running, self.pending
+        return {i for i in job_ids if i in running or i in pending}
+
     def worker_pid(self, job_id: str) -> int | None:
         """The pid of the worker process running the job, once known (tests and fault scripts kill it)."""
         running = self.running.get(job_id)

@@ -100,3 +100,38 @@ def test_postgres_pings_only_idle_connections_and_survives_a_dead_one(db_url, mo
     finally:
         db.dispose()
 
+
+
+def test_job_watch_asks_the_database_only_about_jobs_its_dispatcher_does_not_hold():
+    import asyncio
+    import threading
+
+    from app.jobs.watch import JobWatch
+
+    asked: list[list[str]] = []
+    finished_elsewhere: set[str] = set()
+    held = {"mine"}
+
+    def finished_among(ids):
+        asked.append(list(ids))
+        return [i for i in ids if i in finished_elsewhere]
+
+    watch = JobWatch(finished_among, poll_interval=0.01, held=lambda ids: [i for i in ids if i in held])
+
+    async def scenario():
+        mine = asyncio.ensure_future(watch.wait("mine", 5.0))
+        other = asyncio.ensure_future(watch.wait("other", 5.0))
+        await asyncio.sleep(0.1)
+        assert asked and all(ids == ["other"] for ids in asked)  # "mine" is never asked about
+        finished_elsewhere.add("other")  # another replica finished it: the reader finds it
+        assert await asyncio.wait_for(other, 2.0) == (True, None)
+        assert not mine.done()
+        threading.Thread(target=watch.finished, args=("mine", {"status": "succeeded"})).start()  # the dispatcher
+        assert await asyncio.wait_for(mine, 2.0) == (True, {"status": "succeeded"})
+        held.clear()  # a dispatcher whose thread ended holds nothing: its jobs are asked about again
+        late = asyncio.ensure_future(watch.wait("late", 5.0))
+        await asyncio.sleep(0.1)
+        assert ["late"] in asked
+        late.cancel()
+
+    asyncio.run(scenario())
