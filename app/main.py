@@ -127,8 +127,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.trace_cache = LRU(128)
-    # Jobs other replicas finish are found by one batched read for all waiters (app.jobs.watch).
-    app.state.job_watch = JobWatch(lambda ids: store.finished_among(app.state.db, ids))
+    # Jobs other replicas finish are found by one batched read for all waiters (app.jobs.watch); the jobs this
+    # process's dispatcher holds are left out of it: it tells their waiters itself.
+    app.state.job_watch = JobWatch(
+        lambda ids: store.finished_among(app.state.db, ids),
+        held=lambda ids: app.state.dispatcher.holds(ids) if getattr(app.state, "dispatcher", None) else ())
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
     app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",

@@ -2,7 +2,8 @@
 
 ``python -m bench service [options]`` runs the service benchmark instead
 (``bench/service_bench.py``: the real server over HTTP, SQLite and PostgreSQL;
-``python -m bench service --help``).  ``python -m bench ipm [--grid]`` compares the
+``python -m bench service --help``); ``python -m bench service-floor`` drives it with wrk at 1, 4, 16, 64
+clients against the in-process floor (``bench/service_floor.py``).  ``python -m bench ipm [--grid]`` compares the
 structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py``);
 ``python -m bench ipm-check [--count N]`` cross-checks it against Clarabel (``bench/ipm_check.py``);
 ``python -m bench ccl`` times the ccl design on the IPM vs Clarabel (``bench/ccl_bench.py``) and
@@ -66,6 +67,10 @@ def main(argv=None) -> int:
         from . import service_bench
 
         return service_bench.main(argv[1:])
+    if argv and argv[0] == "service-floor":
+        from . import service_floor
+
+        return service_floor.main(argv[1:])
     if argv and argv[0] == "ipm":
         from . import ipm_bench
 

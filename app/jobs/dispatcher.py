@@ -37,7 +37,7 @@ from app.compute.messages import Begun, Cancelled, ExecutorEvent, Failed, Lost, 
 from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
-from app.jobs.model import JobRecord, Status
+from app.jobs.model import Status
 from app.jobs.watch import resolve_from_thread
 from app.settings import Settings
 
@@ -71,13 +71,15 @@ class _Running:
 
 class Dispatcher:
     def __init__(self, db: Database, settings: Settings, executor: Executor,
-                 on_finished: Callable[[list[tuple[str, JobRecord | None]]], None] | None = None):
+                 on_finished: Callable[..., None] | None = None):
         self.db = db
         self.settings = settings
         self.executor = executor
         # Told the jobs this dispatcher finished, once their ends are recorded (Prefer: wait): a list of
-        # their ids and the jobs as the finishing write left them (None when this dispatcher no longer held it).
-        self.on_finished = on_finished or (lambda ended: None)
+        # their ids and the jobs as the finishing write left them (None when this dispatcher no longer held it),
+        # and (``also``) the answers to the submissions written in the same transaction, to resolve with the
+        # same wake-up of the event loop (:meth:`app.jobs.watch.JobWatch.finished_many`).
+        self.on_finished = on_finished or (lambda ended, also=(): resolve_from_thread(list(also)))
         self.owner = f"{os.uname().nodename[:20]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.running: dict[str, _Running] = {}
         # Finished jobs whose end is not written yet: written at the end of the tick that saw them end, in
@@ -100,6 +102,7 @@ class Dispatcher:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
+        self._wake_pending = False  # a byte is in the wake pipe, not yet read by the dispatcher
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._last_heartbeat = 0.0
@@ -173,6 +176,13 @@ class Dispatcher:
         self._wake()
 
     def _wake(self) -> None:
+        # One byte per sleep, not one per caller: under load every submission calls this, and the write is a
+        # system call on the event loop's thread (that releases and retakes the GIL). A caller that finds a
+        # byte already on its way needs none: the dispatcher clears the flag before it empties the pipe, so
+        # whatever that caller handed over before looking is seen by the tick that follows.
+        if self._wake_pending:
+            return
+        self._wake_pending = True
         try:
             os.write(self._wake_w, b"x")
         except (BlockingIOError, OSError):
@@ -193,6 +203,14 @@ class Dispatcher:
 
     def ready_workers(self) -> int:
         return self.executor.ready_workers()
+
+    def holds(self, job_ids: list[str]) -> set[str]:
+        """Those of ``job_ids`` this dispatcher runs or is recording the end of: it will call ``on_finished``
+        for each (from any thread; empty once its thread has ended)."""
+        if not self.thread_alive():
+            return set()
+        running, pending = self.running, self.pending
+        return {i for i in job_ids if i in running or i in pending}
 
     def worker_pid(self, job_id: str) -> int | None:
         """The pid of the worker process running the job, once known (tests and fault scripts kill it)."""
@@ -253,6 +271,7 @@ class Dispatcher:
         except OSError:
             ready = []
         if self._wake_r in ready:
+            self._wake_pending = False
             try:
                 while os.read(self._wake_r, 4096):
                     pass
@@ -329,11 +348,13 @@ class Dispatcher:
                 self._retry_or_fail(job.id, f"could not start the job: {type(exc).__name__}")
                 continue
             self.running[job.id] = _Running(job.id, handle, slot.pid, job.request)
-        resolve_from_thread([(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)])
+        answered = [(loop, fut, answer) for (_, loop, fut), answer in zip(subs, answers)]
         for end in endings:
             del self.pending[end.job_id]
-        if endings:
-            self.on_finished([(end.job_id, record) for end, record in zip(endings, ended)])
+        if endings:  # one wake-up of the event loop for the submitters and the waiters of the ended jobs
+            self.on_finished([(end.job_id, record) for end, record in zip(endings, ended)], answered)
+        else:
+            resolve_from_thread(answered)
 
     def _retry_or_fail(self, job_id: str, reason: str) -> None:
         self.running.pop(job_id, None)
@@ -464,8 +485,7 @@ class Dispatcher:
         self.executor.shutdown()
 
 
-def make_dispatcher(db: Database, settings: Settings,
-                    on_finished: Callable[[list[tuple[str, JobRecord | None]]], None] | None = None) -> Dispatcher:
+def make_dispatcher(db: Database, settings: Settings, on_finished: Callable[..., None] | None = None) -> Dispatcher:
     """The dispatcher on the local process pool, or on Dask when ``NCS_DASK_SCHEDULER`` is set."""
     executor: Executor
     if settings.dask_scheduler:

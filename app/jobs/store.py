@@ -67,15 +67,17 @@ _CLAIM_ONE = (
 
 # -- fair claims: one turn per owner with queued work -------------------------------------------------------
 # The owners with queued jobs, found by a skip scan of ix_jobs_status_owner_created: one index seek per owner,
-# whatever the length of the queue (a GROUP BY would read every queued row).
+# whatever the length of the queue (a GROUP BY would read every queued row); and a last row NULL when jobs
+# without an owner are queued (one more index seek). One statement: on PostgreSQL each is a round trip.
 _QUEUED_OWNERS = text(
     "WITH RECURSIVE o(owner) AS ("
     " SELECT (SELECT owner FROM jobs WHERE status = 'queued' AND owner IS NOT NULL ORDER BY owner LIMIT 1)"
     " UNION ALL"
     " SELECT (SELECT j.owner FROM jobs j WHERE j.status = 'queued' AND j.owner > o.owner ORDER BY j.owner LIMIT 1)"
     " FROM o WHERE o.owner IS NOT NULL)"
-    " SELECT owner FROM o WHERE owner IS NOT NULL")
-_HAS_QUEUED_UNOWNED = select(_C.id).where(_C.status == _QUEUED, _C.owner.is_(None)).limit(1)
+    " SELECT owner FROM o WHERE owner IS NOT NULL"
+    " UNION ALL"
+    " SELECT NULL WHERE EXISTS (SELECT 1 FROM jobs WHERE status = 'queued' AND owner IS NULL)")
 _OLDEST_OF_OWNER = (select(_C.id).where(_C.status == _QUEUED, _C.owner == bindparam("b_qowner"))
                     .order_by(_C.created_at, _C.id).limit(bindparam("b_n")).with_for_update(skip_locked=True))
 _OLDEST_UNOWNED = (select(_C.id).where(_C.status == _QUEUED, _C.owner.is_(None))
@@ -117,9 +119,7 @@ def _fair_pick(c: Connection, n: int, policy: ClaimPolicy) -> list[str]:
     """The ids of up to ``n`` queued jobs, one per owner in turn (see :class:`OwnerTurns`), each owner's
     oldest first, skipping owners at their running cap. Rows locked (SKIP LOCKED) until the commit."""
     turns = policy.turns or OwnerTurns()
-    owners: list[str | None] = [r[0] for r in c.execute(_QUEUED_OWNERS)]
-    if c.execute(_HAS_QUEUED_UNOWNED).first() is not None:
-        owners.append(None)
+    owners: list[str | None] = [r[0] for r in c.execute(_QUEUED_OWNERS)]  # None last, if any
     room = {o: n for o in owners}
     if policy.max_running_per_owner is not None and owners:
         running = {o: k for o, k in c.execute(_RUNNING_PER_OWNER)}

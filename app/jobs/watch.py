@@ -33,10 +33,13 @@ class JobWatch:
     RECENT_RECORDS = 256
 
     def __init__(self, finished_among: Callable[[list[str]], Iterable[str]] | None = None,
-                 poll_interval: float = 0.05):
+                 poll_interval: float = 0.05, held: Callable[[list[str]], Iterable[str]] | None = None):
         """``finished_among(ids)`` returns those of ``ids`` that are finished (or gone); without it only this
-        process's dispatcher wakes waiters."""
+        process's dispatcher wakes waiters. ``held(ids)``: those of ``ids`` this process's dispatcher runs or is
+        recording the end of; it tells their waiters itself, so they are not asked about (a client waiting
+        for its job on the replica that runs it costs no query)."""
         self.finished_among = finished_among
+        self.held = held
         self.poll_interval = poll_interval
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Future]]] = {}
         self._recent: OrderedDict[str, None] = OrderedDict()
@@ -50,10 +53,13 @@ class JobWatch:
         (the dispatcher's finishing write returns it), handed to the waiters."""
         self.finished_many([(job_id, record)])
 
-    def finished_many(self, ended: list[tuple[str, Any]]) -> None:
+    def finished_many(self, ended: list[tuple[str, Any]],
+                      also: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = ()) -> None:
         """:meth:`finished` for several jobs: one wake-up per event loop, not one per waiter (waking a loop
-        from another thread is a system call that, under load, costs more than the rest of the hand-over)."""
-        answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = []
+        from another thread is a system call that, under load, costs more than the rest of the hand-over).
+        ``also``: more answers for :func:`resolve_from_thread` (the dispatcher's answers to the submissions it
+        wrote in the same transaction), delivered with the same wake-up."""
+        answers: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, Any]] = list(also)
         with self._lock:
             for job_id, record in ended:
                 for loop, fut in self._waiters.pop(job_id, ()):
@@ -108,6 +114,9 @@ class JobWatch:
                     self._someone_waits.clear()
                     continue
             time.sleep(self.poll_interval)
+            if self.held is not None:
+                mine = set(self.held(ids))
+                ids = [i for i in ids if i not in mine]
             for start in range(0, len(ids), POLL_BATCH):
                 try:
                     done = list(self.finished_among(ids[start:start + POLL_BATCH]))
