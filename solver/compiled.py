@@ -123,7 +123,8 @@ MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 #: ``ESTIMATE_FLOPS_PER_SECOND``, near the large GEMMs' rate on one core of the 2-core development machine) plus
 #: ``ESTIMATE_SECONDS_PER_BLOCK`` per LMI block (the batched small calls).  Measured CPU per solve (estimate):
 #: lmi, r = 5, n_drop = 10, m = 2: n = 20 1.6 s (0.9 s), n = 40 7.3 s (5.6 s), n = 50 13.3 s (13.3 s),
-#: n = 60 44 s (25 s); a 4-state, 3-mode cart-pole (side 8) at n_drop = 60: 0.75 s (0.74 s).
+#: n = 60 44 s (25 s); a 4-state, 3-mode cart-pole (side 8) at n_drop = 60: 0.75 s (0.74 s).  With the Schur
+#: assembly in the reduced coordinates (docs/performance.md) n = 50 takes about 0.63x of that: the estimate errs high.
 ESTIMATE_ITERATIONS = 25
 ESTIMATE_FLOPS_PER_SECOND = 5e10
 ESTIMATE_FLOPS_PER_SIDE = 4e8

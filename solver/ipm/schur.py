@@ -270,7 +270,7 @@ def _operands(u, v, X, G, cache):
     return (P if cu * cv == 1.0 else (cu * cv) * P), Q
 
 
-def _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache, transposed_too):
+def _add_pair(groups, u, v, i_sym, j_sym, X, G, cache, transposed_too):
     """Put one product pair's (P, Q) into its GEMM group, keyed by the layout of ``P^T Q``.
 
     Layouts (full coordinates ``(a, b)`` of variable i, ``(c, d)`` of j): ``"ac"`` is ``K[(a, c), (b, d)]``,
@@ -295,7 +295,7 @@ def _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache, transpose
 
 def _strides(layout, dims_i, dims_j):
     """``(s_a, s_b), (s_c, s_d)``: flat strides of the four indices in the piece ``K`` of a layout."""
-    (r, c), (r2, c2) = dims_i, dims_j
+    c, (r2, c2) = dims_i[1], dims_j
     if layout == "ac":  # K[(a, c), (b, d)], shape (r r2, c c2)
         return (r2 * c * c2, c2), (c * c2, 1)
     if layout == "ad":  # K[(a, d), (b, c)], shape (r c2, c r2)
@@ -356,20 +356,16 @@ def _sym_pieces(plan, i, Ps, Qs, both):
     take would read the lower one exactly where its row (column) is a diagonal coordinate, where the
     first take alone is the value.
     """
-    n2 = Ps.shape[1]
-    n = int(round(n2 ** 0.5))
+    n = int(plan.coords[i][1].max()) + 1
     Y = _syr2k(1.0, Ps.T, Qs.T, trans=0, lower=1)  # F-ordered: Y.T is C-ordered with the upper triangle set
     Yf = Y.T.reshape(-1)
-    (sa, sb), (sc, sd) = _strides("ac", (n, n), (n, n))
-    A1, B1, A2, B2 = plan.coords[i]
+    rows, cols = _strides("ac", (n, n), (n, n))
     diag = plan.diag(i)
-    r1, r2 = A1 * sa + B1 * sb, A2 * sa + B2 * sb  # row parts of (a, b), (b, a)
-    c1, c2 = A1 * sc + B1 * sd, A2 * sc + B2 * sd  # column parts of (c, d), (d, c)
+    r1 = plan.positions(i, rows)[0]  # row part of (a, b)
+    c1, c2 = plan.positions(i, cols)  # column parts of (c, d), (d, c); with (a, b) as columns: the transposed pair
     out = [(Yf, [(r1, c1, None, None), (r1, c2, diag, None)], None, diag)]
     if both:
-        t1, t2 = A1 * sc + B1 * sd, A2 * sc + B2 * sd  # (a, b), (b, a) with the column strides
-        u1 = A1 * sa + B1 * sb
-        out.append((Yf, [(t1, u1, None, None), (t2, u1, None, diag)], diag, None))
+        out.append((Yf, [(c1, r1, None, None), (c2, r1, None, diag)], diag, None))
     return out
 
 
@@ -444,7 +440,7 @@ def assemble(problem, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.n
                                     if iu == 1:
                                         continue
                                     both = True
-                                _add_pair(groups, u, v, i_sym, j_sym, dims_i, dims_j, X, G, cache, both)
+                                _add_pair(groups, u, v, i_sym, j_sym, X, G, cache, both)
                 for (layout, both), ops in groups.items():
                     Ps = ops[0][0] if len(ops) == 1 else np.concatenate([o[0] for o in ops])
                     Qs = ops[0][1] if len(ops) == 1 else np.concatenate([o[1] for o in ops])
