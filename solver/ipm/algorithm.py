@@ -289,7 +289,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     for it in range(o.max_iter + 1):
         Z = [np.concatenate([x, s]) for x, s in zip(X, S)]
         LL = [_cholesky(z) for z in Z]
-        if any(np.isnan(ll[:, -1, -1]).any() for ll in LL):
+        if ng == 1 and np.isnan(LL[0][:, -1, -1]).any() or ng > 1 and any(np.isnan(ll[:, -1, -1]).any() for ll in LL):
             # Rounding made the new S (recomputed from y) or X singular: shorten the last step.
             if best is None or ad < 1e-12:
                 status = "numerical_error"
@@ -311,9 +311,11 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             G.append(LSi.transpose(0, 2, 1) @ LSi)
         r_p = -b - adj(X)
         Xf = [x.reshape(-1) for x in X]
-        pobj = sum(float(c @ x) for c, x in zip(Cf, Xf))
+        pobj = XS = 0.0
+        for c, x, s in zip(Cf, Xf, S):
+            pobj += float(c @ x)
+            XS += float(x @ s.reshape(-1))
         dobj = float(b @ y)
-        XS = sum(float(x @ s.reshape(-1)) for x, s in zip(Xf, S))
         mu = XS / N
         rp = math.sqrt(float(r_p @ r_p)) / normb
         denom = floor + abs(off - pobj) + abs(off - dobj)
@@ -398,9 +400,12 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         t3 = perf()
         ap, ad = step_lengths(dX, dS, 1.0, 0.1)
         tim["line_search"] += perf() - t3
-        xds = sum(float(x @ ds.reshape(-1)) for x, ds in zip(Xf, dS))
-        dxs = sum(float(dx.reshape(-1) @ s.reshape(-1)) for dx, s in zip(dX, S))
-        dxds = sum(float(dx.reshape(-1) @ ds.reshape(-1)) for dx, ds in zip(dX, dS))
+        xds = dxs = dxds = 0.0
+        for x, s, dx, ds in zip(Xf, S, dX, dS):
+            dsf, dxf = ds.reshape(-1), dx.reshape(-1)
+            xds += float(x @ dsf)
+            dxs += float(dxf @ s.reshape(-1))
+            dxds += float(dxf @ dsf)
         mu_aff = (XS + ad * xds + ap * dxs + ap * ad * dxds) / N
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
