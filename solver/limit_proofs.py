@@ -323,7 +323,8 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     Tried at ``decay_rate`` (None: the non-strict ``A_s' X A_s <= X``, every common quadratic Lyapunov
     function); when that SDP has ``t* >= 0`` and ``strict`` is given (a design whose stability blocks carry the
     factor ``1 + strict``), at the rate ``decay_rate (1 + strict)^(-1/n_drop)``, which every such design meets
-    (``eta_s <= n_drop``).  Checked at margin 0 first (outcome "infeasible"), then at ``margin`` ("marginal").
+    (``eta_s <= n_drop``); also when the first proof holds only with a margin.  Checked at margin 0 first
+    (outcome "infeasible"), then at ``margin`` ("marginal"); a proof of any margin wins over a marginal one.
 
     Parameters
     ----------
@@ -336,15 +337,19 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     if strict is not None and multipliers is None:
         rates.append((1.0 if decay_rate is None else float(decay_rate)) * (1 + strict) ** (-1.0 / modes.n_drop))
     reason = "the input-limit feasibility SDP did not report t* < 0"
+    marginal = None  # a proof for designs of margin >= ``margin`` only: kept unless a stricter rate proves more
     for rate in rates:
         mult = multipliers if multipliers is not None else limits_multipliers(modes, u_max, x0, rate, time_limit)
         if mult is None:
             continue
         cert = check_limits_farkas(modes, mult, u_max, x0, rate, 0.0)
-        if not cert.verified and margin > 0:
-            cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
         if cert.verified:
             return cert, ""
+        if margin > 0 and marginal is None:
+            cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
+            if cert.verified:
+                marginal = cert
+                continue
         reason = (f"the input-limit multipliers do not pass the Farkas re-check (constant {cert.constant:.3g}, "
                   f"radius {cert.radius:.3g} <= |x0|)")
-    return None, reason
+    return (marginal, "") if marginal is not None else (None, reason)
