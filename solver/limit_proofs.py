@@ -225,8 +225,7 @@ def _check(modes, mult, u_max, x0, decay_rate, margin, prover):
     slope = prover.max_upper(_sym(Q), float(np.linalg.norm(errQ)))
     slope = (slope + (2 * float(np.sum(mu_s)) + float(np.sum(mu_in)) + mu_x) * (1 + 4 * U)) * (1 + 8 * U) + _TINY_ABS
     const_mu = (float(np.sum(mu_in * u[None, :] ** 2)) + mu_x) * (1 + 8 * U)
-    constant = (c + errc + const_mu)
-    constant = constant * (1 + 8 * U) if constant > 0 else constant * (1 - 8 * U)
+    constant = (c + errc + const_mu) + 4 * U * (abs(c) + errc + const_mu)  # the two additions rounded
     # ||Y||_F <= kappa sqrt(tr W): kappa^2 = N' ||u||^2 / lambda_min(M^T M) (M^T M exact: small integers or
     # entries whose products round at most once per term; the bound allows for it)
     lam_M = lambda_min_lower(M.T @ M, gamma(N) * float(np.linalg.norm(np.abs(M).T @ np.abs(M))))
@@ -258,6 +257,7 @@ def _radius(a: float, e: float, room: float) -> float:
     if room <= 0:
         return 0.0
     disc = e * e + 4.0 * a * room
+    disc += 8 * U * (e * e + 4.0 * abs(a) * room)  # an upper bound: a larger disc only shortens the radius
     if disc < 0:  # a < 0 and the parabola stays below zero: every s is excluded
         return np.inf
     denom = e + np.sqrt(disc)
