@@ -185,6 +185,7 @@ def gain_upper_bounds(sys: dict) -> np.ndarray:
     VB = np.linalg.solve(V, sys["B"][ok].astype(complex))
     terms = np.linalg.norm(CV, axis=1) * np.linalg.norm(VB, axis=2) / (1 - np.abs(lam))
     out[ok] = (np.linalg.norm(sys["D"][ok], 2, axis=(1, 2)) + np.sum(terms, axis=1)) * 1.01
+    out[np.isnan(out)] = np.inf  # a failed bound prunes nothing
     return out
 
 
