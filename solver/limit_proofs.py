@@ -23,8 +23,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .certificates import (EXACT_MAX_SIDE, U, Prover, _sym, gamma, interval_data, lambda_min_lower,
-                           stability_adjoint)
+from .certificates import (
+    EXACT_MAX_SIDE,
+    Prover,
+    U,
+    _sym,
+    gamma,
+    interval_data,
+    lambda_min_lower,
+    stability_adjoint,
+)
 from .network import ModeSet
 
 
@@ -275,8 +283,8 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     The multipliers are normalized to total trace 1 (the dual of ``max t`` has it in exact arithmetic).
     """
     from .compiled import cp, schur_block
-    from .performance import solve_sdp
     from .errors import SolverFailed
+    from .performance import solve_sdp
 
     n, m, N = modes.n_states, modes.n_inputs, modes.n_drop
     u = np.asarray(u_max, dtype=np.float64).reshape(m)

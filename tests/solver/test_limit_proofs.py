@@ -8,8 +8,12 @@ import numpy as np
 import pytest
 
 from solver import PlantFamily, design
-from solver.limit_proofs import (LimitMultipliers, check_limits_farkas, limits_multipliers,
-                                 prove_limits_infeasible)
+from solver.limit_proofs import (
+    LimitMultipliers,
+    check_limits_farkas,
+    limits_multipliers,
+    prove_limits_infeasible,
+)
 from solver.network import ModeSet
 
 X0 = np.array([-3.0, 2.0])
