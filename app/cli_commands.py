@@ -183,7 +183,7 @@ def design_summary(result: dict) -> list[str]:
     cert = result.get("certificate")
     if cert:
         checked = 'verified' if cert.get('verified') else 'NOT verified'
-        if cert.get("margin") is not None:  # a Lyapunov certificate: stabilized
+        if cert.get("kind") in ("common_quadratic", "switched"):  # a Lyapunov certificate: stabilized
             lines.append(f"certificate: {cert.get('kind')}, {checked}, relative margin of this certificate's P "
                          f"{cert['margin']:.3g} (min decrease / lambda_max(P))")
         else:  # a proof of infeasibility (farkas, uncontrollable) says what it proves in words

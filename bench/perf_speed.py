@@ -20,6 +20,8 @@ import argparse
 import os
 import time
 
+import numpy as np
+
 from .child import fmt, run_child
 
 CASES = ("paper", 12, 20)
@@ -123,7 +125,7 @@ def _text(c: dict) -> str:
 
 
 def _ratio(a: float, b: float) -> str:
-    return "-" if not (a == a and b == b and b > 0) else f"{a / b:.1f}"
+    return "-" if not (np.isfinite(a) and np.isfinite(b) and b > 0) else f"{a / b:.1f}"
 
 
 def main(argv=None) -> int:

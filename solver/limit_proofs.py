@@ -23,8 +23,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .certificates import (EXACT_MAX_SIDE, U, Prover, _sym, gamma, interval_data, lambda_min_lower,
-                           stability_adjoint)
+from .certificates import (
+    EXACT_MAX_SIDE,
+    Prover,
+    U,
+    _sym,
+    gamma,
+    interval_data,
+    lambda_min_lower,
+    stability_adjoint,
+)
 from .network import ModeSet
 
 
@@ -225,8 +233,7 @@ def _check(modes, mult, u_max, x0, decay_rate, margin, prover):
     slope = prover.max_upper(_sym(Q), float(np.linalg.norm(errQ)))
     slope = (slope + (2 * float(np.sum(mu_s)) + float(np.sum(mu_in)) + mu_x) * (1 + 4 * U)) * (1 + 8 * U) + _TINY_ABS
     const_mu = (float(np.sum(mu_in * u[None, :] ** 2)) + mu_x) * (1 + 8 * U)
-    constant = (c + errc + const_mu)
-    constant = constant * (1 + 8 * U) if constant > 0 else constant * (1 - 8 * U)
+    constant = (c + errc + const_mu) + 4 * U * (abs(c) + errc + const_mu)  # the two additions rounded
     # ||Y||_F <= kappa sqrt(tr W): kappa^2 = N' ||u||^2 / lambda_min(M^T M) (M^T M exact: small integers or
     # entries whose products round at most once per term; the bound allows for it)
     lam_M = lambda_min_lower(M.T @ M, gamma(N) * float(np.linalg.norm(np.abs(M).T @ np.abs(M))))
@@ -258,6 +265,7 @@ def _radius(a: float, e: float, room: float) -> float:
     if room <= 0:
         return 0.0
     disc = e * e + 4.0 * a * room
+    disc += 8 * U * (e * e + 4.0 * abs(a) * room)  # an upper bound: a larger disc only shortens the radius
     if disc < 0:  # a < 0 and the parabola stays below zero: every s is excluded
         return np.inf
     denom = e + np.sqrt(disc)
@@ -275,8 +283,8 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     The multipliers are normalized to total trace 1 (the dual of ``max t`` has it in exact arithmetic).
     """
     from .compiled import cp, schur_block
-    from .performance import solve_sdp
     from .errors import SolverFailed
+    from .performance import solve_sdp
 
     n, m, N = modes.n_states, modes.n_inputs, modes.n_drop
     u = np.asarray(u_max, dtype=np.float64).reshape(m)
@@ -323,7 +331,8 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     Tried at ``decay_rate`` (None: the non-strict ``A_s' X A_s <= X``, every common quadratic Lyapunov
     function); when that SDP has ``t* >= 0`` and ``strict`` is given (a design whose stability blocks carry the
     factor ``1 + strict``), at the rate ``decay_rate (1 + strict)^(-1/n_drop)``, which every such design meets
-    (``eta_s <= n_drop``).  Checked at margin 0 first (outcome "infeasible"), then at ``margin`` ("marginal").
+    (``eta_s <= n_drop``); also when the first proof holds only with a margin.  Checked at margin 0 first
+    (outcome "infeasible"), then at ``margin`` ("marginal"); a proof of any margin wins over a marginal one.
 
     Parameters
     ----------
@@ -336,15 +345,19 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     if strict is not None and multipliers is None:
         rates.append((1.0 if decay_rate is None else float(decay_rate)) * (1 + strict) ** (-1.0 / modes.n_drop))
     reason = "the input-limit feasibility SDP did not report t* < 0"
+    marginal = None  # a proof for designs of margin >= ``margin`` only: kept unless a stricter rate proves more
     for rate in rates:
         mult = multipliers if multipliers is not None else limits_multipliers(modes, u_max, x0, rate, time_limit)
         if mult is None:
             continue
         cert = check_limits_farkas(modes, mult, u_max, x0, rate, 0.0)
-        if not cert.verified and margin > 0:
-            cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
         if cert.verified:
             return cert, ""
+        if margin > 0 and marginal is None:
+            cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
+            if cert.verified:
+                marginal = cert
+                continue
         reason = (f"the input-limit multipliers do not pass the Farkas re-check (constant {cert.constant:.3g}, "
                   f"radius {cert.radius:.3g} <= |x0|)")
-    return None, reason
+    return (marginal, "") if marginal is not None else (None, reason)

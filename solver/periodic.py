@@ -111,7 +111,7 @@ def _smaller_side(sys: dict) -> dict:
     """The transposed system when it has fewer outputs than inputs (same singular values)."""
     if sys["C"].shape[1] >= sys["B"].shape[2]:
         return sys
-    t = lambda M: np.swapaxes(M, 1, 2)  # noqa: E731
+    t = lambda M: np.swapaxes(M, 1, 2)
     return {"Phi": t(sys["Phi"]), "B": t(sys["C"]), "C": t(sys["B"]), "D": t(sys["D"])}
 
 
@@ -123,7 +123,7 @@ def sweep_gains(sys: dict, omega: np.ndarray) -> np.ndarray:
     """
     sys = _smaller_side(sys)
     Phi, B, C, D = sys["Phi"], sys["B"], sys["C"], sys["D"]
-    P, n, w = B.shape
+    P, n = B.shape[:2]
     z = np.exp(1j * np.asarray(omega, dtype=float))
     Ct = np.swapaxes(C, 1, 2)
     DtD, CtD, CtC = np.swapaxes(D, 1, 2) @ D, Ct @ D, Ct @ C
@@ -185,6 +185,7 @@ def gain_upper_bounds(sys: dict) -> np.ndarray:
     VB = np.linalg.solve(V, sys["B"][ok].astype(complex))
     terms = np.linalg.norm(CV, axis=1) * np.linalg.norm(VB, axis=2) / (1 - np.abs(lam))
     out[ok] = (np.linalg.norm(sys["D"][ok], 2, axis=(1, 2)) + np.sum(terms, axis=1)) * 1.01
+    out[np.isnan(out)] = np.inf  # a failed bound prunes nothing
     return out
 
 

@@ -360,9 +360,18 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
         proof, why_not = prove_limits_infeasible(lifted.modes, u_max, x0, options.decay_rate, options.margin,
                                                  strict=STRICT if objective == "stability" else None,
                                                  time_limit=clock.remaining(options.time_limit))
+        # the verdict needs the proof to reach every ellipsoid the plain design searches (W <= radius^2 I)
+        reach = np.sqrt(lifted.modes.n_states) * MAX_RADIUS * max(1.0, float(np.linalg.norm(x0)))
+        if proof is not None and proof.radius < reach:
+            why_not = f"a Farkas certificate of the limits reaches only part of the designs: {proof.statement()}"
+            proof = None
         if proof is not None:
+            why = proof.statement()
+            if proof.decay_rate != options.decay_rate:  # the strict fallback: say why that rate covers the method
+                why += (f"; every design of this method meets decay rate {proof.decay_rate:.7g} (its stability "
+                        f"blocks carry 1 + {STRICT:g})")
             res = finish(lifted.modes, "lmi", proof_outcome(proof), None, proof, None,
-                         clock, "CLARABEL", "" if info is None else info.status, f"{reason}; {proof.statement()}",
+                         clock, "CLARABEL", "" if info is None else info.status, f"{reason}; {why}",
                          [IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)], options)
             res.objective = objective
             return res

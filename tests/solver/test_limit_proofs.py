@@ -8,8 +8,12 @@ import numpy as np
 import pytest
 
 from solver import PlantFamily, design
-from solver.limit_proofs import (LimitMultipliers, check_limits_farkas, limits_multipliers,
-                                 prove_limits_infeasible)
+from solver.limit_proofs import (
+    LimitMultipliers,
+    check_limits_farkas,
+    limits_multipliers,
+    prove_limits_infeasible,
+)
 from solver.network import ModeSet
 
 X0 = np.array([-3.0, 2.0])
@@ -118,3 +122,13 @@ def test_cost_design_with_an_unmeetable_limit_is_infeasible():
     assert ok.verified
     # a generous limit: designed, never called infeasible
     assert design(fam, 2, objective="cost", u_max=[50.0], x0=[5.0, -4.0]).outcome == "stabilized"
+
+
+def test_a_proof_that_reaches_only_small_ellipsoids_is_not_a_verdict():
+    """A rotation (|lambda| = 1): K = 0 meets any limit non-strictly, so the proof is made at the method's own
+    strictness; here it excludes only ellipsoids far smaller than the design searches: not "infeasible"."""
+    c, s = np.cos(0.3), np.sin(0.3)
+    fam = PlantFamily(F=[np.array([[c, -s], [s, c]])], G=[np.array([[0.0], [1.0]])])
+    res = design(fam, 2, u_max=[1e-8], x0=[10.0, 0.0])
+    assert res.outcome == "not_converged"
+    assert "reaches only part of the designs" in res.message and "at decay rate 0.99999" in res.message

@@ -46,6 +46,7 @@ def test_the_harness_reports_a_disagreement(monkeypatch):
 @pytest.mark.parametrize("seed", [0, 7])
 def test_draw_is_seeded_and_small(seed):
     fam, N, x0, u_max, _ = perf_check.draw(seed)
+    assert u_max.shape == (fam.n_inputs,) and np.all(u_max > 0)
     again = perf_check.draw(seed)
     assert np.array_equal(np.asarray(fam.F), np.asarray(again[0].F)) and N == again[1]
     assert 2 <= fam.n_states <= 4 and 1 <= fam.n_modes <= 3 and 1 <= N <= 4 and x0.shape == (fam.n_states,)

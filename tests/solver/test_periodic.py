@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from solver import PlantFamily, design
-from solver import periodic
+from solver import PlantFamily, design, periodic
 from solver.lifting import lift_modes
 from solver.network import ModeSet
 from solver.performance import hinf_norm_lower, lower_bound, patterns, period_system
@@ -98,6 +97,7 @@ def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
     cost, hinf, gains = motor_data
     lifted = cost if kind == "cost" else hinf
     value, witness, count, _ = lower_bound(lifted, gains, kind)
+    assert len(witness) >= 1
     data = lifted.numeric(gains)
     pats = patterns(len(data), 3, 4000 if kind == "cost" else 500, rotations=kind == "cost")
     labels = {}
