@@ -3,8 +3,8 @@
 For seeded random small families (n 2..4, 1..3 plant modes, n_drop 1..4, m 1..2; :func:`draw`) every objective
 (:data:`OBJECTIVES`: cost (trace), cost (x0), hinf, u_max with x0, u_max + cost with x0) is designed twice,
 ``design(..., solver="IPM")`` and ``design(..., solver="CLARABEL")``, and compared: the same outcome, and the
-certified figure within ``--tol`` (1e-6) relative: ``performance.upper`` for cost/hinf, the geometric-mean
-semi-axis ``det(X)^(-1/(2n))`` of the invariant set for u_max alone.  A design that answers with a solver other
+certified figure within ``--tol`` (1e-6) relative: ``performance.upper`` for cost/hinf, for u_max alone the radius
+``lambda_max(X)^(-1/2)`` of the largest ball inside the invariant set (what both solvers maximize).  A design that answers with a solver other
 than the IPM when the IPM was asked for (``res.solver``), or raises, is counted as "IPM not available for
 objective X" rather than as an agreement.  Prints the counts per objective and the worst disagreements.
 """
@@ -52,7 +52,7 @@ def figure(res) -> float | None:
         return float(res.performance.upper)
     if res.invariant_set is not None:
         X = np.asarray(res.invariant_set)
-        return float(np.exp(-np.linalg.slogdet(X)[1] / (2 * X.shape[0])))
+        return float(np.linalg.eigvalsh(0.5 * (X + X.T))[-1] ** -0.5)
     return None
 
 
