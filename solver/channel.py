@@ -638,7 +638,7 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
 
 def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
     """Arbitrary plant switching: common P per (channel state, age) for every plant mode (an LMI)."""
-    from .mjls import build_loop, recheck_upper
+    from .mjls import build_loop
 
     r = F.shape[0]
     one = np.ones((1, 1))

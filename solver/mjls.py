@@ -596,7 +596,7 @@ def _exact_transition(loop: Loop, t: Transition):
     from . import exact as ex
 
     src = loop.source
-    F, G, K, zero = src["F"], src["G"], src["K"], src["exhausted"] == "zero"
+    F, G, K = src["F"], src["G"], src["K"]
     n, N = loop.n, K.shape[0]
     _, l, d = loop.modes[t.src]
     Fe = ex.exact(F[l])

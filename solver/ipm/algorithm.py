@@ -285,7 +285,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     status = "max_iterations"
     best = None
     it = 0
-    ad = 0.0
+    ap = ad = 0.0
+    y_prev = X_prev = dy = dX = None  # the last step, shortened when rounding breaks the next factorization
     for it in range(o.max_iter + 1):
         Z = [np.concatenate([x, s]) for x, s in zip(X, S)]
         LL = [_cholesky(z) for z in Z]

@@ -26,7 +26,6 @@ group                     blocks (in this order)                                
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -286,7 +285,6 @@ def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = 
     sol = solve_grouped(problem.lmi, problem.objective, options)
     W = sol.V["W"]
     W = 0.5 * (W + W.T)
-    n = W.shape[0]
     J = len(problem.gain_scale)
     Ys = sol.V.get("Y")
     m = 0 if Ys is None or J == 0 else Ys.shape[0] // J
