@@ -222,6 +222,8 @@ class BlockLMI:
                     out += coef * (L @ Vb @ np.swapaxes(L, 1, 2))
                 else:
                     LVR = L @ Vb @ R
+                    if LVR.ndim == 2:  # both factors are selectors shared by every block: one matrix for all
+                        LVR = LVR[None]
                     out += coef * (LVR + np.swapaxes(LVR, 1, 2))
         return out
 
