@@ -224,7 +224,7 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
     from .methods import performance
 
     lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
-                                            decay_rate)
+                                            decay_rate, solver)
     rate = None if decay_rate in (None, "auto") else float(decay_rate)  # "auto": prepare's note
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,

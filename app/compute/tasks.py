@@ -403,7 +403,7 @@ def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> 
     kw = req.performance_kwargs()
     objective = kw.pop("objective")
     lifted, _, _ = prepare(modes, req.method, objective, kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
-                           kw.get("output"), kw.get("u_max"), req.options.decay_rate)
+                           kw.get("output"), kw.get("u_max"), req.options.decay_rate, req.options.solver)
     return 0 if lifted is None else sum(block_sides(lifted, objective))
 
 

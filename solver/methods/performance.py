@@ -26,7 +26,8 @@ import time
 import cvxpy as cp
 import numpy as np
 
-from ..compiled import SolveInfo, check_memory, schur_block
+from .. import compiled
+from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
@@ -178,9 +179,12 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
         info.setup = setup
         if status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
             return info, sol.W, sol.Y, dict(sol.scalars, ipm=sol)
-        if name == "IPM" and np.isfinite(sol.value):
+        too_large = sum(8 * (k * (k + 1) // 2) ** 2 for k in block_sides(lifted, objective)) > \
+            compiled.MAX_SOLVER_MEMORY
+        if (name == "IPM" or too_large) and np.isfinite(sol.value):
             # phase 2 ran but did not converge: its iterate is strictly feasible (attained value), a proposal
-            # like any other for the re-checks (n = 12, n_drop = 10: its trace 482 vs Clarabel's re-checked 533)
+            # like any other for the re-checks (n = 12, n_drop = 10: its trace 482 vs Clarabel's re-checked 533);
+            # under "AUTO" too when Clarabel's KKT system would not fit in memory (no fallback to try)
             return info, sol.W, sol.Y, dict(sol.scalars, ipm=sol)
         if status == cp.INFEASIBLE or name == "IPM":
             if status is None and name == "IPM":
@@ -200,9 +204,12 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
     return info, Wv.value, [np.array(y.value, dtype=float) for y in Yv], scalars
 
 
-def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate):
+def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate,
+            solver: str = "AUTO"):
     """Validate a performance / input-limit request and lift its data: ``(lifted, x0, u_max)``.
 
+    ``solver`` picks the memory estimate that refuses a design too large: the structured IPM's own
+    (:func:`ipm_bytes`) under ``"AUTO"``/``"IPM"``, Clarabel's KKT system otherwise.
     Raises :class:`solver.errors.InvalidInput` naming the field (the service calls it before a job exists).
     """
     if objective not in OBJECTIVES:
@@ -245,8 +252,24 @@ def prepare(modes, method: str, objective: str, weights, x0, disturbance, output
         raise InvalidInput("weights go with objective='cost'", ("weights",))
     lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
                         cost=objective == "cost")
-    check_memory(block_sides(lifted, objective), objective)
+    on_ipm = str(solver).upper() in ("AUTO", "IPM")
+    check_memory(block_sides(lifted, objective), objective, ipm_bytes(lifted, objective) if on_ipm else None)
     return lifted, x0, u_max
+
+
+def ipm_bytes(lifted: Lifted, objective: str) -> int:
+    """Peak bytes of the structured IPM on this design's grouped SDP (:func:`solver.compiled.ipm_memory`).
+
+    Every group's Schur complement is a full ``p x p`` matrix added into the sum, and the iterates are the
+    blocks of all groups: counted as that many blocks of the largest side (an upper estimate).
+    """
+    modes = lifted.modes
+    n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
+    sym = n * (n + 1) // 2
+    p = 2 * sym + J * m * n + 2  # W, Z (trace objective), the gains, gamma / g and t
+    sides = block_sides(lifted, objective) + [n + 1] * (modes.n_drop * m)  # + the input-limit blocks
+    groups = len(set(sides)) + 3
+    return ipm_memory(p, p, len(sides), max(sides), J * m * n) + 8 * groups * p * p
 
 
 def block_sides(lifted: Lifted, objective: str) -> list[int]:
