@@ -97,8 +97,6 @@ def child(case, objective: str, what: str) -> dict:
         warnings.simplefilter("ignore")
         if name == "CLARABEL":
             status = solve_sdp(prob, "CLARABEL").status  # the design's tolerances
-        elif objective == "u_max":  # max log det W needs an exponential cone
-            return {"note": "CVXOPT: no exponential cone (log det)"}
         else:
             prob.solve(solver=cp.CVXOPT)
             status = prob.status
