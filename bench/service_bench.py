@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -437,7 +436,7 @@ def measure(db_label: str, db_url: str, a, extra_env: dict[str, str] | None = No
         ok = [x for x, it in out if it["status"] == "succeeded"]
         rows[f"sustained, {a.clients} clients closed loop: designs/s"] = (
             f"{len(ok) / wall:.1f} ({len(ok)} jobs in {wall:.1f} s)")
-        rows[f"  latency under that load: p50 / p95"] = f"{pct(ok, 50) * 1e3:.0f} / {pct(ok, 95) * 1e3:.0f} ms"
+        rows["  latency under that load: p50 / p95"] = f"{pct(ok, 50) * 1e3:.0f} / {pct(ok, 95) * 1e3:.0f} ms"
         span = wall1 - wall0
         rows["  CPU during it: service process / workers"] = (
             f"{(cpu1[0] - cpu0[0]) / span * 100:.0f}% / {(cpu1[1] - cpu0[1]) / span * 100:.0f}% of one core")
@@ -462,6 +461,26 @@ def measure(db_label: str, db_url: str, a, extra_env: dict[str, str] | None = No
         server.stop()
     return rows
 
+
+
+def fresh_databases(db: str, pg_url: str, sqlite_dir: str) -> list:
+    """``(label, url, PgDatabase or None)`` per backend asked for (``"sqlite"``, ``"postgresql"``, ``"both"``).
+
+    SQLite: a new file in ``sqlite_dir``; PostgreSQL: a throw-away database on the server of ``pg_url``
+    (skipped with a line when ``db="both"`` and the server is not reachable).
+    """
+    dbs: list[tuple[str, str, PgDatabase | None]] = []
+    if db in ("sqlite", "both"):
+        dbs.append(("SQLite", f"sqlite:///{sqlite_dir}/ncs.db", None))
+    if db in ("postgresql", "both"):
+        if pg_reachable(pg_url):
+            pg = PgDatabase(pg_url)
+            dbs.append(("PostgreSQL", pg.url, pg))
+        elif db == "postgresql":
+            raise SystemExit(f"PostgreSQL at {pg_url} is not reachable")
+        else:
+            print(f"(PostgreSQL at {pg_url} not reachable: SQLite only)")
+    return dbs
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.service_bench", description=__doc__.split("\n\n")[0])
@@ -490,17 +509,7 @@ def main(argv=None) -> int:
     if a.quick:
         a.jobs, a.latency_jobs, a.open_seconds = 200, 20, 4.0
 
-    dbs: list[tuple[str, str, PgDatabase | None]] = []
-    if a.db in ("sqlite", "both"):
-        dbs.append(("SQLite", f"sqlite:///{tempfile.mkdtemp(prefix='ncs-bench-db-')}/ncs.db", None))
-    if a.db in ("postgresql", "both"):
-        if pg_reachable(a.pg_url):
-            pg = PgDatabase(a.pg_url)
-            dbs.append(("PostgreSQL", pg.url, pg))
-        elif a.db == "postgresql":
-            raise SystemExit(f"PostgreSQL at {a.pg_url} is not reachable")
-        else:
-            print(f"(PostgreSQL at {a.pg_url} not reachable: SQLite only)")
+    dbs = fresh_databases(a.db, a.pg_url, tempfile.mkdtemp(prefix="ncs-bench-db-"))
 
     load = os.getloadavg()
     try:

@@ -239,7 +239,7 @@ def table(rows: list[dict], target: float) -> str:
 
 
 def main(argv=None) -> int:
-    from bench.service_bench import PgDatabase, pg_reachable
+    from bench.service_bench import fresh_databases
 
     p = argparse.ArgumentParser(prog="python -m bench service-floor", description=__doc__.split("\n\n")[0])
     p.add_argument("--db", choices=["sqlite", "postgresql", "both"], default="both")
@@ -268,17 +268,7 @@ def main(argv=None) -> int:
     job.close()
     floor = Floor(body, workers)
     tmp = Path(tempfile.mkdtemp(prefix="ncs-service-floor-"))
-    dbs: list[tuple[str, str, object]] = []
-    if a.db in ("sqlite", "both"):
-        dbs.append(("SQLite", f"sqlite:///{tmp}/ncs.db", None))
-    if a.db in ("postgresql", "both"):
-        if pg_reachable(a.pg_url):
-            pg = PgDatabase(a.pg_url)
-            dbs.append(("PostgreSQL", pg.url, pg))
-        elif a.db == "postgresql":
-            raise SystemExit(f"PostgreSQL at {a.pg_url} is not reachable")
-        else:
-            print(f"(PostgreSQL at {a.pg_url} not reachable: SQLite only)")
+    dbs = fresh_databases(a.db, a.pg_url, str(tmp))
     results = []
     try:
         for label, url, _ in dbs:

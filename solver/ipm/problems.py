@@ -254,6 +254,19 @@ def _check_data(free, coef, active):
     return free, coef, active
 
 
+def _solve_scaled(build, free, coef, active, rho, options):
+    """Check the data, scale the gains' coefficients, build with ``build`` and solve.
+
+    Returns ``(IPMSolution, (S, J, n, m), gain scale, setup seconds)``.
+    """
+    t0 = time.perf_counter()
+    free, coef, active = _check_data(free, coef, active)
+    coef_s, gscale = _gain_scale(coef)
+    prob = build(free, coef_s, active, rho)
+    setup = time.perf_counter() - t0
+    return solve_block_lmi(prob, options), coef.shape, gscale, setup
+
+
 def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> LMISolution:
     """Solve the ``lmi`` design SDP (see :func:`lmi_problem`) with the structured IPM.
 
@@ -275,12 +288,7 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
         On inconsistent shapes or non-finite data.
     """
     t0 = time.perf_counter()
-    free, coef, active = _check_data(free, coef, active)
-    S, J, n, m = coef.shape
-    coef_s, gscale = _gain_scale(coef)
-    prob = lmi_problem(free, coef_s, active, rho)
-    setup = time.perf_counter() - t0
-    sol = solve_block_lmi(prob, options)
+    sol, (S, J, n, m), gscale, setup = _solve_scaled(lmi_problem, free, coef, active, rho, options)
     W = sol.V[0]
     W = 0.5 * (W + W.T)
     Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n, gscale)
@@ -294,12 +302,7 @@ def solve_switched(free, coef, active=None, rho=None, options: IPMOptions | None
     Parameters and errors as :func:`solve_lmi`; returns :class:`SwitchedSolution`.
     """
     t0 = time.perf_counter()
-    free, coef, active = _check_data(free, coef, active)
-    S, J, n, m = coef.shape
-    coef_s, gscale = _gain_scale(coef)
-    prob = switched_problem(free, coef_s, active, rho)
-    setup = time.perf_counter() - t0
-    sol = solve_block_lmi(prob, options)
+    sol, (S, J, n, m), gscale, setup = _solve_scaled(switched_problem, free, coef, active, rho, options)
     Sm = sol.V[1].reshape(S, n, n)
     Sm = 0.5 * (Sm + np.swapaxes(Sm, 1, 2))
     Y = _split_Y(sol.V[2] if len(sol.V) > 2 else None, J, m, n, gscale)
