@@ -13,7 +13,7 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench performance --speed`` times each objective on the IPM, Clarabel and CVXOPT;
 ``python -m bench perf-check [--count N]`` cross-checks the performance designs on the IPM against Clarabel
 (``bench/perf_check.py``).
-``python -m bench speed [--quick]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
+``python -m bench speed [--quick] [--service]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
 feasible and infeasible families (``bench/speed_bench.py``).
 ``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
 
