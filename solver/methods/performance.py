@@ -352,6 +352,9 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         outcome, message = "not_converged", (f"the {objective} SDP gave gains but no stability certificate passed "
                                              f"the float64 re-check{rate_txt}")
     elif u_max is not None and invariant is None:
+        if x0 is not None:  # perhaps no design meets the limits from x0 at all: the limits' Farkas proof decides
+            return _no_design(lifted, options, clock, objective, f"stabilizing gains found but the input limits "
+                              f"are not proven: {inv_reason}", info, x0, u_max)
         outcome, message = "not_converged", f"stabilizing gains found but the input limits are not proven: {inv_reason}"
     else:
         outcome = "stabilized"

@@ -100,8 +100,9 @@ def test_cli_performance_flags(tmp_path):
 
 
 def test_lifted_blocks_count_against_the_size_limit(client):
-    # 300 disturbance channels: blocks of side 2n + eta (p_w + p_z), 3 plant modes x 3 interval lengths
-    wide = [[1.0] * 300, [0.0] * 300]
+    # 700 disturbance channels: blocks of side 2n + eta (p_w + p_z), 3 plant modes x 3 interval lengths, 12690 in
+    # all (300 channels, 5490, fit the structured IPM's memory and the size limit: that design is accepted)
+    wide = [[1.0] * 700, [0.0] * 700]
     resp = client.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 3, "objective": "hinf",
                                             "disturbance": wide})
     body = assert_problem(resp, 422)
