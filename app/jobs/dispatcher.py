@@ -178,8 +178,8 @@ class Dispatcher:
     def _wake(self) -> None:
         # One byte per sleep, not one per caller: under load every submission calls this, and the write is a
         # system call on the event loop's thread (that releases and retakes the GIL). A caller that finds a
-        # byte already on its way needs none: the dispatcher clears the flag before it empties the pipe, so
-        # whatever that caller handed over before looking is seen by the tick that follows.
+        # byte already on its way needs none: the dispatcher clears the flag only after it emptied the pipe
+        # (:meth:`_sleep`), so whatever that caller handed over before looking is seen by the tick that follows.
         if self._wake_pending:
             return
         self._wake_pending = True
@@ -271,12 +271,16 @@ class Dispatcher:
         except OSError:
             ready = []
         if self._wake_r in ready:
-            self._wake_pending = False
             try:
                 while os.read(self._wake_r, 4096):
                     pass
             except (BlockingIOError, OSError):
                 pass
+            # Cleared after the pipe is empty, never before: a caller that wrote its byte between a clear and
+            # the read would leave the flag set over an empty pipe, and every later caller would skip its
+            # byte, so the dispatcher slept a whole poll interval with submissions waiting. A caller that
+            # finds the flag still set here handed its submission over before the tick that follows.
+            self._wake_pending = False
 
     def _tick(self) -> None:
         st = self.settings

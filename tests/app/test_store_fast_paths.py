@@ -71,6 +71,39 @@ def test_one_wake_byte_per_sleep(db_url):
         db.dispose()
 
 
+def test_a_submission_racing_the_pipe_read_keeps_later_wake_ups(db_url, monkeypatch):
+    """A caller that writes its byte while the dispatcher empties the pipe must not leave the flag set over an
+    empty pipe: every later caller would then skip its byte, and the dispatcher slept a whole poll interval
+    with submissions waiting (seen as 250 ms queue waits at 4 clients)."""
+    from app.jobs import dispatcher as dispatcher_module
+    from app.jobs.dispatcher import make_dispatcher
+
+    run_migrations(db_url)
+    db = Database(db_url)
+    disp = make_dispatcher(db, make_settings(db_url))  # not started: the pipe is read only by _sleep
+    real_read = os.read
+    raced = []
+
+    def read_while_a_caller_notifies(fd, n):
+        if fd == disp._wake_r and not raced:
+            raced.append(True)
+            disp.notify()  # another thread hands a submission over right now
+        return real_read(fd, n)
+
+    try:
+        disp.notify()
+        monkeypatch.setattr(dispatcher_module.os, "read", read_while_a_caller_notifies)
+        disp._sleep()  # reads both bytes; the racing caller's submission is seen by the tick that follows
+        monkeypatch.setattr(dispatcher_module.os, "read", real_read)
+        assert raced
+        disp.notify()  # a later submission: its byte must be in the pipe
+        assert real_read(disp._wake_r, 4096) == b"x"
+    finally:
+        for fd in (disp._wake_r, disp._wake_w):
+            os.close(fd)
+        db.dispose()
+
+
 @pytest.mark.skipif(not PG_URL, reason="needs PostgreSQL (NCS_TEST_DATABASE_URL)")
 def test_postgres_pings_only_idle_connections_and_survives_a_dead_one(db_url, monkeypatch):
     from bench.harness import terminate_backends
