@@ -97,13 +97,18 @@ def ipm_memory(n_full: int, p: int, n_blocks: int, side: int, largest_variable: 
     return 10 * (3 * p**2 + 3 * v**2 + v * (n_full - v) + 30 * n_blocks * side**2)
 
 
+def clarabel_kkt_bytes(cone_sides) -> int:
+    """Bytes of Clarabel's KKT system for PSD cones of sides ``cone_sides`` (one dense block per cone)."""
+    return sum(8 * (k * (k + 1) // 2) ** 2 for k in cone_sides)
+
+
 def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
     """Raise InvalidInput when the solver's memory would exceed :data:`MAX_SOLVER_MEMORY`.
 
     ``ipm_bytes``: the structured IPM runs (its own estimate, :func:`ipm_memory`); otherwise
     Clarabel's KKT system for PSD cones of sides ``cone_sides``.
     """
-    need = ipm_bytes if ipm_bytes is not None else sum(8 * (k * (k + 1) // 2) ** 2 for k in cone_sides)
+    need = ipm_bytes if ipm_bytes is not None else clarabel_kkt_bytes(cone_sides)
     if need > MAX_SOLVER_MEMORY:
         raise InvalidInput(
             f"the {what} SDP would need about {need / 2**30:.1f} GiB of solver memory (limit "

@@ -27,7 +27,7 @@ import cvxpy as cp
 import numpy as np
 
 from .. import compiled
-from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block
+from ..compiled import SolveInfo, check_memory, clarabel_kkt_bytes, ipm_memory, schur_block
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
@@ -179,8 +179,7 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
         info.setup = setup
         if status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
             return info, sol.W, sol.Y, dict(sol.scalars, ipm=sol)
-        too_large = sum(8 * (k * (k + 1) // 2) ** 2 for k in block_sides(lifted, objective)) > \
-            compiled.MAX_SOLVER_MEMORY
+        too_large = clarabel_kkt_bytes(block_sides(lifted, objective)) > compiled.MAX_SOLVER_MEMORY
         if (name == "IPM" or too_large) and np.isfinite(sol.value):
             # phase 2 ran but did not converge: its iterate is strictly feasible (attained value), a proposal
             # like any other for the re-checks (n = 12, n_drop = 10: its trace 482 vs Clarabel's re-checked 533);
