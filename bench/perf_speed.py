@@ -83,7 +83,7 @@ def child(case, objective: str, what: str) -> dict:
         return {"cpu": cell["cpu"][0], "outcome": cell.get("status")}
     from solver.methods import performance
     from solver.network import ModeSet
-    from solver.performance import solve_sdp
+    from solver.brackets import solve_sdp
 
     modes = ModeSet.from_family(fam, N)
     c0 = time.process_time()

@@ -73,7 +73,7 @@ class AnalysisReport:
     timings : dict
     cost : Performance or None
         With ``weights``: the certified bracket of the worst-case quadratic cost of these gains
-        (:class:`solver.performance.Performance`: ``lower``, ``upper``, ``witness``).
+        (:class:`solver.brackets.Performance`: ``lower``, ``upper``, ``witness``).
     hinf : Performance or None
         With ``disturbance``: the bracket of the worst-case l2 gain from w to z.
     """
@@ -405,9 +405,9 @@ def analyze(
 
 
 def _performance(modes: ModeSet, K: np.ndarray, weights, x0, disturbance, output, solver: str):
-    """The cost and H-infinity brackets of fixed gains (solver/performance.py)."""
+    """The cost and H-infinity brackets of fixed gains (solver/brackets.py)."""
     from .lifting import lift_modes
-    from .performance import bracket, check_x0
+    from .brackets import bracket, check_x0
 
     if disturbance is None and output is not None:
         raise InvalidInput("output needs disturbance=E", ("output",))

@@ -16,7 +16,7 @@ samples) this lifts to (docs/design.md, "Performance: the lifted interval system
 with ``Phi(t, s) = F_{l_{t-1}} ... F_{l_s}``.  A, C and L are affine in the gains (every row block is
 ``free + sum_q coef_q K_q``), B and D do not depend on them.  This module is the one place the lifted
 data are built; the design LMIs (:mod:`solver.methods.performance`) and the brackets
-(:mod:`solver.performance`) read them from here.
+(:mod:`solver.brackets`) read them from here.
 """
 
 from __future__ import annotations

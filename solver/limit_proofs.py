@@ -284,7 +284,7 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     """
     from .compiled import cp, schur_block
     from .errors import SolverFailed
-    from .performance import solve_sdp
+    from .brackets import solve_sdp
 
     n, m, N = modes.n_states, modes.n_inputs, modes.n_drop
     u = np.asarray(u_max, dtype=np.float64).reshape(m)

@@ -12,7 +12,7 @@ equations and the frequency sweeps run as stacked numpy operations instead of on
   of the smaller side, and :func:`gain_upper_bounds` a cheap upper bound of each pattern's H-infinity norm from
   the eigendecomposition of ``Phi``, used to skip patterns that cannot beat the best sweep value found.
 
-The callers (:func:`solver.performance.lower_bound`) re-evaluate the winning patterns exactly, one by one.
+The callers (:func:`solver.brackets.lower_bound`) re-evaluate the winning patterns exactly, one by one.
 """
 
 from __future__ import annotations

@@ -165,7 +165,7 @@ class DesignResult:
     objective : {"stability", "cost", "hinf"}
         What the design optimized (see :func:`solver.design`).
     performance : Performance or None
-        For ``objective="cost"``/``"hinf"``: the certified bracket (:class:`solver.performance.Performance`).
+        For ``objective="cost"``/``"hinf"``: the certified bracket (:class:`solver.brackets.Performance`).
     invariant_set : ndarray, shape (n, n), or None
         With ``u_max``: X of the ellipsoid ``{x : x' X x <= 1}`` from which, under every allowed pattern,
         every applied input meets the limits (re-checked in float64).

@@ -13,8 +13,8 @@ scalars; the lifted data come from :mod:`solver.lifting` (``rows.times_w(W, Y)``
   the plain objective the stability blocks ``[[W, c_s (A_s W)'], [c_s A_s W, W]] >= 0`` and
   ``max tau`` s.t. ``W >= tau I`` (the largest ball inside the invariant ellipsoid), x0 inside when given.
 
-Every figure the result reports passes the float64 re-checks of :mod:`solver.performance`.
-Solved by the structured IPM (:mod:`solver.ipm.performance`, the same blocks; ``solver="AUTO"``, ``"IPM"``)
+Every figure the result reports passes the float64 re-checks of :mod:`solver.brackets`.
+Solved by the structured IPM (:mod:`solver.ipm.performance_blocks`, the same blocks; ``solver="AUTO"``, ``"IPM"``)
 or by Clarabel through cvxpy (``"CLARABEL"``, tight tolerances; also ``"AUTO"``'s fallback when the IPM
 ends without an answer).
 """
@@ -31,7 +31,7 @@ from ..compiled import SolveInfo, check_memory, clarabel_kkt_bytes, ipm_memory, 
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..performance import bracket, check_invariant, check_x0, solve_sdp
+from ..brackets import bracket, check_invariant, check_x0, solve_sdp
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome

@@ -9,7 +9,7 @@ import scipy.linalg
 from solver import PlantFamily, design, periodic
 from solver.lifting import lift_modes
 from solver.network import ModeSet
-from solver.performance import hinf_norm_lower, lower_bound, patterns, period_system
+from solver.brackets import hinf_norm_lower, lower_bound, patterns, period_system
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import scipy.optimize
 from solver import InvalidInput, PlantFamily, analyze, design
 from solver.lifting import lift_modes
 from solver.network import ModeSet
-from solver.performance import bracket, check_cost
+from solver.brackets import bracket, check_cost
 
 from .paper_data import EQ23_GAINS
 
