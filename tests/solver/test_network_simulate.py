@@ -91,3 +91,15 @@ def test_arrivals_validation():
     with pytest.raises(InvalidInput) as err:
         simulate(PAPER, EQ23_GAINS, x0=[1, 1], steps=10)
     assert err.value.field == ("n_drop",)
+
+
+def test_export_c_header_names_the_network(tmp_path):
+    net = Network.delays(2, 3)
+    files = export_c(EQ23_GAINS, network=net)
+    head = files["ncs_controller.h"]
+    assert "network: delays(max_delay=2, n_drop=3) (the network the gains are certified for)" in head
+    assert "#define NCS_N_DROP 3" in head
+    build(tmp_path, files)  # still strict C99
+    with pytest.raises(InvalidInput) as err:
+        export_c(EQ23_GAINS, 2, network=net)
+    assert err.value.field == ("n_drop",)
