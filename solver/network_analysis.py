@@ -194,14 +194,16 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
 
     Every closed walk is searched from its smallest state (the others on it are larger), so each
     cycle is met once per rotation class.  Returns the best ``(estimate, states)`` per length
-    (``states`` in the order applied) and the longest length searched within the budget.
+    (``states`` in the order applied), the length up to which every closed walk was examined, and
+    whether the budget ``max_products`` (walks per start state and length) cut the search short.
     """
     from .network import spectral_radii
 
     V = product.size
+    # products held at once stay under ~80 MB whatever the state dimension
+    max_products = max(1, min(int(max_products), int(1e7 // A_states.shape[-1] ** 2)))
     best: dict = {}
-    checked = 0
-    budget_hit = False
+    searched = max_length  # every closed walk up to this length was examined
     for v in range(V):
         paths = np.array([[v]], dtype=np.int64)
         prods = A_states[v][None]
@@ -212,7 +214,6 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
                 i = int(np.argmax(rho))
                 if rho[i] > best.get(k, (-1.0, None))[0]:
                     best[k] = (float(rho[i]), tuple(int(s) for s in paths[closes][i]))
-            checked = max(checked, k) if not budget_hit else checked
             if k == max_length:
                 break
             parent, nxt = [], []
@@ -224,14 +225,13 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
             if not parent:
                 break
             if len(parent) > max_products:
-                budget_hit = True
+                searched = min(searched, k)
                 break
             parent = np.array(parent)
             nxt = np.array(nxt)
             prods = A_states[nxt] @ prods[parent]
             paths = np.concatenate([paths[parent], nxt[:, None]], axis=1)
-    lengths = sorted(best)
-    return best, (min(max_length, max(lengths)) if lengths else 0), budget_hit
+    return best, searched, searched < max_length
 
 
 def exact_loop(F, G, K, d: int, N: int) -> tuple:
