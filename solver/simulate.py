@@ -66,6 +66,8 @@ class SimulationResult:
     n_drop: int
     #: Channel state per sample (runs on a :class:`~solver.channel.Channel` only).
     channel_state: np.ndarray | None = None
+    #: Output feedback: the controller's estimate ``xh(k|k)``, shape (steps + 1, n) (last row ``xh(steps|steps-1)``).
+    estimate: np.ndarray | None = None
 
     def settling_samples(self, fraction: float = 0.02) -> int | None:
         """First sample from which ``|x(k)| <= fraction |x(0)|`` for the rest of the run (None: not settled).
@@ -82,6 +84,8 @@ class SimulationResult:
 
     def to_dict(self) -> dict:
         extra = {} if self.channel_state is None else {"channel_state": self.channel_state.tolist()}
+        if self.estimate is not None:
+            extra["estimate"] = self.estimate.tolist()
         return extra | {
             "t": self.time.tolist(),
             "x": self.state.tolist(),
@@ -127,6 +131,9 @@ def simulate(
     channel=None,
     exhausted: str = "hold",
     plant_transitions=None,
+    observer_gains=None,
+    sensor_n_drop: int | None = None,
+    xh0=None,
 ) -> SimulationResult:
     """Simulate the networked loop with random packet losses and plant jumps.
 
@@ -168,6 +175,15 @@ def simulate(
     plant_transitions : array_like (r, r), optional
         With a channel: per-sample Markov chain of the plant mode (row l: probabilities of the
         next mode); None keeps the initial mode.
+    observer_gains : array_like (r, n, p), optional
+        Output feedback (docs/design.md, "Output feedback"): the controller measures ``y = C x`` over a
+        lossy sensor link (``sensor_loss``, at most ``sensor_n_drop - 1`` lost in a row), runs the observer
+        and sends ``K_j xh(k|k)``; the control link loses with ``control_loss`` (at most ``n_drop - 1`` in a
+        row).  ``tr.estimate`` holds the estimate.  Uses ``family.C``.
+    sensor_n_drop : int, optional
+        With ``observer_gains`` (default ``n_drop``).
+    xh0 : array_like (n,), optional
+        With ``observer_gains``: the initial estimate (default 0).
 
     Returns
     -------
@@ -200,6 +216,16 @@ def simulate(
     if mode is not None and (isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < r):
         raise InvalidInput(f"mode must be an integer in 0..{r - 1}", ("mode",))
 
+    if observer_gains is not None:
+        from .observer import simulate_output
+
+        if channel is not None:
+            raise InvalidInput("output feedback runs on the Bernoulli links (sensor_loss, control_loss), not on "
+                               "a channel", ("channel",))
+        return simulate_output(family, K, n_drop, observer_gains, x, steps, int(seed),
+                               sensor_n_drop=n_drop if sensor_n_drop is None else sensor_n_drop,
+                               sensor_loss=sensor_loss, control_loss=control_loss, xh0=xh0,
+                               plant_switching=plant_switching, mode=mode, switch_probability=switch_probability)
     if channel is not None:
         return _simulate_channel(family, K, n_drop, x, steps, int(seed), mode, channel, exhausted, plant_transitions)
     if plant_transitions is not None:
