@@ -312,6 +312,7 @@ def analyze(
                       rate_tol=rate_tol, max_modes=max_modes, solver=solver)
         out = analyze_output(family, gains, n_drop, observer_gains, M, plant_switching=plant_switching,
                              scheme=scheme, state_report=rep)
+        out.state_feedback = None  # the report itself is the full-state part
         rep.output = out
         rep.stable = out.stable
         rep.reason = f"output feedback: {out.reason} (full-state loop: {rep.reason})"

@@ -593,7 +593,6 @@ class OutputAnalysis:
     def to_dict(self) -> dict:
         return {"stable": self.stable, "reason": self.reason,
                 "certificate": None if self.certificate is None else self.certificate.to_dict(),
-                "state_feedback": None if self.state_feedback is None else self.state_feedback.to_dict(),
                 "error_cycle": self.error_cycle}
 
 

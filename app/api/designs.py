@@ -49,6 +49,7 @@ async def submit_design(
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
     validation.check_performance(req, settings)
+    validation.check_feedback(req)
     validation.check_design_channel(body, shape, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
 
