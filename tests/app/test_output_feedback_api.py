@@ -58,3 +58,17 @@ def test_output_feedback_errors_name_the_field(client):
                    "/plant/C")
     assert_problem(client.post("/v1/designs", json={"plant": motor_plant(), "n_drop": 3, "feedback": "output",
                                                     "sensor_n_drop": 0}), 422, "/sensor_n_drop")
+
+
+def test_client_round_trip(client):
+    from app.client import Client
+
+    fam = PlantFamily.from_dict(motor_plant())
+    api = Client("http://testserver", http_client=client)
+    res = api.design(fam, 3, feedback="output", sensor_n_drop=2)
+    assert res.outcome == "stabilized" and res.observer_gains.shape == (3, 2, 1)
+    rep = api.analyze(fam, res.gains, observer_gains=res.observer_gains, sensor_n_drop=2)
+    assert rep.stable is True
+    tr = api.simulate(fam, res.gains, [1.0, 0.0], steps=50, loss_model="bernoulli",
+                      observer_gains=res.observer_gains, xh0=np.zeros(2))
+    assert "estimate" in tr.raw
