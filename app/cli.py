@@ -83,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--objective", choices=("stability", "cost", "hinf"), default=None,
                    help="cost: minimize the certified worst-case quadratic cost; hinf: the certified l2 gain")
     d.add_argument("--u-max", default=None, metavar="U1,U2,...", help="input limits (one per input)")
+    d.add_argument("--feedback", choices=("state", "output"), default=None,
+                   help="output: measure y = C x (the plant file's \"C\") over a lossy sensor link, with an observer")
+    d.add_argument("--sensor-n-drop", type=int, default=None,
+                   help="with --feedback output: at most this minus one lost measurements in a row (default --n-drop)")
+    d.add_argument("--observer", choices=("per_mode", "common"), default=None,
+                   help="with --feedback output: one observer gain per plant mode (default) or one for all")
     performance_args(d)
 
     a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")

@@ -210,7 +210,9 @@ def _client(args):
 
 def cmd_design(args) -> int:
     fam = load_plant(args.plant, args.sampling_period)
-    options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme)) if v is not None}
+    options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme),
+                                 ("feedback", args.feedback), ("sensor_n_drop", args.sensor_n_drop),
+                                 ("observer", args.observer)) if v is not None}
     if args.decay_rate is not None:  # given: 'none' means plain stability (None), not the default "auto"
         options["decay_rate"] = _parse_decay_rate(args.decay_rate)
     perf = performance_kwargs(args)
@@ -228,7 +230,9 @@ def cmd_design(args) -> int:
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
     print("\n".join(design_summary(result)), flush=True)
-    if result["outcome"] == "stabilized" and result.get("gains"):
+    if result.get("observer_gains") is not None:
+        print(f"observer gains L (one n x p per plant mode): {json.dumps(result['observer_gains'])}")
+    if result["outcome"] == "stabilized" and result.get("gains") and result.get("feedback", "state") == "state":
         print(simulated_settling(fam, result))
     if args.output:
         _write_design(args.output, suffix, result, fam)

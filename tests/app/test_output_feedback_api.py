@@ -72,3 +72,22 @@ def test_client_round_trip(client):
     tr = api.simulate(fam, res.gains, [1.0, 0.0], steps=50, loss_model="bernoulli",
                       observer_gains=res.observer_gains, xh0=np.zeros(2))
     assert "estimate" in tr.raw
+
+
+def test_cli_output_feedback(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import scipy.io
+
+    plant = tmp_path / "motor.json"
+    plant.write_text(json.dumps(motor_plant()))
+    repo = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-m", "app.cli", "design", str(plant), "--n-drop", "3", "--feedback",
+                          "output", "--sensor-n-drop", "2", "-o", str(tmp_path / "d.mat")], cwd=repo,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "observer gains L" in out.stdout and "output feedback certified" in out.stdout
+    assert scipy.io.loadmat(tmp_path / "d.mat")["L"].shape == (2, 1, 3)

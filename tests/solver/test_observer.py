@@ -251,3 +251,17 @@ def test_bad_inputs_name_the_field():
     fam2 = PlantFamily.from_continuous(A=[[[0.0, 1.0], [0.0, -1.0]]], B=[[[0.0], [1.0]]], sampling_period=0.1,
                                        C=[[1.0, 0.0]])
     assert fam2.C.shape == (1, 1, 2) and PlantFamily.from_dict(fam2.to_dict() | {"kind": "discrete"}).C.shape == (1, 1, 2)
+
+
+def test_mat_export_carries_the_observer(tmp_path):
+    import scipy.io
+
+    from solver.matlab import save_mat
+
+    fam = motor()
+    res = design(fam, 3, feedback="output", sensor_n_drop=2)
+    save_mat(tmp_path / "d.mat", res, fam)
+    mat = scipy.io.loadmat(tmp_path / "d.mat")
+    assert np.allclose(np.moveaxis(mat["L"], -1, 0), res.observer_gains)
+    assert np.allclose(mat["P_joint"], res.joint_certificate.P)
+    assert mat["Q_joint"].shape == (2, 2, 2) and mat["C"].shape == (1, 2, 3)
