@@ -846,3 +846,192 @@ def critical_arrival(family: PlantFamily, observer_gains, mode: int = 0, tol: fl
         else:
             lo = mid
     return hi
+
+
+# ------------------------------------------------------------------ stochastic links on both sides
+@dataclass
+class OutputChannelReport:
+    """The output-feedback loop on Markov sensor and control channels (:func:`analyze_output_channel`).
+
+    Attributes
+    ----------
+    ms_radius : float
+        Spectral radius of the second-moment operator of the jump linear system on ``(x, e, s)``.
+    ms_stable : bool or None
+        True only with a re-checked certificate: ``Y_theta > 0`` with ``Y - T(Y) > 0`` blockwise (``T`` maps PSD
+        to PSD, so this proves ``ms_radius < 1``), checked in float64 with proven Cholesky bounds; False when the
+        float64 radius is ``>= 1 + 1e-6``; None otherwise.
+    stationary_cost : float or None
+        With ``noise`` and when mean-square stable: the long-run ``E[x'Qx + u'Ru]`` per sample.
+    estimation_error : ndarray (n, n) or None
+        The stationary ``E[e e']`` of the filtered error (with ``noise``).
+    """
+
+    ms_radius: float
+    ms_stable: bool | None
+    stationary_cost: float | None
+    estimation_error: np.ndarray | None
+    exhausted: str
+    states: int
+
+    def to_dict(self) -> dict:
+        return {"ms_radius": self.ms_radius, "ms_stable": self.ms_stable, "stationary_cost": self.stationary_cost,
+                "estimation_error": None if self.estimation_error is None else self.estimation_error.tolist(),
+                "exhausted": self.exhausted, "states": self.states}
+
+
+#: Largest second-moment operator (unknowns) :func:`analyze_output_channel` builds densely.
+MAX_OUTPUT_CHANNEL_SIZE = 4000
+
+
+def _output_channel_maps(family, K, L, C, n_drop, exhausted, mode):
+    """Per (sensor arrival g, control delivery c, new age d): the maps of z = (x, e_pred, s).
+
+    Returns a dict (g, c, d) -> (A, Bw, Bv, U, Uv, Ef, Efv): ``z+ = A z + Bw w + Bv v``, ``u = U z + Uv v``,
+    the filtered error ``e_f = Ef z + Efv v``.
+    """
+    n, m, p = family.n_states, family.n_inputs, C.shape[1]
+    F, G, Cl, Ll = family.F[mode], family.G[mode], C[mode], L[mode]
+    I, Z = np.eye(n), np.zeros((n, n))
+    out = {}
+    for g, c, d in itertools.product((0, 1), (0, 1), range(n_drop + 1)):
+        if c and d != 0 or not c and d == 0:
+            continue
+        Ef = np.hstack([Z, I - g * Ll @ Cl, Z])
+        Efv = -g * Ll
+        Sel = np.hstack([I, -(I - g * Ll @ Cl), Z]) if c else np.hstack([Z, Z, I])  # s_new = x - e_f, or s
+        Selv = g * Ll if c else np.zeros((n, p))
+        if d < n_drop:
+            Kd = K[d]
+        else:
+            Kd = K[n_drop - 1] if exhausted == "hold" else np.zeros((m, n))
+        U, Uv = Kd @ Sel, Kd @ Selv
+        A = np.vstack([np.hstack([F, Z, Z]) + G @ U, F @ Ef, Sel])
+        Bw = np.vstack([I, I, Z])
+        Bv = np.vstack([G @ Uv, F @ Efv, Selv])
+        out[(g, c, d)] = (A, Bw, Bv, U, Uv, Ef, Efv)
+    return out
+
+
+def _ms_certificate(T: np.ndarray, count: int, side: int) -> bool:
+    """``Y = (I - T)^-1 vec(I, ..., I)``: True when every ``Y_theta`` and ``Y_theta - T(Y)_theta`` is proven PD."""
+    blk = side * side
+    eye = np.tile(np.eye(side).reshape(-1, order="F"), count)
+    try:
+        Y = np.linalg.solve(np.eye(T.shape[0]) - T, eye)
+    except np.linalg.LinAlgError:
+        return False
+    R = Y - T @ Y
+    prover = Prover()
+    for k in range(count):
+        Yk = Y[k * blk:(k + 1) * blk].reshape(side, side, order="F")
+        Rk = R[k * blk:(k + 1) * blk].reshape(side, side, order="F")
+        # T @ Y has rounding errors of about the size of its inputs: count them against R's margin.
+        err = 4 * (T.shape[0] + 2) * U * float(np.abs(T[k * blk:(k + 1) * blk]).sum(axis=1).max() *
+                                               np.abs(Y).max() * side + np.abs(Yk).max() * side)
+        if prover.min_lower(0.5 * (Yk + Yk.T)) <= 0 or prover.min_lower(0.5 * (Rk + Rk.T), err) <= 0:
+            return False
+    return True
+
+
+def analyze_output_channel(family: PlantFamily, gains, n_drop: int, observer_gains, sensor_channel,
+                           control_channel, *, exhausted: str = "hold", weights=None, noise=None,
+                           mode: int | None = None) -> OutputChannelReport:
+    """Mean-square stability and the stationary cost of output feedback on two Markov channels, exactly.
+
+    Per sample (the loop of :func:`simulate_output`, plant mode ``mode`` fixed): the measurement arrives
+    with probability ``1 - sensor_channel.loss[cs]``, the control packet with ``1 - control_channel.loss[cc]``,
+    independently; the buffer plays ``K_{d+1}`` of the last delivered estimate, then the ``exhausted`` policy;
+    ``x+ = F x + G u + w``, ``y = C x + v``.  The jump linear system on ``z = (x, e, s)`` (state, predicted
+    error, the delivered estimate) with discrete state (sensor channel state, control channel state, age)
+    has the second-moment operator whose radius decides mean-square stability, and whose fixed point with the
+    noise terms gives the stationary cost (docs/design.md §12).  ``mode=None``: the plant mode is drawn
+    uniformly once and kept (as :func:`solver.analyze_channel` without ``plant_transitions``): stable when
+    every mode is, the cost is the mean over modes.
+    """
+    from .channel import Channel
+
+    if mode is None:
+        reports = [analyze_output_channel(family, gains, n_drop, observer_gains, sensor_channel, control_channel,
+                                          exhausted=exhausted, weights=weights, noise=noise, mode=l)
+                   for l in range(family.n_modes)]
+        verdicts = [rep.ms_stable for rep in reports]
+        stable = False if False in verdicts else True if all(v is True for v in verdicts) else None
+        costs = [rep.stationary_cost for rep in reports]
+        cost = float(np.mean(costs)) if stable and all(c is not None for c in costs) else None
+        err = np.mean([rep.estimation_error for rep in reports], axis=0) if cost is not None else None
+        return OutputChannelReport(max(rep.ms_radius for rep in reports), stable, cost, err, exhausted,
+                                   reports[0].states)
+
+    C = require_outputs(family)
+    n_drop = check_n_drop(n_drop)
+    K = check_gains(gains, n_drop, family.n_inputs, family.n_states)
+    n, m, p = family.n_states, family.n_inputs, C.shape[1]
+    L = check_observer_gains(observer_gains, family.n_modes, n, p)
+    for name, ch in (("sensor_channel", sensor_channel), ("control_channel", control_channel)):
+        if not isinstance(ch, Channel):
+            raise InvalidInput(f"{name} must be a solver.Channel (e.g. Channel.bernoulli(0.2))", (name,))
+    if exhausted not in ("hold", "zero"):
+        raise InvalidInput("exhausted must be 'hold' or 'zero'", ("exhausted",))
+    if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < family.n_modes:
+        raise InvalidInput(f"mode must be an integer in 0..{family.n_modes - 1}", ("mode",))
+    Ts, ls = np.asarray(sensor_channel.transition), np.asarray(sensor_channel.loss)
+    Tc, lc = np.asarray(control_channel.transition), np.asarray(control_channel.loss)
+    thetas = list(itertools.product(range(len(ls)), range(len(lc)), range(n_drop + 1)))
+    index = {t: i for i, t in enumerate(thetas)}
+    N3 = 3 * n
+    size = len(thetas) * N3 * N3
+    if size > MAX_OUTPUT_CHANNEL_SIZE:
+        raise InvalidInput(f"the second-moment operator has {size} unknowns (limit {MAX_OUTPUT_CHANNEL_SIZE}): "
+                           "use channels with fewer states or a smaller n_drop", ("sensor_channel",))
+    maps = _output_channel_maps(family, K, L, C, n_drop, exhausted, int(mode))
+    # Transition weights: from theta = (cs, cc, d_prev) through (g, c) to theta' = (cs', cc', d).
+    moves = []
+    for (cs, cc, dp) in thetas:
+        for g, c in itertools.product((0, 1), (0, 1)):
+            pg = (1.0 - ls[cs]) if g else ls[cs]
+            pc = (1.0 - lc[cc]) if c else lc[cc]
+            if pg == 0.0 or pc == 0.0:
+                continue
+            d = 0 if c else min(dp + 1, n_drop)
+            for cs2, cc2 in itertools.product(range(len(ls)), range(len(lc))):
+                w = pg * pc * Ts[cs, cs2] * Tc[cc, cc2]
+                if w > 0.0:
+                    moves.append((index[(cs, cc, dp)], index[(cs2, cc2, d)], w, g, c, d))
+    # The operator on vec(X_theta), column-major vec: vec(A X A') = (A kron A) vec(X).
+    T = np.zeros((size, size))
+    blk = N3 * N3
+    for i, j, w, g, c, d in moves:
+        A = maps[(g, c, d)][0]
+        T[j * blk:(j + 1) * blk, i * blk:(i + 1) * blk] += w * np.kron(A, A)
+    radius = float(np.max(np.abs(np.linalg.eigvals(T))))
+    stable = False if radius >= 1 + 1e-6 else None
+    if radius < 1:
+        stable = _ms_certificate(T, len(thetas), N3) or None
+    cost = err = None
+    if noise is not None and stable:
+        W, V = check_noise(noise, n, p)
+        Qw, Rw = (np.eye(n), np.eye(m)) if weights is None else (np.asarray(weights[0], float),
+                                                                 np.asarray(weights[1], float))
+        # Stationary distribution of theta (the chain of the moves), then the noise injected per move.
+        Pm = np.zeros((len(thetas), len(thetas)))
+        for i, j, w, *_ in moves:
+            Pm[i, j] += w
+        vals, vecs = np.linalg.eig(Pm.T)
+        pi = np.real(vecs[:, int(np.argmin(np.abs(vals - 1.0)))])
+        pi = pi / pi.sum()
+        inject = np.zeros(size)
+        for i, j, w, g, c, d in moves:
+            _, Bw, Bv, *_ = maps[(g, c, d)]
+            inject[j * blk:(j + 1) * blk] += pi[i] * w * (Bw @ W @ Bw.T + Bv @ V @ Bv.T).reshape(-1, order="F")
+        X = np.linalg.solve(np.eye(size) - T, inject)
+        cost = 0.0
+        err = np.zeros((n, n))
+        for i, j, w, g, c, d in moves:
+            _, _, _, U, Uv, Ef, Efv = maps[(g, c, d)]
+            Xi = X[i * blk:(i + 1) * blk].reshape(N3, N3, order="F")
+            cost += w * (np.trace(Qw @ Xi[:n, :n]) + np.trace(Rw @ U @ Xi @ U.T)
+                         + pi[i] * np.trace(Rw @ Uv @ V @ Uv.T))
+            err += w * (Ef @ Xi @ Ef.T + pi[i] * Efv @ V @ Efv.T)
+        cost = float(cost)
+    return OutputChannelReport(radius, stable, cost, err, exhausted, len(thetas))

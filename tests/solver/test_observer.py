@@ -313,3 +313,76 @@ int main(void) {
     est = np.array([[float(v) for v in line.split()] for line in out.strip().splitlines()])
     scale = np.max(np.abs(tr.estimate[:150]))
     assert np.max(np.abs(est - tr.estimate[:150])) <= 1e-12 * scale
+
+
+def test_output_channel_without_losses_is_the_lqg_cost():
+    from solver import Channel, analyze_channel
+
+    fam = motor(modes=1)
+    Q, R = np.diag([1.0, 2.0]), np.eye(1)
+    W, V = np.diag([0.1, 0.2]), 0.05 * np.eye(1)
+    res = design(fam, 1, feedback="output", sensor_n_drop=1, objective="cost", weights=(Q, R), noise=(W, V))
+    rep = analyze_channel(fam, res.gains, 1, Channel.bernoulli(0.0), observer_gains=res.observer_gains,
+                          sensor_channel=Channel.bernoulli(0.0), weights=(Q, R), noise=(W, V))
+    assert rep.ms_stable is True
+    assert rep.stationary_cost == pytest.approx(lqg_cost(fam, res.gains, res.observer_gains, (Q, R), (W, V)),
+                                                rel=1e-9)
+
+
+@pytest.mark.parametrize("a", [1.2, 1.5])
+def test_output_channel_breaks_at_the_critical_arrival(a):
+    from solver import Channel
+    from solver.observer import analyze_output_channel
+
+    fam = PlantFamily(F=[[[a]]], G=[[[1.0]]], C=[[2.0]])
+    crit = 1.0 - 1.0 / a**2  # Sinopoli et al.: deadbeat observer and controller, lossless control link
+    for arrival, stable in ((crit + 0.02, True), (crit - 0.02, False)):
+        rep = analyze_output_channel(fam, [[[-a]]], 1, [[[0.5]]], Channel.bernoulli(1.0 - arrival),
+                                     Channel.bernoulli(0.0), noise=(np.eye(1), np.eye(1)))
+        assert rep.ms_stable is stable
+
+
+def test_output_channel_cost_against_monte_carlo():
+    """Stationary cost with losses on both links and noise, against a long seeded run of the loop equations."""
+    from solver import Channel
+    from solver.observer import analyze_output_channel
+
+    fam = PlantFamily(F=[[[1.2, 0.3], [0.0, 0.9]]], G=[[[0.0], [1.0]]], C=[[1.0, 0.0]])
+    res = design(fam, 3, feedback="output", sensor_n_drop=3)
+    assert res.outcome == "stabilized"
+    K, L = res.gains, res.observer_gains
+    sensor, control = Channel.bernoulli(0.4), Channel.gilbert_elliott(p_gb=0.1, p_bg=0.4, loss_good=0.05,
+                                                                       loss_bad=0.7)
+    Q, R = np.eye(2), 0.5 * np.eye(1)
+    W, V = np.diag([0.001, 0.001]), np.array([[0.1]])
+    rep = analyze_output_channel(fam, K, 3, L, sensor, control, exhausted="hold", weights=(Q, R), noise=(W, V))
+    assert rep.ms_stable is True
+    rng = np.random.default_rng(5)
+    steps, burn = 400_000, 2_000
+    F, G, C = fam.F[0], fam.G[0], fam.C[0]
+    x, xh, s, d, cc = np.zeros(2), np.zeros(2), np.zeros(2), 0, 0
+    Tc = np.asarray(control.transition)
+    lossc = np.asarray(control.loss)
+    w = rng.multivariate_normal(np.zeros(2), W, size=steps)
+    v = rng.normal(0.0, np.sqrt(V[0, 0]), size=steps)
+    us, ys, uc, un = rng.random(steps), rng.random(steps), rng.random(steps), rng.random(steps)
+    costs = np.empty(steps)
+    for k in range(steps):
+        if us[k] >= 0.4:
+            xh = xh + L[0] @ (C @ x + v[k:k + 1] - C @ xh)
+        if uc[k] >= lossc[cc]:
+            s, d = xh.copy(), 0
+        else:
+            d = min(d + 1, 3)
+        u = K[min(d, 2)] @ s
+        costs[k] = x @ Q @ x + u @ R @ u
+        x = F @ x + G @ u + w[k]
+        xh = F @ xh + G @ u
+        cc = int(un[k] >= Tc[cc, 0]) if cc == 0 else int(un[k] >= Tc[cc, 0])
+    batches = costs[burn:].reshape(100, -1).mean(axis=1)
+    mean, half = batches.mean(), 4.0 * batches.std(ddof=1) / np.sqrt(len(batches))
+    assert abs(rep.stationary_cost - mean) <= half, (rep.stationary_cost, mean, half)
+    # The run tells a wrong model apart: without the sensor losses the cost is about 10 % higher.
+    wrong = analyze_output_channel(fam, K, 3, L, Channel.bernoulli(0.0), control, exhausted="hold", weights=(Q, R),
+                                   noise=(W, V)).stationary_cost
+    assert abs(wrong - mean) > half
