@@ -386,3 +386,15 @@ def test_output_channel_cost_against_monte_carlo():
     wrong = analyze_output_channel(fam, K, 3, L, Channel.bernoulli(0.0), control, exhausted="hold", weights=(Q, R),
                                    noise=(W, V)).stationary_cost
     assert abs(wrong - mean) > half
+
+
+def test_trace_figure_draws_the_estimate():
+    from solver.plotting import render, trace_figure
+
+    fam = motor()
+    res = design(fam, 3, feedback="output", sensor_n_drop=2)
+    tr = simulate(fam, res.gains, 3, x0=[1.0, 0.0], steps=40, seed=2, observer_gains=res.observer_gains)
+    fig = trace_figure([tr], family=fam)
+    labels = [line.get_label() for ax in fig.axes for line in ax.get_lines()]
+    assert sum("estimate" in lab for lab in labels) == fam.n_states
+    assert render(fig, "svg").startswith(b"<?xml")
