@@ -65,6 +65,33 @@ def replay_reference(family, gains, n_drop: int, precision: str = "float64", *, 
             "gains": K, "run": run}
 
 
+def result_view(result: dict):
+    """A design result's JSON (``DesignResult.to_dict()``) as the attributes :func:`export_c` reads from a
+    :class:`solver.DesignResult`: gains, outcome, method, certificate (kind, verified, X, P), scaling, decay rate
+    and plant switching, so the float32 re-check starts from the design's own certificate when it is stored.
+
+    Raises
+    ------
+    InvalidInput
+        When the result has no gains.
+    """
+    from types import SimpleNamespace
+
+    if not isinstance(result, dict) or result.get("gains") is None:
+        raise InvalidInput("the design result has no gains", ("gains",))
+    cert = result.get("certificate") or None
+    if isinstance(cert, dict):
+        cert = SimpleNamespace(kind=cert.get("kind"), verified=bool(cert.get("verified")),
+                               X=None if cert.get("X") is None else np.asarray(cert["X"], dtype=float),
+                               P=None if cert.get("P") is None else np.asarray(cert["P"], dtype=float))
+    else:
+        cert = None
+    return SimpleNamespace(gains=np.asarray(result["gains"], dtype=float), outcome=result.get("outcome"),
+                           method=result.get("method"), certificate=cert, scaling=result.get("scaling"),
+                           decay_rate=result.get("decay_rate"),
+                           plant_switching=result.get("plant_switching") or "per_interval")
+
+
 def _array(values) -> str:
     flat = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
     return ",\n".join("    {" + ", ".join(repr(float(v)) for v in row) + "}" for row in flat)
