@@ -423,3 +423,48 @@ def test_float32_needs_the_family_and_checks_its_sizes():
     with pytest.raises(InvalidInput) as err:
         export_c(EQ23_GAINS, 3, precision="float16", family=PAPER)
     assert err.value.field == ("precision",)
+
+
+@pytest.mark.parametrize("options", [{"method": "switched"}, {"method": "lmi", "plant_switching": "per_sample"},
+                                     {"method": "lmi", "scheme": "hold"}])
+def test_float32_keeps_the_designs_claim_and_certificate(options):
+    """Switched (mode-dependent P_s) and per-sample certificates are re-checked as they are, at the design's rate."""
+    from solver.precision import certify_float32
+
+    res = design(PAPER, 3, **options)
+    assert res.outcome == "stabilized" and res.decay_rate is not None
+    proof = certify_float32(PAPER, res.gains, 3, plant_switching=res.plant_switching, decay_rate=res.decay_rate,
+                            certificate=res.certificate)
+    assert proof.verified and proof.source == "design" and proof.claim.startswith("decay rate")
+    head = export_c(res, 3, precision="float32", family=PAPER)["ncs_controller.h"]
+    assert f"decay rate {res.decay_rate:.6g} re-checked on them (design certificate" in head
+
+
+def test_beta_bounds_the_float32_rounding_over_an_interval():
+    """Independent of the C code: float32 packets computed with numpy's float32 (sequential sums) perturb every
+    interval by at most beta_s |x| (the bound the proof covers), and the bound is not loose by orders."""
+    from solver.network import ModeSet
+    from solver.precision import certify_float32
+
+    rng = np.random.default_rng(9)
+    fam = random_family(rng, 4, 2, 2)
+    K = 0.3 * rng.standard_normal((3, 2, 4))
+    proof = certify_float32(fam, K, 3)
+    K32 = proof.gains.astype(np.float32)
+    modes = ModeSet.from_family(fam, 3)
+    ratio = 0.0
+    for _ in range(300):
+        x = rng.standard_normal(4) * 10.0 ** rng.uniform(-3, 3)
+        x32 = x.astype(np.float32)
+        u32 = np.empty((3, 2))
+        for q in range(3):
+            for j in range(2):
+                s = np.float32(0.0)
+                for i in range(4):
+                    s = np.float32(s + np.float32(K32[q, j, i] * x32[i]))
+                u32[q, j] = s
+        err = u32 - proof.gains @ x  # (3, 2): the rounding of every entry
+        w = np.einsum("sqab,qb->sa", modes.coef, err)
+        r = np.linalg.norm(w, axis=1) / (proof.beta * np.linalg.norm(x))
+        ratio = max(ratio, float(r.max()))
+    assert 1e-4 < ratio <= 1.0
