@@ -233,8 +233,8 @@ _HEADER = """\
  * Arithmetic: {precision} ({real}).
  *
  * Worst case per call: {p}_packet {macs} multiply-adds (N m n) and {copies} stores;
- * {p}_buffer_receive {copies} copies, {p}_buffer_output {m} copies, {p}_buffer_set_clock
- * and {p}_buffer_init no arithmetic on reals (0 multiply-adds). No loop depends on data.
+ * {p}_buffer_receive and {p}_buffer_output 0 multiply-adds (copies: {copies} and {m} values);
+ * {p}_buffer_set_clock and {p}_buffer_init no arithmetic on reals. No loop bound depends on data.
  *
  * Controller node: each sample k, measure x(k), call {p}_packet(x, packet) and send
  * (packet, stamp = k). Actuator node: call {p}_buffer_receive for every packet that
@@ -250,7 +250,8 @@ _HEADER = """\
  * clock recomputes the held packet's age from its stamp (and drops it if its stamp is
  * ahead of the new clock), so the newest stamp always wins.
  *
- * No dynamic memory, no recursion, no library calls, no state outside the caller's {p}_buffer_t.
+ * No dynamic memory, no recursion, no calls outside this file (a compiler may make memset of the
+ * zeroing loops, and soft-float helpers without an FPU), no state outside the caller's {p}_buffer_t.
  */
 #ifndef {P}_CONTROLLER_H
 #define {P}_CONTROLLER_H

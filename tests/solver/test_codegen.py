@@ -118,7 +118,8 @@ def test_strict_c99_compiles_and_header_names_the_design(tmp_path, paper_design)
     for text in ("#define NCS_N 2", "#define NCS_M 1", "#define NCS_N_DROP 3", "id: d-42", "method: lmi",
                  f"certificate: {paper_design.certificate.kind}", "size_t ncs_buffer_size(void);",
                  "void ncs_buffer_receive(ncs_buffer_t *b, const double packet[], uint32_t stamp);",
-                 "ncs_packet 6 multiply-adds (N m n)", "ncs_buffer_output 1 copies"):
+                 "ncs_packet 6 multiply-adds (N m n)",
+                 "ncs_buffer_receive and ncs_buffer_output 0 multiply-adds (copies: 3 and 1 values)"):
         assert text in head
     src = files["ncs_controller.c"]
     assert "malloc" not in src and "static const double ncs_gains" in src
