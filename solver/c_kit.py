@@ -147,7 +147,8 @@ _CMAKE = """\
 # Build of the generated controller (ncs-design, solver.export_kit).
 #   In a firmware project:   add_subdirectory(path/to/this) and target_link_libraries(app PRIVATE @p@_controller)
 #   Host replay test:        cmake -S . -B build && cmake --build build && ctest --test-dir build
-#   Emulated Cortex-M:       cmake -S . -B build-arm -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake [-DNCS_CPU=cortex-m0plus]
+#   Emulated Cortex-M:       cmake -S . -B build-arm -DCMAKE_TOOLCHAIN_FILE=cmake/arm-none-eabi.cmake
+#                            [-DNCS_CPU=cortex-m0plus]
 #                            cmake --build build-arm && ctest --test-dir build-arm   (needs qemu-system-arm)
 cmake_minimum_required(VERSION 3.13)
 project(@p@_controller C)
@@ -156,7 +157,10 @@ add_library(@p@_controller STATIC @p@_controller.c)
 target_include_directories(@p@_controller PUBLIC ${CMAKE_CURRENT_SOURCE_DIR})
 set_target_properties(@p@_controller PROPERTIES C_STANDARD 99 C_STANDARD_REQUIRED ON C_EXTENSIONS OFF)
 if(CMAKE_C_COMPILER_ID STREQUAL "GNU" OR CMAKE_C_COMPILER_ID MATCHES "Clang")
-    target_compile_options(@p@_controller PRIVATE -Wall -Wextra -Werror -pedantic)
+    target_compile_options(@p@_controller PRIVATE -Wall -Wextra -pedantic)
+    if(CMAKE_SOURCE_DIR STREQUAL CMAKE_CURRENT_SOURCE_DIR)
+        target_compile_options(@p@_controller PRIVATE -Werror)  # not imposed on a parent project's compiler
+    endif()
 endif()
 
 # The replay test, when this directory is the top-level project and the kit has its data.
