@@ -50,6 +50,7 @@ def variants(paper_design):
         ("ncs", export_c(paper_design, 3, metadata={"id": "x */ ??/ %n"})),
         ("f32", export_c(paper_design, 3, prefix="f32", precision="float32", family=PAPER)),
         ("wide", export_c(rng.standard_normal((4, 3, 5)), 4, exhausted="zero", prefix="wide")),
+        ("one", export_c(np.full((1, 1, 1), 0.5), 1, prefix="one")),  # every loop bound 1
     ]
 
 
@@ -144,7 +145,7 @@ def corrupt(data_file):
 
 
 @pytest.mark.parametrize("cpu, precision", [("cortex-m4", "float32"), ("cortex-m4", "float64"),
-                                            ("cortex-m0plus", "float64")])
+                                            ("cortex-m0plus", "float64"), ("cortex-m0plus", "float32")])
 def test_on_target_equivalence_with_simulate(tmp_path, paper_design, cpu, precision):
     """The kit cross-built with its toolchain file and run on an emulated board: every output, read back bit by
     bit over semihosting, equals simulate's input (float64: to float64 rounding; float32: within the float32 bound
