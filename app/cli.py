@@ -116,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
                    help="input once the newest packet is n_drop or more samples old (default hold)")
     g.add_argument("--prefix", default="ncs", help="prefix of the C names and files (default ncs)")
+    g.add_argument("--precision", choices=("float64", "float32"), default="float64",
+                   help="C arithmetic: double (default) or float, certified on the rounded gains (needs --plant)")
+    g.add_argument("--plant", default=None, metavar="PLANT",
+                   help="the design's plant file: for --precision float32 and the kit's replay test (test/)")
+    g.add_argument("--sampling-period", type=float, default=None, metavar="H",
+                   help="sampling period for A/B .mat plant files")
 
     x = sub.add_parser("export-sdpa", help="the SDP that design solves, in SDPA sparse format (.dat-s)")
     plant_args(x)

@@ -342,11 +342,12 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_codegen(args) -> int:
-    from solver import export_c
+    from solver.c_kit import export_kit, result_view
 
     gains = load_gains(args.result)
     n_drop = args.n_drop or len(gains)
     metadata = {"file": Path(args.result).name}
+    source = gains
     if Path(args.result).suffix.lower() == ".json":
         data = _read_json(Path(args.result))
         if isinstance(data, dict):
@@ -356,10 +357,15 @@ def cmd_codegen(args) -> int:
             metadata.update({k: v for k, v in (("id", job.get("id")), ("method", result.get("method")),
                                                ("outcome", result.get("outcome")),
                                                ("certificate", cert.get("kind"))) if v is not None})
-    files = export_c(gains, n_drop, exhausted=args.exhausted, prefix=args.prefix, metadata=metadata)
+            source = result_view(result)  # the float32 re-check starts from the design's certificate
+    family = load_plant(args.plant, args.sampling_period) if args.plant else None
+    if args.precision == "float32" and family is None:
+        raise UsageError("--precision float32 needs --plant: the certificate is re-checked on the rounded gains")
+    files = export_kit(source, n_drop, exhausted=args.exhausted, prefix=args.prefix, metadata=metadata,
+                       precision=args.precision, family=family)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     for name, text in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
         (out / name).write_text(text)
         print(f"wrote {out / name}")
     return EXIT_OK

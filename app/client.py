@@ -746,11 +746,14 @@ class Client:
             raise ValueError('fmt must be "mat" or "m"')
         return self._request("GET", f"/v1/designs/{job_id}/gains.{fmt}").content
 
-    def controller_zip(self, job_id: str, *, exhausted: str = "hold", prefix: str = "ncs") -> bytes:
+    def controller_zip(self, job_id: str, *, exhausted: str = "hold", prefix: str = "ncs",
+                       precision: str = "float64") -> bytes:
         """A succeeded design's C controller and actuator buffer (``GET /v1/designs/{id}/controller.zip``):
-        a zip of ``<prefix>_controller.h`` and ``.c`` (see :func:`solver.export_c`)."""
+        a zip of ``<prefix>_controller.h`` and ``.c`` (see :func:`solver.export_c`) with the build and test kit
+        (:func:`solver.c_kit.export_kit`); ``precision="float32"`` for single precision, certified on the
+        rounded gains (refused with the reason when they lose the proof)."""
         return self._request("GET", f"/v1/designs/{job_id}/controller.zip",
-                             params={"exhausted": exhausted, "prefix": prefix}).content
+                             params={"exhausted": exhausted, "prefix": prefix, "precision": precision}).content
 
     def problem_sdpa(self, job_id: str) -> str:
         """The design's SDP in SDPA sparse format (``GET /v1/designs/{id}/problem.dat-s``, see

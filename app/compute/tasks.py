@@ -357,14 +357,18 @@ def run_gains_file(result: dict[str, Any], fmt: str, name: str) -> bytes:
 
 
 def run_controller_zip(result: dict[str, Any], n_drop: int, exhausted: str, prefix: str,
-                       metadata: dict[str, Any]) -> bytes:
-    """The C controller and actuator buffer of a design's gains (``solver.export_c``), zipped."""
+                       metadata: dict[str, Any], precision: str = "float64",
+                       plant: dict[str, Any] | None = None) -> bytes:
+    """The C controller and actuator buffer of a design's gains with its build and test kit
+    (``solver.c_kit.export_kit``: CMake, toolchain file, replay test of a simulated run), zipped."""
     import io
     import zipfile
 
-    from solver import export_c
+    from solver.c_kit import export_kit, result_view
 
-    files = export_c(_gains_array(result["gains"]), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata)
+    family = build_family(plant) if plant is not None else None
+    files = export_kit(result_view(result), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata,
+                       precision=precision, family=family)
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
         for name in sorted(files):
