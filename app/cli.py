@@ -83,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--objective", choices=("stability", "cost", "hinf"), default=None,
                    help="cost: minimize the certified worst-case quadratic cost; hinf: the certified l2 gain")
     d.add_argument("--u-max", default=None, metavar="U1,U2,...", help="input limits (one per input)")
+    d.add_argument("--feedback", choices=("state", "output"), default=None,
+                   help="output: measure y = C x (the plant file's \"C\") over a lossy sensor link, with an observer")
+    d.add_argument("--sensor-n-drop", type=int, default=None,
+                   help="with --feedback output: at most this minus one lost measurements in a row (default --n-drop)")
+    d.add_argument("--observer", choices=("per_mode", "common"), default=None,
+                   help="with --feedback output: one observer gain per plant mode (default) or one for all")
     performance_args(d)
 
     a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")
@@ -110,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
                    help="input once the newest packet is n_drop or more samples old (default hold)")
     g.add_argument("--prefix", default="ncs", help="prefix of the C names and files (default ncs)")
+    g.add_argument("--precision", choices=("float64", "float32"), default="float64",
+                   help="C arithmetic: double (default) or float, certified on the rounded gains (needs --plant)")
+    g.add_argument("--plant", default=None, metavar="PLANT",
+                   help="the design's plant file: for --precision float32 and the kit's replay test (test/)")
+    g.add_argument("--sampling-period", type=float, default=None, metavar="H",
+                   help="sampling period for A/B .mat plant files")
 
     x = sub.add_parser("export-sdpa", help="the SDP that design solves, in SDPA sparse format (.dat-s)")
     plant_args(x)

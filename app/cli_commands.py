@@ -210,7 +210,9 @@ def _client(args):
 
 def cmd_design(args) -> int:
     fam = load_plant(args.plant, args.sampling_period)
-    options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme)) if v is not None}
+    options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme),
+                                 ("feedback", args.feedback), ("sensor_n_drop", args.sensor_n_drop),
+                                 ("observer", args.observer)) if v is not None}
     if args.decay_rate is not None:  # given: 'none' means plain stability (None), not the default "auto"
         options["decay_rate"] = _parse_decay_rate(args.decay_rate)
     perf = performance_kwargs(args)
@@ -228,7 +230,9 @@ def cmd_design(args) -> int:
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
     print("\n".join(design_summary(result)), flush=True)
-    if result["outcome"] == "stabilized" and result.get("gains"):
+    if result.get("observer_gains") is not None:
+        print(f"observer gains L (one n x p per plant mode): {json.dumps(result['observer_gains'])}")
+    if result["outcome"] == "stabilized" and result.get("gains") and result.get("feedback", "state") == "state":
         print(simulated_settling(fam, result))
     if args.output:
         _write_design(args.output, suffix, result, fam)
@@ -338,11 +342,12 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_codegen(args) -> int:
-    from solver import export_c
+    from solver.c_kit import export_kit, result_view
 
     gains = load_gains(args.result)
     n_drop = args.n_drop or len(gains)
     metadata = {"file": Path(args.result).name}
+    source = gains
     if Path(args.result).suffix.lower() == ".json":
         data = _read_json(Path(args.result))
         if isinstance(data, dict):
@@ -352,10 +357,15 @@ def cmd_codegen(args) -> int:
             metadata.update({k: v for k, v in (("id", job.get("id")), ("method", result.get("method")),
                                                ("outcome", result.get("outcome")),
                                                ("certificate", cert.get("kind"))) if v is not None})
-    files = export_c(gains, n_drop, exhausted=args.exhausted, prefix=args.prefix, metadata=metadata)
+            source = result_view(result)  # the float32 re-check starts from the design's certificate
+    family = load_plant(args.plant, args.sampling_period) if args.plant else None
+    if args.precision == "float32" and family is None:
+        raise UsageError("--precision float32 needs --plant: the certificate is re-checked on the rounded gains")
+    files = export_kit(source, n_drop, exhausted=args.exhausted, prefix=args.prefix, metadata=metadata,
+                       precision=args.precision, family=family)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     for name, text in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
         (out / name).write_text(text)
         print(f"wrote {out / name}")
     return EXIT_OK

@@ -201,6 +201,9 @@ class DesignResult:
         ``verified``, ``gap``; ``Performance`` in ``/openapi.json``).
     invariant_set : ndarray, shape (n, n), or None
         With ``u_max``: X of ``{x : x' X x <= 1}``, from which every applied input meets the limits.
+    observer_gains : ndarray, shape (r, n, p), or None
+        Output feedback (``feedback="output"``): the observer gains L; ``raw["observer"]`` and
+        ``raw["joint_certificate"]`` hold their proof and the whole loop's certificate.
     raw : dict
         The JSON result (``DesignResult`` in ``/openapi.json``).
     """
@@ -228,6 +231,7 @@ class DesignResult:
     objective: str = "stability"
     performance: dict | None = None
     invariant_set: np.ndarray | None = None
+    observer_gains: np.ndarray | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -243,7 +247,8 @@ class DesignResult:
                    settling=result.get("settling"), state_names=result.get("state_names"),
                    input_names=result.get("input_names"), units=result.get("units"), job_id=job_id,
                    objective=result.get("objective") or "stability", performance=result.get("performance"),
-                   invariant_set=_array(result.get("invariant_set")), raw=result)
+                   invariant_set=_array(result.get("invariant_set")),
+                   observer_gains=_array(result.get("observer_gains")), raw=result)
 
     @property
     def success(self) -> bool:
@@ -457,7 +462,14 @@ def plant_json(plant, sampling_period: float | None = None) -> dict:
             out[key] = list(getattr(plant, key))
     if getattr(plant, "units", None):
         out["units"] = dict(plant.units)
+    if getattr(plant, "C", None) is not None:
+        out["C"] = np.asarray(plant.C).tolist()
     return out
+
+
+def _lists(options: dict) -> dict:
+    """Arrays among keyword options (``observer_gains``, ``xh0``) as JSON lists."""
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in options.items()}
 
 
 def _gains_json(gains) -> list:
@@ -572,7 +584,8 @@ class Client:
     def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
                sampling_period: float | None = None, label: str | None = None, objective: str | None = None,
                weights=None, x0=None, disturbance=None, output=None, u_max=None, channel=None,
-               exhausted: str = "hold", **options) -> DesignResult | Job:
+               exhausted: str = "hold", feedback: str | None = None, sensor_n_drop: int | None = None,
+               observer: str | None = None, noise=None, **options) -> DesignResult | Job:
         """Design gains K_1..K_{n_drop} on the service.
 
         Parameters
@@ -592,6 +605,9 @@ class Client:
             Your name for the job (at most 200 characters), shown in :meth:`jobs`.
         objective, weights, x0, disturbance, output, u_max
             As in :func:`solver.design` (``"cost"`` / ``"hinf"``, ``(Q, R)``, ``(C, D)``, ...; docs/design.md §8).
+        feedback, sensor_n_drop, observer, noise
+            Output feedback, as in :func:`solver.design` (``"output"``, an int, ``"per_mode"``/``"common"``,
+            ``(W, V)``; docs/design.md §12); the plant needs ``C``.
         channel, exhausted
             A :class:`solver.channel.Channel` (or its JSON) to judge the designed gains on; the result's
             ``raw["channel"]`` is then the report of :meth:`analyze_channel` (burst rate, ``ms_stable``, ...).
@@ -621,6 +637,12 @@ class Client:
         if channel is not None:
             body["channel"] = _channel_json(channel)
             body["exhausted"] = exhausted
+        for key, value in (("feedback", feedback), ("sensor_n_drop", sensor_n_drop), ("observer", observer)):
+            if value is not None:
+                body[key] = value
+        if noise is not None:
+            body["noise"] = {"W": np.asarray(noise[0], dtype=float).tolist(),
+                             "V": np.asarray(noise[1], dtype=float).tolist()}
         job = self._submit("design", body, wait)
         if not job.done:
             return job
@@ -661,7 +683,7 @@ class Client:
         ``max_product_length``.  ``weights``/``x0`` and ``disturbance``/``output`` ask for the cost and
         l2-gain brackets (``result.cost``, ``result.hinf``), as in :func:`solver.analyze`.
         """
-        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **options,
+        body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **_lists(options),
                 **performance_json(weights=weights, x0=x0, disturbance=disturbance, output=output)}
         if n_drop is not None:
             body["n_drop"] = n_drop
@@ -701,7 +723,7 @@ class Client:
         if isinstance(options.get("plant_transitions"), np.ndarray):
             options["plant_transitions"] = options["plant_transitions"].tolist()
         body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains),
-                "x0": [float(v) for v in x0], "steps": steps, "seed": seed, **options}
+                "x0": [float(v) for v in x0], "steps": steps, "seed": seed, **_lists(options)}
         if n_drop is not None:
             body["n_drop"] = n_drop
         return SimulationResult.from_json(self._request("POST", "/v1/simulations", json=body).json())
@@ -724,11 +746,14 @@ class Client:
             raise ValueError('fmt must be "mat" or "m"')
         return self._request("GET", f"/v1/designs/{job_id}/gains.{fmt}").content
 
-    def controller_zip(self, job_id: str, *, exhausted: str = "hold", prefix: str = "ncs") -> bytes:
+    def controller_zip(self, job_id: str, *, exhausted: str = "hold", prefix: str = "ncs",
+                       precision: str = "float64") -> bytes:
         """A succeeded design's C controller and actuator buffer (``GET /v1/designs/{id}/controller.zip``):
-        a zip of ``<prefix>_controller.h`` and ``.c`` (see :func:`solver.export_c`)."""
+        a zip of ``<prefix>_controller.h`` and ``.c`` (see :func:`solver.export_c`) with the build and test kit
+        (:func:`solver.c_kit.export_kit`); ``precision="float32"`` for single precision, certified on the
+        rounded gains (refused with the reason when they lose the proof)."""
         return self._request("GET", f"/v1/designs/{job_id}/controller.zip",
-                             params={"exhausted": exhausted, "prefix": prefix}).content
+                             params={"exhausted": exhausted, "prefix": prefix, "precision": precision}).content
 
     def problem_sdpa(self, job_id: str) -> str:
         """The design's SDP in SDPA sparse format (``GET /v1/designs/{id}/problem.dat-s``, see

@@ -99,6 +99,8 @@ class AnalysisReport:
     unstable_cycle: dict | None = None
     #: ``Network.to_dict()`` of the network analyzed (None: given by n_drop only).
     network: dict | None = None
+    #: With ``observer_gains``: the whole output-feedback loop's verdict (:class:`solver.observer.OutputAnalysis`).
+    output: object | None = None
 
     @property
     def max_spectral_radius(self) -> float:
@@ -136,7 +138,7 @@ class AnalysisReport:
             "cost": None if self.cost is None else self.cost.to_dict(),
             "hinf": None if self.hinf is None else self.hinf.to_dict(),
             "unstable_cycle": self.unstable_cycle,
-        }
+        } | ({} if self.output is None else {"output": self.output.to_dict()})
 
 
 def product_lower_bound(A_modes: np.ndarray, max_length: int, max_products: int,
@@ -253,6 +255,8 @@ def analyze(
     x0=None,
     disturbance=None,
     output=None,
+    observer_gains=None,
+    sensor_n_drop: int | None = None,
 ) -> AnalysisReport:
     """Decide stability of the networked loop with given gains under arbitrary losses and jumps.
 
@@ -300,11 +304,37 @@ def analyze(
         ``E`` (one or one per plant mode): report ``rep.hinf``, the l2-gain bracket from w to z.
     output : (C, D), optional
         ``z = C x + D u`` (default ``z = [x; u]``).
+    observer_gains : array_like (r, n, p), optional
+        Output feedback (docs/design.md, "Output feedback"): decide the whole loop with the observer
+        ``L`` on ``family.C``; ``rep.output`` (:class:`solver.observer.OutputAnalysis`) holds the joint
+        certificate or the proof, and ``rep.stable`` is its verdict.
+    sensor_n_drop : int, optional
+        With ``observer_gains``: at most ``sensor_n_drop - 1`` lost measurements in a row (default ``n_drop``).
 
     Returns
     -------
     AnalysisReport
     """
+    if observer_gains is None and sensor_n_drop is not None:
+        raise InvalidInput("sensor_n_drop applies to output feedback: pass observer_gains", ("sensor_n_drop",))
+    if observer_gains is not None:
+        from .observer import analyze_output, check_sensor_n_drop, require_outputs
+
+        require_outputs(family)
+        M = check_sensor_n_drop(n_drop if sensor_n_drop is None else sensor_n_drop)
+        if any(v is not None for v in (weights, x0, disturbance, output)):
+            raise InvalidInput("cost and l2-gain brackets are not available with observer_gains yet",
+                               ("observer_gains",))
+        rep = analyze(family, gains, n_drop, max_product_length=max_product_length, max_products=max_products,
+                      plant_switching=plant_switching, scheme=scheme, certificates=certificates, bounds="none",
+                      rate_tol=rate_tol, max_modes=max_modes, solver=solver)
+        out = analyze_output(family, gains, n_drop, observer_gains, M, plant_switching=plant_switching,
+                             scheme=scheme, state_report=rep)
+        out.state_feedback = None  # the report itself is the full-state part
+        rep.output = out
+        rep.stable = out.stable
+        rep.reason = f"output feedback: {out.reason} (full-state loop: {rep.reason})"
+        return rep
     start = time.perf_counter()
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))

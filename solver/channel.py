@@ -565,7 +565,8 @@ def _verdicts(loop, want_lower: bool = True):
 
 
 def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: str = "hold",
-                    plant_transitions=None, weights=None, noise=None) -> ChannelReport:
+                    plant_transitions=None, weights=None, noise=None, observer_gains=None,
+                    sensor_channel=None) -> ChannelReport:
     """The predictive loop on a stochastic channel: bursts, mean-square stability, expected cost.
 
     Per sample k (docs/design.md, "Stochastic channels"): the buffer age ``d = k - i_m``, the
@@ -593,11 +594,27 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
         Process noise covariance W (``x(k+1) = F x + G u + w``): adds ``stationary_cost``, the
         long-run cost per sample.
 
+    observer_gains : array_like (r, n, p), optional
+        Output feedback (docs/design.md §12): ``channel`` is then the control link, ``sensor_channel`` (default
+        lossless) the measurements' link, ``noise`` the pair ``(W, V)``; the answer is a
+        :class:`solver.observer.OutputChannelReport` (mean-square stability and the stationary LQG-like cost).
+
     Returns
     -------
     ChannelReport
     """
     from .mjls import build_loop, cesaro_modes, cost_lower, cost_to_go, cost_upper
+
+    if observer_gains is not None or sensor_channel is not None:
+        from .observer import analyze_output_channel
+
+        if observer_gains is None:
+            raise InvalidInput("sensor_channel applies to output feedback: pass observer_gains", ("sensor_channel",))
+        if plant_transitions is not None:
+            raise InvalidInput("plant_transitions is not supported with observer_gains yet", ("plant_transitions",))
+        return analyze_output_channel(family, gains, n_drop, observer_gains,
+                                      Channel.bernoulli(0.0) if sensor_channel is None else sensor_channel, channel,
+                                      exhausted=exhausted, weights=weights, noise=noise)
 
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, channel, exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs

@@ -21,6 +21,7 @@ from .scaling import Scaling, balance
 
 #: Method name -> module with ``run(modes, options)``.
 METHODS = {"lmi": lmi, "ccl": ccl, "switched": switched}
+FEEDBACK = ("state", "output")
 #: Methods that can demand a decay rate (CCL's augmented form has no rate).
 RATE_METHODS = ("lmi", "switched")
 
@@ -69,6 +70,10 @@ def design(
     output=None,
     u_max=None,
     max_memory: float | None = None,
+    feedback: str = "state",
+    sensor_n_drop: int | None = None,
+    observer: str = "per_mode",
+    noise=None,
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -161,6 +166,18 @@ def design(
         Input limits: every applied input must satisfy ``|u_j(k)| <= u_max[j]`` from every initial state
         of ``res.invariant_set`` (X of ``x' X x <= 1``; with the largest ball around 0 the design can fit in it,
         and ``x0`` when given) under every allowed pattern.  With ``objective="cost"`` it needs ``x0``; not with "hinf".
+    feedback : {"state", "output"}
+        ``"output"``: the controller measures ``y = C x`` (``family.C``) over a lossy sensor link and sends
+        predictions from an observer's estimate (docs/design.md, "Output feedback"): the gains K are this
+        design's, the observer gains ``res.observer_gains`` come from :func:`solver.observer.design_observer`,
+        and "stabilized" needs one certificate for the whole loop (``res.joint_certificate``).
+    sensor_n_drop : int, optional
+        With ``feedback="output"``: at most ``sensor_n_drop - 1`` measurements lost in a row (default ``n_drop``).
+    observer : {"per_mode", "common"}
+        With ``feedback="output"``: one observer gain per plant mode (the mode is known at the controller) or one.
+    noise : (W, V), optional
+        With ``feedback="output"``: process and measurement noise covariances; the observer starts from the
+        Kalman gains (without losses and with ``objective="cost"``, the pair is the steady-state LQG controller).
 
     Returns
     -------
@@ -180,6 +197,22 @@ def design(
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
+    if feedback not in FEEDBACK:
+        raise InvalidInput(f"feedback must be one of {FEEDBACK}, got {feedback!r}", ("feedback",))
+    if feedback == "output":
+        from .observer import complete_output_design, prepare_output_design
+
+        sensor_n_drop = prepare_output_design(family, n_drop, sensor_n_drop, observer, noise)
+        res = design(family, n_drop, method, solver=solver, margin=margin, max_iter=max_iter, time_limit=time_limit,
+                     callback=callback, ccl_start=ccl_start, decay_rate=decay_rate, rate_tol=rate_tol,
+                     plant_switching=plant_switching, scheme=scheme, max_modes=max_modes, scaling=scaling,
+                     objective=objective, weights=weights, x0=x0, disturbance=disturbance, output=output,
+                     u_max=u_max, max_memory=max_memory)
+        return complete_output_design(res, family, sensor_n_drop, observer, noise, plant_switching, scheme,
+                                      time_limit)
+    for name, value in (("sensor_n_drop", sensor_n_drop), ("noise", noise)):
+        if value is not None:
+            raise InvalidInput(f"{name} applies to output feedback: pass feedback=\"output\"", (name,))
     if method not in METHODS:
         raise InvalidInput(f"method must be one of {sorted(METHODS)}, got {method!r}", ("method",))
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)

@@ -69,7 +69,9 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
     dict
         ``K``, ``K1``..``KN``, ``F``, ``G``, ``P``, ``n_drop``, ``outcome``, ``certificate``, ``h``; for a
         cost/hinf design also ``perf_kind``, ``perf_upper``, ``perf_lower`` (NaN when none) and ``P_perf``, and with
-        ``u_max`` ``X_inv`` (the invariant set ``x' X_inv x <= 1``).
+        ``u_max`` ``X_inv`` (the invariant set ``x' X_inv x <= 1``); for output feedback ``L`` (n x p x r, the
+        observer gains), ``C`` (p x n x r), ``P_joint`` and ``Q_joint`` (n x n x sensor_n_drop) of the joint
+        certificate (docs/design.md §12).
     """
     if family is not None:
         F, G, h = np.asarray(family.F), np.asarray(family.G), family.sampling_period
@@ -108,6 +110,17 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
     X_inv = _get(result, "invariant_set")
     if X_inv is not None:  # inputs within u_max from every x with x' X_inv x <= 1
         out["X_inv"] = np.asarray(X_inv, dtype=float)
+    L = _get(result, "observer_gains")
+    if L is not None:  # output feedback: the observer and the whole loop's certificate
+        out["L"] = np.moveaxis(np.asarray(L, dtype=float), 0, -1)
+        C = family.C if family is not None and family.C is not None else None
+        if C is not None:
+            out["C"] = np.moveaxis(np.asarray(C, dtype=float), 0, -1)
+        joint = _get(result, "joint_certificate")
+        if joint is not None:
+            joint = joint if isinstance(joint, dict) else joint.to_dict()
+            out["P_joint"] = np.asarray(joint["P"], dtype=float)
+            out["Q_joint"] = np.moveaxis(np.asarray(joint["Q"], dtype=float), 0, -1)
     return out
 
 

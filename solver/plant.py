@@ -113,6 +113,25 @@ def _check_family(Fs, Gs, fname: str, gname: str) -> tuple[int, int]:
     return n, m
 
 
+def _check_outputs(C, r: int, n: int) -> np.ndarray:
+    """Output matrices as a read-only (r, p, n) array; one (p, n) matrix is repeated for every mode."""
+    try:
+        arr = np.array(C, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput("C must be a p x n matrix of numbers (or one per plant mode)", ("C",)) from None
+    if arr.ndim == 1 and arr.shape == (n,):
+        arr = arr[None]
+    if arr.ndim == 2:
+        arr = np.repeat(arr[None], r, axis=0)
+    if arr.ndim != 3 or arr.shape[0] != r or arr.shape[2] != n or arr.shape[1] < 1:
+        raise InvalidInput(f"C must be p x {n} (one matrix, or one per each of the {r} plant modes), "
+                           f"got shape {arr.shape}", ("C",))
+    if not np.all(np.isfinite(arr)):
+        raise InvalidInput("C has NaN or infinite entries", ("C",))
+    arr.setflags(write=False)
+    return arr
+
+
 def _check_sampling_period(h) -> float:
     try:
         h = float(h)
@@ -177,11 +196,15 @@ class PlantFamily:
     mode_names : sequence of str, optional
         One name per plant mode, e.g. ``("pole 0.2 m", "pole 0.3 m")``; figure titles and the
         plant-mode strip use them (default: the 0-based index).
+    C : array_like (p, n) or sequence of them, optional
+        Measured outputs ``y = C_l x`` for output feedback (``design(..., feedback="output")``); one
+        matrix is used for every mode.
 
     Attributes
     ----------
     F : ndarray, shape (r, n, n)
     G : ndarray, shape (r, n, m)
+    C : ndarray, shape (r, p, n), or None
 
     Raises
     ------
@@ -201,6 +224,7 @@ class PlantFamily:
     input_names: tuple[str, ...] | None = None
     units: dict | None = None
     mode_names: tuple[str, ...] | None = None
+    C: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         Fs = _matrix_list("F", self.F)
@@ -232,11 +256,13 @@ class PlantFamily:
         object.__setattr__(self, "F", F)
         object.__setattr__(self, "G", G)
         object.__setattr__(self, "sampling_period", h)
+        if self.C is not None:
+            object.__setattr__(self, "C", _check_outputs(self.C, len(Fs), n))
 
     # ------------------------------------------------------------------ builders
     @classmethod
     def from_continuous(cls, A: Sequence, B: Sequence, sampling_period: float, name: str | None = None,
-                        **labels) -> "PlantFamily":
+                        C=None, **labels) -> "PlantFamily":
         """Discretize a continuous family ``dx/dt = A_l x + B_l u`` by zero-order hold (eq. 3).
 
         Parameters
@@ -248,6 +274,8 @@ class PlantFamily:
         sampling_period : float
             Sampling period h in seconds, > 0.
         name : str, optional
+        C : array_like, optional
+            Measured outputs ``y = C x`` (kept as they are: sampling does not change them).
         **labels
             ``state_names``, ``input_names``, ``units`` (see :class:`PlantFamily`).
         """
@@ -266,6 +294,7 @@ class PlantFamily:
             A=np.stack(As),
             B=np.stack(Bs),
             name=name,
+            C=C,
             **labels,
         )
 
@@ -293,7 +322,7 @@ class PlantFamily:
             raise InvalidInput("a plant must be a JSON object with a \"kind\"", ("plant",))
         kind = data.get("kind") or ("continuous" if "A" in data else "discrete" if "F" in data else None)
         h = data.get("sampling_period") if sampling_period is None else sampling_period
-        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name", "mode_names")
+        labels = {k: data[k] for k in ("state_names", "input_names", "units", "name", "mode_names", "C")
                   if data.get(k) is not None}
         need = {"continuous": ("A", "B", "sampling_period"), "discrete": ("F", "G"),
                 "dc_motor": ("inertias", "sampling_period")}
@@ -514,6 +543,8 @@ class PlantFamily:
                 out[key] = list(getattr(self, key))
         if self.units is not None:
             out["units"] = dict(self.units)
+        if self.C is not None:
+            out["C"] = self.C.tolist()
         return out
 
 

@@ -135,6 +135,9 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
             for i in members:
                 label = family.state_label(i) if family is not None else f"x{i + 1}"
                 axes[g, c].plot(t, tr.state[:, i], color=colors[i % len(colors)], label=label)
+                if getattr(tr, "estimate", None) is not None:  # output feedback: the controller's estimate
+                    axes[g, c].plot(t, tr.estimate[:, i], color=colors[i % len(colors)], linestyle="--",
+                                    linewidth=1.0, label=f"{label}, estimate")
         for j in range(m):
             label = family.input_label(j) if family is not None else f"u{j + 1}"
             ax_u.stairs(tr.input[:, j], t, baseline=None, color=colors[(n + j) % len(colors)], label=label,

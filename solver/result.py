@@ -124,11 +124,13 @@ class DesignResult:
 
     Attributes
     ----------
-    outcome : {"stabilized", "infeasible", "marginal", "not_converged"}
+    outcome : {"stabilized", "infeasible", "marginal", "not_certified", "not_converged"}
         ``stabilized`` only with a certificate that passed the float64 re-check; ``infeasible``
         only with a proof that no design of any margin exists (up to the Farkas certificate's
         ``gain_bound_any_margin``); ``marginal`` when the Farkas certificate excludes only designs
-        whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist).
+        whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist);
+        ``not_certified`` when a sufficient condition failed without a proof that no design exists
+        (output feedback: the observer LMI; ``message`` says which).
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``; the last iterate's gains when not stabilized (may be None).
     certificate : Certificate or None
@@ -198,6 +200,12 @@ class DesignResult:
     performance: object | None = None
     invariant_set: np.ndarray | None = None
     settling: dict | None = None
+    #: "state", or "output" (docs/design.md, "Output feedback"): then ``observer_gains`` (r, n, p),
+    #: ``observer`` (:class:`solver.observer.ObserverDesign`) and ``joint_certificate``.
+    feedback: str = "state"
+    observer_gains: np.ndarray | None = None
+    observer: object | None = None
+    joint_certificate: object | None = None
 
     @property
     def iterations(self) -> int:
@@ -240,7 +248,12 @@ class DesignResult:
             "performance": None if self.performance is None else self.performance.to_dict(),
             "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
             "settling": self.settling,
-        }
+        } | ({} if self.feedback == "state" else {
+            "feedback": self.feedback,
+            "observer_gains": None if self.observer_gains is None else self.observer_gains.tolist(),
+            "observer": None if self.observer is None else self.observer.to_dict(),
+            "joint_certificate": None if self.joint_certificate is None else self.joint_certificate.to_dict(),
+        })
 
 
 def jsonable(obj):

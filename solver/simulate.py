@@ -70,6 +70,8 @@ class SimulationResult:
     ages: np.ndarray | None = None
     #: ``Network.to_dict()`` of the network simulated (runs given ``network=``).
     network: dict | None = None
+    #: Output feedback: the controller's estimate ``xh(k|k)``, shape (steps + 1, n) (last row ``xh(steps|steps-1)``).
+    estimate: np.ndarray | None = None
 
     def settling_samples(self, fraction: float = 0.02) -> int | None:
         """First sample from which ``|x(k)| <= fraction |x(0)|`` for the rest of the run (None: not settled).
@@ -88,6 +90,8 @@ class SimulationResult:
         extra = {} if self.channel_state is None else {"channel_state": self.channel_state.tolist()}
         if self.network is not None:
             extra["network"] = self.network
+        if self.estimate is not None:
+            extra["estimate"] = self.estimate.tolist()
         return extra | {
             "ages": None if self.ages is None else self.ages.tolist(),
             "t": self.time.tolist(),
@@ -136,6 +140,9 @@ def simulate(
     channel=None,
     exhausted: str = "hold",
     plant_transitions=None,
+    observer_gains=None,
+    sensor_n_drop: int | None = None,
+    xh0=None,
 ) -> SimulationResult:
     """Simulate the networked loop with random packet losses and plant jumps.
 
@@ -192,6 +199,15 @@ def simulate(
     plant_transitions : array_like (r, r), optional
         With a channel: per-sample Markov chain of the plant mode (row l: probabilities of the
         next mode); None keeps the initial mode.
+    observer_gains : array_like (r, n, p), optional
+        Output feedback (docs/design.md, "Output feedback"): the controller measures ``y = C x`` over a
+        lossy sensor link (``sensor_loss``, at most ``sensor_n_drop - 1`` lost in a row), runs the observer
+        and sends ``K_j xh(k|k)``; the control link loses with ``control_loss`` (at most ``n_drop - 1`` in a
+        row).  ``tr.estimate`` holds the estimate.  Uses ``family.C``.
+    sensor_n_drop : int, optional
+        With ``observer_gains`` (default ``n_drop``).
+    xh0 : array_like (n,), optional
+        With ``observer_gains``: the initial estimate (default 0).
 
     Returns
     -------
@@ -245,6 +261,19 @@ def simulate(
         tr = _simulate_network(family, K, n_drop, x, steps, int(seed), mode, net, arrivals, exhausted,
                                plant_switching, switch_probability)
         tr.network = None if net is None else net.to_dict()
+        return tr
+    if observer_gains is not None:
+        from .observer import simulate_output
+
+        if channel is not None:
+            raise InvalidInput("output feedback runs on the Bernoulli links (sensor_loss, control_loss), not on "
+                               "a channel", ("channel",))
+        tr = simulate_output(family, K, n_drop, observer_gains, x, steps, int(seed),
+                               sensor_n_drop=n_drop if sensor_n_drop is None else sensor_n_drop,
+                               sensor_loss=sensor_loss, control_loss=control_loss, xh0=xh0,
+                               plant_switching=plant_switching, mode=mode, switch_probability=switch_probability)
+        if tr.ages is None:
+            tr.ages = tr.buffer_index - 1
         return tr
     if channel is not None:
         return _simulate_channel(family, K, n_drop, x, steps, int(seed), mode, channel, exhausted, plant_transitions)

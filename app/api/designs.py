@@ -49,6 +49,7 @@ async def submit_design(
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
     validation.check_performance(req, settings)
+    validation.check_feedback(req)
     validation.check_design_channel(body, shape, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)
 
@@ -252,8 +253,12 @@ async def design_gains_m(job_id: str, request: Request, db: Database = Depends(g
                 "`<prefix>_packet` computes the packet `[K_1 x, ..., K_N x]` on the controller; "
                 "`<prefix>_buffer_receive(b, packet, stamp)` and `<prefix>_buffer_output(b, u)` run the "
                 "actuator's buffer (newest stamp wins, `u = K_(d+1) x(stamp)` with `d = now - stamp` while "
-                "`d < N`, then `exhausted`). C99, no dynamic memory, no global state. 409 until the design "
-                "has gains.",
+                "`d < N`, then `exhausted`). C99 (MISRA C:2012), no dynamic memory, no global state. With the "
+                "build and test kit (`solver.c_kit.export_kit`): `CMakeLists.txt` (`add_subdirectory`), "
+                "`cmake/arm-none-eabi.cmake`, and `test/`: a replay of a seeded simulated run on the host or on "
+                "an emulated Cortex-M. `precision=float32` rounds the gains to float32 and re-checks the "
+                "certificate on them with the float32 rounding bounded (422 naming `precision` with the reason "
+                "when the proof is lost). 409 until the design has gains.",
     response_class=Response,
     responses={200: {"description": "The zip (Content-Disposition: attachment)",
                      "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}}},
@@ -266,6 +271,9 @@ async def design_controller_zip(
                                                         "samples old: hold K_N x(stamp), or zero")] = "hold",
     prefix: Annotated[str, Query(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,30}$",
                                  description="Prefix of the C names and files")] = "ncs",
+    precision: Annotated[Literal["float64", "float32"],
+                         Query(description="Arithmetic of the C code: double, or float with the certificate "
+                                           "re-checked on the rounded gains")] = "float64",
     db: Database = Depends(get_database),
     owner: str | None = Depends(require_api_key),
 ):
@@ -277,9 +285,10 @@ async def design_controller_zip(
     cert = result.get("certificate") or {}
     metadata = {"id": job_id, "method": row.request.get("method"), "outcome": result.get("outcome"),
                 "certificate": cert.get("kind")}
-    return await _cached_attachment(request, (job_id, "controller", exhausted, prefix), "application/zip",
-                                    f"{prefix.lower()}-controller-{job_id}.zip", "controller_zip", result,
-                                    row.request["n_drop"], exhausted, prefix, metadata, loc=["query"])
+    return await _cached_attachment(request, (job_id, "controller", exhausted, prefix, precision),
+                                    "application/zip", f"{prefix.lower()}-controller-{job_id}.zip", "controller_zip",
+                                    result, row.request["n_drop"], exhausted, prefix, metadata, precision,
+                                    row.request.get("plant"), loc=["query"])
 
 
 @router.get(

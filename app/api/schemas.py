@@ -215,6 +215,58 @@ class Performance(_Open):
     message: str | None = Field(None, description="The bracket in words.")
 
 
+class ObserverObstruction(_Open):
+    """A sensor pattern under which no observer gain makes the estimate converge (docs/design.md §12)."""
+
+    kind: str = Field(description="`unobservable_pattern`.")
+    mode: int = Field(description="The plant mode (0-based).")
+    eigenvalue: list[Num] = Field(description="[real, imaginary] part of the eigenvalue of F^M on the subspace.")
+    modulus: float = Field(description="Its modulus (>= 1).")
+    basis: Matrix = Field(description="n x d basis of the F^M-invariant subspace inside ker C (exact rationals).")
+    period: int = Field(description="M = sensor_n_drop: M - 1 measurements lost, then one received.")
+
+
+class ObserverDesign(_Open):
+    """The observer gains of an output-feedback design and what proves them."""
+
+    outcome: str = Field(description="`certified`, `no_observer` (with `obstruction`) or `not_certified`.")
+    gains: list[Matrix] | None = Field(None, description="L, r x n x p.")
+    certificate: list[Matrix] | None = Field(None, description="Q_sigma (n x n) per sensor node sigma (measurements "
+                                             "lost in a row), re-checked in float64.")
+    decay_rate: float | None = Field(None, description="Per-sample rate the error certificate proves (null: 1).")
+    kind: str | None = Field(None, description="`per_mode`, `common` or `kalman`.")
+    message: str | None = Field(None, description="The outcome in words.")
+    obstruction: ObserverObstruction | None = Field(None, description="`no_observer`: the proof.")
+
+
+class JointCertificate(_Open):
+    """One quadratic certificate `V = x'Px + e'Q_sigma e` of the whole output-feedback loop."""
+
+    kind: str = Field(description="`joint_block_diagonal`.")
+    P: Matrix = Field(description="n x n, on the state at delivered packets.")
+    Q: list[Matrix] = Field(description="n x n per sensor node, on the filtered estimation error.")
+    blocks: int = Field(description="Interval x sensor-pattern x next-mode inequalities re-checked.")
+    worst: float = Field(description="Largest proven upper bound of their eigenvalues (< 0).")
+    checked: bool = Field(description="True: re-checked in float64 without the solver.")
+
+
+class ErrorCycle(_Open):
+    """A periodic admissible sensor pattern whose estimation error grows."""
+
+    plant: int = Field(description="Plant mode (0-based), constant.")
+    arrivals: list[bool] = Field(description="Measurement arrivals of one period.")
+    rate: float = Field(description="Growth per sample, rho(period map)^(1/period) > 1.")
+
+
+class OutputAnalysis(_Open):
+    """The verdict on an output-feedback loop with given K and L."""
+
+    stable: bool | None = Field(description="True with `certificate`, false with a proof, null otherwise.")
+    reason: str = Field(description="The verdict in words.")
+    certificate: JointCertificate | None = Field(None, description="The joint certificate when stable.")
+    error_cycle: ErrorCycle | None = Field(None, description="When the estimate diverges: the pattern.")
+
+
 class DesignResult(_Open):
     """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
 
@@ -276,6 +328,13 @@ class DesignResult(_Open):
     channel: "ChannelAnalysis | None" = Field(
         None, description="With a `channel` in the request and a stabilized design: the designed gains on that "
         "channel (as `POST /v1/channels` answers).")
+    feedback: str | None = Field(None, description="`output` for output feedback (absent for state feedback).")
+    observer_gains: list[Matrix] | None = Field(
+        None, description="`feedback: output`: the observer gains L, r x n x p (`observer_gains[l]` for plant mode l).")
+    observer: "ObserverDesign | None" = Field(
+        None, description="`feedback: output`: the observer design and its proof.")
+    joint_certificate: "JointCertificate | None" = Field(
+        None, description="`feedback: output`, stabilized: `V = x'Px + e'Q_sigma e` for the whole loop.")
 
 
 # -- margins -------------------------------------------------------------------------------------
@@ -313,6 +372,8 @@ class AnalysisReport(_Open):
 
     cost: Performance | None = Field(None, description="With `weights` or `x0`: the certified cost bracket.")
     hinf: Performance | None = Field(None, description="With `disturbance`: the certified l2-gain bracket.")
+    output: "OutputAnalysis | None" = Field(None, description="With `observer_gains`: the whole output-feedback "
+                                            "loop's verdict.")
 
     stable: bool | None = Field(description="True: certified (re-checked certificate); false: a mode product "
                                             "is proven unstable (`worst_sequence`); null: unknown.")
@@ -359,6 +420,8 @@ class Simulation(_Open):
     t: list[Num] = Field(description="Time of each sample, steps + 1 values: `k h` in seconds (k when the plant "
                                        "has no sampling period).")
     x: Matrix = Field(description="State, (steps + 1) x n, in the plant's state units.")
+    estimate: Matrix | None = Field(None, description="With `observer_gains`: the controller's estimate xh(k|k), "
+                                    "(steps + 1) x n.")
     u: Matrix = Field(description="Input applied over [k, k+1), steps x m.")
     mode: list[int] = Field(description="Plant mode (0-based) over [k, k+1), steps values.")
     sensor_arrived: list[bool] = Field(description="Sensor packet arrived at k (switch S1), steps values.")

@@ -245,7 +245,7 @@ def check_steps(steps: int, settings: Settings, errors: list, loc: list) -> None
 
 PLANT_FIELDS = {"A", "B", "F", "G", "sampling_period", "inertias", "resistance", "inductance",
                 "torque_constant", "back_emf_constant", "damping", "kind", "family", "state_names",
-                "input_names", "units", "name", "mode_names"}
+                "input_names", "units", "name", "mode_names", "C"}
 
 
 def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None = None,
@@ -288,6 +288,26 @@ def check_performance(req: dict[str, Any], settings: Settings) -> None:
         raise invalid([field_error(["body", "objective"], f"the {req.get('objective')} design has total LMI size "
                                    f"{size}, over the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)",
                                    "limit_exceeded")])
+
+
+def check_feedback(req: dict[str, Any]) -> None:
+    """Output feedback's fields (the plant's C, sensor_n_drop, noise) checked by the solver before a job is made."""
+    if req.get("feedback", "state") == "state" and req.get("sensor_n_drop") is None and req.get("noise") is None:
+        return
+    from solver import InvalidInput
+    from solver.observer import prepare_output_design
+
+    from app.compute.tasks import build_family
+
+    try:
+        if req.get("feedback", "state") == "state":
+            raise InvalidInput("sensor_n_drop and noise apply to output feedback: send \"feedback\": \"output\"",
+                               ("sensor_n_drop" if req.get("sensor_n_drop") is not None else "noise",))
+        noise = req.get("noise")
+        prepare_output_design(build_family(req["plant"]), req["n_drop"], req.get("sensor_n_drop"),
+                              req.get("observer", "per_mode"), None if noise is None else (noise["W"], noise["V"]))
+    except InvalidInput as exc:
+        raise invalid([solver_field_error(tuple(getattr(exc, "field", ())), str(exc), req["plant"])]) from None
 
 
 def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:

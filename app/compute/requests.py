@@ -89,6 +89,9 @@ class ContinuousPlant(_Strict):
     mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
                                           "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
 
+    C: Union[Matrix, list[Matrix]] | None = Field(
+        None, description="Measured outputs `y = C x` (p x n, one for every mode or one per mode) for output "
+        "feedback (`feedback: output`).")
     _single_A = field_validator("A", mode="before")(_one_error_for_single_matrix("A", "n x n matrices, one per plant mode"))
     _single_B = field_validator("B", mode="before")(_one_error_for_single_matrix("B", "n x m matrices, one per plant mode"))
 
@@ -100,6 +103,9 @@ class DiscretePlant(_Strict):
     F: list[Matrix] = Field(description="One n x n matrix per plant mode." + _WRAP_DOC)
     G: list[Matrix] = Field(description="One n x m matrix per plant mode." + _WRAP_DOC)
 
+    C: Union[Matrix, list[Matrix]] | None = Field(
+        None, description="Measured outputs `y = C x` (p x n, one for every mode or one per mode) for output "
+        "feedback (`feedback: output`).")
     _single_F = field_validator("F", mode="before")(_one_error_for_single_matrix("F", "n x n matrices, one per plant mode"))
     _single_G = field_validator("G", mode="before")(_one_error_for_single_matrix("G", "n x m matrices, one per plant mode"))
     sampling_period: Number | None = Field(
@@ -122,6 +128,9 @@ class DcMotorPlant(_Strict):
 
     kind: Literal["dc_motor"] = Field(description="`dc_motor`: built from physical parameters; states i_a (A), "
                                       "omega (rad/s), input v_a (V) unless named otherwise.")
+    C: Union[Matrix, list[Matrix]] | None = Field(
+        None, description="Measured outputs `y = C x` (p x n, one for every mode or one per mode) for output "
+        "feedback (`feedback: output`).")
     inertias: list[Annotated[Number, Field(gt=0)]] = Field(
         description="Moment of inertia J per plant mode (kg m^2).", min_length=1
     )
@@ -239,6 +248,17 @@ class _Performance(_Strict):
     output: Output | None = Field(None, description="z = C x + D u (hinf); default z = [x; u].")
 
 
+class Noise(_Strict):
+    """Noise covariances of output feedback: `x(k+1) = F x + G u + w`, `y = C x + v`."""
+
+    W: Matrix = Field(description="n x n process noise covariance (symmetric PSD).")
+    V: Matrix = Field(description="p x p measurement noise covariance (symmetric positive definite).")
+
+
+_OBSERVER_GAINS = dict(description="Output feedback: the observer gains L (one n x p matrix per plant mode); "
+                                   "uses the plant's `C`.")
+
+
 class DesignRequest(_Performance):
     label: Label | None = Field(None, **_LABEL)
     plant: Plant
@@ -262,10 +282,28 @@ class DesignRequest(_Performance):
         "does.")
     exhausted: Literal["hold", "zero"] = Field(
         "hold", description="With a channel: the input once n_drop samples passed without an effective packet.")
+    feedback: Literal["state", "output"] = Field(
+        "state", description="`state` (default): the controller receives x. `output`: it measures y = C x (the "
+        "plant's `C`) over a lossy sensor link and runs an observer; the result adds `observer_gains` and one "
+        "`joint_certificate` for plant, estimate and buffer (docs/design.md §12).")
+    sensor_n_drop: Int | None = Field(None, ge=1, le=20, description="`feedback: output`: at most "
+                                      "sensor_n_drop - 1 measurements lost in a row (default n_drop).")
+    observer: Literal["per_mode", "common"] = Field(
+        "per_mode", description="`feedback: output`: one observer gain per plant mode, or one for all.")
+    noise: Noise | None = Field(None, description="`feedback: output`: process and measurement noise covariances; "
+                                "the observer starts from the Kalman gains.")
 
     def performance_kwargs(self) -> dict:
         """Keyword arguments of solver.design for the performance fields."""
         return performance_kwargs(self, objective=self.objective, u_max=self.u_max)
+
+    def feedback_kwargs(self) -> dict:
+        """Keyword arguments of solver.design for output feedback (none for state feedback)."""
+        if self.feedback == "state":
+            return {} if self.sensor_n_drop is None and self.noise is None else {
+                "sensor_n_drop": self.sensor_n_drop, "noise": None if self.noise is None else (self.noise.W, self.noise.V)}
+        return {"feedback": "output", "sensor_n_drop": self.sensor_n_drop, "observer": self.observer,
+                "noise": None if self.noise is None else (self.noise.W, self.noise.V)}
 
 
 def performance_kwargs(req, **extra) -> dict:
@@ -309,6 +347,12 @@ class SimulationRequest(_Strict):
     plant_transitions: Matrix | None = Field(
         None, description="With a channel: per-sample Markov chain of the plant mode (r x r); null keeps the "
         "initial mode (`mode`, or drawn uniformly).")
+    observer_gains: list[Matrix] | None = Field(
+        None, description="Output feedback: the observer gains L (one n x p matrix per plant mode, the plant's "
+        "`C`); `sensor_loss` then loses measurements, `control_loss` control packets, and the run adds `estimate`.")
+    sensor_n_drop: Int | None = Field(None, ge=1, le=20, description="With `observer_gains`: at most "
+                                      "sensor_n_drop - 1 measurements lost in a row (default n_drop).")
+    xh0: Vector | None = Field(None, description="With `observer_gains`: the initial estimate (default 0).")
 
 
 class AnalysisRequest(_Performance):
@@ -330,6 +374,9 @@ class AnalysisRequest(_Performance):
         "quadratic", description="Joint-spectral-radius upper bounds and best certified decay rate to compute: "
         "from common quadratic certificates, also from switched ones (`all`, slower), or none."
     )
+    observer_gains: list[Matrix] | None = Field(None, **_OBSERVER_GAINS)
+    sensor_n_drop: Int | None = Field(None, ge=1, le=20, description="With `observer_gains`: at most "
+                                      "sensor_n_drop - 1 measurements lost in a row (default n_drop).")
 
 
 class CostWeights(_Strict):

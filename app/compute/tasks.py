@@ -146,7 +146,7 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     plant = req.plant.model_dump()
     fam = build_family(plant)
     res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options),
-                 **req.performance_kwargs())
+                 **req.performance_kwargs(), **req.feedback_kwargs())
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
     if req.channel is not None and res.outcome == "stabilized":
@@ -221,9 +221,14 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
         fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
         loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
         control_loss=req["control_loss"], plant_switching=req["plant_switching"],
-        mode=req.get("mode"), **extra,
+        mode=req.get("mode"), **extra, **_observer_kwargs(req, ("observer_gains", "sensor_n_drop", "xh0")),
     )
     return jsonable(tr.to_dict())
+
+
+def _observer_kwargs(req: dict[str, Any], keys: tuple) -> dict[str, Any]:
+    """The output-feedback fields a request sets (none for state feedback)."""
+    return {k: req[k] for k in keys if req.get(k) is not None}
 
 
 def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> dict[str, Any]:
@@ -266,6 +271,7 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     for key in ("x0", "disturbance"):
         if req.get(key) is not None:
             kwargs[key] = req[key]
+    kwargs.update(_observer_kwargs(req, ("observer_gains", "sensor_n_drop")))
     rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
     return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
 
@@ -351,14 +357,18 @@ def run_gains_file(result: dict[str, Any], fmt: str, name: str) -> bytes:
 
 
 def run_controller_zip(result: dict[str, Any], n_drop: int, exhausted: str, prefix: str,
-                       metadata: dict[str, Any]) -> bytes:
-    """The C controller and actuator buffer of a design's gains (``solver.export_c``), zipped."""
+                       metadata: dict[str, Any], precision: str = "float64",
+                       plant: dict[str, Any] | None = None) -> bytes:
+    """The C controller and actuator buffer of a design's gains with its build and test kit
+    (``solver.c_kit.export_kit``: CMake, toolchain file, replay test of a simulated run), zipped."""
     import io
     import zipfile
 
-    from solver import export_c
+    from solver.c_kit import export_kit, result_view
 
-    files = export_c(_gains_array(result["gains"]), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata)
+    family = build_family(plant) if plant is not None else None
+    files = export_kit(result_view(result), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata,
+                       precision=precision, family=family)
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
         for name in sorted(files):

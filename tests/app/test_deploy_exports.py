@@ -44,7 +44,11 @@ def test_controller_zip_compiles_and_computes_the_designs_packets(client, motor,
     assert resp.status_code == 200 and resp.headers["content-type"] == "application/zip"
     files = {i.filename: zipfile.ZipFile(io.BytesIO(resp.content)).read(i).decode()
              for i in zipfile.ZipFile(io.BytesIO(resp.content)).infolist()}
-    assert set(files) == {"ncs_controller.h", "ncs_controller.c"}
+    kit = {"CMakeLists.txt", "cmake/arm-none-eabi.cmake", "test/ncs_replay.h", "test/ncs_replay.c",
+           "test/ncs_replay_data.c", "test/ncs_replay_main.c", "test/ncs_replay_target.c", "test/startup_mps2.c",
+           "test/mps2.ld"}
+    assert set(files) == {"ncs_controller.h", "ncs_controller.c"} | kit
+    files = {k: v for k, v in files.items() if k.startswith("ncs_controller")}
     head = files["ncs_controller.h"]
     cert = motor["result"]["certificate"]["kind"]
     assert f"id: {motor['id']}" in head and "method: lmi" in head and f"certificate: {cert}" in head
@@ -59,7 +63,7 @@ def test_controller_zip_compiles_and_computes_the_designs_packets(client, motor,
 def test_controller_zip_options_and_refusals(client, motor):
     resp = client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"exhausted": "zero", "prefix": "Pump"})
     names = zipfile.ZipFile(io.BytesIO(resp.content)).namelist()
-    assert sorted(names) == ["pump_controller.c", "pump_controller.h"]
+    assert {"pump_controller.c", "pump_controller.h", "CMakeLists.txt", "test/pump_replay_data.c"} <= set(names)
     assert 'exhausted policy "zero"' in zipfile.ZipFile(io.BytesIO(resp.content)).read("pump_controller.h").decode()
     assert_problem(client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"prefix": "9x"}), 422,
                    "/prefix")
@@ -69,6 +73,31 @@ def test_controller_zip_options_and_refusals(client, motor):
     infeasible = submit(client, {"plant": {"kind": "discrete", "F": [[[2.0]]], "G": [[[0.0]]]}, "n_drop": 2})
     assert infeasible["result"]["outcome"] == "infeasible"
     assert_problem(client.get(f"/v1/designs/{infeasible['id']}/controller.zip"), 409)
+
+
+def test_controller_zip_float32_is_certified_or_refused_with_the_reason(client, motor, tmp_path):
+    resp = client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"precision": "float32"})
+    assert resp.status_code == 200
+    z = zipfile.ZipFile(io.BytesIO(resp.content))
+    files = {n: z.read(n).decode() for n in ("ncs_controller.h", "ncs_controller.c")}
+    assert "float32: gains rounded to float32" in files["ncs_controller.h"]
+    K32 = np.array(motor["result"]["gains"]).astype(np.float32)
+    c = CBuffer(build(tmp_path, files), "ncs", K32.shape[1], 3, dtype=np.float32)
+    x = np.array([0.3, -1.2], dtype=np.float32)
+    np.testing.assert_allclose(c.packet(x).reshape(3, -1), K32.astype(float) @ x.astype(float), rtol=1e-6, atol=1e-6)
+    paper = PlantFamily.paper_example(0.1)  # at its maximal rate the room is about the re-check's tolerance
+    edge = submit(client, {"plant": {"kind": "discrete", "F": paper.F.tolist(), "G": paper.G.tolist()},
+                           "n_drop": 3, "options": {"decay_rate": "max"}})
+    body = assert_problem(client.get(f"/v1/designs/{edge['id']}/controller.zip", params={"precision": "float32"}),
+                          422, "/precision")
+    assert "lose the proof" in json.dumps(body)
+    assert client.get(f"/v1/designs/{edge['id']}/controller.zip").status_code == 200  # float64 still exports
+    assert_problem(client.get(f"/v1/designs/{motor['id']}/controller.zip", params={"precision": "half"}), 422,
+                   "/precision")
+    data = Client("http://testserver", http_client=client, poll_interval=0.05).controller_zip(
+        motor["id"], precision="float32")
+    assert "float32" in zipfile.ZipFile(io.BytesIO(data)).read(
+        "ncs_controller.h").decode()
 
 
 @pytest.mark.parametrize("method, options", [("lmi", {}), ("lmi", {"decay_rate": 0.95}),
@@ -112,6 +141,13 @@ def test_cli_codegen_and_export_sdpa(tmp_path):
     assert out.returncode == 2 and "sequence of SDPs" in out.stderr
     out = ncs("codegen", "res.json", "--out", "c", "--prefix", "9", cwd=tmp_path)
     assert out.returncode == 2 and "prefix" in out.stderr
+    out = ncs("codegen", "res.json", "--out", "c32", "--precision", "float32", cwd=tmp_path)
+    assert out.returncode == 2 and "--plant" in out.stderr
+    out = ncs("codegen", "res.json", "--out", "c32", "--precision", "float32", "--plant", "motor.json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    head = (tmp_path / "c32" / "ncs_controller.h").read_text()
+    assert "void ncs_packet(const float x[], float packet[]);" in head and "re-checked on them" in head
+    assert (tmp_path / "c32" / "CMakeLists.txt").is_file() and (tmp_path / "c32" / "test" / "ncs_replay_data.c").is_file()
 
 
 def test_default_limits_admit_the_measured_lmi_case(module_db):

@@ -41,8 +41,8 @@ def build(tmp_path, *controllers):
 class CBuffer:
     """The generated C API, one function per call."""
 
-    def __init__(self, lib, prefix, m, n_drop):
-        self.m, self.n_drop = m, n_drop
+    def __init__(self, lib, prefix, m, n_drop, dtype=np.float64):
+        self.m, self.n_drop, self.dtype = m, n_drop, dtype
         self.fn = {name: getattr(lib, f"{prefix}_{name}") for name in
                    ("buffer_size", "packet", "buffer_init", "buffer_set_clock", "buffer_receive", "buffer_output")}
         self.fn["buffer_size"].restype = ctypes.c_size_t
@@ -55,17 +55,17 @@ class CBuffer:
         self.fn["buffer_set_clock"](self.mem, now % 2**32)
 
     def packet(self, x):
-        x = np.ascontiguousarray(x, dtype=np.float64)
-        out = np.empty(self.n_drop * self.m)
+        x = np.ascontiguousarray(x, dtype=self.dtype)
+        out = np.empty(self.n_drop * self.m, dtype=self.dtype)
         self.fn["packet"](x.ctypes.data_as(ctypes.c_void_p), out.ctypes.data_as(ctypes.c_void_p))
         return out
 
     def receive(self, packet, stamp):
-        packet = np.ascontiguousarray(packet, dtype=np.float64)
+        packet = np.ascontiguousarray(packet, dtype=self.dtype)
         self.fn["buffer_receive"](self.mem, packet.ctypes.data_as(ctypes.c_void_p), stamp % 2**32)
 
     def output(self):
-        u = np.empty(self.m)
+        u = np.empty(self.m, dtype=self.dtype)
         self.fn["buffer_output"](self.mem, u.ctypes.data_as(ctypes.c_void_p))
         return u
 
@@ -79,6 +79,12 @@ class ModelBuffer:
     def receive(self, x, stamp):
         if stamp <= self.now:  # a stamp ahead of the clock is refused
             self.got.append((stamp, np.array(x)))
+
+    def set_clock(self, now):
+        """The newest stamp is re-aged against the new clock; ahead of it, the buffer forgets everything."""
+        self.now = now
+        if self.got and max(s for s, _ in self.got) > now:
+            self.got = []
 
     def output(self):
         N, m, _ = self.K.shape
@@ -111,7 +117,9 @@ def test_strict_c99_compiles_and_header_names_the_design(tmp_path, paper_design)
     head = files["ncs_controller.h"]
     for text in ("#define NCS_N 2", "#define NCS_M 1", "#define NCS_N_DROP 3", "id: d-42", "method: lmi",
                  f"certificate: {paper_design.certificate.kind}", "size_t ncs_buffer_size(void);",
-                 "void ncs_buffer_receive(ncs_buffer_t *b, const double packet[], uint32_t stamp);"):
+                 "void ncs_buffer_receive(ncs_buffer_t *b, const double packet[], uint32_t stamp);",
+                 "ncs_packet 6 multiply-adds (N m n)",
+                 "ncs_buffer_receive and ncs_buffer_output 0 multiply-adds (copies: 3 and 1 values)"):
         assert text in head
     src = files["ncs_controller.c"]
     assert "malloc" not in src and "static const double ncs_gains" in src
@@ -259,6 +267,206 @@ def test_bad_input_names_the_field(kwargs, field):
     assert err.value.field == (field,)
 
 
-def test_metadata_cannot_close_the_comment():
-    text = export_c(EQ23_GAINS, 3, metadata={"id": "x */ int evil; /*"})["ncs_controller.h"]
-    assert "x * / int evil" in text and "*/ int evil" not in text
+HOSTILE = ["x */ int evil; /*", "??/", "a ??/\n#define NCS_N 99", "%s%n%x", "\\", "tail \\", "// line",
+           "*/", "/*", "\r\n#include <stdio.h>\n", "\x00\x07\x1b[31m", "é ☃ \u202e", "{p} {P} {{", "`$(rm -rf /)`",
+           "a" * 5000]
+
+
+@pytest.mark.parametrize("hostile", HOSTILE)
+def test_hostile_metadata_never_breaks_the_strict_build_or_injects(tmp_path, hostile):
+    files = export_c(EQ23_GAINS, 3, metadata={hostile: hostile, "id": hostile})
+    head = files["ncs_controller.h"]
+    comment, rest = head.split("*/", 1)  # the header comment ends at its first terminator...
+    assert "#ifndef NCS_CONTROLLER_H" in rest and "method" not in rest  # ...after every metadata line
+    for bad in ("/*", "//", "??", "\\", "%"):
+        assert bad not in comment[2:], bad
+    assert all(32 <= ord(ch) < 127 for line in comment.split("\n") for ch in line)
+    assert max(len(line) for line in comment.split("\n")) < 200
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    subprocess.run(STRICT + ["-trigraphs", "-Werror=comment", "-Werror=trigraphs", "-c", "-o",
+                             str(tmp_path / "c.o"), str(tmp_path / "ncs_controller.c")], check=True)
+    macros = subprocess.run(["gcc", "-std=c99", "-E", "-dM", str(tmp_path / "ncs_controller.h")],
+                            capture_output=True, text=True, check=True).stdout
+    ours = sorted(line.split()[1] for line in macros.splitlines() if line.split()[1].startswith("NCS_"))
+    assert ours == ["NCS_CONTROLLER_H", "NCS_EXHAUSTED_HOLD", "NCS_M", "NCS_N", "NCS_N_DROP", "NCS_PACKET_LEN"]
+    assert "#define NCS_N 2u" in macros
+
+
+@pytest.mark.parametrize("metadata", [["id"], {1: "x"}, "id"])
+def test_metadata_must_be_a_dict_with_str_keys(metadata):
+    with pytest.raises(InvalidInput) as err:
+        export_c(EQ23_GAINS, 3, metadata=metadata)
+    assert err.value.field == ("metadata",)
+
+
+def test_set_clock_after_packets_recomputes_the_age_from_the_stamp(tmp_path):
+    """The reported case: a packet, then the clock set forward; a newer stamp must replace it."""
+    K = np.arange(1.0, 4.0).reshape(3, 1, 1)
+    c = CBuffer(build(tmp_path, export_c(K, 3)), "ncs", 1, 3)
+    c.set_clock(5)
+    c.receive(c.packet([1.0]), 5)
+    c.set_clock(100)  # age of stamp 5 is now 95: exhausted, "hold" plays K_3
+    assert c.output()[0] == 3.0
+    c.receive(c.packet([10.0]), 99)  # newer stamp (age 2 at now 101): kept
+    assert c.output()[0] == 30.0
+    c.set_clock(99)  # backwards: stamp 99 has age 0 again
+    assert c.output()[0] == 10.0
+    c.set_clock(50)  # the held stamp is ahead of the new clock: dropped, zeros until a packet
+    assert c.output()[0] == 0.0
+    c.receive(c.packet([2.0]), 50)  # now 51: age 1, entry K_2
+    assert c.output()[0] == 4.0
+
+
+@pytest.mark.parametrize("seed", [30, 31, 32])
+def test_set_clock_between_packets_matches_the_model(tmp_path, seed):
+    """Clock jumps (forward and back) between random deliveries: newest stamp wins against the model."""
+    rng = np.random.default_rng(seed)
+    K = rng.standard_normal((3, 2, 3))
+    c = CBuffer(build(tmp_path, export_c(K, 3)), "ncs", 2, 3)
+    start = int(rng.integers(0, 2**32 - 2000))
+    c.set_clock(start)
+    model = ModelBuffer(K, "hold", now=start)
+    jumps = 0
+    for _ in range(600):
+        event = rng.random()
+        if event < 0.08:
+            now = model.now + int(rng.integers(-6, 12))
+            c.set_clock(now)
+            model.set_clock(now)
+            jumps += 1
+        elif event < 0.6:
+            stamp = model.now - int(rng.integers(-2, 8))
+            x = rng.standard_normal(3)
+            c.receive(c.packet(x), stamp)
+            model.receive(x, stamp)
+        assert_inputs_agree(c.output(), model.output())
+    assert jumps > 20
+
+
+# ------------------------------------------------------------------ float32
+def rounding_bound(K32, x):
+    """Entrywise bound of the float32 packet (docs/design.md, "Single precision"), plus float64 reference error."""
+    n = K32.shape[-1]
+    g = (n + 1) * 2.0**-24 / (1 - (n + 1) * 2.0**-24)
+    # absolute part: underflow, gradual or flushed to zero (2^-126 per rounding of x_i and per product)
+    return (g + 1e-15) * (np.abs(K32) @ np.abs(x)) + 2.0**-126 * (n + np.abs(K32).sum(axis=-1))
+
+
+def test_float32_paper_example_is_certified_and_the_sil_run_stays_within_the_bound(tmp_path, paper_design):
+    files = export_c(paper_design, 3, precision="float32", family=PAPER)
+    head, src = files["ncs_controller.h"], files["ncs_controller.c"]
+    assert "void ncs_packet(const float x[], float packet[]);" in head
+    assert "float32: gains rounded to float32; decay rate" in head and "double" not in src
+    K32 = paper_design.gains.astype(np.float32).astype(np.float64)
+    c = CBuffer(build(tmp_path, files), "ncs", 1, 3, dtype=np.float32)
+    sim = simulate(PAPER, K32, 3, x0=[-3, 2], steps=200, seed=5)
+    x = sim.state[0]
+    worst = 0.0
+    for k in range(200):
+        if sim.effective[k]:
+            sent = x
+            c.receive(c.packet(x), k)
+        u = c.output().astype(np.float64)
+        ref = K32[sim.buffer_index[k] - 1] @ sent  # the rounded gains in exact-ish float64
+        bound = rounding_bound(K32[sim.buffer_index[k] - 1], sent)
+        assert np.all(np.abs(u - ref) <= bound), (k, u, ref, bound)
+        worst = max(worst, float(np.max(np.abs(u - ref) / np.maximum(bound, 1e-300))))
+        x = PAPER.F[sim.mode[k]] @ x + PAPER.G[sim.mode[k]] @ u  # the loop closes on the float32 input
+    assert np.linalg.norm(x) < 1e-3 * np.linalg.norm(sim.state[0])  # and it converges
+    assert worst > 0  # float32 rounding did happen (the bound is not vacuous)
+
+
+def test_float32_refuses_a_design_whose_rounding_loses_the_proof():
+    """At the maximal decay rate the certificate's room is about RECHECK_TOL: float32 rounding exceeds it."""
+    res = design(PAPER, 3, method="lmi", decay_rate="max")
+    assert res.outcome == "stabilized"
+    export_c(res, 3)  # float64 is exported as before
+    with pytest.raises(InvalidInput) as err:
+        export_c(res, 3, precision="float32", family=PAPER)
+    assert err.value.field == ("precision",)
+    assert "lose the proof of decay rate" in str(err.value) and "export in float64" in str(err.value)
+    # the same gains without the rate claim: stability survives the rounding
+    assert "re-checked" in export_c(res.gains, 3, precision="float32", family=PAPER)["ncs_controller.h"]
+
+
+def random_family(rng, n, m, r):
+    F = [np.linalg.qr(rng.standard_normal((n, n)))[0] * rng.uniform(0.9, 1.15) for _ in range(r)]
+    return PlantFamily(F=F, G=[rng.standard_normal((n, m)) for _ in range(r)])
+
+
+def test_float32_twenty_random_designs_are_certified(tmp_path):
+    """Twenty random plants: each stabilized design exports in float32 with the rounding inside the proof, and the
+    proof is independent: the float32 loop's own certificate (a fresh LMI on the rounded gains) passes too."""
+    from solver.precision import certify_float32
+
+    rng = np.random.default_rng(7)
+    done = 0
+    while done < 20:
+        n, m, r, N = int(rng.integers(2, 5)), int(rng.integers(1, 3)), int(rng.integers(1, 3)), int(rng.integers(1, 4))
+        fam = random_family(rng, n, m, r)
+        res = design(fam, N, method="lmi")
+        if res.outcome != "stabilized":
+            continue
+        files = export_c(res, N, precision="float32", family=fam, prefix=f"r{done}")
+        assert "re-checked on them" in files[f"r{done}_controller.h"]
+        proof = certify_float32(fam, res.gains, N)  # no design certificate: a fresh one for the float32 loop
+        assert proof.verified and proof.source == "fixed_gain_lmi" and 0 < proof.rounding_share < 1
+        done += 1
+
+
+def test_float32_needs_the_family_and_checks_its_sizes():
+    with pytest.raises(InvalidInput) as err:
+        export_c(EQ23_GAINS, 3, precision="float32")
+    assert err.value.field == ("family",)
+    with pytest.raises(InvalidInput) as err:
+        export_c(np.ones((3, 1, 3)), 3, precision="float32", family=PAPER)
+    assert err.value.field == ("family",)
+    with pytest.raises(InvalidInput) as err:
+        export_c(EQ23_GAINS, 3, precision="float16", family=PAPER)
+    assert err.value.field == ("precision",)
+
+
+@pytest.mark.parametrize("options", [{"method": "switched"}, {"method": "lmi", "plant_switching": "per_sample"},
+                                     {"method": "lmi", "scheme": "hold"}])
+def test_float32_keeps_the_designs_claim_and_certificate(options):
+    """Switched (mode-dependent P_s) and per-sample certificates are re-checked as they are, at the design's rate."""
+    from solver.precision import certify_float32
+
+    res = design(PAPER, 3, **options)
+    assert res.outcome == "stabilized" and res.decay_rate is not None
+    proof = certify_float32(PAPER, res.gains, 3, plant_switching=res.plant_switching, decay_rate=res.decay_rate,
+                            certificate=res.certificate)
+    assert proof.verified and proof.source == "design" and proof.claim.startswith("decay rate")
+    head = export_c(res, 3, precision="float32", family=PAPER)["ncs_controller.h"]
+    assert f"decay rate {res.decay_rate:.6g} re-checked on them (design certificate" in head
+
+
+def test_beta_bounds_the_float32_rounding_over_an_interval():
+    """Independent of the C code: float32 packets computed with numpy's float32 (sequential sums) perturb every
+    interval by at most beta_s |x| (the bound the proof covers), and the bound is not loose by orders."""
+    from solver.network import ModeSet
+    from solver.precision import certify_float32
+
+    rng = np.random.default_rng(9)
+    fam = random_family(rng, 4, 2, 2)
+    K = 0.3 * rng.standard_normal((3, 2, 4))
+    proof = certify_float32(fam, K, 3)
+    K32 = proof.gains.astype(np.float32)
+    modes = ModeSet.from_family(fam, 3)
+    ratio = 0.0
+    for _ in range(300):
+        x = rng.standard_normal(4) * 10.0 ** rng.uniform(-3, 3)
+        x32 = x.astype(np.float32)
+        u32 = np.empty((3, 2))
+        for q in range(3):
+            for j in range(2):
+                s = np.float32(0.0)
+                for i in range(4):
+                    s = np.float32(s + np.float32(K32[q, j, i] * x32[i]))
+                u32[q, j] = s
+        err = u32 - proof.gains @ x  # (3, 2): the rounding of every entry
+        w = np.einsum("sqab,qb->sa", modes.coef, err)
+        r = np.linalg.norm(w, axis=1) / (proof.beta * np.linalg.norm(x))
+        ratio = max(ratio, float(r.max()))
+    assert 1e-4 < ratio <= 1.0
