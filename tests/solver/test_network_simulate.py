@@ -103,3 +103,9 @@ def test_export_c_header_names_the_network(tmp_path):
     with pytest.raises(InvalidInput) as err:
         export_c(EQ23_GAINS, 2, network=net)
     assert err.value.field == ("n_drop",)
+
+
+def test_float32_export_is_refused_off_the_paper_network():
+    with pytest.raises(InvalidInput) as err:
+        export_c(EQ23_GAINS, network=Network.delays(2, 3), precision="float32", family=PAPER)
+    assert err.value.field == ("precision",) and "delays(max_delay=2, n_drop=3)" in str(err.value)
