@@ -389,6 +389,7 @@ function saveBlob(blob, filename) {
 // ---------------------------------------------------------------- running a job
 async function submit(ev) {
   ev.preventDefault();
+  clearTimeout(validateTimer); // a check still pending from typing would wipe the service's answer
   const req = buildRequest();
   if (!req) {
     $("err-form").textContent = "Fix the fields marked above; nothing was sent.";
