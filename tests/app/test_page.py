@@ -64,3 +64,11 @@ def test_the_examples_are_valid_design_requests():
         DesignRequest.model_validate(e["request"])  # raises on a field the service would reject
     paper = next(e for e in examples if e["id"] == "paper")["request"]["plant"]
     assert all(paper[k] == PAPER_PLANT[k] for k in ("A", "B", "sampling_period", "kind"))
+
+
+def test_the_readme_shows_the_page_next_to_the_set_up():
+    readme = (REPO / "README.md").read_text()
+    after_setup = readme.split("<!-- END SETUP -->", 1)[1]
+    assert after_setup.lstrip().startswith("## The design page")
+    assert "](docs/page.png)" in after_setup.split("\n## ", 2)[1]
+    assert (REPO / "docs" / "page.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
