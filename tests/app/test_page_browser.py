@@ -287,7 +287,31 @@ def test_the_job_url_reloads_the_result(page, server, artifacts):
     assert rows == PAPER_PLANT["A"][0], first_a
     assert len(driver.find_elements(By.CSS_SELECTOR, "#gains-table tbody tr")) == 3
     assert driver.find_element(By.ID, "share-link").get_attribute("href").endswith("#job=" + jid)
+    # The cost against the loss probability, drawn from POST /v1/channels: one point per probability.
+    driver.find_element(By.ID, "cost-curve").click()
+    svg = wait(driver, lambda d: d.find_elements(By.ID, "cost-svg"), 60)[0]
+    label = svg.get_attribute("aria-label")
+    assert label.count("p = ") == 7 and len(svg.find_elements(By.TAG_NAME, "circle")) >= 1, label
     shot(driver, artifacts, "07-job-url-reloaded")
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_a_mat_plant_file_fills_the_form(page, tmp_path, compressed):
+    import scipy.io
+
+    A = np.stack([np.array(a) for a in PAPER_PLANT["A"]], axis=2)  # n x n x r, as MATLAB's cat(3, ...)
+    B = np.stack([np.array(b) for b in PAPER_PLANT["B"]], axis=2)
+    path = tmp_path / "plant.mat"
+    scipy.io.savemat(path, {"A": A, "B": B, "h": 0.1, "note": "a string the page skips"},
+                     do_compression=compressed)
+    page.find_element(By.ID, "plant-file").send_keys(str(path))
+    wait(page, lambda d: len(d.find_elements(By.CSS_SELECTOR, "fieldset.mode")) == 3, 10)
+    for l, mode in enumerate(page.find_elements(By.CSS_SELECTOR, "fieldset.mode")):
+        text = mode.find_element(By.CSS_SELECTOR, ".mat-A").get_attribute("value")
+        rows = [[float(v) for v in row.split()] for row in text.strip("[]").split(";")]
+        assert rows == PAPER_PLANT["A"][l], text
+    assert float(page.find_element(By.ID, "h").get_attribute("value")) == 0.1
+    assert not page.find_element(By.ID, "err-plant-file").text
 
 
 def test_labels_and_the_phone_width(page, server, artifacts):

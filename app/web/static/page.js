@@ -154,6 +154,7 @@ function fieldOf(pointer) {
     return $(p[1]) ? p[1] : null;
   }
   if (p[0] === "weights") return p[1] === "R" ? "R" : "Q";
+  if (p[0] === "channel") return p[1] === "loss" ? "channel_loss" : "channel";
   if ($(p[0])) return p[0];
   return null;
 }
@@ -266,6 +267,10 @@ function buildRequest() {
     const v = $("network").value;
     try { req.network = JSON.parse(v); } catch (e) { req.network = v; }
   }
+  if ($("channel").value === "bernoulli") {
+    const p = num("channel_loss", "the loss probability", (v) => v >= 0 && v <= 1, "the loss probability must be in [0, 1]");
+    if (p !== null) { req.channel = { kind: "bernoulli", loss: p }; req.exhausted = $("exhausted").value; }
+  }
   const nStates = kind === "dc_motor" ? 2 : (plant.A || plant.F || [])[0]?.length;
   const nInputs = kind === "dc_motor" ? 1 : ((plant.B || plant.G || [])[0] || [[]])[0]?.length;
   for (const id of ["x0", "u_max"]) {
@@ -288,6 +293,10 @@ function buildRequest() {
   }
   if (!ok) return null;
   return req;
+}
+
+function showChannel() {
+  $("channel-loss-row").hidden = $("exhausted-row").hidden = $("channel").value !== "bernoulli";
 }
 
 function eye(n) { return matlab(Array.from({ length: n || 1 }, (_, i) => Array.from({ length: n || 1 }, (_, j) => (i === j ? 1 : 0)))); }
@@ -335,6 +344,10 @@ function fillForm(req) {
   $("weights").hidden = $("objective").value !== "cost";
   $("Q").value = req.weights ? matlab(req.weights.Q) : "";
   $("R").value = req.weights ? matlab(req.weights.R) : "";
+  $("channel").value = req.channel && req.channel.kind === "bernoulli" ? "bernoulli" : "";
+  if (req.channel && req.channel.kind === "bernoulli") $("channel_loss").value = req.channel.loss;
+  $("exhausted").value = req.exhausted || "hold";
+  showChannel();
   $("x0").value = (req.x0 || []).join(", ");
   $("u_max").value = (req.u_max || []).join(", ");
   if (req.network !== undefined && !$("network-row").hidden) {
@@ -648,7 +661,57 @@ async function renderFigures(job) {
   } else fig.append(el("p", { text: "The trace could not be drawn." }));
   const marginBtn = el("button", { type: "button", id: "margin-curve" }, "Margin curve: the largest N with a design");
   marginBtn.addEventListener("click", () => marginCurve(job, marginBtn));
-  $("figures").append(marginBtn);
+  const costBtn = el("button", { type: "button", id: "cost-curve" }, "Expected cost against loss probability");
+  costBtn.addEventListener("click", () => costCurve(job, costBtn));
+  $("figures").append(el("div", { class: "actions" }, marginBtn, costBtn));
+}
+
+/** The expected cost E sum x'Qx + u'Ru (x(0) of covariance I) of the designed gains on independent losses of
+ *  probability p, from POST /v1/channels (one call per p), drawn as an SVG. */
+async function costCurve(job, btn) {
+  btn.disabled = true;
+  const status = el("p", { role: "status", text: "Computing the expected cost at each loss probability\u2026" });
+  btn.parentNode.after(status);
+  const r = job.result, req = job.request;
+  const n = r.gains[0][0].length, m = r.gains[0].length;
+  const weights = req.weights || { Q: parseMatrix(eye(n)), R: parseMatrix(eye(m)) };
+  const ps = [0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9];
+  const answers = await Promise.all(ps.map(async (p) => {
+    const resp = await api("POST", "/v1/channels", { plant: req.plant, gains: r.gains, n_drop: req.n_drop,
+      channel: { kind: "bernoulli", loss: p }, exhausted: req.exhausted || "hold", weights });
+    return resp.ok ? resp.json() : null;
+  }));
+  const pts = ps.map((p, i) => [p, answers[i] && answers[i].ms_stable !== false ? answers[i].expected_cost_upper ?? answers[i].expected_cost : null]);
+  const ok = pts.filter(([, c]) => c !== null && isFinite(c));
+  if (!ok.length) { status.textContent = "No loss probability gave a finite expected cost."; return; }
+  const W = 640, H = 300, L = 70, B = 50, T = 20, R = 20;
+  const cmax = Math.max(...ok.map(([, c]) => c)) * 1.1, cmin = 0;
+  const X = (p) => L + (p / 0.9) * (W - L - R), Y = (c) => H - B - ((c - cmin) / (cmax - cmin)) * (H - B - T);
+  const NS = "http://www.w3.org/2000/svg";
+  const svg = document.createElementNS(NS, "svg");
+  svg.setAttribute("viewBox", `0 0 ${W} ${H}`);
+  svg.setAttribute("role", "img");
+  svg.setAttribute("id", "cost-svg");
+  svg.setAttribute("aria-label", "Expected cost against loss probability: " + pts.map(([p, c]) => `p = ${p}: ${c === null ? "unstable" : fmt(c)}`).join(", "));
+  const add = (tag, attrs, text) => {
+    const e = document.createElementNS(NS, tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    if (text !== undefined) e.textContent = text;
+    svg.append(e);
+  };
+  add("line", { x1: L, y1: H - B, x2: W - R, y2: H - B, stroke: "#1b1f24" });
+  add("line", { x1: L, y1: T, x2: L, y2: H - B, stroke: "#1b1f24" });
+  for (const p of [0, 0.3, 0.6, 0.9]) add("text", { x: X(p), y: H - B + 18, "text-anchor": "middle", "font-size": 12 }, String(p));
+  for (const f of [0, 0.5, 1]) add("text", { x: L - 6, y: Y(cmin + f * (cmax - cmin)) + 4, "text-anchor": "end", "font-size": 12 }, fmt(cmin + f * (cmax - cmin)));
+  add("text", { x: (L + W - R) / 2, y: H - 8, "text-anchor": "middle", "font-size": 13 }, "loss probability per sample");
+  add("text", { x: 14, y: (T + H - B) / 2, "text-anchor": "middle", "font-size": 13, transform: `rotate(-90 14 ${(T + H - B) / 2})` }, "expected cost");
+  add("polyline", { points: ok.map(([p, c]) => `${X(p)},${Y(c)}`).join(" "), fill: "none", stroke: "#0a58a8", "stroke-width": 2 });
+  for (const [p, c] of pts) {
+    if (c === null || !isFinite(c)) add("text", { x: X(p), y: T + 12, "text-anchor": "middle", "font-size": 12, fill: "#a3111b" }, "unstable");
+    else add("circle", { cx: X(p), cy: Y(c), r: 3.5, fill: "#0a58a8" });
+  }
+  status.textContent = "Expected cost (certified upper bound) of these gains on independent losses; Q = " + (req.weights ? "your weights" : "I, R = I") + ".";
+  status.after(el("figure", {}, svg, el("figcaption", { text: "Cost against loss probability (POST /v1/channels at each p)." })));
 }
 
 async function marginCurve(job, btn) {
@@ -828,6 +891,7 @@ async function start() {
   document.querySelectorAll("input[name=kind]").forEach((r) => r.addEventListener("change", () => { setKind(plantKind()); validateSoon(); }));
   $("add-mode").addEventListener("click", () => { const d = addMode("", "", ""); d.querySelector(".mat-A").focus(); });
   $("decay").addEventListener("change", () => { $("decay_value").disabled = $("decay").value !== "number"; });
+  $("channel").addEventListener("change", showChannel);
   $("objective").addEventListener("change", () => { $("weights").hidden = $("objective").value !== "cost"; });
   $("design").addEventListener("input", (ev) => { if (ev.target.id !== "api_key" && ev.target.id !== "plant-file") validateSoon(); });
   $("design").addEventListener("submit", submit);
