@@ -330,3 +330,41 @@ def test_labels_and_the_phone_width(page, server, artifacts):
         shot(driver, artifacts, "08-phone")
     finally:
         driver.set_window_size(1280, 1800)
+
+
+def test_a_network_field_appears_when_the_schema_has_one(page, server, artifacts):
+    """The `network` select is built from DesignRequest in /openapi.json; a schema with such a property is staged by
+    rewriting the page's own fetch of /openapi.json, then the service's 422 for the value lands at the field."""
+    driver = page
+    assert not driver.find_element(By.ID, "network-row").is_displayed() or "network" in httpx.get(
+        server.base + "/openapi.json").json()["components"]["schemas"]["DesignRequest"]["properties"]
+    staged = driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": """
+        const realFetch = window.fetch;
+        window.fetch = async (url, init) => {
+          const resp = await realFetch(url, init);
+          if (String(url) !== '/openapi.json') return resp;
+          const spec = await resp.json();
+          spec.components.schemas.DesignRequest.properties.network = {
+            type: 'string', enum: ['page-test-link-a', 'page-test-link-b'], default: 'page-test-link-a',
+            description: 'The link the packets cross.'};
+          return new Response(JSON.stringify(spec), {headers: {'Content-Type': 'application/json'}});
+        };"""})
+    try:
+        driver.refresh()
+        wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-ready") == "1")
+        row = driver.find_element(By.ID, "network-row")
+        assert row.is_displayed() and "The link the packets cross." in row.text
+        values = [o.get_attribute("value") for o in driver.find_elements(By.CSS_SELECTOR, "#network option")]
+        assert values == ["", "page-test-link-a", "page-test-link-b"]
+        load_example(driver, "dc_motor")
+        Select(driver.find_element(By.ID, "network")).select_by_value("page-test-link-b")
+        before = jobs_total(server)
+        driver.allowed_console = ("/v1/designs - Failed to load resource: the server responded with a status of 422",)
+        driver.find_element(By.ID, "submit").click()
+        # This service has no such value: its 422 names /network, shown at the select.
+        wait(driver, lambda d: text_of(d, "err-network"), 20)
+        assert driver.find_element(By.ID, "network").get_attribute("aria-invalid") == "true"
+        assert jobs_total(server) == before
+        shot(driver, artifacts, "09-network-field")
+    finally:
+        driver.execute_cdp_cmd("Page.removeScriptToEvaluateOnNewDocument", {"identifier": staged["identifier"]})

@@ -154,6 +154,7 @@ function fieldOf(pointer) {
     return $(p[1]) ? p[1] : null;
   }
   if (p[0] === "weights") return p[1] === "R" ? "R" : "Q";
+  if (p[0] === "network") return $("network").hidden ? "network_json" : "network";
   if (p[0] === "channel") return p[1] === "loss" ? "channel_loss" : "channel";
   if ($(p[0])) return p[0];
   return null;
@@ -263,9 +264,13 @@ function buildRequest() {
     else options.max_iter = Number(it);
   }
   req.options = options;
-  if ($("network-row").hidden === false && $("network").value) {
-    const v = $("network").value;
-    try { req.network = JSON.parse(v); } catch (e) { req.network = v; }
+  if (!$("network-row").hidden) {
+    if (!$("network").hidden && $("network").value) {
+      const v = $("network").value;
+      try { req.network = JSON.parse(v); } catch (e) { req.network = v; }
+    } else if (!$("network_json").hidden && $("network_json").value.trim()) {
+      try { req.network = JSON.parse($("network_json").value); } catch (e) { fail("network_json", "not valid JSON: " + e.message); }
+    }
   }
   if ($("channel").value === "bernoulli") {
     const p = num("channel_loss", "the loss probability", (v) => v >= 0 && v <= 1, "the loss probability must be in [0, 1]");
@@ -350,8 +355,10 @@ function fillForm(req) {
   showChannel();
   $("x0").value = (req.x0 || []).join(", ");
   $("u_max").value = (req.u_max || []).join(", ");
-  if (req.network !== undefined && !$("network-row").hidden) {
-    $("network").value = typeof req.network === "string" ? req.network : JSON.stringify(req.network);
+  if (!$("network-row").hidden) {
+    const v = req.network === undefined || req.network === null ? "" : (typeof req.network === "string" ? req.network : JSON.stringify(req.network));
+    $("network").value = v;
+    $("network_json").value = v;
   }
   clearErrors();
 }
@@ -684,7 +691,7 @@ async function costCurve(job, btn) {
   const pts = ps.map((p, i) => [p, answers[i] && answers[i].ms_stable !== false ? answers[i].expected_cost_upper ?? answers[i].expected_cost : null]);
   const ok = pts.filter(([, c]) => c !== null && isFinite(c));
   if (!ok.length) { status.textContent = "No loss probability gave a finite expected cost."; return; }
-  const W = 640, H = 300, L = 70, B = 50, T = 20, R = 20;
+  const W = 640, H = 300, L = 90, B = 50, T = 20, R = 20;
   const cmax = Math.max(...ok.map(([, c]) => c)) * 1.1, cmin = 0;
   const X = (p) => L + (p / 0.9) * (W - L - R), Y = (c) => H - B - ((c - cmin) / (cmax - cmin)) * (H - B - T);
   const NS = "http://www.w3.org/2000/svg";
@@ -880,6 +887,11 @@ async function readSchema() {
     sel.replaceChildren(el("option", { value: "", text: `default${net.default !== undefined ? " (" + JSON.stringify(net.default) + ")" : ""}` }));
     values.filter((v) => v !== null).forEach((v) => sel.append(el("option", { value: typeof v === "string" ? v : JSON.stringify(v), text: typeof v === "string" ? v : JSON.stringify(v) })));
     $("help-network").textContent = (net.description || props.network.description || "").replace(/`/g, "");
+    if (!values.filter((v) => v !== null).length) { // not a choice among names: JSON as the schema describes it
+      sel.hidden = true;
+      $("network_json").hidden = false;
+      $("network-row").querySelector("label").setAttribute("for", "network_json");
+    }
     $("network-row").hidden = false;
   }
 }
