@@ -227,7 +227,8 @@ def test_a_malformed_matrix_is_shown_at_its_field_and_nothing_is_sent(page, serv
     driver.find_element(By.ID, "submit").click()
     wait(driver, lambda d: "NCS_MAX_N_DROP" in text_of(d, "err-n_drop"), 20)
     assert driver.find_element(By.ID, "n_drop").get_attribute("aria-invalid") == "true"
-    assert "/problems/" in text_of(driver, "err-form")  # the page on how to fix it
+    fix = driver.find_element(By.CSS_SELECTOR, "#err-form a")  # the service's page on how to fix it
+    assert "/problems/invalid-request" in fix.get_attribute("href")
     assert jobs_total(server) == before
     shot(driver, artifacts, "04-server-422-at-field")
 

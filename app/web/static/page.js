@@ -169,17 +169,20 @@ function showProblem(problem) {
     const el = showError(id || "form", (id ? "" : (e.pointer || "") + ": ") + e.msg);
     first = first || el;
   }
-  const help = problem.type ? ` (how to fix it: ${problem.type})` : "";
-  if (errs.length) $("err-form").textContent = `The service did not accept the request: ${errs.length} field${errs.length > 1 ? "s" : ""} to fix${help}.`;
+  if (errs.length) {
+    $("err-form").replaceChildren(`The service did not accept the request: ${errs.length} field${errs.length > 1 ? "s" : ""} to fix`,
+      ...(problem.type ? [" (", el("a", { href: problem.type, text: "how to fix it" }), ")"] : []), ".");
+  }
   (first || $("submit")).focus();
 }
 
 // ---------------------------------------------------------------- the request from the form
 /** The request body, or null after showing every error at its field. */
-function buildRequest() {
+function buildRequest(live) {
   clearErrors();
   let ok = true;
-  const fail = (id, msg) => { showError(id, msg); ok = false; };
+  // While typing, a field not filled in yet is not an error to shout about; on submit it is.
+  const fail = (id, msg) => { ok = false; if (!(live && $(id) && !$(id).value.trim())) showError(id, msg); };
   const num = (id, what, cond, condMsg) => {
     const s = $(id).value.trim();
     const x = Number(s);
@@ -309,7 +312,7 @@ function eye(n) { return matlab(Array.from({ length: n || 1 }, (_, i) => Array.f
 let validateTimer = null;
 function validateSoon() {
   clearTimeout(validateTimer);
-  validateTimer = setTimeout(() => { if (modeDivs().some((d) => d.querySelector(".mat-A").value.trim())) buildRequest(); }, 300);
+  validateTimer = setTimeout(() => { if (modeDivs().some((d) => d.querySelector(".mat-A").value.trim())) buildRequest(true); }, 300);
 }
 
 // ---------------------------------------------------------------- the form from a request
