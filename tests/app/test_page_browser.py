@@ -369,3 +369,33 @@ def test_a_network_field_appears_when_the_schema_has_one(page, server, artifacts
         shot(driver, artifacts, "09-network-field")
     finally:
         driver.execute_cdp_cmd("Page.removeScriptToEvaluateOnNewDocument", {"identifier": staged["identifier"]})
+
+
+def test_keyboard_only_from_the_example_to_the_verdict(page, artifacts):
+    """Tab reaches the controls in reading order, and the whole design runs without a mouse."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    driver = page
+    driver.execute_script("document.querySelector('a.skip').focus()")  # the first stop of the page
+    order = []
+    for _ in range(60):
+        ActionChains(driver).send_keys(Keys.TAB).perform()  # to whatever has focus (a file input too)
+        order.append(driver.switch_to.active_element.get_attribute("id") or "")
+        if order[-1] == "submit":
+            break
+    ids = [i for i in order if i]
+    for earlier, later in [("example", "load-example"), ("load-example", "h"), ("h", "n_drop"),
+                           ("n_drop", "method"), ("method", "api_key"), ("api_key", "submit")]:
+        assert ids.index(earlier) < ids.index(later), ids
+    example = driver.find_element(By.ID, "example")
+    driver.execute_script("arguments[0].focus()", example)
+    example.send_keys(Keys.ARROW_DOWN)  # the first example: the paper's motor
+    assert Select(example).first_selected_option.get_attribute("value") == "paper"
+    example.send_keys(Keys.TAB)
+    assert driver.switch_to.active_element.get_attribute("id") == "load-example"
+    driver.switch_to.active_element.send_keys(Keys.ENTER)
+    wait(driver, lambda d: len(d.find_elements(By.CSS_SELECTOR, "fieldset.mode")) == 3, 10)
+    driver.find_element(By.ID, "n_drop").send_keys(Keys.ENTER)  # Enter in a field submits the form
+    assert verdict(driver).startswith("Stabilized for every pattern of at most 2 lost packets")
+    assert driver.switch_to.active_element.get_attribute("id") == "result"  # screen readers land on the answer
