@@ -247,6 +247,11 @@ def test_a_family_no_controller_stabilizes_shows_the_proof(page, server, artifac
     assert res["certificate"]["kind"] in proof.text and "Re-checked in float64\nyes" in proof.text
     assert not driver.find_elements(By.CSS_SELECTOR, "button[data-file='controller.zip']")  # no gains, no code
     assert driver.find_elements(By.CSS_SELECTOR, "button[data-file='job.json']")
+    # Every download offered is there (the service would answer 409 for one that is not).
+    for button in driver.find_elements(By.CSS_SELECTOR, "#downloads button[data-file]"):
+        name = button.get_attribute("data-file")
+        if name != "job.json":
+            assert httpx.get(f"{server.base}/v1/designs/{jid}/{name}").status_code == 200, name
     shot(driver, artifacts, "05-infeasible-proof")
 
 
@@ -293,6 +298,10 @@ def test_the_job_url_reloads_the_result(page, server, artifacts):
     svg = wait(driver, lambda d: d.find_elements(By.ID, "cost-svg"), 60)[0]
     label = svg.get_attribute("aria-label")
     assert label.count("p = ") == 7 and len(svg.find_elements(By.TAG_NAME, "circle")) >= 1, label
+    # The margin curve: a margin job (largest N with a design) and its curve.svg.
+    driver.find_element(By.ID, "margin-curve").click()
+    wait(driver, lambda d: d.execute_script(
+        "const i = document.querySelector(\"#figures img[alt^='Designs tried']\"); return i && i.naturalWidth > 0"), 90)
     shot(driver, artifacts, "07-job-url-reloaded")
 
 

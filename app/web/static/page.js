@@ -662,18 +662,17 @@ async function renderFigures(job) {
   const r = job.result || {};
   if (!r.gains) return;
   const fig = el("figure", {}, el("figcaption", { text: "Seeded simulation with the loss pattern (lost samples shaded); one column per plant mode." }));
-  $("figures").append(el("h3", { text: "Figures" }), fig);
+  const marginBtn = el("button", { type: "button", id: "margin-curve" }, "Margin curve: the largest N with a design");
+  marginBtn.addEventListener("click", () => marginCurve(job, marginBtn));
+  const costBtn = el("button", { type: "button", id: "cost-curve" }, "Expected cost against loss probability");
+  costBtn.addEventListener("click", () => costCurve(job, costBtn));
+  $("figures").append(el("h3", { text: "Figures" }), fig, el("div", { class: "actions" }, marginBtn, costBtn));
   const x0 = job.request && job.request.x0 ? "&x0=" + job.request.x0.join(",") : "";
   const resp = await api("GET", `/v1/designs/${job.id}/trace.svg?width=1000&height=500${x0}`);
   if (resp.ok) {
     const url = URL.createObjectURL(await resp.blob());
     fig.prepend(el("img", { src: url, id: "trace-img", alt: "Simulated states and inputs over time for every plant mode, with lost packets marked" }));
   } else fig.append(el("p", { text: "The trace could not be drawn." }));
-  const marginBtn = el("button", { type: "button", id: "margin-curve" }, "Margin curve: the largest N with a design");
-  marginBtn.addEventListener("click", () => marginCurve(job, marginBtn));
-  const costBtn = el("button", { type: "button", id: "cost-curve" }, "Expected cost against loss probability");
-  costBtn.addEventListener("click", () => costCurve(job, costBtn));
-  $("figures").append(el("div", { class: "actions" }, marginBtn, costBtn));
 }
 
 /** The expected cost E sum x'Qx + u'Ru (x(0) of covariance I) of the designed gains on independent losses of
@@ -727,7 +726,7 @@ async function costCurve(job, btn) {
 async function marginCurve(job, btn) {
   btn.disabled = true;
   const status = el("p", { role: "status", text: "Searching N = 1, 2, \u2026 (a margin job)\u2026" });
-  btn.after(status);
+  btn.parentNode.after(status);
   const body = { plant: job.request.plant, search: "n_drop", method: job.request.method === "ccl" ? "lmi" : job.request.method, n_drop_max: 8 };
   const resp = await api("POST", "/v1/margins", body, { Prefer: "wait=60" });
   let m = await resp.json().catch(() => ({}));
@@ -753,7 +752,10 @@ function renderDownloads(job) {
     files.push(["gains.mat", `/v1/designs/${id}/gains.mat`, `ncs-design-${id}.mat`, "MATLAB .mat"]);
     files.push(["gains.m", `/v1/designs/${id}/gains.m`, `ncs-design-${id}.m`, "MATLAB/Octave script"]);
     if (r.gains) files.push(["controller.zip", `/v1/designs/${id}/controller.zip`, `ncs-controller-${id}.zip`, "C99 controller code (.zip)"]);
-    if (job.request && job.request.method !== "ccl") files.push(["problem.dat-s", `/v1/designs/${id}/problem.dat-s`, `ncs-design-${id}.dat-s`, "the SDP (SDPA format)"]);
+    const decay = ((job.request || {}).options || {}).decay_rate;
+    // The SDP exists for lmi and switched; a rate search exports it at its certified rate, so it needs one.
+    const sdp = job.request && job.request.method !== "ccl" && (!["max", "auto"].includes(decay) || r.decay_rate);
+    if (sdp) files.push(["problem.dat-s", `/v1/designs/${id}/problem.dat-s`, `ncs-design-${id}.dat-s`, "the SDP (SDPA format)"]);
   }
   const list = el("ul", { class: "downloads" });
   for (const [name, path, filename, what] of files) {
