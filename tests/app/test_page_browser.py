@@ -408,3 +408,22 @@ def test_keyboard_only_from_the_example_to_the_verdict(page, artifacts):
     driver.find_element(By.ID, "n_drop").send_keys(Keys.ENTER)  # Enter in a field submits the form
     assert verdict(driver).startswith("Stabilized for every pattern of at most 2 lost packets")
     assert driver.switch_to.active_element.get_attribute("id") == "result"  # screen readers land on the answer
+
+
+def test_a_channel_report_comes_with_the_design(page, server, artifacts):
+    driver = page
+    load_example(driver, "dc_motor")
+    Select(driver.find_element(By.ID, "channel")).select_by_value("bernoulli")
+    type_into(driver, "channel_loss", "0.3")
+    driver.find_element(By.ID, "submit").click()
+    assert verdict(driver).startswith("Stabilized")
+    job = httpx.get(f"{server.base}/v1/designs/{job_id(driver)}").json()
+    assert job["request"]["channel"] == {"kind": "bernoulli", "loss": 0.3}
+    report = job["result"]["channel"]
+    numbers = driver.find_element(By.ID, "numbers").text
+    assert "Channel" in numbers and report["reason"] in numbers
+    # P(a run of >= N losses starts) = (1 - p) p^N for independent losses: the page shows the service's number.
+    assert report["burst_rate"] == pytest.approx(0.7 * 0.3 ** 3, rel=1e-9)
+    shown = repr(float(format(report["burst_rate"], ".6g")))  # the page prints 6 significant digits
+    assert f"burst rate {shown} per sample" in numbers, (shown, numbers)
+    shot(driver, artifacts, "10-channel-report")
