@@ -427,3 +427,26 @@ def test_a_channel_report_comes_with_the_design(page, server, artifacts):
     shown = repr(float(format(report["burst_rate"], ".6g")))  # the page prints 6 significant digits
     assert f"burst rate {shown} per sample" in numbers, (shown, numbers)
     shot(driver, artifacts, "10-channel-report")
+
+
+def test_a_service_with_api_keys_asks_for_one_at_its_field(browser, start_server, db_url, artifacts):
+    keyed = start_server(db_url, NCS_WORKERS=1, NCS_API_KEYS="page-test-key")
+    driver = browser
+    driver.get(keyed.base + "/")
+    wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-ready") == "1")
+    wait(driver, lambda d: "API key" in text_of(d, "jobs"), 10)
+    load_example(driver, "paper")
+    driver.find_element(By.ID, "submit").click()
+    wait(driver, lambda d: "needs an API key" in text_of(d, "err-api_key"), 20)
+    assert driver.switch_to.active_element.get_attribute("id") == "api_key"
+    driver.find_element(By.ID, "api_key").send_keys("page-test-key")
+    driver.find_element(By.ID, "submit").click()
+    assert verdict(driver).startswith("Stabilized")
+    # Figures and downloads go with the key too (an <img src> or <a href> could not send it).
+    wait(driver, lambda d: d.execute_script("const i = document.getElementById('trace-img'); return i && i.naturalWidth > 0"))
+    wait(driver, lambda d: "paper motor" in text_of(d, "jobs"), 20)
+    shot(driver, artifacts, "11-api-key")
+    # Only the two requests sent before the key was given were refused.
+    refused = [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+    assert len(refused) == 2 and all("status of 401" in m for m in refused), refused
+    driver.get("about:blank")  # let go of the server's connections before it stops
