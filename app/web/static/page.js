@@ -312,7 +312,7 @@ function eye(n) { return matlab(Array.from({ length: n || 1 }, (_, i) => Array.f
 let validateTimer = null;
 function validateSoon() {
   clearTimeout(validateTimer);
-  validateTimer = setTimeout(() => { if (modeDivs().some((d) => d.querySelector(".mat-A").value.trim())) buildRequest(true); }, 300);
+  validateTimer = setTimeout(() => { if (plantKind() === "dc_motor" || modeDivs().some((d) => d.querySelector(".mat-A").value.trim())) buildRequest(true); }, 300);
 }
 
 // ---------------------------------------------------------------- the form from a request
