@@ -11,9 +11,11 @@ from pathlib import Path
 from fastapi import FastAPI, Request
 from fastapi.openapi.utils import get_openapi
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from app.api import problems
+from app import web
 from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
@@ -167,6 +169,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.get("/docs/oauth2-redirect", include_in_schema=False)
     def swagger_redirect():
         return get_swagger_ui_oauth2_redirect_html()
+
+    # The design page (app/web): static files, a client of the public /v1 API like any other.
+    app.mount("/static/page", StaticFiles(directory=web.STATIC), name="page-static")
+
+    @app.get("/", include_in_schema=False)
+    def design_page():
+        return FileResponse(web.STATIC / "index.html", media_type="text/html; charset=utf-8")
 
     @app.get("/redoc", include_in_schema=False)
     def redoc():

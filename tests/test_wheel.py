@@ -19,6 +19,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -54,6 +55,10 @@ def installed(tmp_path_factory):
                           str(REPO)], capture_output=True, text=True, timeout=600, env=env, cwd=work)
     assert out.returncode == 0, out.stderr[-3000:]
     wheel = next((work / "dist").glob("ncs_design-*.whl"))
+    with zipfile.ZipFile(wheel) as zf:
+        names = set(zf.namelist())
+    page = {f"app/web/static/{p.name}" for p in (REPO / "app" / "web" / "static").iterdir()}
+    assert page <= names, page - names  # the design page's files are package data
     venv = work / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     py = venv / "bin" / "python"
@@ -101,6 +106,12 @@ def test_serve_from_an_empty_directory_migrates_and_designs(installed, tmp_path)
         status, body = http("GET", base + f"/v1/designs/{job['id']}/controller.zip")
         assert status == 200 and body[:2] == b"PK"
         assert (tmp_path / "ncs.db").is_file()  # the default database, in the working directory
+        # The design page and every file it loads come from the installed wheel (no network, no clone).
+        status, body = http("GET", base + "/")
+        assert status == 200 and b'id="design"' in body
+        for asset in ("page.js", "page.css", "examples.json"):
+            status, body = http("GET", base + f"/static/page/{asset}")
+            assert status == 200 and body, asset
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
