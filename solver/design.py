@@ -194,7 +194,10 @@ def design(
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
     if network is not None:
+        from .networks import check_network
+
         n_drop = _network_n_drop(network, n_drop)
+        network = check_network(network)
         if not network.is_bounded_drops:
             return _network_design(family, network, method, solver=solver, margin=margin, max_iter=max_iter,
                                    time_limit=time_limit, callback=callback, ccl_start=ccl_start,
@@ -248,12 +251,9 @@ def design(
 
 def _network_n_drop(network, n_drop) -> int:
     """The network's n_drop; a different ``n_drop`` given beside it is an error."""
-    if not all(hasattr(network, name) for name in ("n_drop", "ages", "edges", "is_bounded_drops")):
-        raise InvalidInput("network must be a solver.Network", ("network",))
-    if n_drop is not None and check_n_drop(n_drop) != network.n_drop:
-        raise InvalidInput(f"n_drop = {n_drop} disagrees with the network's n_drop = {network.n_drop} "
-                           f"({network.describe()}); give one of them", ("n_drop",))
-    return int(network.n_drop)
+    from .networks import check_network
+
+    return check_network(network, None if n_drop is None else check_n_drop(n_drop)).n_drop
 
 
 def _network_design(family: PlantFamily, network, method: str, *, solver, margin, max_iter, time_limit, callback,
@@ -342,9 +342,22 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     def left():
         return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
 
+    def recheck(gains, rate):
+        """Plain stability: the network analysis must accept the gains (its own certificate is kept)."""
+        if rate is not None:
+            return True, None  # analyze() has no rate: the float64 re-check of the node matrices at the rate
+        from .analysis import analyze
+
+        try:
+            rep = analyze(family, gains, network=network, plant_switching=plant_switching)
+        except (InvalidInput, SolverFailed):
+            return False, None
+        return rep.stable is True, rep.certificate
+
     def one(rate, use_ccl=True):
         return network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
-                               time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob)
+                               time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
+                               recheck=recheck)
 
     if decay_rate not in ("max", "auto"):
         return one(None if decay_rate is None else float(decay_rate))

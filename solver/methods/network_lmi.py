@@ -41,6 +41,7 @@ from ..compiled import cp  # cvxpy, imported on first use
 from ..errors import SolverFailed
 from ..lyapunov import RECHECK_TOL, Certificate
 from ..network import ModeSet, spectral_radii
+from ..networks import loop_matrices
 from ..result import DesignResult, IterationRecord
 
 U = 2.0**-53
@@ -100,23 +101,6 @@ def contains_bounded_drops(network) -> bool:
         for e in ([0, d + 1] if d + 1 <= N - 1 else [0]):
             stack.append((e, frozenset(w for u in nodes for w in succ[u] if ages[w] == e)))
     return True
-
-
-def age_loops(F: np.ndarray, G: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """Augmented closed loops ``A[l, d]`` (r, N, nN, nN): ``xi(t) -> xi(t+1)`` when the age at t is d.
-
-    ``x(t+1) = F_l x(t) + G_l K_{d+1} x(t-d)``, the older samples shifted down.
-    """
-    r, n, _ = F.shape
-    N = gains.shape[0]
-    A = np.zeros((r, N, n * N, n * N))
-    for l in range(r):
-        for d in range(N):
-            A[l, d, :n, :n] = F[l]
-            A[l, d, :n, d * n:(d + 1) * n] += G[l] @ gains[d]
-            for j in range(1, N):
-                A[l, d, j * n:(j + 1) * n, (j - 1) * n:j * n] = np.eye(n)
-    return A
 
 
 # ------------------------------------------------------------------------------------------- the problem
@@ -200,7 +184,7 @@ def build_problem(family, network, plant_switching: str = "per_interval") -> Net
             modes.eta[[s for _, _, s in rows]],
             [{"from": v, "to": w, **modes.label(s)} for v, w, s in rows], F, G)
     ages = np.asarray(network.ages)
-    base = age_loops(F, G, np.zeros((N, m, n)))
+    base = loop_matrices(family, np.zeros((N, m, n)), network)
     rows = [(i, j, l) for i, j in network.edges for l in range(r)]
     E, k = len(rows), n * N
     coef = np.zeros((E, N, k, m))
@@ -291,7 +275,7 @@ def gains_from(prob: NetworkProblem, sol: NetworkSolution) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------- re-checks
 @dataclass
-class NetworkCertificate(Certificate):
+class NodeCertificate(Certificate):
     """Node-dependent quadratic Lyapunov certificate on a network, re-checked in float64.
 
     ``P`` has shape (V, k, k): ``P[i]`` belongs to automaton node ``nodes[i]``; ``form`` says on which state
@@ -313,7 +297,7 @@ class NetworkCertificate(Certificate):
 
 
 def recheck_network(prob: NetworkProblem, P: np.ndarray, gains: np.ndarray, rate: float | None = None,
-                    source: str = "network_lmi") -> NetworkCertificate:
+                    source: str = "network_lmi") -> NodeCertificate:
     """Float64 re-check of node matrices ``P`` for ``gains`` on every transition of ``prob``.
 
     Passes when every ``P_v`` is positive definite and every ``rho_e P_v - A_e^T P_w A_e`` has smallest
@@ -330,7 +314,7 @@ def recheck_network(prob: NetworkProblem, P: np.ndarray, gains: np.ndarray, rate
     decrease = float(low[worst])
     margin = decrease / top if top > 0 else -np.inf
     ok = bool(np.all(np.isfinite(P)) and eigP.min() > 0 and margin > RECHECK_TOL)
-    return NetworkCertificate("network_quadratic", P, None, float(eigP.min()), decrease, margin, ok, source,
+    return NodeCertificate("network_quadratic", P, None, float(eigP.min()), decrease, margin, ok, source,
                               decay_rate=rate, worst_mode=worst, form=prob.form, nodes=list(prob.nodes))
 
 
@@ -441,7 +425,7 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
 
 # ------------------------------------------------------------------------------------------- fixed gains
 def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = None,
-                  time_limit: float | None = None) -> NetworkCertificate | None:
+                  time_limit: float | None = None) -> NodeCertificate | None:
     """Node matrices for fixed ``gains`` (``max t``: ``P_v >= t I``, ``rho_e P_v - A_e^T P_w A_e >= t I``,
     ``sum tr P_v = V k``), re-checked by :func:`recheck_network`; None when no certificate passes."""
     A = prob.closed_loops(gains)
@@ -551,7 +535,7 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     Returns
     -------
     DesignResult
-        "stabilized" with a :class:`NetworkCertificate`; "not_certified" with a
+        "stabilized" with a :class:`NodeCertificate`; "not_certified" with a
         :class:`NetworkFarkasCertificate` when the convex LMI is proven infeasible and CCL found nothing;
         "not_converged" otherwise.
     """
