@@ -3,7 +3,12 @@ weakly_hard(2, 5, 3) (the Done-means example of issue 28; tests/solver/test_netw
 
     python3 scripts/network_search.py [--seed 0] [--tries 300] [--states 1] [--modes 2]
 
-Prints every hit as a PlantFamily literal.  Random discrete-time families whose largest open-loop spectral radius is in [1, 2].
+Prints every hit as a PlantFamily literal.  Random families rarely hit; the example the tests use was built
+by hand instead (docs/design.md, "Design on a network"): x+ = a x + b_l u with a = 1.3 and b in {1.5, 0.5}
+(per-interval plant switching).  With ``c_eta = sum_t a^t K_{eta-t}`` (free for each eta),
+``min_c max_l |a^eta + b_l c| = a^eta (rho - 1)/(rho + 1)`` with ``rho = b_1/b_2 = 3``: 0.65, 0.845 and 1.0985 for
+eta = 1, 2, 3.  So no gains make three-sample intervals contract (bounded_drops(3): infeasible), while on
+weakly_hard(2, 5, 3) every three-sample interval is followed by two one-sample ones (1.0985 * 0.65^2 < 1).  Random discrete-time families whose largest open-loop spectral radius is in [1, 2].
 """
 
 from __future__ import annotations

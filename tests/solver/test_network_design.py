@@ -221,3 +221,35 @@ def test_too_large_network_design_is_refused_up_front_naming_nodes_and_memory():
     with pytest.raises(InvalidInput) as err:
         design(fam, network=net, decay_rate=None, max_memory=2**20, time_limit=10)
     assert "memory" in str(err.value) and "MiB" in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------ (b) weakly hard
+# x+ = 1.3 x + b_l u, b in {1.5, 0.5}: min over gains of max_l |A_{l,eta}| = 1.3^eta (3 - 1)/(3 + 1) in closed form
+# (the interval maps' gain terms c_eta are free per eta): 0.65, 0.845, 1.0985 for eta = 1, 2, 3.
+WEAKLY_HARD_FAMILY = PlantFamily([[[1.3]], [[1.3]]], [[[1.5]], [[0.5]]])
+
+
+def test_no_design_for_bounded_drops_3_but_one_for_weakly_hard_2_5_3():
+    a, b = 1.3, (1.5, 0.5)
+    best3 = a**3 * (b[0] / b[1] - 1) / (b[0] / b[1] + 1)
+    assert best3 > 1  # closed form: every gain leaves a plant mode whose 3-sample interval map has |A| > 1
+    none = design(WEAKLY_HARD_FAMILY, 3, decay_rate=None)
+    assert none.outcome == "infeasible" and none.certificate.kind == "farkas" and none.certificate.any_margin
+    net = Network.weakly_hard(2, 5, 3)
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None)
+    assert res.outcome == "stabilized", res.message
+    assert analyze(WEAKLY_HARD_FAMILY, res.gains, network=net).stable is True
+    # the 3-sample interval still expands for some plant mode: the window constraint is what saves the loop
+    A3 = [a**3 + sum(a**t * bl * res.gains[2 - t][0, 0] for t in range(3)) for bl in b]
+    assert max(abs(x) for x in A3) > 1
+    assert max_cycle_rate(WEAKLY_HARD_FAMILY, res.gains, net, 10) < 1.0
+    assert random_runs_decay(WEAKLY_HARD_FAMILY, res.gains, net, runs=60, steps=400) < 1e-3
+
+
+def test_infeasible_carries_over_to_a_network_that_admits_every_bounded_drops_run():
+    net = Network.delays(1, 3)
+    assert network_lmi.contains_bounded_drops(net)
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, max_iter=2)
+    assert res.outcome == "infeasible" and res.certificate.kind == "farkas"
+    assert "admits every run of bounded_drops(3)" in res.message
+    # the converse direction is not used: weakly_hard(2, 5, 3) is designed above although bounded_drops(3) is not
