@@ -176,16 +176,16 @@ def test_not_certified_carries_a_farkas_certificate_of_the_network_lmi():
     net = Network.weakly_hard(1, 3, 3)
     assert not network_lmi.contains_bounded_drops(net)
     res = design(fam, network=net, decay_rate=None, max_iter=3)
-    assert res.outcome in ("not_certified", "not_converged")
-    if res.outcome == "not_certified":
-        assert res.certificate.verified and res.certificate.delta > 0
-        assert res.to_dict()["certificate"]["kind"] == "farkas_network"
-        prob = network_lmi.build_problem(fam, net)
-        again = network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks))
-        assert again.verified
-        # perturbing the multipliers into a non-certificate fails the re-check
-        bad = [-M for M in res.certificate.multipliers]
-        assert not network_lmi.check_network_farkas(prob, bad, np.ones(prob.n_blocks)).verified
+    assert res.outcome == "not_certified" and res.gains is None
+    assert res.certificate.verified and res.certificate.delta > 0
+    assert res.to_dict()["certificate"]["kind"] == "farkas_network"
+    assert "not every gain" in res.message
+    prob = network_lmi.build_problem(fam, net)
+    again = network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks))
+    assert again.verified
+    # the multipliers negated are no certificate: the re-check must say so
+    bad = [-M for M in res.certificate.multipliers]
+    assert not network_lmi.check_network_farkas(prob, bad, np.ones(prob.n_blocks)).verified
 
 
 def test_containment_of_bounded_drops_runs():
