@@ -316,7 +316,7 @@ def recheck_network(prob: NetworkProblem, P: np.ndarray, gains: np.ndarray, rate
     decrease = float(low[worst])
     margin = decrease / top if top > 0 else -np.inf
     ok = bool(np.all(np.isfinite(P)) and eigP.min() > 0 and margin > RECHECK_TOL)
-    return NodeCertificate("network_quadratic", P, None, float(eigP.min()), decrease, margin, ok, source,
+    return NodeCertificate("node_dependent", P, None, float(eigP.min()), decrease, margin, ok, source,
                               decay_rate=rate, worst_mode=worst, form=prob.form, nodes=list(prob.nodes))
 
 
