@@ -339,6 +339,8 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     """
     from .methods import network_lmi
 
+    notes: list = []
+
     def left():
         return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
 
@@ -352,7 +354,11 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
             # the verdict only: no CJSR bisection, a short cycle search (the design's gains are expected stable)
             rep = analyze(family, gains, network=network, plant_switching=plant_switching, bounds="none",
                           max_product_length=2)
-        except (InvalidInput, SolverFailed):
+        except InvalidInput as err:  # the analysis refuses the size up front: the design's own re-check stands
+            notes.append(f"analyze(network=) refused the size ({err}); the design's float64 re-check of its node "
+                         "matrices is the certificate")
+            return True, None
+        except SolverFailed:
             return False, None
         return rep.stable is True, rep.certificate
 
@@ -362,7 +368,10 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
                                recheck=recheck)
 
     if decay_rate not in ("max", "auto"):
-        return one(None if decay_rate is None else float(decay_rate))
+        res = one(None if decay_rate is None else float(decay_rate))
+        if notes and res.outcome == "stabilized":
+            res.message += "; " + notes[-1]
+        return res
     best = one(1.0, use_ccl=False)
     if best.outcome != "stabilized":
         plain = one(None)
