@@ -352,7 +352,8 @@ class Network:
         return (self.n_drop == other.n_drop and np.array_equal(self.ages, other.ages)
                 and self.edges == other.edges)
 
-    __hash__ = None
+    def __hash__(self) -> int:
+        return hash((self.n_drop, self.ages.tobytes(), tuple(self.edges)))
 
     # ---------------------------------------------------------- serialization
     def to_dict(self) -> dict:

@@ -38,6 +38,8 @@ class ModeLabel(_Open):
                                                        "the eta samples of the interval.")
     eta: int | None = Field(None, description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
                                  "effective packet.")
+    age: int | None = Field(None, description="On a network: the buffer's age d at this sample (`u = K_(d+1) x(t-d)`).")
+    node: int | None = Field(None, description="On a network: the automaton node (0-based) of this sample.")
 
 
 class LeftVector(_Open):
@@ -341,6 +343,9 @@ class AnalysisReport(_Open):
         None, description="Deprecated name of `decay_factor_per_second` (a factor per second, not a rate in 1/s).")
     worst_sequence: list[ModeLabel] | None = Field(None, description="The product attaining `jsr_lower_bound`, "
                                                                      "in the order applied.")
+    unstable_cycle: dict[str, list[int]] | None = Field(
+        None, description="When `stable` is false: the destabilizing pattern, one entry per sample, repeated "
+        "forever: `ages` (buffer ages), `modes` (plant modes, 0-based) and on a network `nodes`.")
     product_length_checked: int | None = Field(None, description="Longest product examined.")
     scaling: list[Num] | None = Field(None, description="State scaling (length n) of a certificate found for "
                                                           "the balanced loops; null: none.")
@@ -360,6 +365,8 @@ class Simulation(_Open):
     control_arrived: list[bool] = Field(description="Control packet arrived at k (switch S2), steps values.")
     effective: list[bool] = Field(description="Both arrived: a new packet reached the buffer at k.")
     buffer_index: list[int] = Field(description="q of the prediction `K_q x(i_m)` applied at k (1 = fresh).")
+    ages: list[int] | None = Field(None, description="Age of the buffer's packet at each sample, `k - stamp` "
+                                                     "(-1 before the first packet).")
     interval_start: list[int] = Field(description="The effective samples i_m.")
     eta: list[int] = Field(description="`i_{m+1} - i_m` of every completed interval (samples).")
     seed: int | None = Field(None, description="Seed of the packet losses and plant jumps.")

@@ -27,21 +27,22 @@ def stepped_product(F, G, K, ages, modes):
     return np.array(cols).T
 
 
-def admissible_cycles(net, n_plants, length):
-    """(ages, modes) of every period-`length` admissible pattern; plant modes change only at fresh packets."""
+def admissible_cycles(net, n_plants, length, per_sample=False):
+    """(ages, modes) of every period-`length` admissible pattern; plant modes change only at fresh packets
+    (or anywhere with ``per_sample``)."""
     for ages in itertools.product(range(net.n_drop), repeat=length):
         if not net.admissible(list(ages) * (net.nodes + 1)):
             continue
         for modes in itertools.product(range(n_plants), repeat=length):
-            ok = all(modes[t] == modes[t - 1] or ages[t] <= ages[t - 1] for t in range(length))
+            ok = per_sample or all(modes[t] == modes[t - 1] or ages[t] <= ages[t - 1] for t in range(length))
             if ok:
                 yield ages, modes
 
 
-def brute_force_radius(fam, K, net, max_length):
+def brute_force_radius(fam, K, net, max_length, per_sample=False):
     best = 0.0
     for k in range(1, max_length + 1):
-        for ages, modes in admissible_cycles(net, fam.n_modes, k):
+        for ages, modes in admissible_cycles(net, fam.n_modes, k, per_sample):
             M = stepped_product(fam.F, fam.G, K, ages, modes)
             best = max(best, max(abs(np.linalg.eigvals(M))) ** (1.0 / k))
     return best
@@ -80,6 +81,16 @@ def test_cycle_bounds_against_brute_force(net, scale):
         assert net.admissible(ages * (net.nodes + 1))
         M = stepped_product(fam.F, fam.G, K, ages, modes)
         assert max(abs(np.linalg.eigvals(M))) >= 1 - 1e-9
+
+
+def test_per_sample_plant_switching_against_brute_force():
+    fam = PlantFamily.paper_example(0.1)
+    K = 2.5 * EQ23_GAINS
+    net = Network.delays(1, 3)
+    rep = analyze(fam, K, network=net, max_product_length=3, plant_switching="per_sample", bounds="none")
+    assert rep.jsr_lower_estimate == pytest.approx(brute_force_radius(fam, K, net, 3, per_sample=True), rel=1e-9)
+    interval = analyze(fam, K, network=net, max_product_length=3, bounds="none")
+    assert rep.jsr_lower_estimate >= interval.jsr_lower_estimate * (1 - 1e-12)  # more switching, no smaller
 
 
 @pytest.mark.parametrize("net", [Network.delays(2, 3), Network.weakly_hard(2, 5, 3)])
