@@ -9,7 +9,7 @@ certified (``network_lmi`` convex, ``network_ccl`` cone complementarity), wall a
 of the analysis, and the load average.  Bounded drops is timed both ways: ``design(fam, n_drop)`` and
 ``design(fam, network=Network.bounded_drops(n_drop))`` (the same code path; the ratio is the overhead).
 
-    python -m bench network [--quick] [--time-limit 120]
+    python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only]
 """
 
 from __future__ import annotations
@@ -101,6 +101,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--overhead-only", action="store_true")
+    ap.add_argument("--largest", action="store_true",
+                    help="also weakly_hard(4, 10, 5) at n = 2 (256 nodes) and delays(3, 5) at n = 4 (~15 min)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     if args.overhead_only:
@@ -115,6 +117,9 @@ def main(argv=None) -> int:
                   (f"random n={n}", fam, Network.weakly_hard(3, 8, 4)),
                   (f"random n={n}", fam, Network.delays(1, 2)),
                   (f"random n={n}", fam, Network.delays(2, 3))]
+    if args.largest:
+        cases += [("random n=2", _family(2, 2), Network.weakly_hard(4, 10, 5)),
+                  ("random n=4", _family(4, 4), Network.delays(3, 5))]
     print("| family | network | nodes | transitions x state | outcome (method) | design wall [CPU] s | "
           "analysis wall [CPU] s | load |")
     print("|---|---|---|---|---|---|---|---|")
