@@ -9,7 +9,7 @@ import numpy as np
 
 from .lyapunov import Certificate
 
-OUTCOMES = ("stabilized", "infeasible", "marginal", "not_converged")
+OUTCOMES = ("stabilized", "infeasible", "marginal", "not_certified", "not_converged")
 
 
 def _num(x):
@@ -129,8 +129,9 @@ class DesignResult:
         only with a proof that no design of any margin exists (up to the Farkas certificate's
         ``gain_bound_any_margin``); ``marginal`` when the Farkas certificate excludes only designs
         whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist);
-        ``not_certified`` when a sufficient condition failed without a proof that no design exists
-        (output feedback: the observer LMI; ``message`` says which).
+        ``not_certified`` when a sufficient condition failed without a proof that no design exists: on a
+        network, the convex condition proven infeasible (its Farkas certificate in ``certificate``, re-checked in
+        float64); with output feedback, the observer LMI (``message`` says which).
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``; the last iterate's gains when not stabilized (may be None).
     certificate : Certificate or None
@@ -176,6 +177,8 @@ class DesignResult:
         ``seconds`` to 2 % of the initial state's norm, worst case over every allowed sequence;
         the rate as ``decay_rate`` (per sample), ``decay_factor_per_second``, ``exponential_rate``
         (1/s) and ``time_constant`` (s); ``metric_condition``.  None without a certified rate.
+    network : dict or None
+        The network the design is made for (``Network.to_dict()``); None for the paper's bounded drops.
     """
 
     outcome: str
@@ -206,6 +209,7 @@ class DesignResult:
     observer_gains: np.ndarray | None = None
     observer: object | None = None
     joint_certificate: object | None = None
+    network: dict | None = None
 
     @property
     def iterations(self) -> int:
@@ -248,6 +252,7 @@ class DesignResult:
             "performance": None if self.performance is None else self.performance.to_dict(),
             "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
             "settling": self.settling,
+            "network": self.network,
         } | ({} if self.feedback == "state" else {
             "feedback": self.feedback,
             "observer_gains": None if self.observer_gains is None else self.observer_gains.tolist(),
