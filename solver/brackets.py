@@ -112,6 +112,31 @@ class Performance:
         }
 
 
+def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0: np.ndarray | None) -> Performance:
+    """A bracket made in balanced coordinates (:class:`solver.scaling.PerformanceScaling`), in the user's.
+
+    The cost scales by ``scale.cost`` (the l2 gain not at all), P maps by the congruence; the witness is the
+    same pattern.  P is re-checked on the user's lifted data (``lifted``, ``gains``); when rounding there is too
+    coarse to confirm it, the balanced re-check stands (exact powers-of-two similarity: the same inequality)
+    and the message says so.
+    """
+    cost = perf.kind == "cost"
+    k = scale.cost if cost else 1.0
+    P = scale.quadratic_back(perf.certificate, cost=cost)
+    message = perf.message
+    if cost:
+        for phrase, v in (("cost certified <= ", perf.upper), ("worst periodic pattern searched: ", perf.lower)):
+            if v is not None and np.isfinite(v):
+                message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
+    if P is not None:
+        data = lifted.numeric(gains)
+        ok = check_cost(P, data)[0] if cost else check_hinf(P, perf.upper**2, data)[0]
+        message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
+    return Performance(kind=perf.kind, upper=None if perf.upper is None else perf.upper * k,
+                       lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
+                       verified=perf.verified, x0=x0, patterns=perf.patterns, message=message)
+
+
 def check_x0(x0, n: int) -> np.ndarray | None:
     if x0 is None:
         return None
@@ -142,7 +167,12 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     return bool(worst < -_allowance(P.shape[0])), float(worst)
 
 
-def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None):
+def _trace(P, weight):
+    """``trace P`` or ``sum_i weight_i P_ii`` (a trace in other coordinates, :mod:`solver.scaling`)."""
+    return float(np.trace(P)) if weight is None else float(np.sum(weight * np.diagonal(P)))
+
+
+def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight: np.ndarray | None = None):
     """Smallest multiple ``c P0`` that passes :func:`check_cost`, and its bound.
 
     ``c P0`` certifies when ``c (P0 - A' P0 A) >= S``: ``c`` is the largest generalized eigenvalue of
@@ -162,7 +192,7 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None):
         P = c * (1 + bump) * P0
         ok, worst = check_cost(P, data)
         if ok:
-            return P, float(np.trace(P) if x0 is None else x0 @ P @ x0), ""
+            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), ""
     return None, None, ("no multiple of the solver's P passes the float64 re-check "
                         f"(worst relative eigenvalue {worst:.3g})")
 
@@ -299,16 +329,16 @@ def solve_sdp(prob: cp.Problem, solver: str, time_limit: float | None = None) ->
                      iterations=stats.num_iters if stats else None)
 
 
-def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO"):
+def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO", weight=None):
     """Upper bound for given gains: ``min trace P`` (or ``x0' P x0``) s.t. the cost inequality, re-checked."""
     n = data[0]["A"].shape[0]
     P = cp.Variable((n, n), symmetric=True)
     cons = [P - d["A"].T @ P @ d["A"] - d["S"] >> 0 for d in data]
-    obj = cp.trace(P) if x0 is None else x0 @ P @ x0
+    obj = (cp.trace(P) if weight is None else cp.sum(cp.multiply(weight, cp.diag(P)))) if x0 is None else x0 @ P @ x0
     status = solve_sdp(cp.Problem(cp.Minimize(obj), cons + [P >> 0]), solver).status
     if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the fixed-gain cost LMI ended with status {status!r} (no common quadratic bound)"
-    return certify_cost(P.value, data, x0)
+    return certify_cost(P.value, data, x0, weight)
 
 
 def fixed_gain_hinf(data: list[dict], solver: str = "AUTO"):
@@ -421,7 +451,8 @@ REFINED = 4
 
 
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
-                data: list[dict] | None = None, max_length: int = PATTERN_LENGTH, max_count: int | None = None):
+                data: list[dict] | None = None, max_length: int = PATTERN_LENGTH, max_count: int | None = None,
+                weight: np.ndarray | None = None):
     """Worst periodic allowed pattern: ``(value, witness, patterns searched, note)``.
 
     cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per``: the exact cost of
@@ -455,7 +486,8 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             good = ~bad
             if np.any(good):
                 Pp, done = periodic.stein_doubling(sys["Phi"][good], sys["S"][good])
-                vals = (np.trace(Pp, axis1=1, axis2=2) if x0 is None else np.einsum("i,pij,j->p", x0, Pp, x0))
+                vals = (np.einsum("i,pii->p", np.ones(Pp.shape[-1]) if weight is None else weight, Pp) if x0 is None
+                        else np.einsum("i,pij,j->p", x0, Pp, x0))
                 vals[~done] = np.inf  # radius within rounding of 1: re-evaluated exactly below if it matters
                 approx[pos[good]] = vals
         else:
@@ -472,7 +504,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             for i in _top(approx, REFINED):
                 sys = period_system(data, pats[i])
                 Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
-                value = float(np.trace(Pp) if x0 is None else x0 @ Pp @ x0)
+                value = float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0)
                 if value > best:
                     best, witness = value, pats[i]
     else:
@@ -530,7 +562,7 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
 
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
-            x0: np.ndarray | None = None, solver: str = "AUTO") -> Performance:
+            x0: np.ndarray | None = None, solver: str = "AUTO", weight: np.ndarray | None = None) -> Performance:
     """The certified bracket of ``kind`` for given gains.
 
     ``P0``: a candidate certificate (a design's); without one (or when it fails the re-check) the
@@ -539,16 +571,16 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     data = lifted.numeric(gains)
     P = upper = None
     reason = ""
-    certify = (lambda Pc: certify_cost(Pc, data, x0)) if kind == "cost" else (lambda Pc: certify_hinf(Pc, data))
+    certify = (lambda Pc: certify_cost(Pc, data, x0, weight)) if kind == "cost" else (lambda Pc: certify_hinf(Pc, data))
     if P0 is not None and np.all(np.isfinite(P0)):
         P, upper, reason = certify(P0)
     if P is None:
         try:
-            P, upper, why = fixed_gain_cost(data, x0, solver) if kind == "cost" else fixed_gain_hinf(data, solver)
+            P, upper, why = fixed_gain_cost(data, x0, solver, weight) if kind == "cost" else fixed_gain_hinf(data, solver)
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
         reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
-    lower, witness, count, note = lower_bound(lifted, gains, kind, x0, data=data)
+    lower, witness, count, note = lower_bound(lifted, gains, kind, x0, data=data, weight=weight)
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
         P, upper, reason = None, None, f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"

@@ -17,7 +17,8 @@ from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
 from .result import DesignResult, certified_settling, metric_condition
-from .scaling import Scaling, balance
+from .brackets import bracket_back
+from .scaling import Scaling, balance, performance_balance
 
 #: Method name -> module with ``run(modes, options)``.
 METHODS = {"lmi": lmi, "ccl": ccl, "switched": switched}
@@ -190,8 +191,8 @@ def design(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                   margin, max_iter, time_limit, callback, decay_rate)
+        return _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
+                                   solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -218,9 +219,17 @@ def design(
     return res
 
 
-def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,
-                        margin, max_iter, time_limit, callback, decay_rate) -> DesignResult:
-    """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), user coordinates."""
+def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, weights, x0, disturbance, output,
+                        u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
+                        scaling: str = "auto") -> DesignResult:
+    """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), in balanced coordinates.
+
+    The scaling layer (:func:`solver.scaling.performance_balance`): states, inputs and the cost's size
+    balanced by powers of two, the design made there, gains, certificates and the bracket mapped back once
+    and re-checked in the user's coordinates.  A cost or H-infinity design that certifies nothing falls back
+    to the plain design's gains with their bracket (a performance design stabilizes whenever the plain one
+    does); a solver failure is a "not_converged" verdict, never an exception.
+    """
     from .methods import performance
 
     lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
@@ -229,7 +238,63 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
                             decay_rate=rate)
-    return performance.run(lifted, options, objective, x0, u_max)
+    start = time.perf_counter()
+    with blas_threads(1):
+        try:
+            res = _performance_scaled(family, lifted, options, objective, x0, u_max, scaling)
+        except SolverFailed as err:
+            res = DesignResult(outcome="not_converged", gains=None, certificate=None, method="lmi",
+                               n_drop=modes.n_drop, message=f"the {objective} design's solver failed: {err}",
+                               scheme=modes.scheme, plant_switching=modes.plant_switching,
+                               mode_labels=[modes.label(s) for s in range(modes.n_modes)])
+            res.objective = objective
+        if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
+                or u_max is not None:
+            return res
+        remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        if remaining is not None and remaining <= 0:
+            return res
+        try:
+            plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=None,
+                           time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
+                           scaling=scaling)
+        except SolverFailed:
+            return res
+        if plain.outcome != "stabilized":
+            return res
+        try:
+            plain.performance = performance.bracket(lifted, plain.gains, objective, x0=x0, solver=solver)
+        except SolverFailed as err:
+            return res
+        plain.objective = objective
+        plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
+                         f"{plain.performance.message}")
+        return plain
+
+
+def _performance_scaled(family: PlantFamily, lifted, options: DesignOptions, objective: str, x0, u_max,
+                        scaling: str) -> DesignResult:
+    from .methods import performance
+
+    modes = lifted.modes
+    scale = performance_balance(family, lifted.Q, lifted.R) if scaling == "auto" else None
+    if scale is None or scale.is_identity:
+        return performance.run(lifted, options, objective, x0, u_max)
+    weight = scale.trace_weight if objective == "cost" and x0 is None else None
+    res = performance.run(scale.lifted(lifted), options, objective, scale.x0(x0), scale.u_max(u_max),
+                          trace_weight=weight)
+    if u_max is not None and res.outcome != "stabilized":
+        # the limits' Farkas proofs are stated and bounded (radius) in the user's coordinates
+        return performance.run(lifted, options, objective, x0, u_max)
+    res = _unscale(res, scale.plain, modes)
+    res.scaling["cost"] = scale.cost
+    if res.performance is not None and res.gains is not None:
+        scaled = res.performance
+        res.performance = bracket_back(scaled, scale, lifted, res.gains, x0)
+        res.message = res.message.replace(scaled.message, res.performance.message)
+    if res.invariant_set is not None:
+        res.invariant_set = scale.quadratic_back(res.invariant_set)
+    return res
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:

@@ -105,3 +105,100 @@ def balance(family: PlantFamily, threshold: float = 1e3) -> Scaling:
     col = np.sqrt(np.sum(Gs**2, axis=(0, 1)))
     u = _power_of_two(np.where(col > 0, 1.0 / np.where(col > 0, col, 1.0), 1.0))
     return Scaling(t, u)
+
+
+# ------------------------------------------------------------------ performance designs
+@dataclass(frozen=True)
+class PerformanceScaling:
+    """The coordinates of a performance design: ``x = T x~``, ``u = U u~`` and the cost divided by ``cost``.
+
+    Every factor is a power of two (``cost`` a power of four, so that the cost rows ``L / sqrt(cost)``
+    stay exact): the scaled lifted data are the user's, scaled exactly, and a re-check in either
+    coordinates checks the same inequality.  Mapping back (docs/design.md, "Performance designs")::
+
+        K = U K~ T^-1,   P = cost T^-T P~ T^-1 (cost),   P = T^-T P~ T^-1 (hinf, invariant set)
+        cost bound = cost x bound~,   gamma = gamma~,   trace P = cost sum_i P~_ii / t_i^2
+    """
+
+    plain: Scaling
+    cost: float = 1.0
+
+    @property
+    def is_identity(self) -> bool:
+        return self.plain.is_identity and self.cost == 1.0
+
+    @property
+    def trace_weight(self) -> np.ndarray:
+        """``w`` of ``trace P = cost sum_i w_i P~_ii`` (``1 / t_i^2``)."""
+        return 1.0 / self.plain.state**2
+
+    def x0(self, x0):
+        return None if x0 is None else x0 / self.plain.state
+
+    def u_max(self, u_max):
+        return None if u_max is None else u_max / self.plain.input
+
+    def modes(self, modes):
+        """The :class:`solver.network.ModeSet` in scaled coordinates (every entry scaled exactly)."""
+        from dataclasses import replace as _replace
+
+        t, u = self.plain.state, self.plain.input
+        return _replace(modes, free=modes.free / t[None, :, None] * t[None, None, :],
+                        coef=modes.coef / t[None, None, :, None] * u[None, None, None, :],
+                        F=None if modes.F is None else modes.F / t[None, :, None] * t[None, None, :],
+                        G=None if modes.G is None else modes.G / t[None, :, None] * u[None, None, :])
+
+    def lifted(self, lifted):
+        """The lifted interval data (:class:`solver.lifting.Lifted`) in scaled coordinates.
+
+        ``A~ = T^-1 A T`` (coefficients ``T^-1 coef_q U``), cost rows ``L T / sqrt(cost)`` (``L U / sqrt(cost)``),
+        output rows ``C T`` (``C U``), ``B~ = T^-1 B``; ``D`` and the disturbance are unchanged.
+        """
+        from dataclasses import replace as _replace
+
+        from .lifting import AffineRows, Lifted
+
+        t, u = self.plain.state, self.plain.input
+        root = np.sqrt(self.cost)
+
+        def rows(r, left, div=1.0):
+            if r is None:
+                return None
+            free = r.free * t[None, :] / div
+            coef = r.coef * u[None, None, :] / div
+            if left is not None:
+                free, coef = free / left[:, None], coef / left[None, :, None]
+            return AffineRows(free, coef)
+
+        out = [_replace(lm, state=rows(lm.state, t), cost=rows(lm.cost, None, root),
+                        output=rows(lm.output, None), B=None if lm.B is None else lm.B / t[:, None])
+               for lm in lifted.lifted]
+        Q = None if lifted.Q is None else lifted.Q * t[:, None] * t[None, :] / self.cost
+        R = None if lifted.R is None else lifted.R * u[:, None] * u[None, :] / self.cost
+        return Lifted(modes=self.modes(lifted.modes), lifted=out, Q=Q, R=R)
+
+    def quadratic_back(self, P, cost: bool = False):
+        """``T^-T P~ T^-1`` (times ``cost`` for a cost certificate)."""
+        if P is None:
+            return None
+        back = self.plain.quadratic_back(np.asarray(P))
+        return back * self.cost if cost else back
+
+
+def _power_of_four(v: float) -> float:
+    return float(4.0 ** np.round(np.log(v) / np.log(4.0)))
+
+
+def performance_balance(family: PlantFamily, Q=None, R=None, threshold: float = 1e3) -> PerformanceScaling:
+    """:func:`balance` for the plant, then the cost divided by a power of four near the largest weight.
+
+    ``Q``, ``R`` the (validated) cost weights, None without a cost.
+    """
+    plain = balance(family, threshold)
+    cost = 1.0
+    if Q is not None and R is not None:
+        t, u = plain.state, plain.input
+        size = max(np.linalg.norm(Q * t[:, None] * t[None, :], 2), np.linalg.norm(R * u[:, None] * u[None, :], 2))
+        if np.isfinite(size) and size > 0:
+            cost = _power_of_four(size)
+    return PerformanceScaling(plain, cost)
