@@ -239,9 +239,12 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
                             decay_rate=rate)
     start = time.perf_counter()
+    scale = performance_balance(family, lifted) if scaling == "auto" else None
+    if scale is not None and scale.is_identity:
+        scale = None
     with blas_threads(1):
         try:
-            res = _performance_scaled(family, lifted, options, objective, x0, u_max, scaling)
+            res = _performance_scaled(scale, lifted, options, objective, x0, u_max)
         except SolverFailed as err:
             res = DesignResult(outcome="not_converged", gains=None, certificate=None, method="lmi",
                                n_drop=modes.n_drop, message=f"the {objective} design's solver failed: {err}",
@@ -263,8 +266,15 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         if plain.outcome != "stabilized":
             return res
         try:
-            plain.performance = performance.bracket(lifted, plain.gains, objective, x0=x0, solver=solver)
-        except SolverFailed as err:
+            if scale is None:
+                plain.performance = performance.bracket(lifted, plain.gains, objective, x0=x0, solver=solver)
+            else:  # the fixed-gain LMI in balanced coordinates too
+                t, u = scale.plain.state, scale.plain.input
+                scaled = performance.bracket(scale.lifted(lifted), plain.gains / u[None, :, None] * t[None, None, :],
+                                             objective, x0=scale.x0(x0), solver=solver,
+                                             weight=scale.trace_weight if objective == "cost" and x0 is None else None)
+                plain.performance = bracket_back(scaled, scale, lifted, plain.gains, x0)
+        except SolverFailed:
             return res
         plain.objective = objective
         plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
@@ -272,13 +282,12 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         return plain
 
 
-def _performance_scaled(family: PlantFamily, lifted, options: DesignOptions, objective: str, x0, u_max,
-                        scaling: str) -> DesignResult:
+def _performance_scaled(scale, lifted, options: DesignOptions, objective: str, x0, u_max) -> DesignResult:
+    """One performance design in the coordinates of ``scale`` (None: the user's), mapped back."""
     from .methods import performance
 
     modes = lifted.modes
-    scale = performance_balance(family, lifted.Q, lifted.R) if scaling == "auto" else None
-    if scale is None or scale.is_identity:
+    if scale is None:
         return performance.run(lifted, options, objective, x0, u_max)
     weight = scale.trace_weight if objective == "cost" and x0 is None else None
     res = performance.run(scale.lifted(lifted), options, objective, scale.x0(x0), scale.u_max(u_max),
