@@ -35,8 +35,10 @@ ROUND = 64 * np.finfo(float).eps
 
 def _allowance(k: int) -> float:
     return max(ROUND, 8 * k * np.finfo(float).eps)
-#: Periodic patterns searched for the lower bound: up to this many intervals per period ...
+#: Periodic patterns searched for the lower bound: up to this many intervals per period at least (longer while
+#: every pattern of the next length still fits in the count below, up to MAX_PATTERN_LENGTH) ...
 PATTERN_LENGTH = 3
+MAX_PATTERN_LENGTH = 16
 #: ... and at most this many patterns (shorter periods first).
 MAX_PATTERNS = 4000
 #: ... (H-infinity: each pattern needs a frequency sweep of its lifted system)
@@ -461,7 +463,7 @@ REFINED = 4
 
 
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
-                data: list[dict] | None = None, max_length: int = PATTERN_LENGTH, max_count: int | None = None,
+                data: list[dict] | None = None, max_length: int | None = None, max_count: int | None = None,
                 weight: np.ndarray | None = None, deep: bool = True, stop: float = np.inf):
     """Worst periodic allowed pattern: ``(value, witness, patterns searched, note)``.
 
@@ -475,12 +477,19 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     ``REFINED`` best are then re-evaluated one by one (``scipy.linalg.solve_discrete_lyapunov``; sweep plus
     bounded refinement), and the value reported is the re-evaluated one of the witness.  ``deep`` (cost): the
     two-run search of :func:`run_patterns` beyond ``max_length``, stopped at ``stop`` (the certified upper bound).
+    ``max_length`` None: the longest length whose patterns (all of them, every shorter one too) fit in
+    ``max_count``, at least ``PATTERN_LENGTH`` (two modes: length 11 within 4000 patterns).
     """
     from . import periodic
 
     data = lifted.numeric(gains) if data is None else data
     if max_count is None:
         max_count = MAX_PATTERNS if kind == "cost" else MAX_PATTERNS_HINF
+    if max_length is None:
+        max_length, total = PATTERN_LENGTH, sum(len(data) ** k for k in range(1, PATTERN_LENGTH + 1))
+        while max_length < MAX_PATTERN_LENGTH and total + len(data) ** (max_length + 1) <= max_count:
+            max_length += 1
+            total += len(data) ** max_length
     pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
     arrays = periodic.mode_arrays(data)
     approx = np.full(len(pats), np.nan)  # nan: skipped (unstable hinf, unstable cost-free, or pruned)
