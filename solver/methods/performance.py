@@ -32,7 +32,7 @@ from ..compiled import SolveInfo, check_memory, clarabel_kkt_bytes, ipm_memory, 
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..brackets import bracket, check_invariant, check_x0, solve_sdp
+from ..brackets import bracket, check_cost, check_invariant, check_x0, solve_sdp
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
@@ -357,6 +357,8 @@ def _good(c: dict | None, u_max) -> bool:
 
 #: Newton-Kleinman (Hewer) iterations of the Riccati refinement at most (quadratic convergence: ~10 suffice).
 HEWER_STEPS = 60
+#: Relative lifts of the refined cost matrix tried in turn (the smallest that passes the re-check is kept).
+EPS_STEPS = (1e-14, 1e-13, 1e-12, 1e-11, 1e-10, 1e-9)
 
 
 def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
@@ -364,8 +366,11 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
 
     ``K <- -(R + G' P G)^{-1} G' P F`` with ``P = (F + G K)' P (F + G K) + Q + K' R K``: every iterate
     stabilizes and P decreases monotonically to the Riccati solution, quadratically near it (Hewer 1971).
-    Returns ``(K, P)`` of the last iterate, or None when ``K`` does not stabilize.  The result is a proposal:
-    the caller's float64 re-checks certify it.
+    Returns ``(K, P)``: the last iterate and a P a hair above its cost matrix (``A'PA - P + S = -eps I`` with
+    the smallest ``eps`` among ``EPS_STEPS`` times ``2 |P| + |S|`` whose P passes :func:`check_cost`: the
+    re-check's inequality is strict, and the Riccati solution meets it with equality where ``S`` is singular,
+    e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
+    like any other: the caller's float64 re-checks certify it.
     """
     for _ in range(HEWER_STEPS):
         A = F + G @ K
@@ -382,11 +387,15 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
         return None
     S = Q + K.T @ R @ K
-    # a hair above the Riccati solution so the re-check's strict inequality holds where S is singular
-    # (CTMS weights: Q = diag(5000, 0, 100, 0)): A'PA - P + S = -eps I
-    eps = 1e-10 * max(np.linalg.norm(S, 2), 1e-300)
-    P = scipy.linalg.solve_discrete_lyapunov(A.T, S + eps * np.eye(S.shape[0]))
-    return K, 0.5 * (P + P.T)
+    P = scipy.linalg.solve_discrete_lyapunov(A.T, S)
+    size = 2 * np.linalg.norm(P, 2) + np.linalg.norm(S, 2)
+    data = [{"A": A, "S": S}]
+    for step in EPS_STEPS:
+        Pe = scipy.linalg.solve_discrete_lyapunov(A.T, S + step * size * np.eye(S.shape[0]))
+        Pe = 0.5 * (Pe + Pe.T)
+        if check_cost(Pe, data)[0]:
+            break
+    return K, Pe
 
 
 def _one_lti_loop(lifted: Lifted) -> bool:
