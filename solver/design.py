@@ -135,7 +135,8 @@ def design(
         ``"auto"`` designs in balanced coordinates (diagonal powers of two) when
         the family's entries spread over more than three decades, and maps
         gains and certificates back (see :mod:`solver.scaling`).  Designs with an
-        ``objective`` other than "stability" or with ``u_max`` run in the user's coordinates.
+        ``objective`` or ``u_max`` balance the weights and channels too (powers of two) and map the
+        bracket back (:class:`solver.scaling.PerformanceScaling`).
     max_memory : float, optional
         Memory budget in bytes (default :data:`solver.compiled.MAX_SOLVER_MEMORY`, 4 GiB, or
         ``NCS_SOLVER_MAX_MEMORY``).  Before anything is built, the design's size is estimated
@@ -148,8 +149,11 @@ def design(
         worst-case quadratic cost ``sum_k x' Q x + u' R u`` over every allowed pattern (``x0' P x0``,
         or ``trace P`` for initial states of covariance I when ``x0`` is None).  ``"hinf"``: minimize
         the certified worst-case l2 gain from the disturbance w to z.  Both: method ``"lmi"`` only,
-        solved by Clarabel (also under "AUTO"), ``res.performance`` holds the bracket (certified upper
+        on the structured IPM under "AUTO" (Clarabel's proposal too when the IPM's does not certify;
+        one mode with ``n_drop = 1``: refined to the Riccati solution), ``res.performance`` holds the bracket (certified upper
         bound, worst periodic pattern as the lower bound, its witness); docs/design.md, "Performance".
+        A cost or hinf design that certifies nothing returns the plain design's gains with their bracket
+        when the plain design stabilizes; its solver failures are "not_converged", never ``SolverFailed``.
     weights : (Q, R), optional
         Cost weights (n x n positive semidefinite, m x m positive definite; default identities).
     x0 : array_like of n, optional
