@@ -264,8 +264,8 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         try:
             plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=None,
                            time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
-                           scaling=scaling)
-        except SolverFailed:
+                           scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
+        except (SolverFailed, InvalidInput):  # InvalidInput: the size guard (the performance design ran anyway)
             return res
         if plain.outcome != "stabilized":
             return res
@@ -300,7 +300,7 @@ def _performance_scaled(scale, lifted, options: DesignOptions, objective: str, x
         # the limits' Farkas proofs are stated and bounded (radius) in the user's coordinates
         return performance.run(lifted, options, objective, x0, u_max)
     res = _unscale(res, scale.plain, modes)
-    res.scaling["cost"] = scale.cost
+    res.scaling.update(cost=scale.cost, disturbance=scale.disturbance, output=scale.output)
     if res.performance is not None and res.gains is not None:
         scaled = res.performance
         res.performance = bracket_back(scaled, scale, lifted, res.gains, x0)
