@@ -658,6 +658,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
 
     ``P0``: a candidate certificate (a design's); without one (or when it fails the re-check) the
     fixed-gain LMI proposes P.  Either way P is accepted only through the float64 re-check.
+    ``weight`` (n,): the mean cost is ``sum_i weight_i P_ii`` instead of ``trace P`` (the user's trace of a design
+    made in balanced coordinates, :class:`solver.scaling.PerformanceScaling`).
     """
     data = lifted.numeric(gains)
     P = upper = None

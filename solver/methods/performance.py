@@ -15,8 +15,9 @@ scalars; the lifted data come from :mod:`solver.lifting` (``rows.times_w(W, Y)``
 
 Every figure the result reports passes the float64 re-checks of :mod:`solver.brackets`.
 Solved by the structured IPM (:mod:`solver.ipm.performance_blocks`, the same blocks; ``solver="AUTO"``, ``"IPM"``)
-or by Clarabel through cvxpy (``"CLARABEL"``, tight tolerances; also ``"AUTO"``'s fallback when the IPM
-ends without an answer).
+or by Clarabel through cvxpy (``"CLARABEL"``, tight tolerances; under ``"AUTO"`` a second proposal when the
+IPM's does not certify).  :func:`run` works in whatever coordinates its lifted data are in; ``design`` hands it the
+balanced ones (:class:`solver.scaling.PerformanceScaling`) and maps the answer back.
 """
 
 from __future__ import annotations
