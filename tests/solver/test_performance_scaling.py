@@ -102,3 +102,21 @@ def test_a_failing_solver_is_a_verdict(monkeypatch):
     assert res.performance is not None and res.performance.verified
     res = design(family, 2, objective="hinf", disturbance=np.ones((family.n_states, 1)))
     assert res.outcome == "stabilized" and res.performance.verified
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_one_mode_random_plants_reproduce_the_riccati_cost(seed):
+    rng = np.random.default_rng(1000 + seed)
+    n, m = int(rng.integers(2, 6)), int(rng.integers(1, 3))
+    F = rng.normal(size=(n, n)) * 0.7
+    G = rng.normal(size=(n, m))
+    if seed % 2:  # states 1e-3 to 1e3 apart
+        t = 10.0 ** rng.uniform(-3, 3, n)
+        F, G = F / t[:, None] * t[None, :], G / t[:, None]
+    P = scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m))
+    K = -np.linalg.solve(np.eye(m) + G.T @ P @ G, G.T @ P @ F)
+    res = design(PlantFamily(F=F[None], G=G[None], sampling_period=0.1), 1, objective="cost")
+    assert res.outcome == "stabilized", res.message
+    assert res.performance.upper == pytest.approx(np.trace(P), rel=1e-6)
+    assert res.performance.upper >= np.trace(P) * (1 - 1e-9)
+    assert np.max(np.abs(res.gains[0] - K)) <= 1e-5 * np.max(np.abs(K))
