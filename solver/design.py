@@ -17,7 +17,8 @@ from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
 from .result import DesignResult, certified_settling, metric_condition
-from .scaling import Scaling, balance
+from .brackets import bracket_back
+from .scaling import Scaling, balance, performance_balance
 
 #: Method name -> module with ``run(modes, options)``.
 METHODS = {"lmi": lmi, "ccl": ccl, "switched": switched}
@@ -141,7 +142,8 @@ def design(
         ``"auto"`` designs in balanced coordinates (diagonal powers of two) when
         the family's entries spread over more than three decades, and maps
         gains and certificates back (see :mod:`solver.scaling`).  Designs with an
-        ``objective`` other than "stability" or with ``u_max`` run in the user's coordinates.
+        ``objective`` or ``u_max`` balance the weights and channels too (powers of two) and map the
+        bracket back (:class:`solver.scaling.PerformanceScaling`).
     max_memory : float, optional
         Memory budget in bytes (default :data:`solver.compiled.MAX_SOLVER_MEMORY`, 4 GiB, or
         ``NCS_SOLVER_MAX_MEMORY``).  Before anything is built, the design's size is estimated
@@ -154,8 +156,11 @@ def design(
         worst-case quadratic cost ``sum_k x' Q x + u' R u`` over every allowed pattern (``x0' P x0``,
         or ``trace P`` for initial states of covariance I when ``x0`` is None).  ``"hinf"``: minimize
         the certified worst-case l2 gain from the disturbance w to z.  Both: method ``"lmi"`` only,
-        solved by Clarabel (also under "AUTO"), ``res.performance`` holds the bracket (certified upper
+        on the structured IPM under "AUTO" (Clarabel's proposal too when the IPM's does not certify;
+        one mode with ``n_drop = 1``: refined to the Riccati solution), ``res.performance`` holds the bracket (certified upper
         bound, worst periodic pattern as the lower bound, its witness); docs/design.md, "Performance".
+        A cost or hinf design that certifies nothing returns the plain design's gains with their bracket
+        when the plain design stabilizes; its solver failures are "not_converged", never ``SolverFailed``.
     weights : (Q, R), optional
         Cost weights (n x n positive semidefinite, m x m positive definite; default identities).
     x0 : array_like of n, optional
@@ -252,8 +257,8 @@ def design(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        res = _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                  margin, max_iter, time_limit, callback, decay_rate)
+        res = _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
+                                  solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
         if network is not None:
             res.network = network.to_dict()
         return res
@@ -445,9 +450,17 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     return best
 
 
-def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,
-                        margin, max_iter, time_limit, callback, decay_rate) -> DesignResult:
-    """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), user coordinates."""
+def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, weights, x0, disturbance, output,
+                        u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
+                        scaling: str = "auto") -> DesignResult:
+    """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), in balanced coordinates.
+
+    The scaling layer (:func:`solver.scaling.performance_balance`): states, inputs and the cost's size
+    balanced by powers of two, the design made there, gains, certificates and the bracket mapped back once
+    and re-checked in the user's coordinates.  A cost or H-infinity design that certifies nothing falls back
+    to the plain design's gains with their bracket (a performance design stabilizes whenever the plain one
+    does); a solver failure is a "not_converged" verdict, never an exception.
+    """
     from .methods import performance
 
     lifted, x0, u_max = performance.prepare(modes, method, objective, weights, x0, disturbance, output, u_max,
@@ -456,7 +469,72 @@ def _performance_design(modes: ModeSet, method, objective, weights, x0, disturba
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
                             decay_rate=rate)
-    return performance.run(lifted, options, objective, x0, u_max)
+    start = time.perf_counter()
+    scale = performance_balance(family, lifted) if scaling == "auto" else None
+    if scale is not None and scale.is_identity:
+        scale = None
+    with blas_threads(1):
+        try:
+            res = _performance_scaled(scale, lifted, options, objective, x0, u_max)
+        except SolverFailed as err:
+            res = DesignResult(outcome="not_converged", gains=None, certificate=None, method="lmi",
+                               n_drop=modes.n_drop, message=f"the {objective} design's solver failed: {err}",
+                               scheme=modes.scheme, plant_switching=modes.plant_switching,
+                               mode_labels=[modes.label(s) for s in range(modes.n_modes)])
+            res.objective = objective
+        if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
+                or u_max is not None:
+            return res
+        remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        if remaining is not None and remaining <= 0:
+            return res
+        try:
+            plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=None,
+                           time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
+                           scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
+        except (SolverFailed, InvalidInput):  # InvalidInput: the size guard (the performance design ran anyway)
+            return res
+        if plain.outcome != "stabilized":
+            return res
+        try:
+            if scale is None:
+                plain.performance = performance.bracket(lifted, plain.gains, objective, x0=x0, solver=solver)
+            else:  # the fixed-gain LMI in balanced coordinates too
+                t, u = scale.plain.state, scale.plain.input
+                scaled = performance.bracket(scale.lifted(lifted), plain.gains / u[None, :, None] * t[None, None, :],
+                                             objective, x0=scale.x0(x0), solver=solver,
+                                             weight=scale.trace_weight if objective == "cost" and x0 is None else None)
+                plain.performance = bracket_back(scaled, scale, lifted, plain.gains, x0)
+        except SolverFailed:
+            return res
+        plain.objective = objective
+        plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
+                         f"{plain.performance.message}")
+        return plain
+
+
+def _performance_scaled(scale, lifted, options: DesignOptions, objective: str, x0, u_max) -> DesignResult:
+    """One performance design in the coordinates of ``scale`` (None: the user's), mapped back."""
+    from .methods import performance
+
+    modes = lifted.modes
+    if scale is None:
+        return performance.run(lifted, options, objective, x0, u_max)
+    weight = scale.trace_weight if objective == "cost" and x0 is None else None
+    res = performance.run(scale.lifted(lifted), options, objective, scale.x0(x0), scale.u_max(u_max),
+                          trace_weight=weight)
+    if u_max is not None and res.outcome != "stabilized":
+        # the limits' Farkas proofs are stated and bounded (radius) in the user's coordinates
+        return performance.run(lifted, options, objective, x0, u_max)
+    res = _unscale(res, scale.plain, modes)
+    res.scaling.update(cost=scale.cost, disturbance=scale.disturbance, output=scale.output)
+    if res.performance is not None and res.gains is not None:
+        scaled = res.performance
+        res.performance = bracket_back(scaled, scale, lifted, res.gains, x0)
+        res.message = res.message.replace(scaled.message, res.performance.message)
+    if res.invariant_set is not None:
+        res.invariant_set = scale.quadratic_back(res.invariant_set)
+    return res
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:

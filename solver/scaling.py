@@ -105,3 +105,121 @@ def balance(family: PlantFamily, threshold: float = 1e3) -> Scaling:
     col = np.sqrt(np.sum(Gs**2, axis=(0, 1)))
     u = _power_of_two(np.where(col > 0, 1.0 / np.where(col > 0, col, 1.0), 1.0))
     return Scaling(t, u)
+
+
+# ------------------------------------------------------------------ performance designs
+@dataclass(frozen=True)
+class PerformanceScaling:
+    """The coordinates of a performance design: ``x = T x~``, ``u = U u~``, the cost divided by ``cost``,
+    the disturbance ``w = disturbance w~`` and the output ``z = output z~``.
+
+    Every factor is a power of two (``cost`` a power of four, so that the cost rows ``L / sqrt(cost)``
+    stay exact): the scaled lifted data are the user's, scaled exactly, and a re-check in either
+    coordinates checks the same inequality.  Mapping back (docs/design.md, "Performance designs")::
+
+        K = U K~ T^-1,   P = cost T^-T P~ T^-1 (cost),   P = output^2 T^-T P~ T^-1 (hinf),
+        X = T^-T X~ T^-1 (invariant set),   cost bound = cost x bound~,   gamma = gamma~ output / disturbance,
+        trace P = cost sum_i P~_ii / t_i^2
+    """
+
+    plain: Scaling
+    cost: float = 1.0
+    disturbance: float = 1.0
+    output: float = 1.0
+
+    @property
+    def is_identity(self) -> bool:
+        return self.plain.is_identity and self.cost == 1.0 and self.disturbance == 1.0 and self.output == 1.0
+
+    @property
+    def gain(self) -> float:
+        """``gamma = gain x gamma~``."""
+        return self.output / self.disturbance
+
+    @property
+    def trace_weight(self) -> np.ndarray:
+        """``w`` of ``trace P = cost sum_i w_i P~_ii`` (``1 / t_i^2``)."""
+        return 1.0 / self.plain.state**2
+
+    def x0(self, x0):
+        return None if x0 is None else x0 / self.plain.state
+
+    def u_max(self, u_max):
+        return None if u_max is None else u_max / self.plain.input
+
+    def modes(self, modes):
+        """The :class:`solver.network.ModeSet` in scaled coordinates (every entry scaled exactly)."""
+        from dataclasses import replace as _replace
+
+        t, u = self.plain.state, self.plain.input
+        return _replace(modes, free=modes.free / t[None, :, None] * t[None, None, :],
+                        coef=modes.coef / t[None, None, :, None] * u[None, None, None, :],
+                        F=None if modes.F is None else modes.F / t[None, :, None] * t[None, None, :],
+                        G=None if modes.G is None else modes.G / t[None, :, None] * u[None, None, :])
+
+    def lifted(self, lifted):
+        """The lifted interval data (:class:`solver.lifting.Lifted`) in scaled coordinates.
+
+        ``A~ = T^-1 A T`` (coefficients ``T^-1 coef_q U``), cost rows ``L T / sqrt(cost)`` (``L U / sqrt(cost)``),
+        output rows ``C T / output`` (``C U / output``), ``B~ = T^-1 B disturbance``, ``D~ = D disturbance / output``.
+        """
+        from dataclasses import replace as _replace
+
+        from .lifting import AffineRows, Lifted
+
+        t, u = self.plain.state, self.plain.input
+        root = np.sqrt(self.cost)
+
+        def rows(r, left, div=1.0):
+            if r is None:
+                return None
+            free = r.free * t[None, :] / div
+            coef = r.coef * u[None, None, :] / div
+            if left is not None:
+                free, coef = free / left[:, None], coef / left[None, :, None]
+            return AffineRows(free, coef)
+
+        sw, sz = self.disturbance, self.output
+        out = [_replace(lm, state=rows(lm.state, t), cost=rows(lm.cost, None, root),
+                        output=rows(lm.output, None, sz), B=None if lm.B is None else lm.B / t[:, None] * sw,
+                        D=None if lm.D is None else lm.D * (sw / sz))
+               for lm in lifted.lifted]
+        Q = None if lifted.Q is None else lifted.Q * t[:, None] * t[None, :] / self.cost
+        R = None if lifted.R is None else lifted.R * u[:, None] * u[None, :] / self.cost
+        return Lifted(modes=self.modes(lifted.modes), lifted=out, Q=Q, R=R)
+
+    def quadratic_back(self, P, kind: str | None = None):
+        """``T^-T P~ T^-1``, times ``cost`` for a cost certificate (``kind="cost"``), ``output^2`` for "hinf"."""
+        if P is None:
+            return None
+        back = self.plain.quadratic_back(np.asarray(P))
+        return back * {"cost": self.cost, "hinf": self.output**2}.get(kind, 1.0)
+
+
+def _power_of_four(v: float) -> float:
+    return float(4.0 ** np.round(np.log(v) / np.log(4.0)))
+
+
+def performance_balance(family: PlantFamily, lifted, threshold: float = 1e3) -> PerformanceScaling:
+    """:func:`balance` for the plant, then the cost divided by a power of four near the largest weight, and
+    the disturbance and output channels (hinf) brought to unit size by powers of two.
+
+    ``lifted``: the user's :class:`solver.lifting.Lifted` data (weights, channels).
+    """
+    plain = balance(family, threshold)
+    t, u = plain.state, plain.input
+    cost = sw = sz = 1.0
+    if lifted.Q is not None and lifted.R is not None:
+        Q, R = lifted.Q, lifted.R
+        size = max(np.linalg.norm(Q * t[:, None] * t[None, :], 2), np.linalg.norm(R * u[:, None] * u[None, :], 2))
+        if np.isfinite(size) and size > 0:
+            cost = _power_of_four(size)
+    if lifted.lifted[0].B is not None and lifted.lifted[0].output is not None:
+        b = max(np.linalg.norm(lm.B / t[:, None]) for lm in lifted.lifted)
+        z = max(max(np.linalg.norm(lm.output.free * t[None, :]), np.linalg.norm(lm.output.coef * u[None, None, :]))
+                for lm in lifted.lifted)
+        if np.isfinite(b) and b > 0:
+            sw = float(_power_of_two(np.array(1.0 / b)))
+        if np.isfinite(z) and z > 0:
+            sz = float(_power_of_two(np.array(z)))
+    return PerformanceScaling(plain, cost, sw, sz)

@@ -136,7 +136,7 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
-                        limit_slack: float = 0.0) -> PerformanceProblem:
+                        limit_slack: float = 0.0, trace_weight: np.ndarray | None = None) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -155,6 +155,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         ``W <= radius^2 I`` (``objective="stability"``).
     limit_slack : float
         ``u_max (1 - limit_slack)`` in the input blocks.
+    trace_weight : ndarray, shape (n,), optional
+        Minimize ``sum_i w_i Z_ii`` instead of ``trace Z`` (the user's trace in balanced coordinates).
     """
     modes = lifted.modes
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
@@ -243,7 +245,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     V0 = [np.zeros(sh) for _, sh, _ in matrices] + [np.zeros((1, 1)) for _ in scalars]
     lmi = GroupedLMI(matrices, scalars, groups, V0)
     if objective == "cost":
-        obj = {"Z": np.eye(n)} if use_Z else {"gamma": 1.0}
+        obj = {"Z": np.eye(n) if trace_weight is None else np.diag(trace_weight)} if use_Z else {"gamma": 1.0}
     elif objective == "hinf":
         obj = {"g": 1.0}
     else:
