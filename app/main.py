@@ -46,8 +46,13 @@ of this service (`/problems/{slug}`) saying how to fix it.
 
 
 class LRU:
-    def __init__(self, size: int = 128):
+    """Recent answers (bytes), bounded by count and by their total size: a 10,000-step trace of a 20-mode design
+    is tens of MB, so a count alone let one key grow the service by gigabytes."""
+
+    def __init__(self, size: int = 128, max_bytes: int = 64 * 2**20):
         self.size = size
+        self.max_bytes = max_bytes
+        self.nbytes = 0
         self._d: OrderedDict = OrderedDict()
         self._lock = threading.Lock()
 
@@ -58,12 +63,22 @@ class LRU:
                 return self._d[key]
             return None
 
+    def __len__(self) -> int:
+        return len(self._d)
+
     def put(self, key, value) -> None:
+        size = len(value)
         with self._lock:
+            old = self._d.pop(key, None)
+            if old is not None:
+                self.nbytes -= len(old)
+            if size > self.max_bytes // 4:  # one answer may not push out the whole cache
+                return
             self._d[key] = value
-            self._d.move_to_end(key)
-            while len(self._d) > self.size:
-                self._d.popitem(last=False)
+            self.nbytes += size
+            while len(self._d) > self.size or self.nbytes > self.max_bytes:
+                _, dropped = self._d.popitem(last=False)
+                self.nbytes -= len(dropped)
 
 
 def _docs_static_dir() -> Path:
@@ -126,7 +141,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=lambda route: route.name,
     )
     app.state.settings = settings
-    app.state.trace_cache = LRU(128)
+    app.state.trace_cache = LRU(128, settings.cache_max_bytes)
     # Jobs other replicas finish are found by one batched read for all waiters (app.jobs.watch); the jobs this
     # process's dispatcher holds are left out of it: it tells their waiters itself.
     app.state.job_watch = JobWatch(

@@ -245,6 +245,15 @@ def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str,
     return out
 
 
+def run_trace_json(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> bytes:
+    """:func:`run_trace` as the service's canonical JSON bytes (keys sorted, compact). Encoded here, in the pool's
+    process: a long trace is tens of MB of JSON, which on the event loop stalled every other request."""
+    import json
+
+    return json.dumps(run_trace(plant, gains, n_drop, params), sort_keys=True, separators=(",", ":"),
+                      allow_nan=False).encode()
+
+
 def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     from solver import analyze
 
