@@ -17,7 +17,7 @@ from app.api import problems
 from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
-from app.api.middleware import BodySizeLimit, JsonBodiesOnly
+from app.api.middleware import BodySizeLimit, BodyTimeout, JsonBodiesOnly
 from app.api import analyses, channels, designs, health, margins, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
@@ -149,6 +149,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         held=lambda ids: app.state.dispatcher.holds(ids) if getattr(app.state, "dispatcher", None) else ())
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    app.add_middleware(BodyTimeout, seconds=settings.body_timeout)
     app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",
                                                         "/v1/simulations"}))
     app.include_router(designs.router)

@@ -72,6 +72,10 @@ class Settings(BaseSettings):
         description="Comma-separated API keys. When set, `/v1` requires `X-API-Key: <key>` "
         "or `Authorization: Bearer <key>`. Empty: no authentication.",
     )
+    body_timeout: float = Field(
+        20.0, ge=0, description="Seconds a request body may pause (none of it arriving) before the request is "
+        "answered 408 and its connection closed; a slow body that keeps arriving is not limited. 0: no limit.",
+    )
     max_body_bytes: int = Field(
         1_000_000, ge=1024, description="Largest accepted request body in bytes (413 above).",
     )

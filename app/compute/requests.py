@@ -55,8 +55,10 @@ def _one_error_for_single_matrix(field: str, what: str):
     return check
 
 
-Name = Annotated[str, StringConstraints(min_length=1, max_length=64)]
-Unit = Annotated[str, StringConstraints(max_length=32)]
+# No control characters (like a job's label): names and units are written into SVG (XML refuses NUL and the
+# other C0 controls), MATLAB files and figure text.
+Name = Annotated[str, StringConstraints(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f]*$")]
+Unit = Annotated[str, StringConstraints(max_length=32, pattern=r"^[^\x00-\x1f\x7f]*$")]
 _NAMES = dict(max_length=1000)
 
 
