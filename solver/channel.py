@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InvalidInput
+from .workload import channel_operator_size, check_channel
 
 #: Row sums of a transition matrix may differ from 1 by this much (then they are normalized).
 STOCHASTIC_TOL = 1e-9
@@ -565,7 +566,8 @@ def _verdicts(loop, want_lower: bool = True):
 
 
 def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: str = "hold",
-                    plant_transitions=None, weights=None, noise=None) -> ChannelReport:
+                    plant_transitions=None, weights=None, noise=None, max_memory: float | None = None,
+                    time_limit: float | None = None) -> ChannelReport:
     """The predictive loop on a stochastic channel: bursts, mean-square stability, expected cost.
 
     Per sample k (docs/design.md, "Stochastic channels"): the buffer age ``d = k - i_m``, the
@@ -592,6 +594,10 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     noise : array_like (n, n), optional
         Process noise covariance W (``x(k+1) = F x + G u + w``): adds ``stationary_cost``, the
         long-run cost per sample.
+    max_memory, time_limit : float, optional
+        Budget in bytes and seconds (defaults: 4 GiB, ``NCS_SOLVER_MAX_MEMORY``; 300 s,
+        ``NCS_SOLVER_MAX_SECONDS``): an analysis whose second-moment operator is estimated over it is
+        refused with ``InvalidInput`` naming the operator's size before it is built (:mod:`solver.workload`).
 
     Returns
     -------
@@ -601,6 +607,8 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
 
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, channel, exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs
+    check_channel("the channel analysis", channel_operator_size(channel.n_states, r, n_drop, n), 1,
+                  max_memory, time_limit)
     Pi, kind = check_plant_transitions(plant_transitions, r)
     W = None if weights is None else check_weights(weights, n, m)
     noise_cov = None if noise is None else _psd("noise", noise, n)
@@ -754,17 +762,22 @@ def _arbitrary_lmi(loops):
 
 
 def critical_loss(family, gains, n_drop: int, *, exhausted: str = "hold", plant_transitions=None,
-                  tol: float = 1e-7) -> float:
+                  tol: float = 1e-7, max_memory: float | None = None, time_limit: float | None = None) -> float:
     """The Bernoulli loss probability at which the loop stops being mean-square stable.
 
     Bisection on ``p`` of the float64 spectral radius of the second-moment operator
     (:func:`analyze_channel` proves the verdict at any given ``p``).  Returns 0.0 when the loop
     is not mean-square stable even without losses and 1.0 when it stays stable for every
-    ``p < 1`` (up to ``1 - tol``).
+    ``p < 1`` (up to ``1 - tol``).  ``max_memory``/``time_limit``: as in :func:`analyze_channel`, for the
+    ``log2(1 / tol) + 2`` spectral-radius estimates of the bisection.
     """
     from .mjls import build_loop, radius_estimate
 
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, Channel.bernoulli(0.0), exhausted)
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 < tol < 0.5:
+        raise InvalidInput("tol must be a number in (0, 0.5)", ("tol",))
+    check_channel("critical_loss", channel_operator_size(1, family.n_modes, n_drop, family.n_states),
+                  int(np.ceil(np.log2(1.0 / tol))) + 2, max_memory, time_limit)
     Pi, kind = check_plant_transitions(plant_transitions, family.n_modes)
     if kind == "arbitrary":
         raise InvalidInput("critical_loss needs a Markov plant chain (or None), not 'arbitrary'",
