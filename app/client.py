@@ -626,6 +626,13 @@ class Client:
             return job
         return DesignResult.from_json(job.result, job_id=job.id)
 
+    def design_request(self, body: dict, wait: bool | float = True) -> DesignResult | Job:
+        """Submit a whole design request (the JSON of ``POST /v1/designs``, e.g. read from a file) as it is."""
+        job = self._submit("design", body, wait)
+        if not job.done:
+            return job
+        return DesignResult.from_json(job.result, job_id=job.id)
+
     def result(self, job_id: str, wait: bool | float = True) -> DesignResult:
         """The result of a design job submitted earlier (waits like :meth:`design`)."""
         job = self.job(job_id)
