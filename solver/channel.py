@@ -514,8 +514,10 @@ def _psd(name: str, M, size: int) -> np.ndarray:
 
 def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, R)``: symmetric PSD, n x n and m x m (scalars and vectors mean diagonal)."""
+    if isinstance(weights, dict) and set(weights) == {"Q", "R"}:  # the service's JSON form
+        weights = (weights["Q"], weights["R"])
     if not isinstance(weights, (tuple, list)) or len(weights) != 2:
-        raise InvalidInput("weights must be a pair (Q, R)", ("weights",))
+        raise InvalidInput("weights must be a pair (Q, R) or {\"Q\": ..., \"R\": ...}", ("weights",))
     return _psd("Q", weights[0], n), _psd("R", weights[1], m)
 
 
