@@ -166,6 +166,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in TOOL_COMMANDS:
+        import warnings
+
+        # numpy's overflow and conversion warnings from a badly scaled plant repeat per iteration: the verdict
+        # and its message say what went wrong, so the terminal gets each warning once at most.
+        warnings.simplefilter("once")
         from app.cli_commands import run_command
 
         return run_command(args)

@@ -432,4 +432,12 @@ def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: st
     if n_drop is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             ModeSet.from_family(fam, n_drop, plant_switching, scheme)
+        from solver.design import HOPELESS_GROWTH_LOG, unstable_growth
+
+        growth = unstable_growth(fam)  # a sampling period no design survives (often ms typed as s): a 422 now
+        if growth is not None and growth.per_sample_log > HOPELESS_GROWTH_LOG:
+            from solver import InvalidInput
+
+            raise InvalidInput(growth.explain(n_drop, "no loop can be certified at this sampling period in "
+                                              "double precision"), ("sampling_period",))
     _checked.put(key, True)
