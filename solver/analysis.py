@@ -238,8 +238,8 @@ def _check_analysis_budget(family, modes, plant_switching, scheme, solver, certi
     steps = int(np.ceil(np.log2(1.0 / max(float(rate_tol), 1e-12)))) + 1 if bound_kinds else 0
     seconds, memory, largest = 0.0, 3.0 * 8 * max_products * n * n, None
     for kind in dict.fromkeys((*certificates, *bound_kinds)):
-        if kind == "switched" and kind not in certificates and modes.n_modes > MAX_SWITCHED_MODES:
-            continue  # its bounds are skipped above this many modes
+        if kind == "switched" and modes.n_modes > MAX_SWITCHED_MODES:
+            continue  # neither the certificate nor its bounds are tried above this many modes
         size = design_size("switched" if kind == "switched" else "lmi", n, m, r, N, plant_switching, scheme,
                            solver)
         solves = (kind in certificates) + 2 * steps * (kind in bound_kinds)
