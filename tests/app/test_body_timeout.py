@@ -81,3 +81,15 @@ def test_the_library_refuses_control_characters_in_names_too():
         PlantFamily(F, G, state_names=["x", "v\x00"])
     with pytest.raises(InvalidInput, match="control character"):
         PlantFamily(F, G, state_names=["x", "v"], units={"x": "m\n"})
+
+
+def test_malformed_framing_gets_the_documented_plain_400(db_url, start_server):
+    """docs/service.md: the HTTP server refuses broken framing before the application (no problem+json there)."""
+    server = start_server(db_url, NCS_WORKERS=1)
+    for raw in (b"GARBAGE\r\n\r\n", b"POST /v1/designs HTTP/1.1\r\nHost: x\r\nContent-Length: abc\r\n\r\n"):
+        with socket.create_connection(("127.0.0.1", server.port), timeout=30) as s:
+            s.sendall(raw)
+            answer = _read_all(s)
+        assert answer.startswith(b"HTTP/1.1 400") and b"text/plain" in answer, answer[:300]
+        assert answer.endswith(b"Invalid HTTP request received."), answer[-100:]
+    assert server.proc.poll() is None
