@@ -71,8 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("design", help="design gains K_1..K_N for a plant file")
     plant_args(d)
-    d.add_argument("--n-drop", type=int, required=True, help="at most n_drop - 1 consecutive losses")
-    d.add_argument("--method", default="lmi", help="design method: lmi (one SDP, default), ccl, ...")
+    d.add_argument("--n-drop", type=int, default=None,
+                   help="at most n_drop - 1 consecutive losses (required unless PLANT is a request file with one)")
+    d.add_argument("--method", default=None, help="design method: lmi (one SDP, default), ccl, ...")
+    d.add_argument("--solver", choices=("AUTO", "IPM", "CLARABEL", "SCS"), type=str.upper, default=None,
+                   help="SDP solver (default AUTO: the fastest with the same verdicts)")
     d.add_argument("--decay-rate", default=None, metavar="LAMBDA",
                    help="default 'auto' (settling within ~1.5x the fastest certifiable loop); a per-sample decay "
                         "rate in (0, 1]; 'max' for the smallest; 'none' for plain stability")
@@ -175,6 +178,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in TOOL_COMMANDS:
+        import warnings
+
+        # numpy's overflow and conversion warnings from a badly scaled plant repeat per iteration: the verdict
+        # and its message say what went wrong, so the terminal gets each warning once at most.
+        warnings.simplefilter("once")
         from app.cli_commands import run_command
 
         return run_command(args)

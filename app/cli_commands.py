@@ -208,27 +208,116 @@ def _client(args):
     return Client(args.server, api_key=args.api_key)
 
 
+def _request_file(path: str):
+    """The JSON of a whole design request (a dict with a ``"plant"``), or None for a plant file."""
+    p = Path(path)
+    if p.suffix.lower() == ".mat" or not p.exists():
+        return None
+    data = _read_json(p)
+    return data if isinstance(data, dict) and isinstance(data.get("plant"), dict) else None
+
+
+def design_request_from_file(request: dict, args) -> dict:
+    """The request file with the command line's flags over it, validated like the service validates it.
+
+    Every field of ``POST /v1/designs`` is honoured (the design runs through the service's own task); a
+    field the request model does not know is refused by name, so nothing in the file is silently dropped."""
+    from pydantic import ValidationError
+
+    from app.compute.requests import DesignRequest
+
+    req = json.loads(json.dumps(request))  # a copy
+    if args.sampling_period is not None:
+        req["plant"]["sampling_period"] = args.sampling_period
+    for key, value in (("n_drop", args.n_drop), ("method", args.method)):
+        if value is not None:
+            req[key] = value
+    options = dict(req.get("options") or {})
+    for key, value in (("plant_switching", args.plant_switching), ("scheme", args.scheme),
+                       ("solver", args.solver)):
+        if value is not None:
+            options[key] = value
+    if args.decay_rate is not None:
+        options["decay_rate"] = _parse_decay_rate(args.decay_rate)
+    if options:
+        req["options"] = options
+    perf = performance_kwargs(args)
+    for key in ("objective", "u_max", "x0", "disturbance"):
+        if key in perf:
+            req[key] = perf[key]
+    if "weights" in perf:
+        req["weights"] = dict(zip("QR", perf["weights"]))
+    if "output" in perf:
+        req["output"] = dict(zip("CD", perf["output"]))
+    try:
+        model = DesignRequest.model_validate(req)
+    except ValidationError as exc:
+        lines = []
+        for e in exc.errors()[:10]:
+            where = ".".join(str(x) for x in e["loc"]) or "(request)"
+            what = "is not a field of a design request" if e["type"] == "extra_forbidden" else e["msg"]
+            lines.append(f"{where} {what}" if e["type"] == "extra_forbidden" else f"{where}: {what}")
+        raise UsageError(f"{args.plant}: " + "; ".join(lines)) from None
+    return model.model_dump(mode="json", exclude_unset=True)  # the service's defaults apply to the rest
+
+
 def cmd_design(args) -> int:
+    request = _request_file(args.plant)
+    if request is not None:
+        return _design_request(request, args)
+    if args.n_drop is None:
+        raise UsageError("--n-drop is required (or give a request file with \"n_drop\")")
     fam = load_plant(args.plant, args.sampling_period)
     options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme),
                                  ("feedback", args.feedback), ("sensor_n_drop", args.sensor_n_drop),
-                                 ("observer", args.observer)) if v is not None}
+                                 ("observer", args.observer), ("solver", args.solver)) if v is not None}
     if args.decay_rate is not None:  # given: 'none' means plain stability (None), not the default "auto"
         options["decay_rate"] = _parse_decay_rate(args.decay_rate)
     perf = performance_kwargs(args)
     suffix = Path(args.output).suffix.lower() if args.output else None
     if suffix not in (None, ".json", ".mat", ".m"):
         raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
+    method = args.method or "lmi"
     print(plant_summary(fam))
     if args.server:
         with _client(args) as c:
-            result = c.design(fam, n_drop=args.n_drop, method=args.method, **perf, **options).raw
+            result = c.design(fam, n_drop=args.n_drop, method=method, **perf, **options).raw
     else:
         from solver import design
 
-        res = design(fam, n_drop=args.n_drop, method=args.method, **perf, **options)
+        res = design(fam, n_drop=args.n_drop, method=method, **perf, **options)
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
+    return _report_design(args, suffix, result, fam)
+
+
+def _design_request(request: dict, args) -> int:
+    """``design REQUEST.json``: the whole request, run as the service runs it (every field honoured)."""
+    suffix = Path(args.output).suffix.lower() if args.output else None
+    if suffix not in (None, ".json", ".mat", ".m"):
+        raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
+    req = design_request_from_file(request, args)
+    from solver.plant import PlantFamily
+
+    fam = PlantFamily.from_dict(req["plant"])
+    fam = fam if fam.name else _renamed(fam, Path(args.plant).stem)
+    print(plant_summary(fam))
+    asked = [f"{k} {req[k]}" for k in ("objective", "u_max", "x0") if k in req and req[k] != "stability"]
+    asked += [k for k in ("weights", "disturbance", "output", "channel") if k in req]
+    options = req.get("options") or {}
+    print(f"request {args.plant}: n_drop {req.get('n_drop', 3)}, method {req.get('method', 'lmi')}, solver "
+          f"{options.get('solver', 'AUTO')}" + ("".join(f", {a}" for a in asked)))
+    if args.server:
+        with _client(args) as c:
+            result = c.design_request(req).raw
+    else:
+        from app.compute.tasks import run_design
+
+        result = run_design(req)
+    return _report_design(args, suffix, result, fam)
+
+
+def _report_design(args, suffix, result: dict, fam) -> int:
     print("\n".join(design_summary(result)), flush=True)
     if result.get("observer_gains") is not None:
         print(f"observer gains L (one n x p per plant mode): {json.dumps(result['observer_gains'])}")

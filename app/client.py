@@ -155,6 +155,14 @@ def performance_json(weights=None, x0=None, disturbance=None, output=None, u_max
     return body
 
 
+def _performance(data: dict | None):
+    if not data:
+        return None
+    from solver.brackets import Performance
+
+    return Performance.from_dict(data)
+
+
 @dataclass
 class DesignResult:
     """A finished design.
@@ -196,9 +204,10 @@ class DesignResult:
         The service job (None for an in-process design).
     objective : str
         ``stability``, ``cost`` or ``hinf``.
-    performance : dict or None
-        ``cost``/``hinf``: the certified bracket (``kind``, ``upper``, ``lower``, ``witness``, ``certificate``,
-        ``verified``, ``gap``; ``Performance`` in ``/openapi.json``).
+    performance : solver.brackets.Performance or None
+        ``cost``/``hinf``: the certified bracket, the same type as the library's ``res.performance``
+        (``kind``, ``upper``, ``lower``, ``witness``, ``certificate``, ``verified``, ``gap``; ``Performance`` in
+        ``/openapi.json``; ``perf["upper"]`` also works).
     invariant_set : ndarray, shape (n, n), or None
         With ``u_max``: X of ``{x : x' X x <= 1}``, from which every applied input meets the limits.
     observer_gains : ndarray, shape (r, n, p), or None
@@ -229,7 +238,7 @@ class DesignResult:
     units: dict | None = None
     job_id: str | None = None
     objective: str = "stability"
-    performance: dict | None = None
+    performance: Any = None
     invariant_set: np.ndarray | None = None
     observer_gains: np.ndarray | None = None
     raw: dict = field(default_factory=dict, repr=False)
@@ -246,7 +255,7 @@ class DesignResult:
                    exponential_rate=result.get("exponential_rate"), time_constant=result.get("time_constant"),
                    settling=result.get("settling"), state_names=result.get("state_names"),
                    input_names=result.get("input_names"), units=result.get("units"), job_id=job_id,
-                   objective=result.get("objective") or "stability", performance=result.get("performance"),
+                   objective=result.get("objective") or "stability", performance=_performance(result.get("performance")),
                    invariant_set=_array(result.get("invariant_set")),
                    observer_gains=_array(result.get("observer_gains")), raw=result)
 
@@ -643,6 +652,13 @@ class Client:
         if noise is not None:
             body["noise"] = {"W": np.asarray(noise[0], dtype=float).tolist(),
                              "V": np.asarray(noise[1], dtype=float).tolist()}
+        job = self._submit("design", body, wait)
+        if not job.done:
+            return job
+        return DesignResult.from_json(job.result, job_id=job.id)
+
+    def design_request(self, body: dict, wait: bool | float = True) -> DesignResult | Job:
+        """Submit a whole design request (the JSON of ``POST /v1/designs``, e.g. read from a file) as it is."""
         job = self._submit("design", body, wait)
         if not job.done:
             return job

@@ -19,7 +19,7 @@ from app import web
 from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
-from app.api.middleware import BodySizeLimit, JsonBodiesOnly
+from app.api.middleware import BodySizeLimit, BodyTimeout, JsonBodiesOnly
 from app.api import analyses, channels, designs, health, margins, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
@@ -48,8 +48,13 @@ of this service (`/problems/{slug}`) saying how to fix it.
 
 
 class LRU:
-    def __init__(self, size: int = 128):
+    """Recent answers (bytes), bounded by count and by their total size: a 10,000-step trace of a 20-mode design
+    is tens of MB, so a count alone let one key grow the service by gigabytes."""
+
+    def __init__(self, size: int = 128, max_bytes: int = 64 * 2**20):
         self.size = size
+        self.max_bytes = max_bytes
+        self.nbytes = 0
         self._d: OrderedDict = OrderedDict()
         self._lock = threading.Lock()
 
@@ -60,12 +65,22 @@ class LRU:
                 return self._d[key]
             return None
 
+    def __len__(self) -> int:
+        return len(self._d)
+
     def put(self, key, value) -> None:
+        size = len(value)
         with self._lock:
+            old = self._d.pop(key, None)
+            if old is not None:
+                self.nbytes -= len(old)
+            if size > self.max_bytes // 4:  # one answer may not push out the whole cache
+                return
             self._d[key] = value
-            self._d.move_to_end(key)
-            while len(self._d) > self.size:
-                self._d.popitem(last=False)
+            self.nbytes += size
+            while len(self._d) > self.size or self.nbytes > self.max_bytes:
+                _, dropped = self._d.popitem(last=False)
+                self.nbytes -= len(dropped)
 
 
 def _docs_static_dir() -> Path:
@@ -128,7 +143,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=lambda route: route.name,
     )
     app.state.settings = settings
-    app.state.trace_cache = LRU(128)
+    app.state.trace_cache = LRU(128, settings.cache_max_bytes)
     # Jobs other replicas finish are found by one batched read for all waiters (app.jobs.watch); the jobs this
     # process's dispatcher holds are left out of it: it tells their waiters itself.
     app.state.job_watch = JobWatch(
@@ -136,6 +151,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         held=lambda ids: app.state.dispatcher.holds(ids) if getattr(app.state, "dispatcher", None) else ())
     problems.install(app)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    app.add_middleware(BodyTimeout, seconds=settings.body_timeout)
     app.add_middleware(JsonBodiesOnly, paths=frozenset({"/v1/designs", "/v1/margins", "/v1/analyses",
                                                         "/v1/simulations"}))
     app.include_router(designs.router)

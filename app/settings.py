@@ -72,6 +72,10 @@ class Settings(BaseSettings):
         description="Comma-separated API keys. When set, `/v1` requires `X-API-Key: <key>` "
         "or `Authorization: Bearer <key>`. Empty: no authentication.",
     )
+    body_timeout: float = Field(
+        20.0, ge=0, description="Seconds a request body may pause (none of it arriving) before the request is "
+        "answered 408 and its connection closed; a slow body that keeps arriving is not limited. 0: no limit.",
+    )
     max_body_bytes: int = Field(
         1_000_000, ge=1024, description="Largest accepted request body in bytes (413 above).",
     )
@@ -88,6 +92,10 @@ class Settings(BaseSettings):
         "with per-sample plant switching): `2 n M` for lmi, `2 n n_drop (M + 1)` for ccl, `2 n M^2` for switched).",
     )
     max_simulation_steps: int = Field(10_000, ge=1, description="Largest `steps` of a simulation or trace.")
+    cache_max_bytes: int = Field(
+        64 * 2**20, ge=0, description="Bytes the service keeps of recent traces, figures and exports (least "
+        "recently used first out); an answer over a quarter of it is not kept. 0: keep nothing.",
+    )
     max_channel_size: int = Field(
         20_000, ge=1, description="Largest second-moment operator of a channel analysis (`POST /v1/channels`): "
         "the sum over the jump-system modes (channel state, plant mode, buffer age) of the squared state "

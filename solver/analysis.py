@@ -236,6 +236,35 @@ def _check_products_fit_float64(A: np.ndarray, max_product_length: int) -> None:
             "shorter max_product_length)", ("gains",))
 
 
+def _check_analysis_budget(family, modes, plant_switching, scheme, solver, certificates, bounds, rate_tol,
+                           max_products, max_memory, time_limit) -> None:
+    """The same estimate as a design's (:func:`solver.compiled.design_size`) for each certificate SDP."""
+    from .compiled import design_size
+    from .workload import check_estimate
+
+    n, m, r, N = family.n_states, family.n_inputs, family.n_modes, modes.n_drop
+    bound_kinds = {"none": (), "quadratic": ("common_quadratic",), "all": ("common_quadratic", "switched")}[bounds]
+    steps = int(np.ceil(np.log2(1.0 / max(float(rate_tol), 1e-12)))) + 1 if bound_kinds else 0
+    seconds, memory, largest = 0.0, 3.0 * 8 * max_products * n * n, None
+    for kind in dict.fromkeys((*certificates, *bound_kinds)):
+        if kind == "switched" and modes.n_modes > MAX_SWITCHED_MODES:
+            continue  # neither the certificate nor its bounds are tried above this many modes
+        size = design_size("switched" if kind == "switched" else "lmi", n, m, r, N, plant_switching, scheme,
+                           solver)
+        solves = (kind in certificates) + 2 * steps * (kind in bound_kinds)
+        seconds += size.seconds * solves
+        memory = max(memory, size.memory)
+        if largest is None or size.lmi_size > largest[1]:
+            largest = (kind, size.lmi_size, size.n_modes)
+    what = "the analysis"
+    if largest is not None:
+        what += (f" ({largest[2]} closed-loop modes, n = {n} states; its {largest[0]} certificate has LMI size "
+                 f"{largest[1]})")
+    check_estimate(what, seconds, memory, ("n_drop",),
+                   "use a smaller n_drop or fewer plant modes, certificates=('common_quadratic',), "
+                   "bounds='none' or fewer max_products", max_memory, time_limit)
+
+
 def analyze(
     family: PlantFamily,
     gains,
@@ -257,6 +286,8 @@ def analyze(
     output=None,
     observer_gains=None,
     sensor_n_drop: int | None = None,
+    max_memory: float | None = None,
+    time_limit: float | None = None,
 ) -> AnalysisReport:
     """Decide stability of the networked loop with given gains under arbitrary losses and jumps.
 
@@ -310,6 +341,12 @@ def analyze(
         certificate or the proof, and ``rep.stable`` is its verdict.
     sensor_n_drop : int, optional
         With ``observer_gains``: at most ``sensor_n_drop - 1`` lost measurements in a row (default ``n_drop``).
+    max_memory, time_limit : float, optional
+        Budget in bytes and seconds (defaults: 4 GiB, ``NCS_SOLVER_MAX_MEMORY``; 300 s,
+        ``NCS_SOLVER_MAX_SECONDS``).  Each certificate SDP is estimated like a design of the same size
+        (:func:`solver.compiled.design_size`; ``switched`` like the switched method), times the solves of its
+        rate bisections, plus the product search's ``max_products`` matrices; an analysis over the budget is
+        refused with ``InvalidInput`` naming the size before anything is solved.
 
     Returns
     -------
@@ -368,6 +405,8 @@ def analyze(
     if bounds not in ("quadratic", "all", "none"):
         raise InvalidInput("bounds must be 'quadratic', 'all' or 'none'", ("bounds",))
     solver = check_solver(solver)
+    _check_analysis_budget(family, modes, plant_switching, scheme, solver, certificates, bounds, rate_tol,
+                           max_products, max_memory, time_limit)
     A = modes.closed_loops(K)
     _check_products_fit_float64(A, max_product_length)
     radii = spectral_radii(A)

@@ -113,6 +113,26 @@ class Performance:
             "message": self.message,
         }
 
+    @classmethod
+    def from_dict(cls, data: dict) -> "Performance":
+        """The inverse of :meth:`to_dict` (the service's JSON ``performance``): the client's results hold
+        the same typed bracket as the library's."""
+        lower = data.get("lower")
+        if lower is None and data.get("lower_infinite"):
+            lower = float("inf")
+        cert = data.get("certificate")
+        x0 = data.get("x0")
+        witness = [(tuple(p) if isinstance(p, list) else p, int(e)) for p, e in data.get("witness") or []]
+        return cls(kind=data["kind"], upper=data.get("upper"), lower=lower, witness=witness,
+                   certificate=None if cert is None else np.array(cert, dtype=np.float64),
+                   verified=bool(data.get("verified")), gap=data.get("gap"),
+                   x0=None if x0 is None else np.array(x0, dtype=np.float64), patterns=int(data.get("patterns") or 0),
+                   message=data.get("message") or "")
+
+    def __getitem__(self, key: str):
+        """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
+        return self.to_dict()[key]
+
 
 def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0: np.ndarray | None) -> Performance:
     """A bracket made in balanced coordinates (:class:`solver.scaling.PerformanceScaling`), in the user's.

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InvalidInput
+from .workload import channel_operator_size, check_channel
 
 #: Row sums of a transition matrix may differ from 1 by this much (then they are normalized).
 STOCHASTIC_TOL = 1e-9
@@ -97,6 +98,11 @@ class BurstStatistics:
     run_length_tail : float
         ``P(run length > max_length)``.
     sampling_period : float or None
+    never_delivers : bool
+        The link delivers a sample with stationary probability below :data:`DEAD_LINK_DELIVERY` (a loss
+        fraction of 1: one run of losses that never ends).  Then ``rate`` is 1 (the bound is broken at every
+        sample), ``mean_time_between`` 1 sample, ``mean_run_length`` and ``run_length_tail`` infinite and 1:
+        counting runs from a delivered sample would have reported no bursts at all.
     """
 
     n_drop: int
@@ -109,6 +115,7 @@ class BurstStatistics:
     run_length_pmf: np.ndarray
     run_length_tail: float
     sampling_period: float | None
+    never_delivers: bool = False
 
     def to_dict(self) -> dict:
         def num(x):
@@ -125,6 +132,7 @@ class BurstStatistics:
             "run_length_pmf": self.run_length_pmf.tolist(),
             "run_length_tail": self.run_length_tail,
             "sampling_period": self.sampling_period,
+            "never_delivers": self.never_delivers,
         }
 
 
@@ -238,6 +246,18 @@ class Channel:
         """Stationary probability that a sample is not effective."""
         return float(self._pi @ self.loss)
 
+    @property
+    def never_delivers(self) -> bool:
+        """Whether the link delivers a sample with stationary probability below :data:`DEAD_LINK_DELIVERY`
+        (``Channel.bernoulli(1.0)``, a Gilbert-Elliott link whose bad state is absorbing and always loses)."""
+        return float(self._pi @ (1.0 - self.loss)) < DEAD_LINK_DELIVERY
+
+    def dead_link_reason(self) -> str:
+        delivered = float(self._pi @ (1.0 - self.loss))
+        return (f"the channel never delivers a sample: its stationary delivery probability is {delivered:.3g} "
+                f"(loss fraction {self.loss_fraction:.12g}), below {DEAD_LINK_DELIVERY:g}; every run of losses "
+                "is endless, so no drop bound n_drop holds")
+
     # ------------------------------------------------------------ statistics
     def _runs(self, length: int) -> np.ndarray:
         """Row vectors ``pi D_e (T D_l)^j`` for j = 0..length (shape (length + 1, c))."""
@@ -269,6 +289,11 @@ class Channel:
         n_drop = _positive_int("n_drop", n_drop)
         h = _period(sampling_period)
         L = max(4 * n_drop, 20) if max_length is None else _positive_int("max_length", max_length)
+        if self.never_delivers:
+            return BurstStatistics(
+                n_drop=n_drop, rate=1.0, rate_per_second=None if h is None else 1.0 / h, mean_time_between=1.0,
+                mean_time_between_seconds=h, loss_fraction=self.loss_fraction, mean_run_length=float("inf"),
+                run_length_pmf=np.zeros(L), run_length_tail=1.0, sampling_period=h, never_delivers=True)
         at_least = self._runs(max(L + 1, n_drop)).sum(axis=1)  # P(effective, then >= j losses), j = 0..
         starts = at_least[1]
         rate = float(at_least[n_drop])
@@ -311,6 +336,8 @@ class Channel:
             raise InvalidInput("target_rate must be a finite number >= 0", ("target_rate",))
         h = _period(sampling_period)
         per_sample = target if h is None else target * h
+        if self.never_delivers:
+            return None  # the run of losses never ends: no bound is ever met
         step = self.transition * self.loss[None, :]
         v = self._pi * (1.0 - self.loss)
         # The rate is non-increasing in n_drop (a longer run contains a shorter one).
@@ -361,6 +388,10 @@ class Channel:
         if size is None:
             return states[0], effective[0]
         return states, effective
+
+
+#: Below this stationary probability of delivering a sample, a link is reported as never delivering.
+DEAD_LINK_DELIVERY = 1e-9
 
 
 def _positive_int(name: str, value) -> int:
@@ -483,8 +514,10 @@ def _psd(name: str, M, size: int) -> np.ndarray:
 
 def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, R)``: symmetric PSD, n x n and m x m (scalars and vectors mean diagonal)."""
+    if isinstance(weights, dict) and set(weights) == {"Q", "R"}:  # the service's JSON form
+        weights = (weights["Q"], weights["R"])
     if not isinstance(weights, (tuple, list)) or len(weights) != 2:
-        raise InvalidInput("weights must be a pair (Q, R)", ("weights",))
+        raise InvalidInput("weights must be a pair (Q, R) or {\"Q\": ..., \"R\": ...}", ("weights",))
     return _psd("Q", weights[0], n), _psd("R", weights[1], m)
 
 
@@ -566,7 +599,8 @@ def _verdicts(loop, want_lower: bool = True):
 
 def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: str = "hold",
                     plant_transitions=None, weights=None, noise=None, observer_gains=None,
-                    sensor_channel=None) -> ChannelReport:
+                    sensor_channel=None, max_memory: float | None = None,
+                    time_limit: float | None = None) -> ChannelReport:
     """The predictive loop on a stochastic channel: bursts, mean-square stability, expected cost.
 
     Per sample k (docs/design.md, "Stochastic channels"): the buffer age ``d = k - i_m``, the
@@ -593,7 +627,10 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     noise : array_like (n, n), optional
         Process noise covariance W (``x(k+1) = F x + G u + w``): adds ``stationary_cost``, the
         long-run cost per sample.
-
+    max_memory, time_limit : float, optional
+        Budget in bytes and seconds (defaults: 4 GiB, ``NCS_SOLVER_MAX_MEMORY``; 300 s,
+        ``NCS_SOLVER_MAX_SECONDS``): an analysis whose second-moment operator is estimated over it is
+        refused with ``InvalidInput`` naming the operator's size before it is built (:mod:`solver.workload`).
     observer_gains : array_like (r, n, p), optional
         Output feedback (docs/design.md §12): ``channel`` is then the control link, ``sensor_channel`` (default
         lossless) the measurements' link, ``noise`` the pair ``(W, V)``; the answer is a
@@ -618,6 +655,8 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
 
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, channel, exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs
+    check_channel("the channel analysis", channel_operator_size(channel.n_states, r, n_drop, n), 1,
+                  max_memory, time_limit)
     Pi, kind = check_plant_transitions(plant_transitions, r)
     W = None if weights is None else check_weights(weights, n, m)
     noise_cov = None if noise is None else _psd("noise", noise, n)
@@ -629,7 +668,7 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
                   mean_time_between_bursts_seconds=bursts.mean_time_between_seconds, bursts=bursts,
                   exhausted=exhausted, plant_transitions=kind)
     if kind == "arbitrary":
-        return _analyze_arbitrary(F, G, K, channel, exhausted, W, common)
+        return _dead_link_noted(channel, _analyze_arbitrary(F, G, K, channel, exhausted, W, common))
     loop = build_loop(F, G, K, channel.transition, channel.loss, channel.stationary, Pi, exhausted, weights=W)
     rho, upper, lower, stable, reason = _verdicts(loop)
     cost = cost_hi = cost_lo = stat = None
@@ -646,11 +685,18 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     elif W is not None:
         reason += "; expected cost: not finite unless mean-square stable" if stable is False else \
             "; expected cost not computed without a stability proof"
-    return ChannelReport(
+    return _dead_link_noted(channel, ChannelReport(
         ms_stable=stable, ms_radius=rho, ms_radius_upper=None if upper is None else upper.beta,
         ms_radius_lower=None if lower is None else lower.mu, expected_cost=cost, expected_cost_upper=cost_hi,
         expected_cost_lower=cost_lo, stationary_cost=stat, upper_certificate=upper, lower_certificate=lower,
-        n_modes=len(loop.modes), reason=reason, **common)
+        n_modes=len(loop.modes), reason=reason, **common))
+
+
+def _dead_link_noted(channel: Channel, report: "ChannelReport") -> "ChannelReport":
+    """A verdict on a link that never delivers is the open loop's (or the held input's): say so first."""
+    if channel.never_delivers:
+        report.reason = f"{channel.dead_link_reason()}; {report.reason}"
+    return report
 
 
 def _analyze_arbitrary(F, G, K, channel, exhausted, W, common) -> ChannelReport:
@@ -771,17 +817,22 @@ def _arbitrary_lmi(loops):
 
 
 def critical_loss(family, gains, n_drop: int, *, exhausted: str = "hold", plant_transitions=None,
-                  tol: float = 1e-7) -> float:
+                  tol: float = 1e-7, max_memory: float | None = None, time_limit: float | None = None) -> float:
     """The Bernoulli loss probability at which the loop stops being mean-square stable.
 
     Bisection on ``p`` of the float64 spectral radius of the second-moment operator
     (:func:`analyze_channel` proves the verdict at any given ``p``).  Returns 0.0 when the loop
     is not mean-square stable even without losses and 1.0 when it stays stable for every
-    ``p < 1`` (up to ``1 - tol``).
+    ``p < 1`` (up to ``1 - tol``).  ``max_memory``/``time_limit``: as in :func:`analyze_channel`, for the
+    ``log2(1 / tol) + 2`` spectral-radius estimates of the bisection.
     """
     from .mjls import build_loop, radius_estimate
 
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, Channel.bernoulli(0.0), exhausted)
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 < tol < 0.5:
+        raise InvalidInput("tol must be a number in (0, 0.5)", ("tol",))
+    check_channel("critical_loss", channel_operator_size(1, family.n_modes, n_drop, family.n_states),
+                  int(np.ceil(np.log2(1.0 / tol))) + 2, max_memory, time_limit)
     Pi, kind = check_plant_transitions(plant_transitions, family.n_modes)
     if kind == "arbitrary":
         raise InvalidInput("critical_loss needs a Markov plant chain (or None), not 'arbitrary'",
@@ -968,6 +1019,10 @@ def design_for_channel(family, channel: Channel, target_rate: float, *, per: str
         h = getattr(family, "sampling_period", None)
         if h is None:
             raise InvalidInput("per='second' needs a family with a sampling period", ("per",))
+    if not isinstance(channel, Channel):
+        raise InvalidInput("channel must be a Channel", ("channel",))
+    if channel.never_delivers:
+        raise InvalidInput(f"cannot design for this link: {channel.dead_link_reason()}", ("channel",))
     N = channel.smallest_n_drop(target_rate, sampling_period=h, max_n_drop=max_n_drop)
     if N is None:
         return ChannelDesign(None, None, None, None)

@@ -169,6 +169,20 @@ class DesignSize:
     nodes: int | None = None
     #: Side of the Lyapunov matrices of a network design (n, or n n_drop on the augmented state).
     state_size: int | None = None
+    #: n, and the variables of the Lyapunov matrix (n (n + 1) / 2) and of the gains (J m n): which of the two
+    #: dominates says whether the states or n_drop make the design large (0: not known).
+    n_states: int = 0
+    lyapunov_variables: int = 0
+    gain_variables: int = 0
+
+    def _dimension(self) -> tuple[str, tuple]:
+        """The hint and the field of the dimension that makes this design large."""
+        if self.n_states and self.lyapunov_variables > self.gain_variables:
+            return (f"the {self.n_states} states make it large (the Lyapunov matrix alone has "
+                    f"{self.lyapunov_variables} variables): reduce the model's order (e.g. a balanced truncation) or "
+                    "design for fewer states", ("F",))
+        hint = "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else ", or the lmi method")
+        return hint, ("n_drop",)
 
     def check(self, max_memory: float | None = None, max_seconds: float | None = None, *, solves: int = 1,
               memory_name: str = "NCS_SOLVER_MAX_MEMORY or max_memory=",
@@ -181,21 +195,22 @@ class DesignSize:
         """
         max_memory = MAX_SOLVER_MEMORY if max_memory is None else max_memory
         max_seconds = MAX_SOLVER_SECONDS if max_seconds is None else max_seconds
-        what = (f"the {self.method} design ({self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
+        states = f"{self.n_states} states, " if self.n_states else ""
+        what = (f"the {self.method} design ({states}{self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
                 f"{self.n_variables} variables)")
-        hint = "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else ", or the lmi method")
+        hint, field = self._dimension()
         if self.nodes is not None:
             what = (f"the network design ({self.nodes} automaton nodes, {self.n_modes} transitions x plant modes, "
                     f"state size {self.state_size}, LMI size {self.lmi_size}, {self.n_variables} variables)")
-            hint = "use a network with fewer nodes, a smaller n_drop or fewer plant modes"
+            hint, field = "use a network with fewer nodes, a smaller n_drop or fewer plant modes", ("n_drop",)
         if max_memory and self.memory > max_memory:
             raise InvalidInput(f"{what} would need about {_bytes(self.memory)} of solver memory, over the limit "
-                               f"of {_bytes(max_memory)} ({memory_name}): {hint}", ("n_drop",))
+                               f"of {_bytes(max_memory)} ({memory_name}): {hint}", field)
         seconds = self.seconds * solves
         if seconds > max_seconds:
             runs = "" if solves == 1 else f" ({solves} solves)"
             raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}, over the limit of {max_seconds:g} s "
-                               f"({seconds_name}): {hint}", ("n_drop",))
+                               f"({seconds_name}): {hint}", field)
 
 
 def _bytes(x: float) -> str:
@@ -252,7 +267,10 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     n_blocks = sum(count for _, count in sides)
     rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * sides[0][0])
     seconds = ESTIMATE_ITERATIONS * (flops / rate + n_blocks * ESTIMATE_SECONDS_PER_BLOCK)
-    return DesignSize(method, S, lmi, p, memory, float(min(seconds, 10**300)))
+    return DesignSize(method, S, lmi, p, memory, float(min(seconds, 10**300)), n_states=n,
+                      lyapunov_variables=(n * N) * (n * N + 1) if method == "ccl" else (S * sym if method == "switched"
+                                                                                        else sym),
+                      gain_variables=J * m * n)
 
 
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import re
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -254,8 +255,32 @@ def design(
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
     check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit,
                  solves=solve_count(method, decay_rate, rate_tol, max_iter), solver=solver)
+    growth = unstable_growth(family)
+    if growth is not None and growth.per_sample_log > HOPELESS_GROWTH_LOG:
+        raise InvalidInput(growth.explain(n_drop, "no loop can be certified at this sampling period in double "
+                                          "precision"), ("sampling_period",))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
+    try:
+        return _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback,
+                       ccl_start, scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes,
+                       plant_switching, scheme)
+    except SolverFailed as err:
+        if growth is None or growth.per_sample_log <= 1.0:
+            raise
+        # The solver gave up on a plant that grows a lot between samples: the likely cause is the sampling
+        # period (a unit mistake, or too slow a loop), which the user can fix; say that, as a verdict.
+        return DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
+                            n_drop=modes.n_drop, solver=str(solver).upper(),
+                            solver_status=getattr(err, "status", "") or "",
+                            message=growth.explain(n_drop, "no design was certified") + f" (the solver: {err})",
+                            scheme=modes.scheme, plant_switching=modes.plant_switching,
+                            mode_labels=[modes.label(s) for s in range(modes.n_modes)])
+
+
+def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback, ccl_start,
+            scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes, plant_switching,
+            scheme) -> DesignResult:
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
         res = _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
                                   solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
@@ -450,6 +475,60 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     return best
 
 
+#: Above this growth per sample (log of the largest open-loop eigenvalue modulus, i.e. h over the fastest unstable
+#: time constant), the discretized plant's entries are so large (e^30 ~ 1e13) that no certificate survives float64.
+HOPELESS_GROWTH_LOG = 30.0
+
+
+@dataclass(frozen=True)
+class UnstableGrowth:
+    """The fastest-growing open-loop mode of a family: ``per_sample_log = ln |lambda|max = h / tau``."""
+
+    per_sample_log: float
+    mode: int
+    sampling_period: float | None
+
+    @property
+    def time_constant(self) -> float | None:
+        return None if self.sampling_period is None else self.sampling_period / self.per_sample_log
+
+    def explain(self, n_drop: int, verdict: str) -> str:
+        g = self.per_sample_log
+        factor = f"{np.exp(g):.3g}" if g < 700 else f"e^{g:.0f}"
+        lost = max(int(n_drop) - 1, 0)
+        burst = ""
+        if lost:
+            gb = g * (lost + 1)
+            burst = f", and {np.exp(gb):.3g} over a burst of {lost} lost samples" if gb < 700 else \
+                f", and e^{gb:.0f} over a burst of {lost} lost samples"
+        if self.sampling_period is None:
+            return (f"{verdict}: the open-loop plant (mode {self.mode}) grows by a factor {factor} per sample{burst}; "
+                    "sample faster or lower n_drop")
+        h, tau = self.sampling_period, self.time_constant
+        hint = ""
+        if h >= 0.5 and h / 1000 < tau:
+            hint = f" Is sampling_period in seconds? Did you mean {h / 1000:g} s ({h:g} ms)?"
+        return (f"{verdict}: h = {h:g} s is {h / tau:.3g} times the plant's fastest unstable time constant, "
+                f"{tau:.3g} s (mode {self.mode}): between two samples it grows by a factor {factor}{burst}. Sample "
+                f"well below {tau:.2g} s (or lower n_drop).{hint}")
+
+
+def unstable_growth(family: PlantFamily) -> UnstableGrowth | None:
+    """The family's fastest open-loop growth per sample, or None when every mode is Schur stable."""
+    best = None
+    for i, F in enumerate(np.asarray(family.F, dtype=np.float64)):
+        with np.errstate(all="ignore"):
+            rho = float(np.max(np.abs(np.linalg.eigvals(F)))) if np.all(np.isfinite(F)) else float("inf")
+        g = float(np.log(rho)) if rho > 0 else -np.inf
+        if g > 0 and (best is None or g > best[0]):
+            best = (g, i)
+    if best is None:
+        return None
+    return UnstableGrowth(best[0], best[1], family.sampling_period)
+
+
+
+
 def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, weights, x0, disturbance, output,
                         u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
                         scaling: str = "auto") -> DesignResult:
@@ -477,11 +556,15 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         try:
             res = _performance_scaled(scale, lifted, options, objective, x0, u_max)
         except SolverFailed as err:
+            why = f"the {objective} design's solver failed: {err}" if u_max is None else \
+                _input_limit_message(u_max, x0, str(err))
             res = DesignResult(outcome="not_converged", gains=None, certificate=None, method="lmi",
-                               n_drop=modes.n_drop, message=f"the {objective} design's solver failed: {err}",
+                               n_drop=modes.n_drop, message=why,
                                scheme=modes.scheme, plant_switching=modes.plant_switching,
                                mode_labels=[modes.label(s) for s in range(modes.n_modes)])
             res.objective = objective
+        if u_max is not None and res.outcome != "stabilized" and _SOLVER_FAILED.match(res.message or ""):
+            res.message = _input_limit_message(u_max, x0, res.message)
         if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
                 or u_max is not None:
             return res
@@ -535,6 +618,20 @@ def _performance_scaled(scale, lifted, options: DesignOptions, objective: str, x
     if res.invariant_set is not None:
         res.invariant_set = scale.quadratic_back(res.invariant_set)
     return res
+
+
+#: A message that begins with the conic solver's own failure ("CLARABEL failed: ...").
+_SOLVER_FAILED = re.compile(r"^(CLARABEL|SCS|IPM|AUTO)\b.*\bfail", re.I)
+
+
+def _input_limit_message(u_max, x0, cause: str) -> str:
+    """An input-limited design the solver gave up on: the limits first (what the user can change), the solver's
+    words after (they used to be the whole message: "CLARABEL failed ...")."""
+    limits = ", ".join(f"{float(u):.6g}" for u in np.ravel(u_max))
+    start = "" if x0 is None else f" from x0 = [{', '.join(f'{float(v):.6g}' for v in np.ravel(x0))}]"
+    return (f"no design was certified within the input limits u_max = [{limits}]{start}: the limits may be too "
+            f"tight for this drop bound (try larger u_max, a smaller x0 or a smaller n_drop), or the problem is "
+            f"badly scaled (give the states in units where they are of order 1); the conic solver reported: {cause}")
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:

@@ -160,8 +160,10 @@ def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, R)``: Q symmetric positive semidefinite n x n, R symmetric positive definite m x m."""
     if weights is None:
         return np.eye(n), np.eye(m)
+    if isinstance(weights, dict) and set(weights) == {"Q", "R"}:  # the service's JSON form
+        weights = (weights["Q"], weights["R"])
     if not isinstance(weights, (tuple, list)) or len(weights) != 2:
-        raise InvalidInput("weights must be a pair (Q, R)", ("weights",))
+        raise InvalidInput("weights must be a pair (Q, R) or {\"Q\": ..., \"R\": ...}", ("weights",))
     out = []
     for i, (W, k, name) in enumerate(((weights[0], n, "Q"), (weights[1], m, "R"))):
         try:
@@ -196,8 +198,14 @@ def check_channel(disturbance, output, r: int, n: int, m: int):
         C = np.broadcast_to(np.vstack([np.eye(n), np.zeros((m, n))]), (r, n + m, n)).copy()
         D = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]), (r, n + m, m)).copy()
         return E, C, D
+    if isinstance(output, dict):  # the JSON form of the service, {"C": ..., "D": ...}
+        unknown = sorted(set(output) - {"C", "D"})
+        if unknown or "C" not in output:
+            raise InvalidInput('output must be (C, D) or {"C": ..., "D": ...} (D optional)'
+                               + (f"; unknown keys {unknown}" if unknown else ""), ("output",))
+        output = (output["C"], output.get("D"))
     if not isinstance(output, (tuple, list)) or len(output) != 2:
-        raise InvalidInput("output must be a pair (C, D); D may be None", ("output",))
+        raise InvalidInput('output must be a pair (C, D) or {"C": ..., "D": ...}; D may be None', ("output",))
     C = _per_plant(output[0], r, None, n, "output C", ("output", 0))
     if output[1] is None:
         return E, C, np.zeros((r, C.shape[1], m))

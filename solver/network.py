@@ -112,15 +112,15 @@ class ModeSet:
         n_drop = check_n_drop(n_drop)
         if plant_switching not in PLANT_SWITCHING:
             raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
-        M = gain_map(scheme, n_drop)
         r, n, m = family.n_modes, family.n_states, family.n_inputs
         count = mode_count(r, n_drop, plant_switching)
-        if count > max_modes:
+        if count > max_modes:  # before gain_map: its n_drop x n_drop map took 0.8 GB at n_drop = 10000
             raise InvalidInput(
                 f"{count} closed-loop modes ({plant_switching}, r = {r}, n_drop = {n_drop}) exceed the limit "
                 f"of {max_modes}; per-sample switching has sum(r^eta) modes",
                 ("n_drop",),
             )
+        M = gain_map(scheme, n_drop)
         if plant_switching == "per_interval":
             sequences = [(l,) * eta for l in range(r) for eta in range(1, n_drop + 1)]
         else:

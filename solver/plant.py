@@ -75,12 +75,19 @@ def _is_single_matrix(mats, strict: bool) -> bool:
                for row in mats)
 
 
+def _control_characters(text: str) -> bool:
+    return any(ord(c) < 0x20 or ord(c) == 0x7F for c in text)
+
+
 def _check_names(key: str, names, count: int) -> tuple[str, ...] | None:
     if names is None:
         return None
     if isinstance(names, str) or not all(isinstance(v, str) and v for v in names):
         raise InvalidInput(f"{key} must be a list of non-empty strings", (key,))
     names = tuple(names)
+    for i, v in enumerate(names):
+        if _control_characters(v):  # figures are SVG: XML has no way to hold NUL and most C0 controls
+            raise InvalidInput(f"{key}[{i}] contains a control character; use printable text", (key, i))
     if len(names) != count:
         raise InvalidInput(f"{key} has {len(names)} names but the plant has {count}", (key,))
     if len(set(names)) != len(names):
@@ -239,6 +246,10 @@ class PlantFamily:
                     isinstance(k, str) and isinstance(v, str) for k, v in self.units.items()):
                 raise InvalidInput("units must map state or input names to unit strings, e.g. "
                                    '{"omega": "rad/s"}', ("units",))
+            for k, v in self.units.items():
+                if _control_characters(k) or _control_characters(v):
+                    raise InvalidInput(f"units[{k!r}] contains a control character; use printable text",
+                                       ("units", k))
             known = set(state_names or ()) | set(input_names or ())
             unknown = sorted(set(self.units) - known)
             if unknown:

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InvalidInput
+
 from .lyapunov import Certificate
 
 OUTCOMES = ("stabilized", "infeasible", "marginal", "not_certified", "not_converged")
@@ -219,6 +221,29 @@ class DesignResult:
     @property
     def success(self) -> bool:
         return self.outcome == "stabilized"
+
+    def peak_input(self, x0) -> np.ndarray | None:
+        """Certified bound on each applied input ``|u_j(k)|`` from ``x0``, over every allowed loss and jump pattern.
+
+        From the common quadratic certificate X on the effective samples (``x(i_m)' X x(i_m)`` never exceeds
+        ``x0' X x0``) and ``u(k) = K_q x(i_m)``: ``|u_j| <= sqrt(x0' X x0) max_q sqrt(k_qj' X^-1 k_qj)``, ``k_qj``
+        row j of ``K_q``. None without a verified common quadratic certificate stated in the user's coordinates
+        (a badly scaled plant can need forces of hundreds of kN from centimetres: this says so before the rig does).
+        Shape (m,), in the input's units.
+        """
+        cert = self.certificate
+        if (self.gains is None or cert is None or not getattr(cert, "verified", False)
+                or cert.kind != "common_quadratic" or getattr(cert, "X", None) is None
+                or (self.scaling and self.scaling.get("certificate") == "scaled")):
+            return None
+        X = np.asarray(cert.X, dtype=np.float64)
+        x = np.asarray(x0, dtype=np.float64).reshape(-1)
+        if x.shape != (X.shape[0],):
+            raise InvalidInput(f"x0 must hold {X.shape[0]} numbers", ("x0",))
+        level = float(x @ X @ x)
+        K = np.asarray(self.gains, dtype=np.float64)  # (n_drop, m, n)
+        spread = np.einsum("qjn,nk,qjk->qj", K, np.linalg.inv(X), K)
+        return np.sqrt(max(level, 0.0) * np.max(np.clip(spread, 0.0, None), axis=0))
 
     def to_dict(self, include_certificate_matrix: bool = True) -> dict:
         cert = None

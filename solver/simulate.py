@@ -22,6 +22,7 @@ import numpy as np
 from .errors import InvalidInput
 from .network import check_gains, check_n_drop
 from .plant import PlantFamily
+from .workload import check_simulation
 
 LOSS_MODELS = ("paper", "bernoulli")
 PLANT_SWITCHING = ("per_interval", "per_sample", "none")
@@ -143,6 +144,8 @@ def simulate(
     observer_gains=None,
     sensor_n_drop: int | None = None,
     xh0=None,
+    max_memory: float | None = None,
+    time_limit: float | None = None,
 ) -> SimulationResult:
     """Simulate the networked loop with random packet losses and plant jumps.
 
@@ -208,6 +211,10 @@ def simulate(
         With ``observer_gains`` (default ``n_drop``).
     xh0 : array_like (n,), optional
         With ``observer_gains``: the initial estimate (default 0).
+    max_memory, time_limit : float, optional
+        Budget in bytes and seconds (defaults: 4 GiB, ``NCS_SOLVER_MAX_MEMORY``; 300 s,
+        ``NCS_SOLVER_MAX_SECONDS``): a simulation whose estimated cost is over it is refused with
+        ``InvalidInput`` naming ``steps`` before anything is allocated (:mod:`solver.workload`).
 
     Returns
     -------
@@ -239,6 +246,7 @@ def simulate(
         raise InvalidInput(f"x0 must hold {n} finite numbers", ("x0",))
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise InvalidInput("steps must be an integer >= 1", ("steps",))
+    check_simulation(int(steps), n, m, max_memory, time_limit)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InvalidInput("seed must be a non-negative integer", ("seed",))
     if loss_model not in LOSS_MODELS:

@@ -81,6 +81,17 @@ async def require_api_key(
     return owner_of(given)
 
 
+def caller_key(request: Request) -> str:
+    """Whose turn a synchronous call takes on the pool: the caller's key (hashed), else its address."""
+    given = request.headers.get("x-api-key")
+    if given is None:
+        scheme, _, cred = request.headers.get("authorization", "").partition(" ")
+        given = cred.strip() if scheme.lower() == "bearer" and cred.strip() else None
+    if given is not None:
+        return owner_of(given)
+    return "addr:" + (request.client.host if request.client else "")
+
+
 async def run_sync(request: Request, task: str, *args, loc: list, plant: dict | None):
     """Run a task on the synchronous pool; an input the solver rejects is a 422 naming its field
     (``loc`` is where the task's inputs sit in the HTTP request, ``plant`` the plant they came with)."""
@@ -88,6 +99,6 @@ async def run_sync(request: Request, task: str, *args, loc: list, plant: dict | 
     from app.api.validation import solver_field_error
 
     try:
-        return await request.app.state.sync_pool.run(task, *args)
+        return await request.app.state.sync_pool.run(task, *args, key=caller_key(request))
     except InvalidComputeInput as exc:
         raise invalid([solver_field_error(exc.field, str(exc), plant, loc)]) from None

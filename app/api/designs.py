@@ -149,9 +149,8 @@ async def design_trace(
     key = (job_id, canonical_json(params))
     body = cache.get(key)
     if body is None:
-        out = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
-                             loc=["query"], plant=req["plant"])
-        body = canonical_json(out).encode()
+        body = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
+                              loc=["query"], plant=req["plant"])  # canonical JSON bytes, encoded in the pool
         cache.put(key, body)
     return etag_response(request, "application/json", body)
 

@@ -1,7 +1,8 @@
-"""ASGI middleware: request body size limit (413 as problem+json)."""
+"""ASGI middleware: request body size limit (413 as problem+json), stalled bodies (408), JSON bodies only (415)."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 
 from starlette.exceptions import HTTPException
@@ -60,6 +61,44 @@ class BodySizeLimit:
                                 (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})
         await send({"type": "http.response.body", "body": body})
+
+
+class BodyStalled(HTTPException):
+    def __init__(self, seconds: float):
+        super().__init__(408, f"the request body stalled: none of it arrived for {seconds:g} s (NCS_BODY_TIMEOUT); "
+                              "send the whole body without pausing", headers={"Connection": "close"})
+
+
+class BodyTimeout:
+    """408 for a request whose body stops arriving for ``seconds`` (a client that sent 9 of 1,000 bytes held its
+    connection for ever). Only the pause between two chunks is limited, so a slow body that keeps arriving is
+    served; once the body is complete, ``receive`` is passed through untouched (responses that wait for the
+    client to disconnect use it)."""
+
+    def __init__(self, app, seconds: float):
+        self.app = app
+        self.seconds = seconds
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or not self.seconds:
+            return await self.app(scope, receive, send)
+        complete = False
+        seconds = self.seconds
+
+        async def timed_receive():
+            nonlocal complete
+            if complete:
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), seconds)
+            except asyncio.TimeoutError:
+                complete = True
+                raise BodyStalled(seconds) from None
+            if message["type"] != "http.request" or not message.get("more_body", False):
+                complete = True
+            return message
+
+        await self.app(scope, timed_receive, send)
 
 
 def _is_json(content_type: str) -> bool:

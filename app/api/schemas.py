@@ -651,6 +651,9 @@ class BurstStatistics(_Open):
     run_length_pmf: list[float] = Field(description="P(run length = l) for l = 1, 2, ... (entry l - 1).")
     run_length_tail: float = Field(description="P(run length > len(run_length_pmf)).")
     sampling_period: float | None = Field(None, description="h (s).")
+    never_delivers: bool = Field(False, description="The link delivers a sample with probability below 1e-9 (loss "
+                                                    "fraction 1): one endless run of losses, so `rate` is 1 and "
+                                                    "no drop bound holds.")
 
 
 class ChannelCertificate(_Open):

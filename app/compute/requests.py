@@ -55,8 +55,13 @@ def _one_error_for_single_matrix(field: str, what: str):
     return check
 
 
-Name = Annotated[str, StringConstraints(min_length=1, max_length=64)]
-Unit = Annotated[str, StringConstraints(max_length=32)]
+# No control characters (like a job's label): names and units are written into SVG (XML refuses NUL and the
+# other C0 controls), MATLAB files and figure text.
+Name = Annotated[str, StringConstraints(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f]*$")]
+Unit = Annotated[str, StringConstraints(max_length=32, pattern=r"^[^\x00-\x1f\x7f]*$")]
+# A units key: a pattern on a dict key becomes JSON Schema patternProperties (an untyped object to generators), so
+# keys are checked by the library (a key with a control character is no state or input name: 422 naming it).
+UnitKey = Annotated[str, StringConstraints(min_length=1, max_length=64)]
 _NAMES = dict(max_length=1000)
 
 
@@ -84,7 +89,7 @@ class ContinuousPlant(_Strict):
     sampling_period: Number = Field(gt=0, description="Sampling period h in seconds (> 0).")
     state_names: list[Name] | None
     input_names: list[Name] | None
-    units: dict[Name, Unit] | None
+    units: dict[UnitKey, Unit] | None
     state_names, input_names, units = _labels()
     mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
                                           "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
@@ -113,7 +118,7 @@ class DiscretePlant(_Strict):
     )
     state_names: list[Name] | None
     input_names: list[Name] | None
-    units: dict[Name, Unit] | None
+    units: dict[UnitKey, Unit] | None
     state_names, input_names, units = _labels()
     mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
                                           "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")
@@ -142,7 +147,7 @@ class DcMotorPlant(_Strict):
     damping: Number = Field(0.2, ge=0, description="Viscous damping B (N m s/rad).")
     state_names: list[Name] | None
     input_names: list[Name] | None
-    units: dict[Name, Unit] | None
+    units: dict[UnitKey, Unit] | None
     state_names, input_names, units = _labels()
     mode_names: list[Name] | None = Field(None, **_NAMES, description="Names of the r plant modes in order (e.g. "
                                           "`[\"pole 0.2 m\", \"pole 0.3 m\"]`); distinct. Used in figure titles.")

@@ -10,7 +10,7 @@ from app.compute.process import apply_memory_limit, die_with_parent, limit_blas_
 
 log = logging.getLogger("app.compute.sync_worker")
 
-SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace",
+SYNC_TASKS = {"simulation": "run_simulation", "analysis": "run_analysis", "trace": "run_trace_json",
               "trace_plot": "run_trace_plot", "margin_plot": "run_margin_plot", "gains_file": "run_gains_file",
               "controller_zip": "run_controller_zip", "problem_sdpa": "run_problem_sdpa",
               "channel": "run_channel"}

@@ -250,6 +250,15 @@ def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str,
     return out
 
 
+def run_trace_json(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> bytes:
+    """:func:`run_trace` as the service's canonical JSON bytes (keys sorted, compact). Encoded here, in the pool's
+    process: a long trace is tens of MB of JSON, which on the event loop stalled every other request."""
+    import json
+
+    return json.dumps(run_trace(plant, gains, n_drop, params), sort_keys=True, separators=(",", ":"),
+                      allow_nan=False).encode()
+
+
 def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     from solver import analyze
 
@@ -433,4 +442,12 @@ def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: st
     if n_drop is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             ModeSet.from_family(fam, n_drop, plant_switching, scheme)
+        from solver.design import HOPELESS_GROWTH_LOG, unstable_growth
+
+        growth = unstable_growth(fam)  # a sampling period no design survives (often ms typed as s): a 422 now
+        if growth is not None and growth.per_sample_log > HOPELESS_GROWTH_LOG:
+            from solver import InvalidInput
+
+            raise InvalidInput(growth.explain(n_drop, "no loop can be certified at this sampling period in "
+                                              "double precision"), ("sampling_period",))
     _checked.put(key, True)

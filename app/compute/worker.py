@@ -30,6 +30,11 @@ PROGRESS_EVERY = 0.1
 def failure_reason(exc: BaseException) -> str:
     """What failed, in words a user can act on; the traceback goes to the worker's log, never to the API."""
     first_line = (str(exc).strip().splitlines() or [""])[0][:300]
+    from solver import SolverFailed
+
+    if isinstance(exc, SolverFailed):  # the numerics gave up: usually scaling or size, which the user can change
+        return (f"the conic solver gave up ({first_line}); try options.solver 'CLARABEL', a smaller n_drop, or the "
+                "plant in units where states and inputs are of order 1")
     return (f"the solver stopped with an unexpected {type(exc).__name__}"
             + (f" ({first_line})" if first_line else "")
             + "; the request was valid, so this is a bug worth reporting with the job id")

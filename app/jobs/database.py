@@ -147,6 +147,17 @@ def unwritable_file(files: list[Path]) -> Path | None:
     return None
 
 
+#: Below this many free bytes on an SQLite database's file system, readiness says "full": a probe that changes
+#: nothing succeeds on a full disk (SQLite writes nothing for it), while every real write fails.
+MIN_FREE_BYTES = 1 << 20
+
+
+def free_bytes(path: Path) -> int:
+    """Bytes this process may still write on the file system holding ``path`` (root may use the reserve)."""
+    st = os.statvfs(path)
+    return st.f_frsize * (st.f_bfree if os.geteuid() == 0 else st.f_bavail)
+
+
 def database_reason(exc: BaseException) -> str:
     """A short, safe reason for a database failure (no SQL, no parameters, no credentials)."""
     text = str(getattr(exc, "orig", None) or exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -297,6 +308,11 @@ class Database:
 
                 self.retry_on_disconnect(probe)
                 answer = None
+                if self._files:
+                    free = free_bytes(self._files[0].parent)
+                    if free < MIN_FREE_BYTES:
+                        answer = (f"the database is full (no space left for writes: {free} bytes free on its "
+                                  f"file system, under {MIN_FREE_BYTES})")
             except Exception as exc:  # noqa: BLE001 - every failure is a reason not to be ready
                 answer = database_reason(exc)
             self._probe = (time.monotonic(), answer)

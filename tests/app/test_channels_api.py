@@ -122,3 +122,13 @@ def test_the_client_designs_for_a_channel(http):
     ref = analyze_channel(fam, res.gains, 3, Channel.bernoulli(0.3), exhausted="hold")
     assert res.raw["channel"]["ms_stable"] is True
     assert res.raw["channel"]["ms_radius"] == pytest.approx(ref.ms_radius, rel=1e-9)
+
+
+def test_a_dead_link_says_so_over_http(http):
+    """Issue 33, item 8: Channel.bernoulli(1.0) answered burst rate 0 and no bursts ever."""
+    body = {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01, "channel": {"kind": "bernoulli", "loss": 1.0}}
+    resp = http.post("/v1/channels", json=body)
+    assert resp.status_code == 200, resp.text
+    data = resp.json()
+    assert data["bursts"]["never_delivers"] is True and data["burst_rate"] == 1.0, data["bursts"]
+    assert data["reason"].startswith("the channel never delivers"), data["reason"]

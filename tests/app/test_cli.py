@@ -199,3 +199,36 @@ def test_wrong_database_url_exits_with_one_line_naming_the_setting(tmp_path, url
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith("ncs-design serve: NCS_DATABASE_URL") and cause in lines[0], lines
     assert "secret" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_request_file_is_honoured_field_by_field(workdir):
+    """Issue 33, item 12: a whole design request (cost objective, weights, a solver) ran as a plain stability
+    design and exited 0 without a word. Now every field is honoured (flags override the file's) and the result
+    is the library's for the same call."""
+    req = {"plant": MOTOR, "n_drop": 3, "objective": "cost", "weights": {"Q": [[1, 0], [0, 2]], "R": [[1]]},
+           "options": {"solver": "CLARABEL", "decay_rate": None}}
+    (workdir / "req.json").write_text(json.dumps(req))
+    out = ncs("design", "req.json", "--n-drop", "4", "-o", "req_out.json", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    got = json.loads((workdir / "req_out.json").read_text())
+    assert got["n_drop"] == 4 and got["objective"] == "cost" and got["solver"] == "CLARABEL", got.get("objective")
+    ref = design(PlantFamily.from_dict(MOTOR), 4, objective="cost", weights=([[1, 0], [0, 2]], [[1]]),
+                 solver="CLARABEL", decay_rate=None)
+    assert got["performance"]["upper"] == pytest.approx(ref.performance.upper, rel=1e-6)
+    assert "objective cost" in out.stdout and "solver CLARABEL" in out.stdout
+
+
+def test_a_request_field_the_cli_cannot_take_is_refused_by_name(workdir):
+    req = {"plant": MOTOR, "n_drop": 3, "weigths": {"Q": [[1, 0], [0, 1]], "R": [[1]]}, "options": {"solvr": "IPM"}}
+    (workdir / "typo.json").write_text(json.dumps(req))
+    out = ncs("design", "typo.json", cwd=workdir)
+    assert out.returncode == 2, out.stdout
+    assert "weigths is not a field" in out.stderr and "options.solvr is not a field" in out.stderr, out.stderr
+
+
+def test_solver_flag(workdir):
+    out = ncs("design", "motor.json", "--n-drop", "3", "--solver", "clarabel", "-o", "clarabel.json", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    assert json.loads((workdir / "clarabel.json").read_text())["solver"] == "CLARABEL"
+    out = ncs("design", "motor.json", cwd=workdir)
+    assert out.returncode == 2 and "--n-drop is required" in out.stderr

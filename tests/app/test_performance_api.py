@@ -77,6 +77,10 @@ def test_python_client_sends_the_performance_fields(client):
                                                                           np.array([[0.0], [0.0], [1.0]])))
     direct = design(fam, 2, objective="hinf", disturbance=E)  # the same output: z = [x; u]
     assert res.objective == "hinf" and res.performance["upper"] == pytest.approx(direct.performance.upper, rel=1e-6)
+    # One typed result for both (issue 33, item 14): the client's bracket is the library's Performance.
+    assert type(res.performance) is type(direct.performance)
+    assert res.performance.upper == pytest.approx(direct.performance.upper, rel=1e-6)
+    assert res.performance.witness == direct.performance.witness
     rep = service.analyze(fam, PAPER_GAINS_H01, 3, weights=(np.eye(2), np.eye(1)), x0=[-3, 2], bounds="none")
     assert rep.cost["verified"] and rep.cost["x0"] == [-3.0, 2.0] and rep.hinf is None
 

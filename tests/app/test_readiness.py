@@ -54,6 +54,11 @@ def test_readyz_503_while_the_sqlite_files_are_immutable_and_the_process_survive
             resp = httpx.post(server.base + "/v1/designs", json=FAST, timeout=60)
             assert resp.status_code == 503, resp.text
             assert "read-only" in resp.json()["detail"] and resp.headers["retry-after"], resp.json()
+        # Reads fail too, as docs/service.md says (issue 33, item 5): SQLite writes its WAL index (-shm) even to
+        # read, and that write to an immutable file would end the process, so no connection is used at all.
+        for path in (f"/v1/designs/{first.json()['id']}", "/v1/designs"):
+            resp = httpx.get(server.base + path, timeout=60)
+            assert resp.status_code == 503 and "read-only" in resp.json()["detail"], resp.text
         time.sleep(1.0)  # the dispatcher ticks meanwhile
         assert server.proc.poll() is None, f"the service died: exit {server.proc.returncode}"
     finally:
@@ -62,6 +67,12 @@ def test_readyz_503_while_the_sqlite_files_are_immutable_and_the_process_survive
     after = httpx.post(server.base + "/v1/designs", json=FAST, headers={"Prefer": "wait=60"}, timeout=90)
     assert after.status_code == 201 and after.json()["status"] == "succeeded", after.text
     assert server.proc.poll() is None
+
+
+def test_service_docs_say_reads_fail_on_immutable_files():
+    """docs/service.md promised reads are served whatever refuses writes; on immutable files they are not (above)."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "service.md").read_text()
+    assert 'immutable (`chattr +i`): then **reads get the same 503 "read-only"**' in text
 
 
 @sqlite_only
@@ -124,3 +135,53 @@ def test_a_submission_the_dispatcher_has_not_taken_by_the_bound_is_withdrawn_and
     assert withdrawn.asked == 1 and "locked" in database_reason(err.value), err.value
     in_write = Stuck(taken=True)
     assert asyncio.run(run(in_write)) == "written" and in_write.asked == 1
+
+
+@pytest.fixture
+def small_mount(tmp_path):
+    """A 3 MiB tmpfs (root only): a file system that can really fill up."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    try:
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mnt)], check=True,
+                       capture_output=True, timeout=10)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        pytest.skip(f"cannot mount a tmpfs here ({exc}); it needs root")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True, timeout=10)
+
+
+def _fill(path: Path) -> None:
+    with open(path, "wb") as f:
+        try:
+            while True:
+                f.write(b"\0" * 65536)
+                f.flush()
+        except OSError:
+            pass
+
+
+def test_readyz_503_full_while_the_file_system_is_full(small_mount):
+    """Issue 33, item 4: every write got 503 "the database is full" while /readyz answered 200 (its probe writes
+    nothing, which a full disk allows)."""
+    from .conftest import running_client
+
+    url = f"sqlite:///{small_mount / 'ncs.db'}"
+    with running_client(url, run_dispatcher=False) as client:
+        assert client.get("/readyz").status_code == 200
+        filler = small_mount / "filler"
+        _fill(filler)
+        try:
+            time.sleep(1.1)  # the probe's answer is reused for 1 s
+            ready = client.get("/readyz")
+            assert ready.status_code == 503, ready.text
+            assert "full" in ready.json()["checks"]["database"], ready.json()
+            write = client.post("/v1/designs", json=FAST)
+            assert write.status_code == 503 and "full" in write.json()["detail"], write.text
+        finally:
+            filler.unlink()
+        time.sleep(1.1)
+        assert client.get("/readyz").status_code == 200
+        assert client.post("/v1/designs", json=FAST).status_code == 202

@@ -416,3 +416,35 @@ def test_random_loops_never_crash_and_proofs_never_contradict():
         if rep.ms_stable is True and rep.expected_cost is not None:
             assert rep.expected_cost_lower <= rep.expected_cost <= rep.expected_cost_upper
     assert {True, False} <= verdicts
+
+
+# ---------------------------------------------------------------------------- dead links (issue 33, item 8)
+@pytest.mark.parametrize("link", [Channel.bernoulli(1.0), Channel.gilbert_elliott(0.1, 0.0),
+                                  Channel.gilbert_elliott(0.1, 0.0, loss_good=0.0, loss_bad=1.0),
+                                  Channel([[0.5, 0.5], [0.0, 1.0]], [0.0, 1.0])],
+                         ids=["bernoulli-1", "ge-absorbing", "ge-absorbing-explicit", "markov-absorbing"])
+def test_a_link_that_never_delivers_is_reported_as_such(link):
+    """Runs were counted from a delivered sample, so a dead link reported burst rate 0, an infinite mean time
+    between bursts and smallest_n_drop 1: it looked like the best link there is."""
+    # Reference: the stationary probability of delivering, from the chain's own pi (brute-force power iteration).
+    pi = np.full(link.n_states, 1.0 / link.n_states)
+    for _ in range(20000):
+        pi = pi @ link.transition
+    assert float(pi @ (1.0 - link.loss)) < 1e-9
+    assert link.never_delivers
+    b = link.burst_statistics(3, sampling_period=0.01)
+    assert b.never_delivers and b.rate == 1.0 and b.mean_time_between == 1.0 and b.run_length_tail == 1.0
+    assert b.to_dict()["never_delivers"] is True and b.to_dict()["mean_time_between"] == 1.0
+    assert link.smallest_n_drop(1e-6) is None
+    fam = PlantFamily.paper_example()
+    with pytest.raises(InvalidInput, match="never delivers") as err:
+        design_for_channel(fam, link, 1e-3, per="sample")
+    assert err.value.field == ("channel",)
+    rep = analyze_channel(fam, np.zeros((3, 1, 2)), 3, link)
+    assert rep.reason.startswith("the channel never delivers"), rep.reason
+
+
+def test_a_link_that_delivers_is_not_called_dead():
+    for link in (Channel.bernoulli(0.999), Channel.gilbert_elliott(0.1, 0.001)):
+        assert not link.never_delivers and not link.burst_statistics(3).never_delivers
+        assert link.burst_statistics(3).rate > 0
