@@ -262,9 +262,12 @@ def design(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     try:
-        return _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback,
-                       ccl_start, scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes,
-                       plant_switching, scheme)
+        res = _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback,
+                      ccl_start, scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes,
+                      plant_switching, scheme)
+        if network is not None and res is not None:
+            res.network = network.to_dict()
+        return res
     except SolverFailed as err:
         if growth is None or growth.per_sample_log <= 1.0:
             raise
@@ -282,11 +285,8 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
             scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes, plant_switching,
             scheme) -> DesignResult:
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        res = _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
-                                  solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
-        if network is not None:
-            res.network = network.to_dict()
-        return res
+        return _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
+                                   solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -310,8 +310,6 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
     if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
         res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                           family.sampling_period)
-    if network is not None and res is not None:
-        res.network = network.to_dict()
     return res
 
 
