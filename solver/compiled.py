@@ -177,7 +177,8 @@ class DesignSize:
 
     def _dimension(self) -> tuple[str, tuple]:
         """The hint and the field of the dimension that makes this design large."""
-        if self.n_states and self.lyapunov_variables > self.gain_variables:
+        # ccl's Lyapunov matrices live on the augmented state (n n_drop): there n_drop makes them large too.
+        if self.n_states and self.method != "ccl" and self.lyapunov_variables > self.gain_variables:
             return (f"the {self.n_states} states make it large (the Lyapunov matrix alone has "
                     f"{self.lyapunov_variables} variables): reduce the model's order (e.g. a balanced truncation) or "
                     "design for fewer states", ("F",))
