@@ -16,6 +16,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
+from .rate_search import margin_model, next_rate
 from .result import DesignResult, certified_settling, metric_condition
 from .scaling import Scaling, balance
 
@@ -347,10 +348,20 @@ FAILED_STEP = object()
 MIN_RATE = 1e-4
 
 
+#: How the best-rate search picks its next rate: "model" (the margin's first-order model from the last
+#: solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or "bisection" (the midpoint).
+RATE_SEARCH = "model"
+
+
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
                    upper: DesignResult | None = None, user_limit: float | None = None,
-                   settling: bool = False) -> DesignResult:
-    """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
+                   settling: bool = False, strategy: str | None = None) -> DesignResult:
+    """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
+
+    ``strategy`` (default :data:`RATE_SEARCH`): "model" tries the root of the margin's first-order model
+    (solver/rate_search.py, docs/design.md "Rate search") inside the bracket, "bisection" the midpoint; both
+    keep the same bracket and acceptance rules, so both return a certified rate within ``tol`` of the
+    smallest certifiable one.
 
     A rate is accepted only when the float64 re-check of that step's gains and
     certificate passes at the rate; a step is "infeasible" only with a re-checked
@@ -411,23 +422,40 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         # bracket pinned at hi = 1 ends too, once lo is within 1e-9 of 1: no certified rate below 1)
         return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
 
-    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+    def midpoint(lo, hi):
         if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)
             s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+            return float(np.exp(-np.sqrt(s_hi * s_lo)))
+        return 0.5 * (lo + hi)
+
+    strategy = RATE_SEARCH if strategy is None else strategy
+    t_hi = getattr(getattr(best, "sdp", None), "t", None)
+    t_lo, how, halved, widths = None, "", True, [hi - lo, hi - lo]
+    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+        if strategy == "model" and halved:
+            sdp = getattr(best, "sdp", None)
+            model = None if sdp is None else margin_model(modes, sdp, hi)
+            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done, midpoint,
+                                 how)
         else:
-            mid = 0.5 * (lo + hi)
+            mid, how = midpoint(lo, hi), "bisect"
         res = attempt(mid)
         if res is None:
             break
+        search[-1]["step"] = how
+        t_res = getattr(getattr(res, "sdp", None), "t", None)
         if res is FAILED_STEP:
-            lo, lo_proven = mid, False
+            lo, lo_proven, t_lo = mid, False, None
         elif res.outcome == "stabilized":
-            hi, best = mid, res
+            hi, best, t_hi = mid, res, t_res
         else:
-            lo, lo_proven = mid, res.outcome == "infeasible"
+            lo, lo_proven, t_lo = mid, res.outcome == "infeasible", t_res
             lo_proof = res.outcome if res.outcome in NEGATIVE else None
             lo_margin = res.certificate.margin if lo_proof == "marginal" else None
+        # three model steps that did not shrink the bracket 8-fold hand the next step to the bisection (never
+        # much slower than the bisection)
+        widths.append(hi - lo)
+        halved = how in ("bisect", "close") or len(widths) < 4 or widths[-1] <= 0.125 * widths[-4]
     A = modes.closed_loops(best.gains)
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
     if lo == 0.0:

@@ -12,7 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .algorithm import IPMOptions, IPMSolution, _SolveStatus, solve_block_lmi
+from dataclasses import replace
+
+from .algorithm import IPMOptions, IPMSolution, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 
 def _selectors(n: int):
@@ -254,20 +256,28 @@ def _check_data(free, coef, active):
     return free, coef, active
 
 
-def _solve_scaled(build, free, coef, active, rho, options):
+def _solve_scaled(build, free, coef, active, rho, options, start: WarmStart | None = None):
     """Check the data, scale the gains' coefficients, build with ``build`` and solve.
 
+    ``start``: a warm start in the design's coordinates (``V = [W, Y]``, ``Y`` of shape (J, m, n), the
+    ``lmi`` form only), mapped to the scaled gains here.
     Returns ``(IPMSolution, (S, J, n, m), gain scale, setup seconds)``.
     """
     t0 = time.perf_counter()
     free, coef, active = _check_data(free, coef, active)
     coef_s, gscale = _gain_scale(coef)
     prob = build(free, coef_s, active, rho)
+    if start is not None:
+        S, J, n, m = coef.shape
+        V = [start.V[0]] + ([(np.asarray(start.V[1]) * gscale[:, None, None]).reshape(J * m, n)]
+                            if J * m > 0 else [])
+        start = replace(start, V=V)
     setup = time.perf_counter() - t0
-    return solve_block_lmi(prob, options), coef.shape, gscale, setup
+    return solve_block_lmi(prob, options, start), coef.shape, gscale, setup
 
 
-def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> LMISolution:
+def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None,
+              start: WarmStart | None = None) -> LMISolution:
     """Solve the ``lmi`` design SDP (see :func:`lmi_problem`) with the structured IPM.
 
     Parameters
@@ -277,6 +287,8 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
     active : array_like of bool, shape (S, J), optional
     rho : array_like, shape (S,), optional
     options : IPMOptions, optional
+    start : WarmStart, optional
+        Warm start, ``V = [W, Y]`` with ``Y`` of shape (J, m, n) (e.g. another rate's solution).
 
     Returns
     -------
@@ -288,7 +300,7 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
         On inconsistent shapes or non-finite data.
     """
     t0 = time.perf_counter()
-    sol, (S, J, n, m), gscale, setup = _solve_scaled(lmi_problem, free, coef, active, rho, options)
+    sol, (S, J, n, m), gscale, setup = _solve_scaled(lmi_problem, free, coef, active, rho, options, start)
     W = sol.V[0]
     W = 0.5 * (W + W.T)
     Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n, gscale)

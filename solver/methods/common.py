@@ -245,8 +245,10 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
 
     def result(outcome, message, certificate=cert):
         keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
-        return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
-                      info.solver, info.status, message, [record], options)
+        res = finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
+                     info.solver, info.status, message, [record], options)
+        res.sdp = sol  # the rate search's model (solver/rate_search.py) reads the multipliers; not exported
+        return res
 
     if options.callback is not None:
         options.callback(record)
