@@ -16,7 +16,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .rate_search import margin_model, next_rate
+from .rate_search import margin_model, model_root, next_rate
 from .result import DesignResult, certified_settling, metric_condition
 from .scaling import Scaling, balance
 
@@ -430,13 +430,15 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 
     strategy = RATE_SEARCH if strategy is None else strategy
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
-    t_lo, how, halved, widths = None, "", True, [hi - lo, hi - lo]
+    t_lo, how, halved, widths, previous = None, "", True, [hi - lo, hi - lo], None
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
         if strategy == "model" and halved:
             sdp = getattr(best, "sdp", None)
             model = None if sdp is None else margin_model(modes, sdp, hi)
             mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done, midpoint,
-                                 how)
+                                 how, previous)
+            if model is not None and (previous is None or previous[0] != hi):
+                previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
             mid, how = midpoint(lo, hi), "bisect"
         res = attempt(mid)

@@ -94,7 +94,7 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
 
 
 def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
-              last: str = "") -> tuple[float, str]:
+              last: str = "", previous: tuple | None = None) -> tuple[float, str]:
     """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen.
 
     Two estimates of the root bracket it from both sides when the margin is convex in lambda (the usual
@@ -118,6 +118,15 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
         ``midpoint(lo, hi)``: the bisection's next rate.
     last : str
         How the previous rate was chosen (the two estimates alternate).
+    previous : tuple, optional
+        ``(hi', newton')`` of the previous certified end: the Newton roots from above converge linearly,
+        and the secant on ``g(lambda) - lambda`` (``g`` the Newton root from lambda) through the last two
+        ends, ``extrapolate``, jumps towards the fixed point, i.e. the root (Steffensen's idea).
+
+    Returns
+    -------
+    rate : float
+    how : {"close", "newton", "extrapolate", "secant", "bisect"}
     """
     newton = None if model is None else model_root(model, hi, max(lo, 1e-12), hi)
     secant = None
@@ -126,12 +135,19 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
     low_end = _closing_low(hi, done)
     if newton is not None and done(newton, hi) and low_end > lo:
         return low_end, "close"
-    if secant is not None and newton is not None and done(secant, newton) and newton < hi:
-        return newton, "newton"
-    order = ("secant", "newton") if last == "newton" else ("newton", "secant")
     width = hi - lo
+    if secant is not None and newton is not None and done(secant, newton) and lo + 0.02 * width < newton < hi:
+        return newton, "newton"
+    extrapolate = None
+    if previous is not None and newton is not None and previous[1] is not None and previous[0] != hi:
+        h1, h2 = previous[1] - previous[0], newton - hi
+        if h2 != h1:
+            extrapolate = hi - h2 * (hi - previous[0]) / (h2 - h1)
+    order = ("secant", "extrapolate", "newton") if last in ("newton", "extrapolate") else (
+        "extrapolate", "newton", "secant")
+    cands = {"newton": newton, "secant": secant, "extrapolate": extrapolate}
     for how in order:
-        cand = newton if how == "newton" else secant
+        cand = cands[how]
         if cand is not None and lo + 0.02 * width < cand < hi - 0.02 * width:
             return cand, how
     return midpoint(lo, hi), "bisect"
