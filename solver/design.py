@@ -430,13 +430,15 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 
     strategy = RATE_SEARCH if strategy is None else strategy
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
-    t_lo, how, halved, widths, previous = None, "", True, [hi - lo, hi - lo], None
+    t_lo, previous, from_above, anchor, stalls = None, None, True, hi - lo, 0
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
-        if strategy == "model" and halved:
+        # three model steps that did not halve the bracket hand one step to the bisection: never much slower
+        if strategy == "model" and stalls < 3:
             sdp = getattr(best, "sdp", None)
             model = None if sdp is None else margin_model(modes, sdp, hi)
-            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done, midpoint,
-                                 how, previous)
+            # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
+            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
+                                 lambda a, b: 0.5 * (a + b), from_above, previous)
             if model is not None and (previous is None or previous[0] != hi):
                 previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
@@ -454,10 +456,11 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             lo, lo_proven, t_lo = mid, res.outcome == "infeasible", t_res
             lo_proof = res.outcome if res.outcome in NEGATIVE else None
             lo_margin = res.certificate.margin if lo_proof == "marginal" else None
-        # three model steps that did not shrink the bracket 8-fold hand the next step to the bisection (never
-        # much slower than the bisection)
-        widths.append(hi - lo)
-        halved = how in ("bisect", "close") or len(widths) < 4 or widths[-1] <= 0.125 * widths[-4]
+        from_above = res is not FAILED_STEP and res.outcome == "stabilized"
+        if hi - lo <= 0.5 * anchor or how == "bisect":
+            anchor, stalls = hi - lo, 0
+        else:
+            stalls += 1
     A = modes.closed_loops(best.gains)
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
     if lo == 0.0:

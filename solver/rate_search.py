@@ -94,15 +94,17 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
 
 
 def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
-              last: str = "", previous: tuple | None = None) -> tuple[float, str]:
+              from_above: bool = True, previous: tuple | None = None) -> tuple[float, str]:
     """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen.
 
-    Two estimates of the root bracket it from both sides when the margin is convex in lambda (the usual
-    shape: it flattens towards the root): ``newton``, the root of the model at ``hi`` (above the root), and
-    ``secant``, the secant's root between the margins at ``lo`` and ``hi`` (below it).  They are tried in
-    turn; once the root is pinned within the tolerance of ``hi``, ``close`` tries the tolerance's end below
-    ``hi``.  A candidate outside the bracket's inner 96 % is replaced by the bisection's midpoint
-    (``bisect``).
+    The margin is usually convex in lambda near the root (it flattens towards it), so the Newton root
+    of the model at ``hi`` (``newton``) lies above the root: a rate to certify.  The probes alternate
+    sides: after a certified rate, a rate aimed just below the root (``below``: the secant's root
+    between the margins at ``lo`` and ``hi`` when both are known, or the fixed point of the Newton map
+    by a secant through the last two certified ends (Steffensen), or the Newton step mirrored, less half
+    the tolerance); after a failed one, ``newton``.  Once the root is within the tolerance of ``hi``,
+    ``close`` tries the tolerance's end below ``hi``.  A candidate outside the bracket's inner 96 % is
+    replaced by the bisection's midpoint (``bisect``).
 
     Parameters
     ----------
@@ -116,40 +118,51 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
         ``done(lo, hi)``: whether a bracket is within the tolerance.
     midpoint : callable
         ``midpoint(lo, hi)``: the bisection's next rate.
-    last : str
-        How the previous rate was chosen (the two estimates alternate).
+    from_above : bool
+        Whether the last rate tried was certified (it moved ``hi``).
     previous : tuple, optional
-        ``(hi', newton')`` of the previous certified end: the Newton roots from above converge linearly,
-        and the secant on ``g(lambda) - lambda`` (``g`` the Newton root from lambda) through the last two
-        ends, ``extrapolate``, jumps towards the fixed point, i.e. the root (Steffensen's idea).
+        ``(hi', newton')``: the previous certified end and its Newton root.
 
     Returns
     -------
     rate : float
-    how : {"close", "newton", "extrapolate", "secant", "bisect"}
+    how : {"close", "newton", "secant", "below", "bisect"}
     """
     newton = None if model is None else model_root(model, hi, max(lo, 1e-12), hi)
-    secant = None
-    if lo > 0.0 and t_lo is not None and t_hi is not None and t_lo < 0.0 < t_hi:
-        secant = lo + (hi - lo) * (-t_lo) / (t_hi - t_lo)
     low_end = _closing_low(hi, done)
     if newton is not None and done(newton, hi) and low_end > lo:
         return low_end, "close"
     width = hi - lo
-    if secant is not None and newton is not None and done(secant, newton) and lo + 0.02 * width < newton < hi:
-        return newton, "newton"
-    extrapolate = None
-    if previous is not None and newton is not None and previous[1] is not None and previous[0] != hi:
+
+    def inside(c):
+        return c is not None and lo + 0.02 * width < c < hi - 0.02 * width
+
+    secant = None
+    if lo > 0.0 and t_lo is not None and t_hi is not None and t_lo < 0.0 < t_hi:
+        secant = lo + (hi - lo) * (-t_lo) / (t_hi - t_lo)
+    if newton is None:
+        return midpoint(lo, hi), "bisect"
+    if not from_above:
+        # far from the root the margin can be concave (the Newton root then fails); the secant's root lies
+        # above the root there
+        for cand, how in ((newton, "newton"), (secant, "secant")):
+            if inside(cand):
+                return cand, how
+        return midpoint(lo, hi), "bisect"
+    below = None
+    if previous is not None and previous[1] is not None and previous[0] != hi:
         h1, h2 = previous[1] - previous[0], newton - hi
         if h2 != h1:
-            extrapolate = hi - h2 * (hi - previous[0]) / (h2 - h1)
-    order = ("secant", "extrapolate", "newton") if last in ("newton", "extrapolate") else (
-        "extrapolate", "newton", "secant")
-    cands = {"newton": newton, "secant": secant, "extrapolate": extrapolate}
-    for how in order:
-        cand = cands[how]
-        if cand is not None and lo + 0.02 * width < cand < hi - 0.02 * width:
-            return cand, how
+            below = hi - h2 * (hi - previous[0]) / (h2 - h1)
+    if below is None or not below < newton:
+        below = 2.0 * newton - hi
+    if secant is not None:
+        below = max(below, secant)
+    below -= 0.5 * (hi - low_end)
+    if inside(below):
+        return below, "below"
+    if inside(newton):
+        return newton, "newton"
     return midpoint(lo, hi), "bisect"
 
 
