@@ -358,6 +358,15 @@ MIN_RATE = 1e-4
 #: How the best-rate search picks its next rate: "model" (the margin's first-order model from the last
 #: solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or "bisection" (the midpoint).
 RATE_SEARCH = "model"
+#: The model search's probes below lambda = 1 stop once the margin's sign is settled (the IPM's ``sign_only``):
+#: a certified probe keeps a design whose margin is at least half the SDP's optimum, a failed one a Farkas
+#: candidate re-checked as always.
+SIGN_ONLY_PROBES = True
+#: ... and start from the nearest probe's solution (docs/design.md, "Rate search"): t lowered by WARM_SHIFT
+#: below the blocks' smallest eigenvalue, the multipliers blended with I/N by WARM_BLEND.
+WARM_PROBES = True
+WARM_SHIFT = 0.01
+WARM_BLEND = 0.5
 
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
@@ -380,11 +389,22 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     also proves the rate for this method's loop).
     """
     start = time.perf_counter()
+    probe_sign = (RATE_SEARCH if strategy is None else strategy) == "model" and SIGN_ONLY_PROBES
     totals = {"setup": 0.0, "solver": 0.0, "solves": 0}
     search: list = []
     runner = METHODS[method].run
     limit = options.time_limit
     timed_out = False
+
+    solved = []  # (rate, SDP solution) of the probes, for the warm starts
+
+    def warm(lam):
+        if not (probe_sign and WARM_PROBES and solved):
+            return None
+        from .ipm import WarmStart
+
+        rate, sdp = min(solved, key=lambda p: abs(np.log(p[0] / lam)))
+        return WarmStart([sdp.W, sdp.Y], sdp.duals, shift=WARM_SHIFT, blend=WARM_BLEND)
 
     def attempt(lam):
         nonlocal timed_out
@@ -393,7 +413,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
             return None
         try:
-            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining,
+                                        sign_only=probe_sign and lam < 1.0, warm_start=warm(lam)))
         except SolverFailed as err:
             if lam >= 1.0:  # nothing certified yet: the design itself failed
                 raise
@@ -402,6 +423,9 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return FAILED_STEP
         for key in totals:
             totals[key] += res.timings.get(key, 0)
+        sdp = getattr(res, "sdp", None)
+        if sdp is not None and sdp.W is not None and getattr(sdp.info, "solver", "") == "IPM":
+            solved.append((lam, sdp))
         search.append({"decay_rate": lam, "outcome": res.outcome,
                        "proof": None if res.certificate is None else res.certificate.kind})
         if res.outcome == "not_converged" and "time limit" in res.message:

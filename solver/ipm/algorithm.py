@@ -44,6 +44,12 @@ class IPMOptions:
     threads : int or None
         OpenBLAS threads during the solve (default 1, see :func:`blas_threads`;
         None leaves the process setting alone).
+    sign_only : bool
+        The max-t form stops once the sign of ``t*`` is settled with room (the rate search's probes):
+        status ``"feasible"`` at the first iterate with ``t > 0`` and ``t`` at least half the upper bound
+        ``<C, X>`` (primal residual below 1e-6), ``"infeasible"`` at the first with ``<C, X> < 0``, the
+        lower bound within half of it and the primal residual below ``feas_tol`` (the multipliers then are
+        a Farkas candidate, re-checked by the caller).
     """
 
     gap_tol: float = 1e-8
@@ -53,6 +59,7 @@ class IPMOptions:
     time_limit: float | None = None
     dense: bool | None = None
     threads: int | None = 1
+    sign_only: bool = False
 
 
 @dataclass(kw_only=True)
@@ -339,6 +346,13 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             best = (score, it, y, X, rp, gap, pobj)
             status = "feasible"
             break
+        if o.sign_only and offset is None:
+            if dobj > 0.0 and rp < 1e-6 and dobj >= 0.5 * pobj:
+                best, status = (score, it, y, X, rp, gap, pobj), "feasible"
+                break
+            if pobj < 0.0 and rp < o.feas_tol and dobj >= 2.0 * pobj:
+                best, status = (score, it, y, X, rp, gap, pobj), "infeasible"
+                break
         if it - best[1] >= 8 and best[0] < 1e-6:
             status = "stalled"  # no progress for 8 iterations near the optimum: rounding floor reached
             break
@@ -434,7 +448,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         if not math.isfinite(float(y.sum()) + sum(float(x.sum()) for x in X)):
             status = "numerical_error"
             break
-    if status not in ("optimal", "feasible") and best is not None:
+    if status not in ("optimal", "feasible", "infeasible") and best is not None:
         _, _, y, X, rp, gap, pobj = best
         if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
             # Stalled close to the optimum (rounding): like Clarabel's "almost solved".

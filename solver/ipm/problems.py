@@ -348,7 +348,8 @@ def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> L
 
 
 # ----------------------------------------------------------------------------- the design methods' hook
-def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None):
+def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None,
+                 sign_only: bool = False, start: WarmStart | None = None):
     """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
 
     The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.
@@ -362,6 +363,11 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     free, coef : ndarray, optional
         Replace ``modes.free`` (S, n, n) and ``modes.scheme_coef()[0]`` (S, J, n, m), e.g. by the
         congruent decay-rate form's ``lambda^(-eta_s)``-scaled ones.
+    sign_only : bool
+        Stop once the sign of the margin is settled (:attr:`IPMOptions.sign_only`; status
+        ``"optimal_inaccurate"``): the rate search's probes.
+    start : WarmStart, optional
+        ``lmi`` only: a warm start (``V = [W, Y]``), e.g. a neighbouring rate's solution.
 
     Returns
     -------
@@ -382,12 +388,13 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     free = modes.free if free is None else free
     if rho is not None and np.all(np.asarray(rho) == 1.0):
         rho = None
-    opts = IPMOptions(time_limit=time_limit)
-    start = time.perf_counter()
+    opts = IPMOptions(time_limit=time_limit, sign_only=sign_only)
+    warm, start = start, time.perf_counter()
     solve = {"lmi": solve_lmi, "switched": solve_switched}[kind]
-    sol = solve(free, coef, active, rho, opts)
+    sol = solve(free, coef, active, rho, opts, **({"start": warm} if warm is not None else {}))
     wall = time.perf_counter() - start
-    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate"}.get(sol.status)
+    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate", "feasible": "optimal_inaccurate",
+              "infeasible": "optimal_inaccurate"}.get(sol.status)
     if status is None:
         raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations "
                            f"(primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})", status=sol.status)
