@@ -276,7 +276,9 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
     """``switched`` with ``decay_rate="max"`` starts from lmi's certified rate: never worse than lmi."""
     if decay_rate == "max" and method == "switched":
         start = time.perf_counter()
-        first = _smallest_rate("lmi", modes, options, rate_tol)
+        # the bisection's lmi end (not the model search's, which may already sit within the tolerance of
+        # the switched optimum and leave switched nothing to certify below it)
+        first = _smallest_rate("lmi", modes, options, rate_tol, strategy="bisection")
         if first is not None and "time limit reached" in first.message:
             first.method = "switched"
             return first
@@ -374,7 +376,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                    settling: bool = False, strategy: str | None = None) -> DesignResult:
     """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
 
-    ``strategy`` (default :data:`RATE_SEARCH`): "model" tries the root of the margin's first-order model
+    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the root of the margin's first-order model
     (solver/rate_search.py, docs/design.md "Rate search") inside the bracket, "bisection" the midpoint; both
     keep the same bracket and acceptance rules, so both return a certified rate within ``tol`` of the
     smallest certifiable one.
@@ -389,7 +391,9 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     also proves the rate for this method's loop).
     """
     start = time.perf_counter()
-    probe_sign = (RATE_SEARCH if strategy is None else strategy) == "model" and SIGN_ONLY_PROBES
+    # the model and the probes' early stop are the lmi SDP's (switched keeps the bisection)
+    strategy = (RATE_SEARCH if method == "lmi" else "bisection") if strategy is None else strategy
+    probe_sign = strategy == "model" and SIGN_ONLY_PROBES
     totals = {"setup": 0.0, "solver": 0.0, "solves": 0}
     search: list = []
     runner = METHODS[method].run
@@ -459,7 +463,6 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return float(np.exp(-np.sqrt(s_hi * s_lo)))
         return 0.5 * (lo + hi)
 
-    strategy = RATE_SEARCH if strategy is None else strategy
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
     t_lo, previous, from_above, anchor, stalls = None, None, True, hi - lo, 0
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
