@@ -276,9 +276,7 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
     """``switched`` with ``decay_rate="max"`` starts from lmi's certified rate: never worse than lmi."""
     if decay_rate == "max" and method == "switched":
         start = time.perf_counter()
-        # the bisection's lmi end (not the model search's, which may already sit within the tolerance of
-        # the switched optimum and leave switched nothing to certify below it)
-        first = _smallest_rate("lmi", modes, options, rate_tol, strategy="bisection")
+        first = _smallest_rate("lmi", modes, options, rate_tol)
         if first is not None and "time limit reached" in first.message:
             first.method = "switched"
             return first
@@ -367,6 +365,8 @@ SIGN_ONLY_PROBES = True
 #: ... and start from the nearest probe's solution (docs/design.md, "Rate search"): t lowered by WARM_SHIFT
 #: below the blocks' smallest eigenvalue, the multipliers blended with I/N by WARM_BLEND.
 WARM_PROBES = True
+#: ... the first probe (lambda = 1) too: only its sign and its model are used (measured: saves about half a solve)
+SIGN_AT_ONE = True
 WARM_SHIFT = 0.01
 WARM_BLEND = 0.5
 
@@ -418,7 +418,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return None
         try:
             res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining,
-                                        sign_only=probe_sign and lam < 1.0, warm_start=warm(lam)))
+                                        sign_only=probe_sign and (lam < 1.0 or SIGN_AT_ONE), warm_start=warm(lam)))
         except SolverFailed as err:
             if lam >= 1.0:  # nothing certified yet: the design itself failed
                 raise
