@@ -14,12 +14,14 @@ modes; the seed ``speed_bench`` picks for a stabilizable family), one row per si
   :func:`solver.design.solve_count` budgets for it) divided by the measured CPU (1 = exact).
 
 Each cell runs in a child process (``bench/child.py``) with a memory and a wall-clock cap; times are CPU
-(``time.process_time``), one run per cell after a warm-up design on the paper's example.
+(``time.process_time``) after a warm-up design on the paper's example; a cell repeats its design while the runs
+total under 1 s CPU and reports the median.
 """
 
 from __future__ import annotations
 
 import os
+import statistics
 import sys
 import time
 
@@ -76,11 +78,15 @@ def child(n, what: str) -> dict:
         out["outcome"] = compiled.problem.status
         return out
     kw = {"plain": {"decay_rate": None}, "auto": {}, "max": {"decay_rate": "max"},
-          "cost": {"objective": "cost", "decay_rate": None}, "hinf": {"objective": "hinf", "decay_rate": None, "disturbance": np.ones((fam.n_states, 1))},
+          "cost": {"objective": "cost", "decay_rate": None}, "hinf": {"objective": "hinf", "decay_rate": None,
+                                                                   "disturbance": np.ones((fam.n_states, 1))},
           "u_max": {"u_max": np.ones(fam.n_inputs), "decay_rate": None}}[what]
-    c0 = time.process_time()
-    res = design(fam, n_drop, **kw)
-    out["cpu"] = time.process_time() - c0
+    cpus = []
+    while not cpus or (sum(cpus) < 1.0 and len(cpus) < 50):  # small cells: the median of repeats (shared machine)
+        c0 = time.process_time()
+        res = design(fam, n_drop, **kw)
+        cpus.append(time.process_time() - c0)
+    out["cpu"] = statistics.median(cpus)
     out["outcome"] = res.outcome
     out["solves"] = res.solve_count
     if what in ("plain", "auto", "max"):
