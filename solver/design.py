@@ -376,10 +376,10 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                    settling: bool = False, strategy: str | None = None) -> DesignResult:
     """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
 
-    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the root of the margin's first-order model
-    (solver/rate_search.py, docs/design.md "Rate search") inside the bracket, "bisection" the midpoint; both
-    keep the same bracket and acceptance rules, so both return a certified rate within ``tol`` of the
-    smallest certifiable one.
+    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the
+    root of the margin's first-order model (solver/rate_search.py, docs/design.md 3.2.1) inside the bracket,
+    "bisection" the midpoint; both keep the same bracket and acceptance rules, so both return a certified rate
+    within ``tol`` of the smallest certifiable one (when the lower end is proven).
 
     A rate is accepted only when the float64 re-check of that step's gains and
     certificate passes at the rate; a step is "infeasible" only with a re-checked

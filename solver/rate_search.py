@@ -9,12 +9,12 @@ first-order model
 
 (``Off_b`` the block's off-diagonal part ``c_s M_s`` at the solution, the only part that depends on
 lambda, through ``c_s = lambda^(-eta_s)``) is exact for the solution's own variables and tangent to
-``t`` at ``lambda0``.  It is affine in ``c`` (one interval length: Newton's step on ``t(c)``).  Its
-root is the next rate tried; the search keeps the bisection's bracket ``[lo, hi]`` (``hi``: a certified
-rate, ``lo``: a rate with no certified design), so a model step that does not land inside the
-bracket, or does not halve it, is replaced by the bisection's midpoint.  Which rates are accepted
-(float64 re-check) and which lower ends are proven (Farkas) is the bisection's rule unchanged; only
-the order in which rates are tried differs, hence the same certified rate to the tolerance.
+``t`` at ``lambda0``.  It is affine in ``c`` (one interval length: Newton's step on ``t(c)``).
+:func:`next_rate` alternates its root (above the true root where ``t`` is convex) with a rate aimed just below
+the root, inside the bisection's bracket ``[lo, hi]`` (``hi``: a certified rate, ``lo``: a rate with no certified
+design); a candidate outside the bracket, or steps that do not halve it, hand over to the bisection's midpoint.
+Which rates are accepted (float64 re-check) and which lower ends are proven (Farkas) is the bisection's rule
+unchanged; only the order in which rates are tried differs, hence the same certified rate to the tolerance.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The best-rate search (solver/rate_search.py): against the old bisection, its solve count, and the IPM's warm start."""
+"""The best-rate search (solver/rate_search.py): vs the old bisection, its solve count, the IPM warm start."""
 
 from __future__ import annotations
 
