@@ -13,8 +13,10 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench performance --speed`` times each objective on the IPM, Clarabel and CVXOPT;
 ``python -m bench perf-check [--count N]`` cross-checks the performance designs on the IPM against Clarabel
 (``bench/perf_check.py``).
-``python -m bench speed [--quick] [--service]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT for n = 2..64,
-feasible and infeasible families (``bench/speed_bench.py``).
+``python -m bench speed [--quick] [--sizes paper,8,20]`` prints every design (plain, auto, max, cost, hinf, u_max)
+against one plain SDP, Clarabel and CVXOPT, with the solves and the time estimate's error (``bench/design_speed.py``);
+``python -m bench speed --solvers [--quick] [--service]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT
+for n = 2..64, feasible and infeasible families (``bench/speed_bench.py``).
 ``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
 
 Options::
@@ -96,9 +98,9 @@ def main(argv=None) -> int:
 
         return performance_bench.main(argv[1:])
     if argv and argv[0] == "speed":
-        from . import speed_bench
+        from . import design_speed
 
-        return speed_bench.main(argv[1:])
+        return design_speed.main(argv[1:])
     if argv and argv[0] == "startup":
         from . import startup_bench
 

@@ -17,6 +17,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
+from .rate_search import margin_model, model_root, next_rate
 from .result import DesignResult, certified_settling, metric_condition
 from .brackets import bracket_back
 from .scaling import Scaling, balance, performance_balance
@@ -241,11 +242,11 @@ def design(
         n_drop = _network_n_drop(network, n_drop)
         network = check_network(network)
         if not network.is_bounded_drops:
-            return _network_design(family, network, method, solver=solver, margin=margin, max_iter=max_iter,
+            return _counted(_network_design(family, network, method, solver=solver, margin=margin, max_iter=max_iter,
                                    time_limit=time_limit, callback=callback, ccl_start=ccl_start,
                                    decay_rate=decay_rate, rate_tol=rate_tol, plant_switching=plant_switching,
                                    scheme=scheme, scaling=scaling, objective=objective,
-                                   performance=(weights, x0, disturbance, output, u_max), max_memory=max_memory)
+                                   performance=(weights, x0, disturbance, output, u_max), max_memory=max_memory))
     elif n_drop is None:
         raise InvalidInput("n_drop is required (or give a network)", ("n_drop",))
     if method not in METHODS:
@@ -285,8 +286,9 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
             scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes, plant_switching,
             scheme) -> DesignResult:
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        return _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max,
-                                   solver, margin, max_iter, time_limit, callback, decay_rate, scaling)
+        return _counted(_performance_design(family, modes, method, objective, weights, x0, disturbance, output,
+                                            u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
+                                            scaling))
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -310,6 +312,13 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
     if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
         res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                           family.sampling_period)
+    return _counted(res)
+
+
+def _counted(res: DesignResult) -> DesignResult:
+    """Fill ``res.solve_count`` from the run's accounting (every method's clock counts its solves)."""
+    if res is not None and res.solve_count is None:
+        res.solve_count = int(res.timings.get("solves", 0) or 0)
     return res
 
 
@@ -735,7 +744,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
                     f"settling {AUTO_SLOWDOWN:g}x the fastest certified rate's (bracket [{best.rate_bracket['lower']:.6g}, "
                     f"{fastest:.6g}])")
     total = time.perf_counter() - start
-    res.timings.update(total=total, solves=len(res.rate_search),
+    res.timings.update(total=total, solves=best.timings.get("solves", 0) + res.timings.get("solves", 0),
                        solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
     return res
 
@@ -747,10 +756,31 @@ FAILED_STEP = object()
 MIN_RATE = 1e-4
 
 
+#: How the best-rate search picks its next rate: "model" (the margin's first-order model from the last
+#: solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or "bisection" (the midpoint).
+RATE_SEARCH = "model"
+#: The model search's probes below lambda = 1 stop once the margin's sign is settled (the IPM's ``sign_only``):
+#: a certified probe keeps a design whose margin is at least half the SDP's optimum, a failed one a Farkas
+#: candidate re-checked as always.
+SIGN_ONLY_PROBES = True
+#: ... and start from the nearest probe's solution (docs/design.md, "Rate search"): t lowered by WARM_SHIFT
+#: below the blocks' smallest eigenvalue, the multipliers blended with I/N by WARM_BLEND.
+WARM_PROBES = True
+#: ... the first probe (lambda = 1) too: only its sign and its model are used (measured: saves about half a solve)
+SIGN_AT_ONE = True
+WARM_SHIFT = 0.01
+WARM_BLEND = 0.5
+
+
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
                    upper: DesignResult | None = None, user_limit: float | None = None,
-                   settling: bool = False) -> DesignResult:
-    """Bisection on lambda in (0, 1] with relative tolerance ``tol``, on the congruent SDP.
+                   settling: bool = False, strategy: str | None = None) -> DesignResult:
+    """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
+
+    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the
+    root of the margin's first-order model (solver/rate_search.py, docs/design.md 3.2.1) inside the bracket,
+    "bisection" the midpoint; both keep the same bracket and acceptance rules, so both return a certified rate
+    within ``tol`` of the smallest certifiable one (when the lower end is proven).
 
     A rate is accepted only when the float64 re-check of that step's gains and
     certificate passes at the rate; a step is "infeasible" only with a re-checked
@@ -762,11 +792,24 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     also proves the rate for this method's loop).
     """
     start = time.perf_counter()
+    # the model and the probes' early stop are the lmi SDP's (switched keeps the bisection)
+    strategy = (RATE_SEARCH if method == "lmi" else "bisection") if strategy is None else strategy
+    probe_sign = strategy == "model" and SIGN_ONLY_PROBES
     totals = {"setup": 0.0, "solver": 0.0, "solves": 0}
     search: list = []
     runner = METHODS[method].run
     limit = options.time_limit
     timed_out = False
+
+    solved = []  # (rate, SDP solution) of the probes, for the warm starts
+
+    def warm(lam):
+        if not (probe_sign and WARM_PROBES and solved):
+            return None
+        from .ipm import WarmStart
+
+        rate, sdp = min(solved, key=lambda p: abs(np.log(p[0] / lam)))
+        return WarmStart([sdp.W, sdp.Y], sdp.duals, shift=WARM_SHIFT, blend=WARM_BLEND)
 
     def attempt(lam):
         nonlocal timed_out
@@ -775,7 +818,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
             return None
         try:
-            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining))
+            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining,
+                                        sign_only=probe_sign and (lam < 1.0 or SIGN_AT_ONE), warm_start=warm(lam)))
         except SolverFailed as err:
             if lam >= 1.0:  # nothing certified yet: the design itself failed
                 raise
@@ -784,6 +828,9 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return FAILED_STEP
         for key in totals:
             totals[key] += res.timings.get(key, 0)
+        sdp = getattr(res, "sdp", None)
+        if sdp is not None and sdp.W is not None and getattr(sdp.info, "solver", "") == "IPM":
+            solved.append((lam, sdp))
         search.append({"decay_rate": lam, "outcome": res.outcome,
                        "proof": None if res.certificate is None else res.certificate.kind})
         if res.outcome == "not_converged" and "time limit" in res.message:
@@ -811,23 +858,44 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         # bracket pinned at hi = 1 ends too, once lo is within 1e-9 of 1: no certified rate below 1)
         return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
 
-    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+    def midpoint(lo, hi):
         if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)
             s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+            return float(np.exp(-np.sqrt(s_hi * s_lo)))
+        return 0.5 * (lo + hi)
+
+    t_hi = getattr(getattr(best, "sdp", None), "t", None)
+    t_lo, previous, from_above, anchor, stalls = None, None, True, hi - lo, 0
+    while not done(lo, hi) and hi > MIN_RATE and not timed_out:
+        # three model steps that did not halve the bracket hand one step to the bisection: never much slower
+        if strategy == "model" and stalls < 3:
+            sdp = getattr(best, "sdp", None)
+            model = None if sdp is None else margin_model(modes, sdp, hi)
+            # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
+            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
+                                 lambda a, b: 0.5 * (a + b), from_above, previous)
+            if model is not None and (previous is None or previous[0] != hi):
+                previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
-            mid = 0.5 * (lo + hi)
+            mid, how = midpoint(lo, hi), "bisect"
         res = attempt(mid)
         if res is None:
             break
+        search[-1]["step"] = how
+        t_res = getattr(getattr(res, "sdp", None), "t", None)
         if res is FAILED_STEP:
-            lo, lo_proven = mid, False
+            lo, lo_proven, t_lo = mid, False, None
         elif res.outcome == "stabilized":
-            hi, best = mid, res
+            hi, best, t_hi = mid, res, t_res
         else:
-            lo, lo_proven = mid, res.outcome == "infeasible"
+            lo, lo_proven, t_lo = mid, res.outcome == "infeasible", t_res
             lo_proof = res.outcome if res.outcome in NEGATIVE else None
             lo_margin = res.certificate.margin if lo_proof == "marginal" else None
+        from_above = res is not FAILED_STEP and res.outcome == "stabilized"
+        if hi - lo <= 0.5 * anchor or how == "bisect":
+            anchor, stalls = hi - lo, 0
+        else:
+            stalls += 1
     A = modes.closed_loops(best.gains)
     loop = float(np.max(np.max(np.abs(np.linalg.eigvals(A)), axis=-1) ** (1.0 / modes.eta)))
     if lo == 0.0:

@@ -174,6 +174,9 @@ class DesignResult:
     invariant_set : ndarray, shape (n, n), or None
         With ``u_max``: X of the ellipsoid ``{x : x' X x <= 1}`` from which, under every allowed pattern,
         every applied input meets the limits (re-checked in float64).
+    solve_count : int or None
+        How many SDPs the design solved (warm or cold; the rate search's, the certificates' fixed-gain LMIs
+        and the performance designs' included): what the result cost, in the unit of one plain design's solve.
     settling : dict or None
         What the certified ``decay_rate`` guarantees (:func:`certified_settling`): ``samples`` and
         ``seconds`` to 2 % of the initial state's norm, worst case over every allowed sequence;
@@ -212,6 +215,7 @@ class DesignResult:
     observer: object | None = None
     joint_certificate: object | None = None
     network: dict | None = None
+    solve_count: int | None = None
 
     @property
     def iterations(self) -> int:
@@ -278,6 +282,7 @@ class DesignResult:
             "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
             "settling": self.settling,
             "network": self.network,
+            "solve_count": self.solve_count,
         } | ({} if self.feedback == "state" else {
             "feedback": self.feedback,
             "observer_gains": None if self.observer_gains is None else self.observer_gains.tolist(),

@@ -310,6 +310,9 @@ class DesignResult(_Open):
                                   "`decay_factor_per_second`, `exponential_rate` (1/s), `time_constant` (s), and the "
                                   "certificate metric's `metric_condition`. Null without a certified rate.")
     rate_search: list[RatePoint] | None = Field(None, description="`decay_rate: max`: every rate tried, in order.")
+    solve_count: int | None = Field(None, description="How many SDPs the design solved (warm or cold, the rate "
+                                                      "search's and the certificates' included): its cost in "
+                                                      "units of one plain design's solve.")
     rate_bracket: RateBracket | None = Field(None, description="`decay_rate: max`: the ends of the bisection.")
     modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes, in the order of the flat "
                                                             "arrays (`worst_mode`, switched `P`, multipliers).")

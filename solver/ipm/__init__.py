@@ -38,7 +38,7 @@ Public entry points: :func:`solve_lmi` (the ``lmi`` design),
 :class:`BlockLMI` / :func:`solve_block_lmi` they are built on.
 """
 
-from .algorithm import GroupedSolution, IPMOptions, IPMSolution, solve_block_lmi, solve_grouped
+from .algorithm import GroupedSolution, IPMOptions, IPMSolution, WarmStart, solve_block_lmi, solve_grouped
 from .blas import blas_threads, heap_reuse
 from .model import BlockGroup, BlockLMI, GroupedLMI, MatrixVariable
 from .performance_blocks import PerformanceProblem, PerformanceSolution, performance_problem, solve_performance
@@ -59,6 +59,7 @@ __all__ = [
     "solve_grouped",
     "IPMOptions",
     "IPMSolution",
+    "WarmStart",
     "LMISolution",
     "SwitchedSolution",
     "design_solve",

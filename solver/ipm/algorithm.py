@@ -19,7 +19,7 @@ from .blas import blas_threads, heap_reuse
 from .model import BlockLMI, GroupedLMI
 from .schur import dense_ops
 
-__all__ = ["GroupedSolution", "IPMOptions", "IPMSolution", "solve_block_lmi", "solve_grouped"]
+__all__ = ["GroupedSolution", "IPMOptions", "IPMSolution", "WarmStart", "solve_block_lmi", "solve_grouped"]
 
 
 @dataclass
@@ -44,6 +44,12 @@ class IPMOptions:
     threads : int or None
         OpenBLAS threads during the solve (default 1, see :func:`blas_threads`;
         None leaves the process setting alone).
+    sign_only : bool
+        The max-t form stops once the sign of ``t*`` is settled with room (the rate search's probes):
+        status ``"feasible"`` at the first iterate with ``t > 0`` and ``t`` at least half the upper bound
+        ``<C, X>`` (primal residual below 1e-6), ``"infeasible"`` at the first with ``<C, X> < 0``, the
+        lower bound within half of it and the primal residual below ``feas_tol`` (the multipliers then are
+        a Farkas candidate, re-checked by the caller).
     """
 
     gap_tol: float = 1e-8
@@ -53,6 +59,7 @@ class IPMOptions:
     time_limit: float | None = None
     dense: bool | None = None
     threads: int | None = 1
+    sign_only: bool = False
 
 
 @dataclass(kw_only=True)
@@ -235,7 +242,8 @@ class _Core:
 
 
 def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_start: bool = False,
-              x_start: float | None = None, offset: float | None = None, phase1: bool = False) -> _Core:
+              x_start: float | None = None, offset: float | None = None, phase1: bool = False,
+              y_start: np.ndarray | None = None) -> _Core:
     """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S_g = C_g + A_g(y) >= 0``.
 
     ``C`` is a list of block arrays (one per group, shape (nb_g, k_g, k_g)); ``op(y)`` returns the list of
@@ -248,12 +256,17 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
     no ``1 +`` floor).  ``phase1``: the max-t form stopped early (status ``"feasible"``) at the first
     iterate with ``t > 0`` and ``t`` at least half the current upper bound (so the start of the next
     phase is strictly feasible and away from the boundary).
+
+    ``y_start``: a warm start (the max-t form only): ``S = C + A(y_start)`` must be positive definite
+    (:func:`warm_start` makes one from a neighbouring problem's solution); ``x_start`` then is a list of
+    multipliers.
     """
     with np.errstate(invalid="ignore"):  # a failed Cholesky factor is NaNs (checked), not a warning
-        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1)
+        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1, y_start)
 
 
-def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=None, phase1=False) -> _Core:
+def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=None, phase1=False,
+              y_start=None) -> _Core:
     fixed_dead = len(C) > 1 or offset is not None
     dead0 = None
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
@@ -271,7 +284,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     y = np.zeros(b.shape[0])
     # t far enough below every block's smallest eigenvalue: S = C - t I > 0.
     # (feasible_start: C itself is positive definite and y = 0 is the start; no t coordinate.)
-    if not feasible_start:
+    if y_start is not None:
+        y = np.array(y_start, dtype=np.float64)
+    elif not feasible_start:
         y[-1] = min(float(_eigvalsh(c)[:, 0].min()) for c in C) - max(1.0, max(float(np.abs(c).max()) for c in C))
     S = [c + d for c, d in zip(C, op(y))]
     # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
@@ -331,6 +346,13 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             best = (score, it, y, X, rp, gap, pobj)
             status = "feasible"
             break
+        if o.sign_only and offset is None:
+            if dobj > 0.0 and rp < 1e-6 and dobj >= 0.5 * pobj:
+                best, status = (score, it, y, X, rp, gap, pobj), "feasible"
+                break
+            if pobj < 0.0 and rp < o.feas_tol and dobj >= 2.0 * pobj:
+                best, status = (score, it, y, X, rp, gap, pobj), "infeasible"
+                break
         if it - best[1] >= 8 and best[0] < 1e-6:
             status = "stalled"  # no progress for 8 iterations near the optimum: rounding floor reached
             break
@@ -426,7 +448,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         if not math.isfinite(float(y.sum()) + sum(float(x.sum()) for x in X)):
             status = "numerical_error"
             break
-    if status not in ("optimal", "feasible") and best is not None:
+    if status not in ("optimal", "feasible", "infeasible") and best is not None:
         _, _, y, X, rp, gap, pobj = best
         if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
             # Stalled close to the optimum (rounding): like Clarabel's "almost solved".
@@ -437,7 +459,72 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                  upper=sum(float(np.vdot(c, x)) for c, x in zip(C, X)), timings=tim)
 
 
-def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPMSolution:
+@dataclass
+class WarmStart:
+    """A start for :func:`solve_block_lmi` from a neighbouring problem's solution (docs/design.md, "Rate search").
+
+    The max-t form is feasible at every ``V``: ``t = lambda_min(blocks at V) - shift`` makes the start strictly
+    feasible whatever the new data.  An optimum of the old problem is badly centred for the new one
+    (``X_b S_b ~ 0``: the multipliers are rank deficient where the slacks are not), so ``t`` is lowered by
+    ``shift`` and the multipliers are blended with the identity: ``X = (1 - blend) X_old + blend I / N``
+    (``sum tr X = 1`` kept).  Both only move the start; the iteration and its stopping rules are those of
+    a cold solve, so the optimum reached is the same.
+
+    Attributes
+    ----------
+    V : list of ndarray
+        The variables (the problem's ``variables`` order and shapes), e.g. :attr:`IPMSolution.V`.
+    X : ndarray, shape (nb, k, k), optional
+        Multipliers (PSD); None starts them at ``I / N``.
+    shift : float
+        How far below the blocks' smallest eigenvalue ``t`` starts (> 0; absolute, the blocks' units).
+    blend : float
+        Weight of ``I / N`` in the multipliers' start, in (0, 1].
+    """
+
+    V: list
+    X: np.ndarray | None = None
+    shift: float = 1e-2
+    blend: float = 0.1
+
+
+def _coordinate_rows(problem: BlockLMI) -> np.ndarray:
+    """For each reduced coordinate ``y_j``, a full coordinate equal to it (``x = T y``: a row of ``T`` whose
+    only entry is a 1 in column j).  Every direction but the equality's pivot has one."""
+    rows = problem.__dict__.get("_coord_rows")
+    if rows is None:
+        T = problem.T.tocsr()
+        nnz = np.diff(T.indptr)
+        rows = np.full(T.shape[1], -1)
+        for r in np.flatnonzero(nnz == 1)[::-1]:  # the first such row of each column wins
+            if T.data[T.indptr[r]] == 1.0:
+                rows[T.indices[T.indptr[r]]] = r
+        if (rows < 0).any():
+            raise ValueError("the problem's basis has a coordinate without its own entry")
+        problem._coord_rows = rows
+    return rows
+
+
+def _warm_y(problem: BlockLMI, start: WarmStart, op) -> tuple[np.ndarray, list]:
+    """``y`` and the multipliers of a :class:`WarmStart` (the max-t form)."""
+    x = np.concatenate([(np.asarray(v, dtype=np.float64) - v0).ravel() for v, v0 in zip(start.V, problem.V0)]
+                       + [np.zeros(1)])
+    y = x[_coordinate_rows(problem)]
+    y[-1] = 0.0
+    B = problem.C + op(y)
+    y[-1] = float(_eigvalsh(B)[:, 0].min()) - start.shift
+    N = problem.nb * problem.k
+    eye = np.broadcast_to(np.eye(problem.k) / N, problem.C.shape)
+    if start.X is None:
+        X = eye.copy()
+    else:
+        X0 = 0.5 * (start.X + np.swapaxes(start.X, 1, 2))
+        X = (1.0 - start.blend) * X0 / max(float(np.trace(X0, axis1=1, axis2=2).sum()), 1e-300) + start.blend * eye
+    return y, [X]
+
+
+def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None,
+                    start: WarmStart | None = None) -> IPMSolution:
     """Solve a :class:`BlockLMI` by an infeasible primal-dual path-following method.
 
     HKM direction, Mehrotra predictor-corrector, Schur complement from
@@ -447,6 +534,8 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
     ----------
     problem : BlockLMI
     options : IPMOptions, optional
+    start : WarmStart, optional
+        A warm start (max-t form only), e.g. the solution of the same problem with other data.
 
     Returns
     -------
@@ -473,9 +562,14 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None) -> IPM
             x_start = 1.0 / (problem.nb * problem.k)
             if gg > 0:  # least-squares xi for A^*(xi I) = -b, at least |b| / |A^*(I)|
                 x_start = max(x_start, -float(problem.b @ g) / gg, float(np.linalg.norm(problem.b)) / np.sqrt(gg))
+        y_start = None
+        if start is not None:
+            if not problem.with_t:
+                raise ValueError("a warm start needs the max-t form")
+            y_start, x_start = _warm_y(problem, start, op)
         core = _ipm_core([problem.C], problem.b, lambda y: [op(y)], lambda U: adj(U[0]),
                          lambda X, G: schur(X[0], G[0]), o, t_start, feasible_start=not problem.with_t,
-                         x_start=x_start)
+                         x_start=x_start, y_start=y_start)
         core.X = core.X[0]
         x = problem.full(core.y)
         V = [v0 + x[sl].reshape(var.shape) for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0)]

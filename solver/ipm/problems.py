@@ -12,7 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .algorithm import IPMOptions, IPMSolution, _SolveStatus, solve_block_lmi
+from dataclasses import replace
+
+from .algorithm import IPMOptions, IPMSolution, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 
 def _selectors(n: int):
@@ -254,20 +256,28 @@ def _check_data(free, coef, active):
     return free, coef, active
 
 
-def _solve_scaled(build, free, coef, active, rho, options):
+def _solve_scaled(build, free, coef, active, rho, options, start: WarmStart | None = None):
     """Check the data, scale the gains' coefficients, build with ``build`` and solve.
 
+    ``start``: a warm start in the design's coordinates (``V = [W, Y]``, ``Y`` of shape (J, m, n), the
+    ``lmi`` form only), mapped to the scaled gains here.
     Returns ``(IPMSolution, (S, J, n, m), gain scale, setup seconds)``.
     """
     t0 = time.perf_counter()
     free, coef, active = _check_data(free, coef, active)
     coef_s, gscale = _gain_scale(coef)
     prob = build(free, coef_s, active, rho)
+    if start is not None:
+        S, J, n, m = coef.shape
+        V = [start.V[0]] + ([(np.asarray(start.V[1]) * gscale[:, None, None]).reshape(J * m, n)]
+                            if J * m > 0 else [])
+        start = replace(start, V=V)
     setup = time.perf_counter() - t0
-    return solve_block_lmi(prob, options), coef.shape, gscale, setup
+    return solve_block_lmi(prob, options, start), coef.shape, gscale, setup
 
 
-def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None) -> LMISolution:
+def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = None,
+              start: WarmStart | None = None) -> LMISolution:
     """Solve the ``lmi`` design SDP (see :func:`lmi_problem`) with the structured IPM.
 
     Parameters
@@ -277,6 +287,8 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
     active : array_like of bool, shape (S, J), optional
     rho : array_like, shape (S,), optional
     options : IPMOptions, optional
+    start : WarmStart, optional
+        Warm start, ``V = [W, Y]`` with ``Y`` of shape (J, m, n) (e.g. another rate's solution).
 
     Returns
     -------
@@ -288,7 +300,7 @@ def solve_lmi(free, coef, active=None, rho=None, options: IPMOptions | None = No
         On inconsistent shapes or non-finite data.
     """
     t0 = time.perf_counter()
-    sol, (S, J, n, m), gscale, setup = _solve_scaled(lmi_problem, free, coef, active, rho, options)
+    sol, (S, J, n, m), gscale, setup = _solve_scaled(lmi_problem, free, coef, active, rho, options, start)
     W = sol.V[0]
     W = 0.5 * (W + W.T)
     Y = _split_Y(sol.V[1] if len(sol.V) > 1 else None, J, m, n, gscale)
@@ -336,7 +348,8 @@ def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> L
 
 
 # ----------------------------------------------------------------------------- the design methods' hook
-def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None):
+def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None,
+                 sign_only: bool = False, start: WarmStart | None = None):
     """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
 
     The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.
@@ -350,6 +363,11 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     free, coef : ndarray, optional
         Replace ``modes.free`` (S, n, n) and ``modes.scheme_coef()[0]`` (S, J, n, m), e.g. by the
         congruent decay-rate form's ``lambda^(-eta_s)``-scaled ones.
+    sign_only : bool
+        Stop once the sign of the margin is settled (:attr:`IPMOptions.sign_only`; status
+        ``"optimal_inaccurate"``): the rate search's probes.
+    start : WarmStart, optional
+        ``lmi`` only: a warm start (``V = [W, Y]``), e.g. a neighbouring rate's solution.
 
     Returns
     -------
@@ -370,12 +388,13 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     free = modes.free if free is None else free
     if rho is not None and np.all(np.asarray(rho) == 1.0):
         rho = None
-    opts = IPMOptions(time_limit=time_limit)
-    start = time.perf_counter()
+    opts = IPMOptions(time_limit=time_limit, sign_only=sign_only)
+    warm, start = start, time.perf_counter()
     solve = {"lmi": solve_lmi, "switched": solve_switched}[kind]
-    sol = solve(free, coef, active, rho, opts)
+    sol = solve(free, coef, active, rho, opts, **({"start": warm} if warm is not None else {}))
     wall = time.perf_counter() - start
-    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate"}.get(sol.status)
+    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate", "feasible": "optimal_inaccurate",
+              "infeasible": "optimal_inaccurate"}.get(sol.status)
     if status is None:
         raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations "
                            f"(primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})", status=sol.status)

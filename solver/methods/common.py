@@ -27,6 +27,10 @@ class DesignOptions:
     callback: Callable | None = None
     ccl_start: str = "feasibility"
     decay_rate: float | None = None
+    #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only).
+    sign_only: bool = False
+    #: The rate search's warm start for the lmi SDP on the IPM (a :class:`solver.ipm.WarmStart`).
+    warm_start: object | None = None
 
     def rho(self, modes: ModeSet) -> np.ndarray:
         """Decay factors ``lambda^(2 eta_s)`` per mode (ones without a rate)."""
@@ -217,7 +221,9 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     rate = options.decay_rate
     rate_txt = "" if rate is None else f" at decay rate {rate:.6g}"
     try:
-        sol = solve_sdp(modes, congruent_scale(modes, rate), options.solver, options.time_limit, clock)
+        extra = {"sign_only": options.sign_only, "start": options.warm_start} if method == "lmi" and (
+            options.sign_only or options.warm_start is not None) else {}
+        sol = solve_sdp(modes, congruent_scale(modes, rate), options.solver, options.time_limit, clock, **extra)
     except SolverFailed as err:
         if not is_time_limit(err, options, clock):
             raise
@@ -245,8 +251,10 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
 
     def result(outcome, message, certificate=cert):
         keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
-        return finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
-                      info.solver, info.status, message, [record], options)
+        res = finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
+                     info.solver, info.status, message, [record], options)
+        res.sdp = sol  # the rate search's model (solver/rate_search.py) reads the multipliers; not exported
+        return res
 
     if options.callback is not None:
         options.callback(record)

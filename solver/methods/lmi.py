@@ -76,7 +76,7 @@ def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
 
 
 def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
-              clock=None) -> DesignSdpSolution:
+              clock=None, sign_only: bool = False, start=None) -> DesignSdpSolution:
     """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
 
     Parameters
@@ -84,10 +84,14 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
     modes : ModeSet
     scale : ndarray, shape (S,)
         ``c_s = lambda^(-eta_s)`` (ones for plain stability).
+    sign_only : bool
+        The IPM stops once the margin's sign is settled (the rate search's probes; ignored by Clarabel).
+    start : solver.ipm.WarmStart, optional
+        The IPM's warm start (ignored by Clarabel).
     """
     solver = resolve_solver(solver, "lmi", modes.n_modes)
     if solver == "IPM":  # the structured interior-point solver (solver/ipm/), same SDP and dual convention
-        return ipm_sdp(modes, "lmi", scale, time_limit)
+        return ipm_sdp(modes, "lmi", scale, time_limit, sign_only, start)
     compiled, cached, setup = compiled_for(modes, "lmi", build)
     if clock is not None:
         clock.cached, clock.setup = clock.cached and cached, clock.setup + setup
@@ -99,12 +103,13 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
     )
 
 
-def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | None) -> DesignSdpSolution:
+def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | None,
+            sign_only: bool = False, start=None) -> DesignSdpSolution:
     """The congruent SDP of ``kind`` ("lmi" or "switched") solved by :func:`solver.ipm.design_solve`."""
     values = plant_values(modes, scale)
     S, n, m, J = modes.n_modes, modes.n_states, modes.n_inputs, modes.n_free_gains
     info, sol = ipm.design_solve(modes, kind, None, time_limit, free=values["free"].reshape(S, n, n),
-                                 coef=values["coef"].reshape(S, J, n, m))
+                                 coef=values["coef"].reshape(S, J, n, m), sign_only=sign_only, start=start)
     if kind == "switched":
         return DesignSdpSolution(t=float(sol.t), W=sol.Z, Y=sol.Y, S=sol.S, duals=sol.duals, info=info)
     return DesignSdpSolution(t=float(sol.t), W=sol.W, Y=sol.Y, S=None, duals=sol.duals, info=info)

@@ -126,7 +126,9 @@ def test_switched_design_with_best_decay_rate_over_http(client):
     assert done["status"] == "succeeded", done
     res = done["result"]
     direct = design(family(PAPER_PLANT), 3, method="switched", decay_rate="max")
-    assert res["outcome"] == "stabilized" and res["certificate"]["kind"] == "switched"
+    # switched starts from lmi's certified rate; when lmi's is already within rate_tol of the switched optimum
+    # (the paper example: 0.33787 vs 0.33780) no switched step below it certifies, and lmi's certificate stands
+    assert res["outcome"] == "stabilized" and res["certificate"]["kind"] in ("switched", "common_quadratic")
     assert res["decay_rate"] == pytest.approx(direct.decay_rate)
     assert len(res["rate_search"]) == len(direct.rate_search)
 

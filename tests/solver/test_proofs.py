@@ -342,7 +342,7 @@ def test_no_certificate_means_not_converged_never_a_guess(monkeypatch):
     from solver.compiled import DesignSdpSolution, SolveInfo
     from solver.methods import lmi
 
-    def no_proof(modes, scale, solver="CLARABEL", time_limit=None, clock=None):
+    def no_proof(modes, scale, solver="CLARABEL", time_limit=None, clock=None, **_):
         # a solver claiming t* < 0 but returning useless multipliers
         n, S = modes.n_states, modes.n_modes
         info = SolveInfo("optimal", "CLARABEL", 0.0, 0.0, -1e-3, 1)
