@@ -268,9 +268,13 @@ class ObserverDesign:
     kind: str
     message: str = ""
     obstruction: ObserverObstruction | None = None
+    #: With noise covariances: ``X_sigma`` (sensor_n_drop, n, n), a certified bound ``E[e e'] <= X_sigma`` under every
+    #: admissible sensor pattern (:func:`error_covariance_bound`).
+    error_bound: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {
+            "error_bound": None if self.error_bound is None else self.error_bound.tolist(),
             "outcome": self.outcome,
             "gains": None if self.gains is None else self.gains.tolist(),
             "certificate": None if self.certificate is None else self.certificate.tolist(),
@@ -372,6 +376,67 @@ def certify_observer(family: PlantFamily, L, sensor_n_drop: int, decay_rate: flo
     return Qv if check_error_certificate(F, C, L, Qv, M, rho) else None
 
 
+def _covariance_steps(F, C, L, W, V, M: int):
+    """``(Phi, N, to, frm)`` of every per-sample step of the filtered error's covariance: ``X+ = Phi X Phi' + N``."""
+    r, n = F.shape[0], F.shape[1]
+    out = []
+    for l, l_next in itertools.product(range(r), repeat=2):
+        gain = np.eye(n) - L[l_next] @ C[l_next]
+        for sigma in range(M):
+            out.append((gain @ F[l], gain @ W @ gain.T + L[l_next] @ V @ L[l_next].T, 0, sigma))
+            if sigma + 1 <= M - 1:
+                out.append((F[l], W, sigma + 1, sigma))
+    return out
+
+
+def check_error_bound(F, C, L, W, V, X, M: int) -> bool:
+    """Float64 re-check (proven Cholesky bounds) that ``X_to - Phi X_from Phi' - N >= 0`` for every step."""
+    prover = Prover()
+    for Phi, Nz, to, frm in _covariance_steps(F, C, L, W, V, M):
+        R = X[to] - Phi @ X[frm] @ Phi.T - Nz
+        scale = float(np.linalg.norm(X[to]) + np.linalg.norm(Phi) ** 2 * np.linalg.norm(X[frm]) + np.linalg.norm(Nz))
+        if prover.min_lower(0.5 * (R + R.T), 8 * (R.shape[0] + 2) * U * scale) < 0:
+            return False
+    return True
+
+
+def error_covariance_bound(family: PlantFamily, observer_gains, sensor_n_drop: int, noise,
+                           time_limit: float | None = None) -> np.ndarray | None:
+    """A certified bound on the estimation error's covariance under every admissible sensor pattern.
+
+    With ``x+ = F x + G u + w``, ``y = C x + v`` (covariances ``W``, ``V``) the filtered error's covariance
+    steps by ``X+ = (I - L C) (F X F' + W) (I - L C)' + L V L'`` after a measurement and ``F X F' + W`` after a
+    loss.  ``X_sigma`` (node ``sigma`` = measurements lost in a row) with ``X_to >= Phi X_from Phi' + N`` for
+    every step bounds ``E[e e']`` at every sample of every admissible pattern (by induction, from any start
+    below it).  Minimizes ``sum trace X_sigma`` with Clarabel; returns the ``X`` that passed
+    :func:`check_error_bound` (slightly enlarged so that the check is strict), or None.
+    """
+    import cvxpy as cp
+
+    C = require_outputs(family)
+    M = check_sensor_n_drop(sensor_n_drop)
+    n, p = family.n_states, C.shape[1]
+    L = check_observer_gains(observer_gains, family.n_modes, n, p)
+    W, V = check_noise(noise, n, p)
+    F = np.asarray(family.F, dtype=np.float64)
+    X = [cp.Variable((n, n), symmetric=True) for _ in range(M)]
+    cons = []
+    for Phi, Nz, to, frm in _covariance_steps(F, C, L, W, V, M):
+        R = X[to] - Phi @ X[frm] @ Phi.T - Nz
+        cons.append(0.5 * (R + R.T) >> 0)
+    prob = cp.Problem(cp.Minimize(sum(cp.trace(x) for x in X)), cons)
+    _solve(prob, time_limit)
+    if X[0].value is None:
+        return None
+    Xv = np.array([0.5 * (x.value + x.value.T) for x in X])
+    # The solver's X sits on the boundary: grow it by a relative 1e-9 (and a hair) until the re-check passes.
+    for grow in (1e-9, 1e-7, 1e-5, 1e-3):
+        Xg = Xv * (1 + grow) + grow * np.trace(Xv[0]) / n * np.eye(n)
+        if check_error_bound(F, C, L, W, V, Xg, M):
+            return Xg
+    return None
+
+
 def design_observer(family: PlantFamily, sensor_n_drop: int, *, kind: str = "per_mode", decay_rate=None,
                     noise=None, time_limit: float | None = None) -> ObserverDesign:
     """Observer gains ``L`` for at most ``sensor_n_drop - 1`` lost measurements in a row, with a certificate.
@@ -416,7 +481,8 @@ def design_observer(family: PlantFamily, sensor_n_drop: int, *, kind: str = "per
             Q = certify_observer(family, Lk, M, decay_rate, time_limit)
             if Q is not None:
                 return ObserverDesign("certified", Lk, Q, decay_rate, "kalman",
-                                      "the steady-state Kalman gains, certified for the sensor losses")
+                                      "the steady-state Kalman gains, certified for the sensor losses",
+                                      error_bound=error_covariance_bound(family, Lk, M, noise, time_limit))
     obstruction = observer_obstruction(family, M)
     if obstruction is not None:
         return ObserverDesign("no_observer", None, None, None, kind,
@@ -451,7 +517,8 @@ def design_observer(family: PlantFamily, sensor_n_drop: int, *, kind: str = "per
     if Qv is None:
         return ObserverDesign("not_certified", L, None, None, kind,
                               "the observer gains from the LMI did not pass the float64 re-check")
-    return ObserverDesign("certified", L, Qv, decay_rate, kind, "observer certified")
+    bound = None if noise is None else error_covariance_bound(family, L, M, noise, time_limit)
+    return ObserverDesign("certified", L, Qv, decay_rate, kind, "observer certified", error_bound=bound)
 
 
 # ------------------------------------------------------------------ the joint certificate

@@ -237,6 +237,8 @@ class ObserverDesign(_Open):
     kind: str | None = Field(None, description="`per_mode`, `common` or `kalman`.")
     message: str | None = Field(None, description="The outcome in words.")
     obstruction: ObserverObstruction | None = Field(None, description="`no_observer`: the proof.")
+    error_bound: list[Matrix] | None = Field(None, description="With `noise`: X_sigma (n x n per sensor node), a "
+                                             "certified bound E[e e'] <= X_sigma under every admissible sensor pattern.")
 
 
 class JointCertificate(_Open):

@@ -398,3 +398,34 @@ def test_trace_figure_draws_the_estimate():
     labels = [line.get_label() for ax in fig.axes for line in ax.get_lines()]
     assert sum("estimate" in lab for lab in labels) == fam.n_states
     assert render(fig, "svg").startswith(b"<?xml")
+
+
+def test_certified_error_covariance_bound():
+    from solver.observer import error_covariance_bound
+
+    fam = motor(modes=1)
+    W, V = np.diag([0.1, 0.2]), 0.05 * np.eye(1)
+    F, C = fam.F[0], fam.C[0]
+    P = riccati_by_iteration(F.T, C.T, W, V)
+    L = P @ C.T @ np.linalg.inv(C @ P @ C.T + V)
+    Sigma = P - L @ C @ P  # the Kalman filter's steady-state filtered covariance
+    X = error_covariance_bound(fam, L[None], 1, (W, V))
+    assert np.allclose(X[0], Sigma, rtol=1e-5, atol=1e-9)  # without losses the bound is the Kalman covariance
+    # With losses: the covariance recursion along random admissible patterns stays below the bound.
+    fam3 = motor()
+    res = design_observer(fam3, 3, noise=(W, V))
+    assert res.outcome == "certified" and res.error_bound is not None
+    Lm, Xb = res.gains, res.error_bound
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        S, lost, l = np.zeros((2, 2)), 0, int(rng.integers(3))
+        for _k in range(60):
+            l_next = int(rng.integers(3))
+            got = lost == 2 or rng.random() < 0.5
+            S = fam3.F[l] @ S @ fam3.F[l].T + W
+            if got:
+                g = np.eye(2) - Lm[l_next] @ fam3.C[l_next]
+                S = g @ S @ g.T + Lm[l_next] @ V @ Lm[l_next].T
+            lost = 0 if got else lost + 1
+            l = l_next
+            assert np.linalg.eigvalsh(Xb[lost] - S)[0] >= -1e-12
