@@ -4,6 +4,7 @@ Public names::
 
     from solver import PlantFamily, design, analyze, simulate
     from solver import Channel, analyze_channel, critical_loss
+    from solver import Network
 
 See ``design`` for the methods, ``analyze`` for certificates and verdicts and
 ``simulate`` for seeded runs of the network of the paper's Sec. II.
@@ -19,6 +20,7 @@ from .certificates import FarkasCertificate, UncontrollableCertificate
 from .design import METHODS, design
 from .errors import InvalidInput, SolverFailed
 from .lyapunov import Certificate
+from .networks import Network
 from .plant import PlantFamily
 from .result import DesignResult, IterationRecord
 from .simulate import SimulationResult, simulate
@@ -26,6 +28,7 @@ from .sdpa import export_sdpa
 
 __all__ = [
     "PlantFamily",
+    "Network",
     "design",
     "analyze",
     "simulate",
