@@ -550,11 +550,9 @@ def monte_carlo_delayed_cost(family, K, channel: Channel, Qw, Rw, exhausted, Pi,
 
 def _network_spec(network) -> dict:
     """The network's JSON form (a :class:`solver.Network` or its ``to_dict()``)."""
-    if isinstance(network, dict):
-        return dict(network)
-    if hasattr(network, "to_dict"):
-        return dict(network.to_dict())
-    raise InvalidInput("network must be a Network (Network.delays(...), ...)", ("network",))
+    from .networks import check_network
+
+    return check_network(network).to_dict()
 
 
 def network_violations(channel: Channel, network, sampling_period: float | None = None) -> dict:

@@ -11,11 +11,11 @@ the computation gave a non-finite value. Result models accept fields they do not
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_serializer
 
-from app.compute.requests import DesignRequest, MarginRequest
+from app.compute.requests import DESIGN_OUTCOMES, DesignRequest, MarginRequest
 
 #: A number in a result; null where the computation gave a non-finite value (NaN, infinity).
 Num = float | None
@@ -213,13 +213,34 @@ class Performance(_Open):
     message: str | None = Field(None, description="The bracket in words.")
 
 
+class NetworkEcho(_Open):
+    """The network a result is for, as the request gave it (`kind` and its parameters)."""
+
+    kind: str = Field(description="`bounded_drops`, `delays`, `weakly_hard`, `automaton` (or `intersection`).")
+    n_drop: int | None = Field(None, description="N: the buffer's age stays <= N - 1.")
+    max_delay: int | None = Field(None, description="`delays`: largest delay (samples).")
+    min_delay: int | None = Field(None, description="`delays`: smallest delay (samples).")
+    misses: int | None = Field(None, description="`weakly_hard`: misses allowed per window.")
+    window: int | None = Field(None, description="`weakly_hard`: the window (samples).")
+    ages: list[int] | None = Field(None, description="`automaton`: the age of each node.")
+    edges: list[list[int]] | None = Field(None, description="`automaton`: the edges `[i, j]`.")
+
+
+#: Every outcome of a design.
+DesignOutcome = Literal[DESIGN_OUTCOMES]  # type: ignore[valid-type]
+
+
 class DesignResult(_Open):
     """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
 
-    outcome: str = Field(description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design "
-                                     "of this method exists, of any margin; `certificate` proves it), `marginal` "
-                                     "(the Farkas certificate excludes only designs with relative margin >= "
-                                     "`certificate.margin`; smaller-margin designs may exist) or `not_converged`.")
+    outcome: DesignOutcome = Field(
+        description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design of this method "
+        "exists, of any margin; `certificate` proves it), `marginal` (the Farkas certificate excludes only designs "
+        "with relative margin >= `certificate.margin`; smaller-margin designs may exist), `not_certified` (on a "
+        "`network`: the convex sufficient condition is proven infeasible, `certificate` attached, which does not "
+        "prove that no gains exist) or `not_converged`.")
+    network: NetworkEcho | None = Field(None, description="The network the gains are designed and certified "
+                                                             "for (as in the request); null: the paper's.")
     method: str | None = Field(None, description="Design method: `lmi`, `ccl` or `switched`.")
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive losses.")
     gains: list[Matrix] | None = Field(
@@ -346,6 +367,8 @@ class AnalysisReport(_Open):
                                                           "the balanced loops; null: none.")
     modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes in order.")
     timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
+    network: NetworkEcho | None = Field(None, description="The network the verdict is for (as in the request); "
+                                                             "null: the paper's.")
 
 
 class Simulation(_Open):
@@ -369,6 +392,9 @@ class Simulation(_Open):
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
     channel_state: list[int] | None = Field(None, description="Channel state (0-based) at each sample, steps "
                                                               "values (runs on a channel only).")
+    ages: list[int] | None = Field(None, description="Age of the buffer's packet at each sample, `k - stamp` "
+                                                     "(runs on a network).")
+    network: NetworkEcho | None = Field(None, description="The network the run's ages were drawn from.")
 
 
 class ModeRun(Simulation):
@@ -593,6 +619,16 @@ class ChannelCertificate(_Open):
     steps: int | None = Field(None, description="Steps of the growth certificate.")
 
 
+class NetworkViolations(_Open):
+    """How often a channel breaks a network's constraint (exact, from its Markov chain)."""
+
+    network: NetworkEcho = Field(description="The network (as in the request).")
+    rate: float = Field(description="Stationary probability per sample that the sample breaks it.")
+    rate_per_second: float | None = Field(None, description="`rate / h` (1/s); null without a sampling period.")
+    mean_time_between: float | None = Field(None, description="`1 / rate` samples; null when it never breaks.")
+    what: str = Field(description="What counts as a violation.")
+
+
 class ChannelAnalysis(_Open):
     """Given gains on a stochastic channel (`POST /v1/channels`)."""
 
@@ -619,6 +655,11 @@ class ChannelAnalysis(_Open):
     plant_transitions: str = Field(description="`stay`, `markov` or `arbitrary`.")
     n_modes: int = Field(description="Modes of the jump system (channel state, plant mode, buffer age).")
     reason: str = Field(description="The verdict in words.")
+    delays: list[float] | None = Field(None, description="The channel's delay distribution, when it has one "
+                                                         "(`burst_rate` is then the rate the buffer's age reaches "
+                                                         "n_drop, late packets included).")
+    network_violations: NetworkViolations | None = Field(None, description="With a request `network`: how often "
+                                                                           "the channel breaks it.")
 
 
 DesignResult.model_rebuild()  # its `channel` field names ChannelAnalysis, defined below it

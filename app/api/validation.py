@@ -293,7 +293,9 @@ def check_performance(req: dict[str, Any], settings: Settings) -> None:
 def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
     """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
     states = {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
-    size = states * shape.r * (n_drop + 1) * (2 * shape.n) ** 2
+    # Late packets: the chain remembers the states of the last W samples, the state W + 1 past x's.
+    window = max(len(getattr(channel, "delays", None) or [1.0]) - 1, 1)
+    size = states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
     if size > settings.max_channel_size:
         errors.append(field_error(["body", "channel"], f"the channel analysis has an operator of size up to {size}, "
                                   f"over the limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)",
@@ -332,3 +334,29 @@ def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_sw
         check_design_inputs(canonical_json(plant), n_drop, plant_switching, scheme)
     except InvalidInput as exc:
         raise invalid([solver_field_error(getattr(exc, "field", ()), str(exc), plant)]) from None
+
+
+def check_network(body: Any, errors: list, function: str | None = None, sets_n_drop: bool = True) -> Any:
+    """A request's ``network``: the solver's own checks (reachability, ages, ``max_delay <= n_drop - 1``, ...)
+    as 422s under ``/network/...``; its ``n_drop`` becomes the request's (an explicit, different ``n_drop`` is
+    an error); and, for ``function`` (``design``, ``analyze``, ``simulate``), whether this solver takes it.
+    Returns the :class:`solver.Network` or None."""
+    if getattr(body, "network", None) is None:
+        return None
+    from app.compute.tasks import network_from_request, network_kwargs
+
+    try:
+        net = network_from_request(body.network.model_dump())
+        if function is not None:
+            network_kwargs(function, net)
+    except InvalidInput as exc:
+        errors.append(solver_field_error(getattr(exc, "field", ()), str(exc)))
+        return None
+    if sets_n_drop:
+        given = body.n_drop if "n_drop" in body.model_fields_set else None
+        if given is not None and given != net.n_drop:
+            errors.append(field_error(["body", "n_drop"], f"n_drop = {given} disagrees with the network's n_drop = "
+                                      f"{net.n_drop} ({net.describe()}): give one of them", "network_mismatch"))
+        else:
+            body.n_drop = net.n_drop
+    return net

@@ -145,17 +145,20 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
     plant = req.plant.model_dump()
     fam = build_family(plant)
+    net = network_from_request(None if req.network is None else req.network.model_dump())
     res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options),
-                 **req.performance_kwargs())
+                 **req.performance_kwargs(), **network_kwargs("design", net))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
+    if net is not None:
+        out["network"] = net.to_dict()
     if req.channel is not None and res.outcome == "stabilized":
         from solver.channel import analyze_channel
 
         n, m = fam.n_states, fam.n_inputs
         weights = (np.eye(n), np.eye(m)) if req.weights is None else (req.weights.Q, req.weights.R)
         rep = analyze_channel(fam, res.gains, req.n_drop, channel_from_request(req.channel.model_dump()),
-                              exhausted=req.exhausted, weights=weights)
+                              exhausted=req.exhausted, weights=weights, network=net)
         out["channel"] = channel_report_json(rep, req.n_drop)
     return add_per_second_rates(out, fam.sampling_period)
 
@@ -217,13 +220,22 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
         except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
             raise InvalidInput(str(exc), ("channel", *exc.field)) from None
         extra.update(exhausted=req.get("exhausted", "hold"), plant_transitions=req.get("plant_transitions"))
+        if (req["channel"].get("delays") or [1.0]) != [1.0]:
+            raise InvalidInput("simulations draw losses from a channel, not its delays: give the delays as a "
+                               "network ({\"kind\": \"delays\", ...}) or analyze them with POST /v1/channels",
+                               ("channel", "delays"))
+    net = network_from_request(req.get("network"))
+    extra.update(network_kwargs("simulate", net))
     tr = simulate(
         fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
         loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
         control_loss=req["control_loss"], plant_switching=req["plant_switching"],
         mode=req.get("mode"), **extra,
     )
-    return jsonable(tr.to_dict())
+    out = jsonable(tr.to_dict())
+    if net is not None:
+        out["network"] = net.to_dict()
+    return out
 
 
 def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> dict[str, Any]:
@@ -266,8 +278,12 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
     for key in ("x0", "disturbance"):
         if req.get(key) is not None:
             kwargs[key] = req[key]
-    rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
-    return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
+    net = network_from_request(req.get("network"))
+    rep = analyze(fam, gains, n_drop=n_drop, **kwargs, **network_kwargs("analyze", net))
+    out = jsonable(rep.to_dict())
+    if net is not None:
+        out["network"] = net.to_dict()
+    return add_per_second_rates(out, fam.sampling_period)
 
 
 def channel_from_request(spec: dict[str, Any]):
@@ -279,6 +295,34 @@ def channel_from_request(spec: dict[str, Any]):
         return Channel.from_dict(spec)
     except InvalidInput as exc:
         raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+
+
+def network_from_request(spec: dict[str, Any] | None):
+    """A request's ``network`` JSON as a :class:`solver.Network` (None when absent); errors name /network/..."""
+    if spec is None:
+        return None
+    from solver.networks import check_network
+
+    return check_network({k: v for k, v in spec.items() if v is not None or k != "n_drop"})
+
+
+def network_kwargs(function: str, net) -> dict[str, Any]:
+    """``{"network": net}`` for a solver function (``design``, ``analyze``, ``simulate``, ``export_c``) that takes
+    one; the paper's network needs none. A solver without network support refuses the others by name (422),
+    instead of silently certifying the paper's network."""
+    if net is None:
+        return {}
+    import inspect
+
+    import solver
+    from solver import InvalidInput
+
+    if "network" in inspect.signature(getattr(solver, function)).parameters:
+        return {"network": net}
+    if net.is_bounded_drops:
+        return {}
+    raise InvalidInput(f"this server's solver.{function} does not take networks yet: {net.describe()} cannot be "
+                       "used here; give a bounded_drops network (or none)", ("network", "kind"))
 
 
 def channel_report_json(rep, n_drop: int) -> dict[str, Any]:
@@ -305,7 +349,7 @@ def run_channel(req: dict[str, Any]) -> dict[str, Any]:
     try:
         rep = analyze_channel(fam, gains, n_drop, channel, exhausted=req["exhausted"],
                               plant_transitions=req.get("plant_transitions"), weights=weights,
-                              noise=req.get("noise"))
+                              noise=req.get("noise"), network=network_from_request(req.get("network")))
     except InvalidInput as exc:
         if exc.field[:1] in (("Q",), ("R",)):
             raise InvalidInput(str(exc), ("weights", *exc.field)) from None
