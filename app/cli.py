@@ -59,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
         p.add_argument("--n-drop", type=int, default=None, help="drop bound (default: the number of gains)")
 
+    def network_args(p):
+        p.add_argument("--network", default=None, metavar="SPEC",
+                       help="the network: drops:N, delays:MAX_DELAY,N[,MIN_DELAY] (late, out-of-order packets) or "
+                            "weakly_hard:MISSES,WINDOW,N; join with & for both (its N is the drop bound)")
+
     def performance_args(p):
         p.add_argument("--weights", default=None, metavar="JSON",
                        help='cost weights, inline or @file: {"Q": [[...]], "R": [[...]]}')
@@ -71,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("design", help="design gains K_1..K_N for a plant file")
     plant_args(d)
-    d.add_argument("--n-drop", type=int, required=True, help="at most n_drop - 1 consecutive losses")
+    d.add_argument("--n-drop", type=int, default=None, help="at most n_drop - 1 consecutive losses (required "
+                   "without --network)")
     d.add_argument("--method", default="lmi", help="design method: lmi (one SDP, default), ccl, ...")
     d.add_argument("--decay-rate", default=None, metavar="LAMBDA",
                    help="default 'auto' (settling within ~1.5x the fastest certifiable loop); a per-sample decay "
@@ -83,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--objective", choices=("stability", "cost", "hinf"), default=None,
                    help="cost: minimize the certified worst-case quadratic cost; hinf: the certified l2 gain")
     d.add_argument("--u-max", default=None, metavar="U1,U2,...", help="input limits (one per input)")
+    network_args(d)
     performance_args(d)
 
     a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")
@@ -90,6 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
     gains_args(a)
     performance_args(a)
     a.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
+    network_args(a)
     a.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
 
     m = sub.add_parser("simulate", help="seeded simulation of given gains with packet losses")
@@ -100,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int, default=42)
     m.add_argument("--plant-switching", choices=("per_interval", "per_sample", "none"), default="per_interval")
     m.add_argument("--mode", type=int, default=None, help="fixed plant mode (0-based) with --plant-switching none")
+    network_args(m)
     m.add_argument("--plot", default=None, metavar="FILE", help="draw the run: .png or .svg")
     m.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the run as JSON")
     g = sub.add_parser("codegen", help="C99 code of the controller and the actuator's buffer for given gains")
@@ -134,6 +143,12 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--channel", dest="channel_file", default=None, metavar="FILE.json",
                       help='channel JSON: {"kind": "markov", "transition": [[...]], "loss": [...]} (or bernoulli, '
                            "gilbert_elliott)")
+    ch.add_argument("--delays", default=None, metavar="P0,P1,...",
+                    help="per-packet delay distribution: P(a packet that arrives is a samples late), a = 0, 1, ...; "
+                         "late packets are applied with their age (newest stamp wins)")
+    ch.add_argument("--network", default=None, metavar="SPEC",
+                    help="also report how often the channel breaks this network (drops:N, delays:D,N, "
+                         "weakly_hard:M,K,N)")
     ch.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
                     help="input once the buffer runs dry (default hold)")
     ch.add_argument("--no-cost", action="store_true", help="skip the expected cost (weights Q = I, R = I)")

@@ -1113,6 +1113,10 @@ def design_channel(family, n_drop: int, channel: Channel, *, exhausted: str = "h
         raise InvalidInput("family must be a PlantFamily", ("family",))
     if not isinstance(channel, Channel):
         raise InvalidInput("channel must be a Channel", ("channel",))
+    if getattr(channel, "delays", None) is not None and len(channel.delays) > 1:
+        raise InvalidInput("design_channel designs for losses only: for late packets design for a network "
+                           "(design(family, network=Network.delays(...))) and check it with analyze_channel",
+                           ("channel", "delays"))
     N = check_n_drop(n_drop)
     exhausted = _check_exhausted(exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs

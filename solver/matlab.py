@@ -15,6 +15,11 @@ name            size                   meaning
 ``outcome``     string                 ``stabilized``, ``infeasible`` or ``not_converged``
 ``certificate`` string                 the certificate's kind, empty when there is none
 ``h``           scalar                 the sampling period in seconds (empty when unknown)
+``network``     string                 on a network only: what the gains are certified for
+                                       (``Network.describe()``, e.g. ``delays(max_delay=2, n_drop=3)``)
+``node_ages``   nodes x 1              on a network only: the buffer age of each automaton node;
+                                       a node-dependent certificate's ``P`` is nodes x (n n_drop) x
+                                       (n n_drop), ``P(i,:,:)`` for node i
 ==============  =====================  ==========================================================
 
 ``F``/``G`` use MATLAB's convention so that a written file is also a plant file for
@@ -108,6 +113,13 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
     X_inv = _get(result, "invariant_set")
     if X_inv is not None:  # inputs within u_max from every x with x' X_inv x <= 1
         out["X_inv"] = np.asarray(X_inv, dtype=float)
+    network = _get(result, "network")
+    if network is not None:  # the certificate holds for this network only: say which
+        from .networks import check_network
+
+        net = check_network(network)
+        out["network"] = net.describe()
+        out["node_ages"] = np.asarray(net.ages, dtype=float).reshape(-1, 1)
     return out
 
 
@@ -162,7 +174,8 @@ def m_script(result, family: PlantFamily | None = None, name: str | None = None)
     K = variables["K"]
     lines = [
         f"% ncs-design controller{' ' + name if name else ''}: outcome {variables['outcome']}, "
-        f"n_drop = {int(variables['n_drop'])}",
+        f"n_drop = {int(variables['n_drop'])}" + (f", network {variables['network']}" if "network" in variables
+                                                  else ""),
         "% K(q,:,:) = K_q (n_drop x m x n); Kq the same one by one; the buffer plays u(i_m+q-1) = Kq * x(i_m).",
         "% F(:,:,l), G(:,:,l): plant mode l; P: the Lyapunov certificate (see docs/design.md); h in seconds.",
         f"% sizes: n = {K.shape[2]} states, m = {K.shape[1]} inputs, r = {variables['F'].shape[2]} plant modes",
