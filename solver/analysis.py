@@ -94,6 +94,11 @@ class AnalysisReport:
     scaling: list | None = None
     cost: object | None = None
     hinf: object | None = None
+    #: When ``stable`` is False: the destabilizing cycle as ``{"ages": [...], "modes": [...]}`` (one entry
+    #: per sample, repeated forever); on a general network also the automaton ``"nodes"``.
+    unstable_cycle: dict | None = None
+    #: ``Network.to_dict()`` of the network analyzed (None: given by n_drop only).
+    network: dict | None = None
 
     @property
     def max_spectral_radius(self) -> float:
@@ -129,6 +134,8 @@ class AnalysisReport:
             "timings": self.timings,
             "cost": None if self.cost is None else self.cost.to_dict(),
             "hinf": None if self.hinf is None else self.hinf.to_dict(),
+            "unstable_cycle": self.unstable_cycle,
+            "network": self.network,
         }
 
 
@@ -230,8 +237,9 @@ def _check_products_fit_float64(A: np.ndarray, max_product_length: int) -> None:
 def analyze(
     family: PlantFamily,
     gains,
-    n_drop: int,
+    n_drop: int | None = None,
     *,
+    network=None,
     max_product_length: int = 4,
     max_products: int = 100_000,
     plant_switching: str = "per_interval",
@@ -253,7 +261,17 @@ def analyze(
     family : PlantFamily
     gains : array_like, shape (n_drop, m, n)
         ``gains[q-1] = K_q`` (for m = 1 also (n_drop, n)).
-    n_drop : int
+    n_drop : int, optional
+        The paper's network ``Network.bounded_drops(n_drop)``; give this or ``network``.
+    network : Network, dict or str, optional
+        The admissible packet patterns (:class:`solver.Network`; docs/design.md, "Networks: delays and
+        weakly-hard patterns").  One equal to ``bounded_drops`` takes the interval analysis below
+        unchanged; any other is analyzed on the augmented state with one quadratic Lyapunov function
+        per automaton state (:mod:`solver.network_analysis`): ``certificate`` is then a
+        ``NetworkCertificate``, ``unstable_cycle`` the proven destabilizing admissible cycle,
+        ``jsr_lower_bound``/``jsr_upper_bound`` bracket the constrained JSR per sample, and
+        ``max_product_length`` bounds the cycle length searched.  ``weights``/``disturbance`` and the
+        switched certificate are not available there.
     max_product_length : int
         Longest product of modes searched for a destabilizing pattern (1..12).
     max_products : int
@@ -290,6 +308,19 @@ def analyze(
     start = time.perf_counter()
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
+    net = None
+    if network is not None:
+        from .networks import check_network
+
+        net = check_network(network, n_drop)
+        n_drop = net.n_drop
+        if not net.is_bounded_drops:
+            return _analyze_network(family, gains, net, start, max_product_length=max_product_length,
+                                    max_products=max_products, plant_switching=plant_switching, bounds=bounds,
+                                    rate_tol=rate_tol, solver=solver, weights=weights, x0=x0,
+                                    disturbance=disturbance, output=output)
+    elif n_drop is None:
+        raise InvalidInput("give n_drop (the paper's network) or network=Network...", ("n_drop",))
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     K = check_gains(gains, modes.n_drop, family.n_inputs, family.n_states)
@@ -401,7 +432,43 @@ def analyze(
         timings={"total": time.perf_counter() - start},
         cost=cost,
         hinf=hinf,
+        unstable_cycle=_interval_cycle(worst) if stable is False else None,
+        network=None if net is None else net.to_dict(),
     )
+
+
+def _interval_cycle(worst: list) -> dict:
+    """The ages and plant modes, sample by sample, of a destabilizing sequence of intervals."""
+    ages, plants = [], []
+    for w in worst:
+        ages += list(range(w["eta"]))
+        plants += list(w["plants"]) if "plants" in w else [w["plant"]] * w["eta"]
+    return {"ages": ages, "modes": plants}
+
+
+def _analyze_network(family, gains, net, start, *, max_product_length, max_products, plant_switching, bounds,
+                     rate_tol, solver, weights, x0, disturbance, output) -> AnalysisReport:
+    """analyze() on a network other than bounded_drops (solver/network_analysis.py)."""
+    from .network_analysis import analyze_network
+
+    if any(v is not None for v in (weights, x0, disturbance, output)):
+        raise InvalidInput(f"cost and H-infinity brackets are computed on bounded_drops networks only, not on "
+                           f"{net.describe()}", ("weights" if weights is not None else "disturbance",))
+    K = check_gains(gains, net.n_drop, family.n_inputs, family.n_states)
+    if isinstance(max_product_length, bool) or not isinstance(max_product_length, (int, np.integer)) or not (
+        1 <= max_product_length <= 12
+    ):
+        raise InvalidInput("max_product_length must be an integer in 1..12", ("max_product_length",))
+    if isinstance(max_products, bool) or not isinstance(max_products, (int, np.integer)) or not (
+        1 <= max_products <= MAX_PRODUCTS
+    ):
+        raise InvalidInput(f"max_products must be an integer in 1..{MAX_PRODUCTS}", ("max_products",))
+    if bounds not in ("quadratic", "all", "none"):
+        raise InvalidInput("bounds must be 'quadratic', 'all' or 'none'", ("bounds",))
+    solver = check_solver(solver)
+    fields = analyze_network(family, K, net, plant_switching=plant_switching, max_product_length=max_product_length,
+                             max_products=max_products, bounds=bounds, rate_tol=rate_tol, solver=solver)
+    return AnalysisReport(**fields, timings={"total": time.perf_counter() - start}, network=net.to_dict())
 
 
 def _performance(modes: ModeSet, K: np.ndarray, weights, x0, disturbance, output, solver: str):

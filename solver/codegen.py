@@ -48,8 +48,8 @@ def _number(x: float) -> str:
     return text if ("e" in text or "." in text or "inf" in text) else text + ".0"
 
 
-def export_c(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs", *,
-             metadata: dict | None = None) -> dict[str, str]:
+def export_c(gains, n_drop: int | None = None, exhausted: str = "hold", prefix: str = "ncs", *,
+             metadata: dict | None = None, network=None) -> dict[str, str]:
     """C99 sources of the controller's packet and the actuator's buffer.
 
     Parameters
@@ -69,6 +69,9 @@ def export_c(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs", *
     metadata : dict, optional
         Named in the header comment: ``id``, ``method``, ``certificate`` (kind) and
         anything else (str keys, short values).
+    network : Network, dict or str, optional
+        The network the gains are certified for (:class:`solver.Network`); the header names it
+        (``network: delays(max_delay=2, n_drop=3)``) and ``n_drop`` defaults to its ``n_drop``.
 
     Returns
     -------
@@ -101,6 +104,14 @@ def export_c(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs", *
         if result.certificate is not None:
             meta.setdefault("certificate", result.certificate.kind)
         gains = result.gains
+        if network is None and getattr(result, "network", None) is not None:
+            network = result.network
+    if network is not None:
+        from .networks import check_network
+
+        net = check_network(network, n_drop)
+        n_drop = net.n_drop
+        meta["network"] = f"{net.describe()} (the network the gains are certified for)"
     n_drop = check_n_drop(n_drop)
     try:
         K = np.array(gains, dtype=np.float64)

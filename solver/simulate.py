@@ -66,6 +66,10 @@ class SimulationResult:
     n_drop: int
     #: Channel state per sample (runs on a :class:`~solver.channel.Channel` only).
     channel_state: np.ndarray | None = None
+    #: Age ``d(k) = k - stamp`` of the packet the buffer plays at sample k (-1: no packet yet), shape (steps,).
+    ages: np.ndarray | None = None
+    #: ``Network.to_dict()`` of the network simulated (runs given ``network=``).
+    network: dict | None = None
 
     def settling_samples(self, fraction: float = 0.02) -> int | None:
         """First sample from which ``|x(k)| <= fraction |x(0)|`` for the rest of the run (None: not settled).
@@ -82,7 +86,10 @@ class SimulationResult:
 
     def to_dict(self) -> dict:
         extra = {} if self.channel_state is None else {"channel_state": self.channel_state.tolist()}
+        if self.network is not None:
+            extra["network"] = self.network
         return extra | {
+            "ages": None if self.ages is None else self.ages.tolist(),
             "t": self.time.tolist(),
             "x": self.state.tolist(),
             "u": self.input.tolist(),
@@ -113,11 +120,13 @@ def _probability(name: str, value) -> float:
 def simulate(
     family: PlantFamily,
     gains,
-    n_drop: int,
-    x0,
-    steps: int,
-    seed: int,
+    n_drop: int | None = None,
+    x0=None,
+    steps: int | None = None,
+    seed: int | None = 0,
     *,
+    network=None,
+    arrivals=None,
     loss_model: str = "paper",
     sensor_loss: float = 0.2,
     control_loss: float = 0.2,
@@ -134,13 +143,28 @@ def simulate(
     ----------
     family : PlantFamily
     gains : array_like, shape (n_drop, m, n)
-    n_drop : int
+    n_drop : int, optional
+        The paper's network; give this or ``network``.
     x0 : array_like, shape (n,)
         Initial state.
     steps : int
         Number of samples simulated (>= 1).
     seed : int
-        Seed of ``Generator(PCG64(seed))``.
+        Seed of ``Generator(PCG64(seed))`` (default 0).
+    network : Network, dict or str, optional
+        Draw admissible age sequences of this network (:class:`solver.Network`): the run starts at a
+        node of the smallest age, uniformly, and moves to a successor drawn uniformly at every sample;
+        the state before sample 0 is ``x0`` (a packet of age d at sample 0 carries ``x(-d) = x0``).
+        Plant jumps as ``plant_switching`` says, "per_interval" meaning at samples where a newer
+        packet reached the buffer.  A network equal to ``bounded_drops`` runs the loss models below
+        unchanged.  ``tr.ages`` holds the ages, ``tr.effective`` marks samples with a newer packet.
+    arrivals : sequence of (int, int), optional
+        Replay these packet deliveries instead of drawing any: ``(stamp, arrival_sample)`` delivers
+        the packet computed from ``x(stamp)`` just before the output of ``arrival_sample``
+        (``>= stamp``).  The buffer keeps the newest stamp (late, reordered and duplicate packets as
+        in the generated C buffer, :func:`solver.export_c`); before the first packet the input is
+        zero; once the held packet is ``n_drop`` or more samples old, ``exhausted`` applies.
+        Deliveries at or after ``steps`` are ignored.
     loss_model : {"paper", "bernoulli"}
         ``"paper"``: at each effective step the next interval length eta is
         uniform in 1..n_drop, and each lost step loses the sensor or the
@@ -175,6 +199,19 @@ def simulate(
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
+    net = None
+    if network is not None:
+        from .networks import check_network
+
+        net = check_network(network, n_drop)
+        n_drop = net.n_drop
+    elif n_drop is None:
+        raise InvalidInput("give n_drop (the paper's network) or network=Network...", ("n_drop",))
+    if x0 is None:
+        raise InvalidInput("x0 (the initial state) is required", ("x0",))
+    if steps is None:
+        raise InvalidInput("steps is required", ("steps",))
+    seed = 0 if seed is None else seed
     n_drop = check_n_drop(n_drop)
     n, m, r = family.n_states, family.n_inputs, family.n_modes
     K = check_gains(gains, n_drop, m, n)
@@ -200,6 +237,15 @@ def simulate(
     if mode is not None and (isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < r):
         raise InvalidInput(f"mode must be an integer in 0..{r - 1}", ("mode",))
 
+    if arrivals is not None or (net is not None and not net.is_bounded_drops):
+        if channel is not None:
+            raise InvalidInput("channel and network/arrivals are alternatives: pass one", ("channel",))
+        if plant_switching not in ("per_interval", "per_sample", "none"):
+            raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
+        tr = _simulate_network(family, K, n_drop, x, steps, int(seed), mode, net, arrivals, exhausted,
+                               plant_switching, switch_probability)
+        tr.network = None if net is None else net.to_dict()
+        return tr
     if channel is not None:
         return _simulate_channel(family, K, n_drop, x, steps, int(seed), mode, channel, exhausted, plant_transitions)
     if plant_transitions is not None:
@@ -278,6 +324,8 @@ def simulate(
         loss_model=loss_model,
         plant_switching=plant_switching,
         n_drop=n_drop,
+        ages=qs - 1,
+        network=None if net is None else net.to_dict(),
     )
 
 
@@ -344,4 +392,104 @@ def _simulate_channel(family, K, n_drop, x, steps, seed, mode, channel, exhauste
         plant_switching="stay" if kind == "stay" else "markov",
         n_drop=n_drop,
         channel_state=states,
+        ages=qs - 1,
+    )
+
+
+def check_arrivals(arrivals) -> list:
+    """``[(stamp, arrival_sample), ...]`` as int pairs with ``0 <= stamp <= arrival_sample``."""
+    try:
+        pairs = [tuple(p) for p in arrivals]
+    except TypeError:
+        raise InvalidInput("arrivals must be a list of [stamp, arrival_sample] pairs", ("arrivals",)) from None
+    out = []
+    for k, p in enumerate(pairs):
+        if len(p) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in p):
+            raise InvalidInput(f"arrivals[{k}] must be a pair of integers [stamp, arrival_sample]", ("arrivals", k))
+        stamp, at = int(p[0]), int(p[1])
+        if stamp < 0:
+            raise InvalidInput(f"arrivals[{k}]: stamp {stamp} must be >= 0 (sample 0 is the first)", ("arrivals", k))
+        if at < stamp:
+            raise InvalidInput(f"arrivals[{k}]: a packet stamped {stamp} cannot arrive at sample {at}, before it "
+                               "was sent (arrival_sample >= stamp)", ("arrivals", k))
+        out.append((stamp, at))
+    return out
+
+
+def _simulate_network(family, K, n_drop, x, steps, seed, mode, net, arrivals, exhausted, plant_switching,
+                      switch_probability):
+    """One run whose buffer ages follow a network automaton (drawn) or a list of deliveries (replayed)."""
+    from .channel import _check_exhausted
+
+    exhausted = _check_exhausted(exhausted)
+    r, n, m = family.n_modes, family.n_states, family.n_inputs
+    rng = np.random.Generator(np.random.PCG64(seed))
+    # Fixed draw order: start node, successors, initial plant mode, jumps, jump modes.
+    draw_start = rng.random()
+    draw_next = rng.random(steps)
+    first_mode = int(rng.integers(0, r))
+    draw_switch = rng.random(steps)
+    draw_mode = rng.integers(0, r, size=steps)
+    current = first_mode if mode is None else int(mode)
+    ages = np.empty(steps, dtype=np.int64)
+    if arrivals is not None:
+        by_sample: dict = {}
+        for stamp, at in check_arrivals(arrivals):
+            if at < steps:
+                by_sample.setdefault(at, []).append(stamp)
+        newest = None
+        for t in range(steps):
+            for stamp in by_sample.get(t, ()):
+                newest = stamp if newest is None else max(newest, stamp)
+            ages[t] = -1 if newest is None else t - newest
+    else:
+        low = int(net.ages.min())
+        starts = [i for i in range(net.nodes) if net.ages[i] == low]
+        node = starts[min(int(draw_start * len(starts)), len(starts) - 1)]
+        for t in range(steps):
+            ages[t] = net.ages[node]
+            succ = net.successors(node)
+            node = succ[min(int(draw_next[t] * len(succ)), len(succ) - 1)]
+    state = np.empty((steps + 1, n))
+    inputs = np.empty((steps, m))
+    modes = np.empty(steps, dtype=np.int64)
+    effective = np.zeros(steps, dtype=bool)
+    state[0] = x
+    for t in range(steps):
+        d = int(ages[t])
+        fresh = d >= 0 and (t == 0 or ages[t - 1] < 0 or d <= ages[t - 1])
+        effective[t] = fresh
+        jump = t > 0 and (plant_switching == "per_sample" or (plant_switching == "per_interval" and fresh))
+        if jump and draw_switch[t] < switch_probability:
+            current = int(draw_mode[t])
+        if d < 0:
+            u = np.zeros(m)
+        else:
+            xs = state[max(t - d, 0)]  # before sample 0 the state is x0
+            if d < n_drop:
+                u = K[d] @ xs
+            else:
+                u = K[n_drop - 1] @ xs if exhausted == "hold" else np.zeros(m)
+        x = family.F[current] @ x + family.G[current] @ u
+        state[t + 1] = x
+        inputs[t] = u
+        modes[t] = current
+    starts = np.flatnonzero(effective)
+    h = family.sampling_period
+    return SimulationResult(
+        time=np.arange(steps + 1) * (h if h is not None else 1.0),
+        state=state,
+        input=inputs,
+        mode=modes,
+        sensor_arrived=effective.copy(),
+        control_arrived=effective.copy(),
+        effective=effective,
+        buffer_index=ages + 1,
+        interval_start=starts,
+        eta=np.diff(starts),
+        seed=seed,
+        loss_model="arrivals" if arrivals is not None else "network",
+        plant_switching=plant_switching,
+        n_drop=n_drop,
+        ages=ages,
     )
