@@ -165,6 +165,10 @@ class DesignSize:
     n_variables: int
     memory: float
     seconds: float
+    #: Automaton nodes of a network design (None for the paper's network).
+    nodes: int | None = None
+    #: Side of the Lyapunov matrices of a network design (n, or n n_drop on the augmented state).
+    state_size: int | None = None
 
     def check(self, max_memory: float | None = None, max_seconds: float | None = None, *, solves: int = 1,
               memory_name: str = "NCS_SOLVER_MAX_MEMORY or max_memory=",
@@ -180,6 +184,10 @@ class DesignSize:
         what = (f"the {self.method} design ({self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
                 f"{self.n_variables} variables)")
         hint = "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else ", or the lmi method")
+        if self.nodes is not None:
+            what = (f"the network design ({self.nodes} automaton nodes, {self.n_modes} transitions x plant modes, "
+                    f"state size {self.state_size}, LMI size {self.lmi_size}, {self.n_variables} variables)")
+            hint = "use a network with fewer nodes, a smaller n_drop or fewer plant modes"
         if max_memory and self.memory > max_memory:
             raise InvalidInput(f"{what} would need about {_bytes(self.memory)} of solver memory, over the limit "
                                f"of {_bytes(max_memory)} ({memory_name}): {hint}", ("n_drop",))
@@ -196,8 +204,11 @@ def _bytes(x: float) -> str:
 
 def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
                 plant_switching: str = "per_interval", scheme: str = "predictive",
-                solver: str = "AUTO") -> DesignSize:
+                solver: str = "AUTO", network=None) -> DesignSize:
     """Size and estimated cost of a design SDP, from its dimensions alone (no arrays are built).
+
+    ``network`` (a :class:`solver.Network` other than bounded drops): the network design's SDP
+    (:func:`network_design_size`) instead; ``n_drop`` is then the network's.
 
     ``solver``: with ``"AUTO"``/``"IPM"`` the memory is the structured IPM's (Schur pieces per block and
     the Schur complement); with a general conic solver (``"CLARABEL"``, ``"SCS"``) also its dense
@@ -207,6 +218,8 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``).  A mode of interval
     length eta involves the gains ``K_1..K_eta`` only, so the variables a block touches grow with eta.
     """
+    if network is not None and not getattr(network, "is_bounded_drops", False):
+        return network_design_size(network, n_states, n_inputs, n_plants, plant_switching)
     n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(n_drop)
     J = N if scheme == "predictive" else 1
     sym = n * (n + 1) // 2
@@ -240,6 +253,41 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * sides[0][0])
     seconds = ESTIMATE_ITERATIONS * (flops / rate + n_blocks * ESTIMATE_SECONDS_PER_BLOCK)
     return DesignSize(method, S, lmi, p, memory, float(min(seconds, 10**300)))
+
+
+def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
+                        plant_switching: str = "per_interval") -> DesignSize:
+    """Size of the network design (:mod:`solver.methods.network_lmi`), from the automaton's structure alone.
+
+    Nodes x plant modes x the state the Lyapunov matrices live on: the lifted form (every packet that takes
+    effect is fresh) has one block of side 2n per reception-to-reception path and plant mode and one n x n
+    matrix per reception node; the augmented form one block of side ``2 n N`` per edge and plant mode and one
+    ``n N x n N`` matrix per node.  Its cone complementarity fallback has twice the node matrices.  Memory: the
+    larger of the Schur pieces and a general conic solver's dense ``(k(k+1)/2)^2`` scaling per PSD cone of side k
+    (Clarabel runs it).
+    """
+    from .methods.network_lmi import fresh_age, lifted_edges
+
+    n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(network.n_drop)
+    if fresh_age(network):
+        edges = lifted_edges(network)
+        V = len({v for v, _, _ in edges} | {w for _, w, _ in edges})
+        E = sum(r if plant_switching == "per_interval" else r**eta for _, _, eta in edges)
+        k, zvars = n, n * n
+    else:
+        V, E, k, zvars = int(network.nodes), len(network.edges) * r, n * N, N * n * n
+    sym = k * (k + 1) // 2
+    p = zvars + 2 * V * sym + N * m * n + 1
+    touched = zvars + 4 * sym + N * m * n + 1
+    pieces = E * touched**2
+    cones = [(2 * k, E + V), (k, V)]
+    conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in cones)
+    memory = float(min(max(8 * (pieces + p * p), conic), 10**300))
+    flops = float(min(2 * k * pieces + p**3 / 3, 10**300))
+    rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * 2 * k)
+    seconds = ESTIMATE_ITERATIONS * (flops / rate + (E + 2 * V) * ESTIMATE_SECONDS_PER_BLOCK)
+    return DesignSize("network", E, 2 * k * E + k * V, p, memory, float(min(seconds, 10**300)),
+                      nodes=int(network.nodes), state_size=k)
 
 
 def check_solver(solver: str) -> str:

@@ -47,7 +47,7 @@ def _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol
 
 def design(
     family: PlantFamily,
-    n_drop: int,
+    n_drop: int | None = None,
     method: str = "lmi",
     *,
     solver: str = "AUTO",
@@ -69,6 +69,7 @@ def design(
     output=None,
     u_max=None,
     max_memory: float | None = None,
+    network=None,
 ) -> DesignResult:
     """Design gains ``K_1..K_{n_drop}`` that stabilize the networked loop under any losses and jumps.
 
@@ -76,8 +77,9 @@ def design(
     ----------
     family : PlantFamily
         r plant modes with n states and m inputs.
-    n_drop : int
-        Drop bound N >= 1: at most ``n_drop - 1`` consecutive lost packets.
+    n_drop : int, optional
+        Drop bound N >= 1: at most ``n_drop - 1`` consecutive lost packets (the number of gains).
+        Taken from ``network`` when one is given (an error when both are given and differ).
     method : {"lmi", "ccl", "switched"}
         ``"lmi"``: the exact convex design (one SDP, common quadratic Lyapunov
         function). ``"ccl"``: the paper's cone complementarity linearization.
@@ -161,6 +163,17 @@ def design(
         Input limits: every applied input must satisfy ``|u_j(k)| <= u_max[j]`` from every initial state
         of ``res.invariant_set`` (X of ``x' X x <= 1``; with the largest ball around 0 the design can fit in it,
         and ``x0`` when given) under every allowed pattern.  With ``objective="cost"`` it needs ``x0``; not with "hinf".
+    network : solver.Network, optional
+        The admissible buffer-age sequences (docs/design.md, "Design on a network").  A bounded-drops
+        network runs exactly the design above with its ``n_drop``.  Any other runs the network design
+        (:mod:`solver.methods.network_lmi`: node-dependent Lyapunov matrices with a common slack, then cone
+        complementarity on the exact node conditions when the convex one certifies nothing), method "lmi"
+        and scheme "predictive" only, Clarabel; ``decay_rate`` None, a number, "max" or "auto" (the
+        bisection runs on the convex condition); ``objective``, ``u_max`` and the other performance options
+        are not supported yet there.  Outcomes: "stabilized" (a node certificate re-checked in float64),
+        "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
+        and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven
+        infeasible by a Farkas certificate: other gains may exist), "not_converged".
 
     Returns
     -------
@@ -180,6 +193,19 @@ def design(
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
+    if network is not None:
+        from .networks import check_network
+
+        n_drop = _network_n_drop(network, n_drop)
+        network = check_network(network)
+        if not network.is_bounded_drops:
+            return _network_design(family, network, method, solver=solver, margin=margin, max_iter=max_iter,
+                                   time_limit=time_limit, callback=callback, ccl_start=ccl_start,
+                                   decay_rate=decay_rate, rate_tol=rate_tol, plant_switching=plant_switching,
+                                   scheme=scheme, scaling=scaling, objective=objective,
+                                   performance=(weights, x0, disturbance, output, u_max), max_memory=max_memory)
+    elif n_drop is None:
+        raise InvalidInput("n_drop is required (or give a network)", ("n_drop",))
     if method not in METHODS:
         raise InvalidInput(f"method must be one of {sorted(METHODS)}, got {method!r}", ("method",))
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
@@ -190,8 +216,11 @@ def design(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        return _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                   margin, max_iter, time_limit, callback, decay_rate)
+        res = _performance_design(modes, method, objective, weights, x0, disturbance, output, u_max, solver,
+                                  margin, max_iter, time_limit, callback, decay_rate)
+        if network is not None:
+            res.network = network.to_dict()
+        return res
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -215,7 +244,158 @@ def design(
     if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
         res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                           family.sampling_period)
+    if network is not None and res is not None:
+        res.network = network.to_dict()
     return res
+
+
+def _network_n_drop(network, n_drop) -> int:
+    """The network's n_drop; a different ``n_drop`` given beside it is an error."""
+    from .networks import check_network
+
+    return check_network(network, None if n_drop is None else check_n_drop(n_drop)).n_drop
+
+
+def _network_design(family: PlantFamily, network, method: str, *, solver, margin, max_iter, time_limit, callback,
+                    ccl_start, decay_rate, rate_tol, plant_switching, scheme, scaling, objective, performance,
+                    max_memory) -> DesignResult:
+    """The design on a network other than bounded drops (:mod:`solver.methods.network_lmi`)."""
+    from .certificates import uncontrollable_mode
+    from .methods import network_lmi
+
+    where = f"not supported yet for network={network.describe()}"
+    if method != "lmi":
+        raise InvalidInput(f"method={method!r} is {where}: use method='lmi'", ("method",))
+    _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
+    if scheme != "predictive":
+        raise InvalidInput(f"scheme={scheme!r} is {where}", ("scheme",))
+    if plant_switching not in PLANT_SWITCHING:
+        raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
+    if scaling not in ("auto", "none"):
+        raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
+    if objective != "stability":
+        raise InvalidInput(f"objective={objective!r} is {where}", ("objective",))
+    for name, value in zip(("weights", "x0", "disturbance", "output", "u_max"), performance):
+        if value is not None:
+            raise InvalidInput(f"{name} is {where}", (name,))
+    check_solver(solver)
+    size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
+                       solver=solver, network=network)
+    size.check(max_memory, float("inf") if time_limit is not None else None,
+               solves=solve_count("lmi", decay_rate, rate_tol, max_iter))
+    start = time.perf_counter()
+    with blas_threads(1):
+        prob = network_lmi.build_problem(family, network, plant_switching)
+        unc = uncontrollable_mode(np.asarray(family.F, float), np.asarray(family.G, float), 1.0)
+        if unc is not None:  # an unstable mode no input reaches: no gains at all, on any network
+            res = DesignResult(outcome="infeasible", gains=None, certificate=unc, method="network_lmi",
+                               n_drop=network.n_drop, plant_switching=plant_switching,
+                               message=f"{unc.statement()}: no gains stabilize the loop on {network.describe()}")
+        else:
+            res = _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter,
+                                 plant_switching, start)
+        if res.outcome not in ("stabilized", "infeasible") and network_lmi.contains_bounded_drops(network):
+            res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
+    res.network = network.to_dict() if hasattr(network, "to_dict") else None
+    if prob.form == "augmented" and family.n_modes > 1 and plant_switching == "per_interval":
+        res.message += "; the augmented certificate lets the plant mode switch at every sample (it covers per_interval)"
+    res.timings["total"] = time.perf_counter() - start
+    if res.outcome == "stabilized" and res.decay_rate is not None:
+        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, None),
+                                          family.sampling_period)
+    return res
+
+
+def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, start, time_limit) -> DesignResult:
+    """"infeasible" when the network admits every bounded-drops run and today's design is proven infeasible there.
+
+    Gains that stabilize the network stabilize every run it admits, so a proof that none stabilizes the
+    bounded-drops runs (in the sense of that proof) carries over; the converse direction would be wrong.
+    """
+    remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    if remaining is not None and remaining <= 0:
+        return res
+    try:
+        base = design(family, network.n_drop, "lmi", decay_rate=None, plant_switching=plant_switching,
+                      time_limit=remaining)
+    except (SolverFailed, InvalidInput):
+        return res
+    if base.outcome != "infeasible":
+        return res
+    base.method = "network_lmi"
+    base.history = res.history + base.history
+    base.message = (f"infeasible on {network.describe()}: it admits every run of bounded_drops({network.n_drop}), "
+                    f"and for those: {base.message} (network design before this proof: {res.outcome})")
+    return base
+
+
+def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter, plant_switching,
+                   start) -> DesignResult:
+    """``decay_rate`` on a network: a number or None directly; "max"/"auto" by bisection on the convex condition.
+
+    The bisection accepts a rate only with a re-checked certificate; a step without one (not proven
+    infeasible) counts as a failure for the bisection only.  When the convex condition certifies nothing at
+    rate 1, "auto" falls back to plain stability (with the cone complementarity fallback); "max" reports it.
+    """
+    from .methods import network_lmi
+
+    def left():
+        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+
+    def recheck(gains, rate):
+        """Plain stability: the network analysis must accept the gains (its own certificate is kept)."""
+        if rate is not None:
+            return True, None  # analyze() has no rate: the float64 re-check of the node matrices at the rate
+        from .analysis import analyze
+
+        try:
+            rep = analyze(family, gains, network=network, plant_switching=plant_switching)
+        except (InvalidInput, SolverFailed):
+            return False, None
+        return rep.stable is True, rep.certificate
+
+    def one(rate, use_ccl=True):
+        return network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
+                               time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
+                               recheck=recheck)
+
+    if decay_rate not in ("max", "auto"):
+        return one(None if decay_rate is None else float(decay_rate))
+    best = one(1.0, use_ccl=False)
+    if best.outcome != "stabilized":
+        plain = one(None)
+        plain.message += f"; decay_rate={decay_rate!r}: the convex condition certifies no decay rate"
+        return plain
+    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
+    tol = AUTO_SETTLING_TOLERANCE if decay_rate == "auto" else rate_tol
+    while hi > MIN_RATE and (time_limit is None or time.perf_counter() - start < time_limit):
+        if decay_rate == "auto":
+            s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
+            if s_lo <= (1 + tol) * s_hi:
+                break
+            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+        else:
+            if hi - lo <= tol * hi:
+                break
+            mid = 0.5 * (lo + hi)
+        res = one(mid, use_ccl=False)
+        tries.append({"decay_rate": mid, "outcome": res.outcome})
+        if res.outcome == "stabilized":
+            hi, best = mid, res
+        else:
+            lo = mid
+    fastest = hi
+    if decay_rate == "auto" and hi < 1.0:
+        target = fastest ** (1.0 / AUTO_SLOWDOWN)
+        res = one(target, use_ccl=False)
+        tries.append({"decay_rate": target, "outcome": res.outcome})
+        if res.outcome == "stabilized":
+            best = res
+    best.rate_search = tries
+    best.rate_bracket = {"lower": lo, "upper": fastest, "lower_proven": False, "relative_tolerance": tol}
+    best.message += (f"; decay_rate={decay_rate!r}: smallest rate certified by the convex condition {fastest:.6g}, "
+                     f"bracket [{lo:.6g}, {fastest:.6g}] (lower end not proven)")
+    return best
 
 
 def _performance_design(modes: ModeSet, method, objective, weights, x0, disturbance, output, u_max, solver,

@@ -9,7 +9,7 @@ import numpy as np
 
 from .lyapunov import Certificate
 
-OUTCOMES = ("stabilized", "infeasible", "marginal", "not_converged")
+OUTCOMES = ("stabilized", "infeasible", "marginal", "not_certified", "not_converged")
 
 
 def _num(x):
@@ -124,11 +124,14 @@ class DesignResult:
 
     Attributes
     ----------
-    outcome : {"stabilized", "infeasible", "marginal", "not_converged"}
+    outcome : {"stabilized", "infeasible", "marginal", "not_certified", "not_converged"}
         ``stabilized`` only with a certificate that passed the float64 re-check; ``infeasible``
         only with a proof that no design of any margin exists (up to the Farkas certificate's
         ``gain_bound_any_margin``); ``marginal`` when the Farkas certificate excludes only designs
-        whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist).
+        whose relative margin reaches ``certificate.margin`` (designs with a smaller margin may exist);
+        ``not_certified`` (designs on a network): the convex sufficient condition is proven infeasible
+        (its Farkas certificate in ``certificate``, re-checked in float64), which does not prove that no
+        gains exist.
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``; the last iterate's gains when not stabilized (may be None).
     certificate : Certificate or None
@@ -174,6 +177,8 @@ class DesignResult:
         ``seconds`` to 2 % of the initial state's norm, worst case over every allowed sequence;
         the rate as ``decay_rate`` (per sample), ``decay_factor_per_second``, ``exponential_rate``
         (1/s) and ``time_constant`` (s); ``metric_condition``.  None without a certified rate.
+    network : dict or None
+        The network the design is made for (``Network.to_dict()``); None for the paper's bounded drops.
     """
 
     outcome: str
@@ -198,6 +203,7 @@ class DesignResult:
     performance: object | None = None
     invariant_set: np.ndarray | None = None
     settling: dict | None = None
+    network: dict | None = None
 
     @property
     def iterations(self) -> int:
@@ -240,6 +246,7 @@ class DesignResult:
             "performance": None if self.performance is None else self.performance.to_dict(),
             "invariant_set": None if self.invariant_set is None else self.invariant_set.tolist(),
             "settling": self.settling,
+            "network": self.network,
         }
 
 

@@ -1,0 +1,616 @@
+"""Convex design on a network automaton (docs/design.md, "Design on a network").
+
+A network (:class:`solver.Network`) is a finite automaton whose runs are the admissible buffer-age sequences.
+The design looks for one quadratic Lyapunov function per automaton node and one set of gains, through a
+common slack ``Z`` (de Oliveira, Bernussou and Geromel 1999; with node-dependent matrices as in Lee and
+Dullerud 2006): for every transition ``v -> w`` of the automaton and every plant mode,
+
+    B_e = [[Z + Z^T - W_v, (c_e A_e Z)^T], [c_e A_e Z, W_w]] >= t I,     W_v >= t I,
+
+with ``A_e Z`` affine in ``(Z, Y)``.  From a solution, ``K_j = Y_j Z_j^{-1}`` and ``P_v = W_v^{-1}`` satisfy
+``A_e^T P_w A_e < c_e^{-2} P_v`` (the Schur complement and ``Z^T W^{-1} Z >= Z + Z^T - W``), so
+``V(v, state) = state^T P_v state`` decreases along every run.  ``c_e = lambda^(-length)`` demands a decay rate.
+
+Two forms:
+
+* **lifted** (every packet that takes effect is fresh: the network's edges go to age 0 or ``d + 1``, e.g.
+  weakly-hard and bounded-drops networks): the state is ``x`` at the samples where a packet takes effect,
+  the transitions are the interval maps ``A_{l,eta}(K)`` of :class:`solver.network.ModeSet` along the
+  automaton's paths ``0, 1, ..., eta - 1, 0`` between reception nodes, ``Z`` is n x n, ``Y_j = K_j Z``.
+  With one reception node (bounded drops) and ``Z = W`` it is the ``lmi`` design.
+* **augmented** (late packets, e.g. :meth:`Network.delays`): the state is ``xi(t) = (x(t), ..., x(t-N+1))``,
+  one transition per automaton edge and plant mode (the plant may switch at every sample), ``A_{l,d}``
+  with ``u(t) = K_{d+1} x(t-d)``; ``Z = blkdiag(Z_0, ..., Z_{N-1})`` so that ``K_{d+1} E_d Z = Y_{d+1} E_d``
+  with ``Y_{d+1} = K_{d+1} Z_d``.
+
+Normalized by ``trace(Z + Z^T) = 2 n_Z``; ``max t``.  ``t* > 0`` gives gains, accepted only when the float64
+re-check of the node matrices passes (:func:`recheck_network`).  ``t* <= 0``: the dual multipliers are re-checked
+as a Farkas certificate of this LMI (:func:`check_network_farkas`): the outcome is "not_certified" (this sufficient
+condition has no solution), never "infeasible" by itself.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..certificates import Prover, gamma
+from ..compiled import cp  # cvxpy, imported on first use
+from ..errors import SolverFailed
+from ..lyapunov import RECHECK_TOL, Certificate
+from ..network import ModeSet, spectral_radii
+from ..networks import loop_matrices
+from ..result import DesignResult, IterationRecord
+
+U = 2.0**-53
+
+
+# --------------------------------------------------------------------------------------------- the automaton
+def fresh_age(network) -> bool:
+    """Whether every packet that takes effect is fresh: every edge goes to age 0 or to ``d + 1``."""
+    ages = np.asarray(network.ages)
+    return all(ages[j] == 0 or ages[j] == ages[i] + 1 for i, j in network.edges)
+
+
+def lifted_edges(network) -> list[tuple[int, int, int]]:
+    """Reception-to-reception transitions ``(v, w, eta)`` of a fresh-age network (node indices of age 0).
+
+    ``eta`` samples from reception node v to reception node w along a path whose ages are ``0, 1, ..., eta-1``.
+    """
+    ages = np.asarray(network.ages)
+    succ = [[] for _ in range(len(ages))]
+    for i, j in network.edges:
+        succ[i].append(j)
+    out = set()
+    for v in np.flatnonzero(ages == 0):
+        frontier, eta = {int(v)}, 1
+        while frontier:
+            nxt = set()
+            for u in frontier:
+                for w in succ[u]:
+                    if ages[w] == 0:
+                        out.add((int(v), int(w), eta))
+                    elif ages[w] == eta:
+                        nxt.add(int(w))
+            frontier, eta = nxt, eta + 1
+    return sorted(out)
+
+
+def contains_bounded_drops(network) -> bool:
+    """Whether every run of ``bounded_drops(network.n_drop)`` is a run of ``network`` (prefix-closed languages).
+
+    Subset construction on the network's ages: the pair (bounded-drops age, set of network nodes the word can
+    end in) must never reach an empty set.
+    """
+    ages = np.asarray(network.ages)
+    N = int(network.n_drop)
+    succ = [[] for _ in range(len(ages))]
+    for i, j in network.edges:
+        succ[i].append(j)
+    start = [(d, frozenset(np.flatnonzero(ages == d).tolist())) for d in range(N)]
+    seen, stack = set(), list(start)
+    while stack:
+        d, nodes = stack.pop()
+        if not nodes:
+            return False
+        if (d, nodes) in seen:
+            continue
+        seen.add((d, nodes))
+        for e in ([0, d + 1] if d + 1 <= N - 1 else [0]):
+            stack.append((e, frozenset(w for u in nodes for w in succ[u] if ages[w] == e)))
+    return True
+
+
+# ------------------------------------------------------------------------------------------- the problem
+@dataclass
+class NetworkProblem:
+    """The network LMI's data: one transition per block.
+
+    Attributes
+    ----------
+    form : {"lifted", "augmented"}
+    nodes : ndarray of int
+        Automaton node of each Lyapunov matrix (reception nodes for "lifted", every node for "augmented").
+    k : int
+        Side of the Lyapunov matrices (n, or n N).
+    zblocks : int
+        Diagonal blocks of the slack (1 for "lifted", N for "augmented"), each n x n.
+    src, dst : ndarray of int, shape (E,)
+        Lyapunov-matrix index (into ``nodes``) of each transition's start and end.
+    free : ndarray, shape (E, k, k)
+        Gain-free part ``A_e = free_e + sum_j coef[e, j] K_j R_{e,j}``.
+    coef : ndarray, shape (E, N, k, m)
+    right : ndarray of int, shape (E, N)
+        Column block (of the slack) the gain K_j reads in transition e (-1: K_j is absent).
+    length : ndarray of int, shape (E,)
+        Samples the transition spans (for the decay rate: ``c_e = lambda^(-length_e)``).
+    labels : list of dict
+    """
+
+    form: str
+    nodes: np.ndarray
+    n: int
+    m: int
+    N: int
+    k: int
+    zblocks: int
+    src: np.ndarray
+    dst: np.ndarray
+    free: np.ndarray
+    coef: np.ndarray
+    right: np.ndarray
+    length: np.ndarray
+    labels: list = field(default_factory=list)
+    F: np.ndarray | None = None
+    G: np.ndarray | None = None
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.src)
+
+    def closed_loops(self, gains: np.ndarray) -> np.ndarray:
+        """``A_e(K)`` for every transition, shape (E, k, k)."""
+        A = self.free.copy()
+        n = self.n
+        for e in range(self.n_blocks):
+            for j in range(self.N):
+                b = self.right[e, j]
+                if b >= 0:
+                    A[e][:, b * n:(b + 1) * n] += self.coef[e, j] @ gains[j]
+        return A
+
+
+def build_problem(family, network, plant_switching: str = "per_interval") -> NetworkProblem:
+    """The transitions of ``network`` for ``family``, lifted when every packet that takes effect is fresh."""
+    N = int(network.n_drop)
+    F, G = np.asarray(family.F, float), np.asarray(family.G, float)
+    r, n, m = family.n_modes, family.n_states, family.n_inputs
+    if fresh_age(network):
+        modes = ModeSet.from_family(family, N, plant_switching=plant_switching)
+        edges = lifted_edges(network)
+        rec = sorted({v for v, _, _ in edges} | {w for _, w, _ in edges})
+        index = {v: i for i, v in enumerate(rec)}
+        rows = [(v, w, s) for v, w, eta in edges for s in range(modes.n_modes) if modes.eta[s] == eta]
+        E = len(rows)
+        right = np.full((E, N), -1)
+        for e, (_, _, s) in enumerate(rows):
+            right[e, :modes.eta[s]] = 0
+        return NetworkProblem(
+            "lifted", np.array(rec), n, m, N, n, 1,
+            np.array([index[v] for v, _, _ in rows]), np.array([index[w] for _, w, _ in rows]),
+            modes.free[[s for _, _, s in rows]], modes.coef[[s for _, _, s in rows]], right,
+            modes.eta[[s for _, _, s in rows]],
+            [{"from": v, "to": w, **modes.label(s)} for v, w, s in rows], F, G)
+    ages = np.asarray(network.ages)
+    base = loop_matrices(family, np.zeros((N, m, n)), network)
+    rows = [(i, j, l) for i, j in network.edges for l in range(r)]
+    E, k = len(rows), n * N
+    coef = np.zeros((E, N, k, m))
+    right = np.full((E, N), -1)
+    for e, (i, _, l) in enumerate(rows):
+        d = int(ages[i])
+        coef[e, d, :n] = G[l]
+        right[e, d] = d
+    return NetworkProblem(
+        "augmented", np.arange(len(ages)), n, m, N, k, N,
+        np.array([i for i, _, _ in rows]), np.array([j for _, j, _ in rows]),
+        base[[l for _, _, l in rows], [int(ages[i]) for i, _, _ in rows]], coef, right, np.ones(E, dtype=int),
+        [{"from": int(i), "to": int(j), "plant": int(l), "age": int(ages[i])} for i, j, l in rows], F, G)
+
+
+def lmi_size(prob: NetworkProblem) -> tuple[list[int], int]:
+    """Cone sides of the SDP and its number of scalar variables."""
+    k, n = prob.k, prob.n
+    sides = [2 * k] * prob.n_blocks + [k] * len(prob.nodes)
+    variables = prob.zblocks * n * n + len(prob.nodes) * k * (k + 1) // 2 + prob.N * prob.m * n + 1
+    return sides, variables
+
+
+@dataclass
+class NetworkSolution:
+    t: float
+    Z: np.ndarray  # (zblocks, n, n)
+    W: np.ndarray  # (V, k, k)
+    Y: np.ndarray  # (N, m, n)
+    duals: list | None
+    status: str
+    solve_time: float
+
+
+def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None = None) -> NetworkSolution:
+    """``max t`` of the network LMI (data of transition e multiplied by ``scale[e]``), with Clarabel."""
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
+    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
+        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
+    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    t = cp.Variable()
+    eye_k = np.eye(k)
+    cons = [sum(cp.trace(z) for z in Zb) == prob.zblocks * n]
+    blocks = []
+    for e in range(prob.n_blocks):
+        AZ = (scale[e] * prob.free[e]) @ Z
+        for j in range(N):
+            b = prob.right[e, j]
+            if b >= 0:
+                term = (scale[e] * prob.coef[e, j]) @ Y[j]
+                if prob.zblocks == 1:
+                    AZ = AZ + term
+                else:
+                    pad = [np.zeros((k, n))] * prob.zblocks
+                    cols = [term if c == b else pad[c] for c in range(prob.zblocks)]
+                    AZ = AZ + cp.hstack(cols)
+        M = cp.bmat([[Z + Z.T - W[prob.src[e]], AZ.T], [AZ, W[prob.dst[e]]]])
+        blocks.append(0.5 * (M + M.T) - t * np.eye(2 * k) >> 0)
+    pos = [Wv - t * eye_k >> 0 for Wv in W]
+    problem = cp.Problem(cp.Maximize(t), cons + blocks + pos)
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start = time.perf_counter()
+    try:
+        problem.solve(solver=cp.CLARABEL, **opts)
+    except cp.error.SolverError as err:
+        raise SolverFailed(f"Clarabel failed on the network LMI: {err}", status="solver_error") from None
+    elapsed = time.perf_counter() - start
+    status = str(problem.status)
+    if t.value is None:
+        raise SolverFailed(f"Clarabel ended with status {status} on the network LMI", status=status)
+    Zv = np.stack([z.value for z in Zb])
+    Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
+    duals = [c.dual_value for c in blocks] + [c.dual_value for c in pos]
+    duals = None if any(d is None for d in duals) else [np.asarray(d, float) for d in duals]
+    return NetworkSolution(float(t.value), Zv, Wv, np.stack([y.value for y in Y]), duals, status, elapsed)
+
+
+def gains_from(prob: NetworkProblem, sol: NetworkSolution) -> np.ndarray:
+    """``K_j = Y_j Z_b^{-1}`` with b the slack block gain j reads (0 for the lifted form; j - 1 augmented)."""
+    K = np.empty_like(sol.Y)
+    for j in range(prob.N):
+        b = 0 if prob.zblocks == 1 else j
+        K[j] = np.linalg.solve(sol.Z[b].T, sol.Y[j].T).T
+    return K
+
+
+# ------------------------------------------------------------------------------------------- re-checks
+@dataclass
+class NodeCertificate(Certificate):
+    """Node-dependent quadratic Lyapunov certificate on a network, re-checked in float64.
+
+    ``P`` has shape (V, k, k): ``P[i]`` belongs to automaton node ``nodes[i]``; ``form`` says on which state
+    ("lifted": x at the samples where a packet takes effect; "augmented": ``xi(t)``).  Every transition
+    ``v -> w`` (and plant mode) has ``A^T P_w A - rho P_v < 0``.
+    """
+
+    form: str = "lifted"
+    nodes: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind, "source": self.source, "verified": self.verified, "margin": self.margin,
+            "decrease": self.decrease, "min_eig_P": self.min_eig_P,
+            "condition_number": float(max(np.linalg.cond(M) for M in self.P)),
+            "decay_rate": self.decay_rate, "worst_mode": self.worst_mode, "form": self.form,
+            "nodes": [int(v) for v in self.nodes], "P": self.P.tolist(), "X": None,
+        }
+
+
+def recheck_network(prob: NetworkProblem, P: np.ndarray, gains: np.ndarray, rate: float | None = None,
+                    source: str = "network_lmi") -> NodeCertificate:
+    """Float64 re-check of node matrices ``P`` for ``gains`` on every transition of ``prob``.
+
+    Passes when every ``P_v`` is positive definite and every ``rho_e P_v - A_e^T P_w A_e`` has smallest
+    eigenvalue above ``RECHECK_TOL`` times the largest eigenvalue of all ``P`` (``rho_e = lambda^(2 length_e)``).
+    """
+    P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    A = prob.closed_loops(gains)
+    rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
+    eigP = np.linalg.eigvalsh(P)
+    dec = rho[:, None, None] * P[prob.src] - np.swapaxes(A, 1, 2) @ P[prob.dst] @ A
+    low = np.linalg.eigvalsh(0.5 * (dec + np.swapaxes(dec, 1, 2)))[:, 0]
+    top = float(eigP.max())
+    worst = int(np.argmin(low))
+    decrease = float(low[worst])
+    margin = decrease / top if top > 0 else -np.inf
+    ok = bool(np.all(np.isfinite(P)) and eigP.min() > 0 and margin > RECHECK_TOL)
+    return NodeCertificate("network_quadratic", P, None, float(eigP.min()), decrease, margin, ok, source,
+                              decay_rate=rate, worst_mode=worst, form=prob.form, nodes=list(prob.nodes))
+
+
+# ------------------------------------------------------------------------------------------- Farkas
+@dataclass
+class NetworkFarkasCertificate:
+    """Dual multipliers proving that the network LMI has no solution (re-checked in float64).
+
+    For PSD multipliers ``M_e`` (transitions) and ``N_v`` (``W_v >= 0``), every ``(Z, W, Y)`` has
+    ``sum <M_e, B_e> + sum <N_v, W_v> = <G, Z> + sum_v <C_v, W_v> + sum_j <E_j, Y_j>``.  If all blocks were
+    positive semidefinite then, with ``H = (Z + Z^T)/2`` (PSD, ``tr W_v <= 2 tr H``, ``tr B_e <= 4 tr H``),
+    ``0 <= -delta tr H + ||G_skew||_F ||Z||_F + ||E||_F ||Y||_F``: no solution has
+    ``max(||Z||_F, ||Y||_F) < gain_bound tr H`` with ``gain_bound = delta / (||G_skew||_F + ||E||_F)``
+    (``delta = -lambda_max(G_sym) - 2 sum_v lambda_max(C_v)^+ - 4 sum_e mu_e - 2 sum_v nu_v``, ``mu, nu`` the
+    shifts that make the multipliers PSD; ``G`` restricted to the slack's diagonal blocks).
+    """
+
+    multipliers: list
+    delta: float
+    e_norm: float
+    gain_bound: float
+    verified: bool
+    form: str
+    decay_rate: float | None = None
+    skew_norm: float = 0.0
+    kind: str = "farkas_network"
+    method: str = "network_lmi"
+    margin: float = 0.0
+    any_margin: bool = True
+    scaled: bool = False
+
+    def statement(self) -> str:
+        bound = ("of any size" if np.isinf(self.gain_bound)
+                 else f"with ||Z||_F, ||Y||_F < {self.gain_bound:.3g} tr((Z + Z^T)/2)")
+        rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
+        return (f"not certified: the network LMI ({self.form} form: node-dependent quadratic Lyapunov functions "
+                f"with a common slack) has no solution {bound}{rate} (Farkas certificate re-checked in float64); "
+                "this excludes that sufficient condition only, not every gain")
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "method": self.method, "form": self.form, "verified": self.verified,
+                "delta": self.delta, "e_norm": self.e_norm, "skew_norm": self.skew_norm,
+                "gain_bound": None if np.isinf(self.gain_bound) else float(self.gain_bound),
+                "gain_bound_unbounded": bool(np.isinf(self.gain_bound)), "decay_rate": self.decay_rate,
+                "statement": self.statement(), "multipliers": [M.tolist() for M in self.multipliers]}
+
+
+def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndarray,
+                         rate: float | None = None) -> NetworkFarkasCertificate:
+    """Re-check Farkas multipliers of the network LMI on the problem's float64 data (solver-independent).
+
+    ``multipliers``: one (2k, 2k) matrix per transition, then one (k, k) per Lyapunov matrix.  Rounding of the
+    adjoint is bounded elementwise (``gamma`` terms) and the eigenvalue bounds are proven by
+    :class:`solver.certificates.Prover`.
+    """
+    k, n, E, V = prob.k, prob.n, prob.n_blocks, len(prob.nodes)
+    M = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[:E]]
+    Nv = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[E:E + V]]
+    prover = Prover(exact=False)
+    bad = NetworkFarkasCertificate(M + Nv, -np.inf, np.inf, 0.0, False, prob.form, rate)
+    if len(M) != E or len(Nv) != V or not all(np.all(np.isfinite(X)) for X in M + Nv):
+        return bad
+    Gfull = np.zeros((k, k))
+    errG = np.zeros((k, k))
+    C = [X.copy() for X in Nv]
+    errC = [np.zeros((k, k)) for _ in range(V)]
+    Ej = np.zeros((prob.N, prob.m, n))
+    errE = np.zeros((prob.N, prob.m, n))
+    mu = np.maximum(0.0, -prover.min_lower_many(np.stack(M))) if E else np.zeros(0)
+    nu = np.maximum(0.0, -prover.min_lower_many(np.stack(Nv))) if V else np.zeros(0)
+    g = gamma(2 * k + 2 * E + 8)
+    for e in range(E):
+        M11, M21, M22 = M[e][:k, :k], M[e][k:, :k], M[e][k:, k:]
+        A0 = scale[e] * prob.free[e]
+        Gfull += 2 * M11 + 2 * A0.T @ M21
+        errG += g * (2 * np.abs(M11) + 2 * np.abs(A0).T @ np.abs(M21))
+        C[prob.src[e]] -= M11
+        C[prob.dst[e]] += M22
+        errC[prob.src[e]] += g * np.abs(M11)
+        errC[prob.dst[e]] += g * np.abs(M22)
+        for j in range(prob.N):
+            b = prob.right[e, j]
+            if b >= 0:
+                cj = scale[e] * prob.coef[e, j]
+                Ej[j] += 2 * cj.T @ M21[:, b * n:(b + 1) * n]
+                errE[j] += 2 * g * np.abs(cj).T @ np.abs(M21[:, b * n:(b + 1) * n])
+    # the slack is block diagonal: only the diagonal blocks of G pair with it
+    lam_g, skew2 = -np.inf, 0.0
+    for b in range(prob.zblocks):
+        sl = slice(b * n, (b + 1) * n)
+        Gb = 0.5 * (Gfull[sl, sl] + Gfull[sl, sl].T)
+        lam_g = max(lam_g, prover.max_upper(Gb, float(np.linalg.norm(errG[sl, sl]))))
+        skew2 += (float(np.linalg.norm(0.5 * (Gfull[sl, sl] - Gfull[sl, sl].T))) + float(np.linalg.norm(errG[sl, sl]))) ** 2
+    skew = np.sqrt(skew2) * (1 + 8 * U)
+    lam_c = sum(max(0.0, prover.max_upper(C[v], float(np.linalg.norm(errC[v])) + g * float(np.linalg.norm(C[v]))))
+                for v in range(V))
+    # <N_v + nu_v I, W_v> >= 0 is already in C_v's bound only if N_v is PSD: nu_v tr W_v <= 2 nu_v tr H
+    delta = -lam_g - 2 * lam_c - 4 * float(np.sum(mu)) - 2 * float(np.sum(nu))
+    delta = delta * (1 - 8 * U) if delta > 0 else delta * (1 + 8 * U)
+    e_norm = (float(np.linalg.norm(Ej)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
+    if delta <= 0:
+        return NetworkFarkasCertificate(M + Nv, float(delta), e_norm, 0.0, False, prob.form, rate, skew_norm=skew)
+    total = e_norm + skew
+    bound = np.inf if total == 0 else delta / total * (1 - 8 * U)
+    return NetworkFarkasCertificate(M + Nv, float(delta), e_norm, float(bound), True, prob.form, rate,
+                                    skew_norm=skew)
+
+
+# ------------------------------------------------------------------------------------------- fixed gains
+def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = None,
+                  time_limit: float | None = None) -> NodeCertificate | None:
+    """Node matrices for fixed ``gains`` (``max t``: ``P_v >= t I``, ``rho_e P_v - A_e^T P_w A_e >= t I``,
+    ``sum tr P_v = V k``), re-checked by :func:`recheck_network`; None when no certificate passes."""
+    A = prob.closed_loops(gains)
+    if not np.all(np.isfinite(A)):
+        return None
+    rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
+    k, V = prob.k, len(prob.nodes)
+    P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
+    t = cp.Variable()
+    eye = np.eye(k)
+    cons = [sum(cp.trace(X) for X in P) == V * k] + [X - t * eye >> 0 for X in P]
+    for e in range(prob.n_blocks):
+        D = rho[e] * P[prob.src[e]] - A[e].T @ P[prob.dst[e]] @ A[e]
+        cons.append(0.5 * (D + D.T) - t * eye >> 0)
+    try:
+        cp.Problem(cp.Maximize(t), cons).solve(
+            solver=cp.CLARABEL, **({} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}))
+    except cp.error.SolverError:
+        return None
+    if t.value is None or not t.value > 0:
+        return None
+    cert = recheck_network(prob, np.stack([X.value for X in P]), gains, rate, source="network_analysis")
+    return cert if cert.verified else None
+
+
+def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, deadline: float | None = None,
+        callback=None, start: float | None = None):
+    """The paper's cone complementarity linearization on the exact node conditions (docs/design.md).
+
+    ``[[P_v, A_e(K)^T], [A_e(K), Q_w]] >= eps I`` (exact with ``Q_w = P_w^{-1}``), ``[[P_v, I], [I, Q_v]] >= 0``,
+    iterating ``min sum_v tr(P_v Q_v^i + P_v^i Q_v)`` from ``min sum_v tr(P_v + Q_v)``.  After every iteration
+    the gains go to :func:`node_analysis`; the first certified gains are returned.
+
+    Returns ``(gains or None, certificate or None, history, solve_seconds)``.
+    """
+    k, V, n, m = prob.k, len(prob.nodes), prob.n, prob.m
+    c = np.ones(prob.n_blocks) if rate is None else float(rate) ** (-prob.length.astype(float))
+    P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
+    Q = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
+    K = [cp.Variable((m, n)) for _ in range(prob.N)]
+    Pi = [cp.Parameter((k, k), symmetric=True) for _ in range(V)]
+    Qi = [cp.Parameter((k, k), symmetric=True) for _ in range(V)]
+    eye = np.eye(k)
+    cons = []
+    for e in range(prob.n_blocks):
+        A = c[e] * prob.free[e]
+        for j in range(prob.N):
+            b = prob.right[e, j]
+            if b >= 0:
+                sel = np.zeros((n, k))
+                sel[:, b * n:(b + 1) * n] = np.eye(n)
+                A = A + (c[e] * prob.coef[e, j]) @ K[j] @ sel
+        M = cp.bmat([[P[prob.src[e]], A.T], [A, Q[prob.dst[e]]]])
+        cons.append(0.5 * (M + M.T) >> 1e-6 * np.eye(2 * k))
+    cons += [cp.bmat([[P[v], eye], [eye, Q[v]]]) >> 0 for v in range(V)]
+    history, solve_time = [], 0.0
+    t0 = time.perf_counter() if start is None else start
+
+    def solve(problem):
+        nonlocal solve_time
+        left = None if deadline is None else deadline - time.perf_counter()
+        if left is not None and left <= 0:
+            return False
+        try:
+            problem.solve(solver=cp.CLARABEL, **({} if left is None else {"time_limit": float(left)}))
+        except cp.error.SolverError:
+            return False
+        solve_time += problem.solver_stats.solve_time or 0.0
+        return P[0].value is not None and K[0].value is not None
+
+    if not solve(cp.Problem(cp.Minimize(sum(cp.trace(P[v] + Q[v]) for v in range(V))), cons)):
+        return None, None, history, solve_time
+    step = cp.Problem(cp.Minimize(sum(cp.trace(P[v] @ Qi[v] + Pi[v] @ Q[v]) for v in range(V))), cons)
+    for it in range(1, max_iter + 1):
+        for v in range(V):
+            Pi[v].value = 0.5 * (P[v].value + P[v].value.T)
+            Qi[v].value = 0.5 * (Q[v].value + Q[v].value.T)
+        if not solve(step):
+            break
+        gains = np.stack([x.value for x in K])
+        left = None if deadline is None else deadline - time.perf_counter()
+        cert = node_analysis(prob, gains, rate, left)
+        gap = float(sum(np.trace(P[v].value @ Q[v].value) for v in range(V)) / (V * k) - 1)
+        record = IterationRecord(it, float(step.value), gap, cert is not None,
+                                 None if cert is None else cert.margin, step.solver_stats.solve_time or 0.0,
+                                 time.perf_counter() - t0)
+        history.append(record)
+        if callback is not None and callback(record):
+            break
+        if cert is not None:
+            cert.source = "network_ccl"
+            return gains, cert, history, solve_time
+    return None, None, history, solve_time
+
+
+# ------------------------------------------------------------------------------------------- the design
+def run(family, network, *, decay_rate: float | None = None, plant_switching: str = "per_interval",
+        time_limit: float | None = None, callback=None, max_iter: int = 50, use_ccl: bool = True,
+        prob: NetworkProblem | None = None, recheck=None) -> DesignResult:
+    """One design on ``network`` at ``decay_rate`` (None: plain stability).
+
+    The convex network LMI first; when it certifies nothing, the cone complementarity iteration on the exact
+    node conditions (``use_ccl``, at most ``max_iter`` iterations).  ``recheck(gains, rate) -> (ok, certificate
+    or None)``: the independent network analysis that must also accept the gains (None: the float64
+    :func:`recheck_network` of the design's own node matrices is the only check).
+
+    Returns
+    -------
+    DesignResult
+        "stabilized" with a :class:`NodeCertificate`; "not_certified" with a
+        :class:`NetworkFarkasCertificate` when the convex LMI is proven infeasible and CCL found nothing;
+        "not_converged" otherwise.
+    """
+    start = time.perf_counter()
+    deadline = None if time_limit is None else start + float(time_limit)
+    prob = build_problem(family, network, plant_switching) if prob is None else prob
+    scale = np.ones(prob.n_blocks) if decay_rate is None else float(decay_rate) ** (-prob.length.astype(float))
+    rate_txt = "" if decay_rate is None else f" at decay rate {decay_rate:.6g}"
+    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+                mode_labels=prob.labels)
+
+    def accept(gains, own):
+        if own is None or not own.verified:
+            return None
+        if recheck is None:
+            return own
+        ok, other = recheck(gains, decay_rate)
+        return (other if other is not None else own) if ok else None
+
+    def timings(solver_time, solves):
+        total = time.perf_counter() - start
+        return {"total": total, "solver": solver_time, "setup": max(total - solver_time, 0.0), "solves": solves,
+                "cached": False}
+
+    try:
+        sol = solve_sdp(prob, scale, time_limit)
+    except SolverFailed:
+        if deadline is not None and time.perf_counter() >= deadline:
+            return DesignResult(outcome="not_converged", gains=None, certificate=None, **base, timings=timings(0, 1),
+                                message=f"time limit reached ({time_limit:g} s) inside the solver{rate_txt}")
+        raise
+    gains = cert = None
+    if np.isfinite(sol.t) and sol.t > 0:
+        gains = gains_from(prob, sol)
+        if np.all(np.isfinite(gains)):
+            cert = accept(gains, recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate))
+    record = IterationRecord(0, sol.t, None, cert is not None, None if cert is None else cert.margin,
+                             sol.solve_time, time.perf_counter() - start)
+    history = [record]
+    if callback is not None:
+        callback(record)
+    where = (f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, "
+             f"{prob.n_blocks} transitions")
+    if cert is not None:
+        return DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history,
+                            solver_status=sol.status, timings=timings(sol.solve_time, 1), decay_rate=decay_rate,
+                            spectral_radii=spectral_radii(prob.closed_loops(gains)), **base,
+                            message=f"stabilized on {where}; network LMI margin t* = {sol.t:.3g}, certificate "
+                                    f"re-checked (relative margin {cert.margin:.3g}){rate_txt}")
+    proof = None
+    if sol.duals is not None and not (sol.t > 0):
+        proof = check_network_farkas(prob, sol.duals, scale, decay_rate)
+        proof = proof if proof.verified else None
+    solver_time, solves = sol.solve_time, 1
+    if use_ccl and (deadline is None or time.perf_counter() < deadline):
+        cgains, ccert, chist, ctime = ccl(prob, decay_rate, max_iter, deadline, callback, start)
+        history += chist
+        solver_time, solves = solver_time + ctime, solves + 1 + 2 * len(chist)
+        ccert = None if cgains is None else accept(cgains, ccert)
+        if ccert is not None:
+            base["method"] = "network_ccl"
+            return DesignResult(outcome="stabilized", gains=cgains, certificate=ccert, history=history,
+                                solver_status="optimal", timings=timings(solver_time, solves),
+                                decay_rate=decay_rate, spectral_radii=spectral_radii(prob.closed_loops(cgains)),
+                                **base,
+                                message=f"stabilized on {where}; the convex network LMI certified nothing (t* = "
+                                        f"{sol.t:.3g}), cone complementarity on the exact node conditions did in "
+                                        f"{len(chist)} iterations; certificate re-checked (relative margin "
+                                        f"{ccert.margin:.3g}){rate_txt}")
+    tried = f"; cone complementarity: {len(history) - 1} iterations without a certificate" if use_ccl else ""
+    if proof is not None:
+        return DesignResult(outcome="not_certified", gains=None, certificate=proof, history=history,
+                            solver_status=sol.status, timings=timings(solver_time, solves), **base,
+                            message=f"{proof.statement()}; t* = {sol.t:.3g}{tried}")
+    return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history,
+                        solver_status=sol.status, timings=timings(solver_time, solves), **base,
+                        message=f"the network LMI's best margin is t* = {sol.t:.3g}{rate_txt}: no certificate passed "
+                                f"the float64 re-check and no Farkas certificate was proven{tried}")
