@@ -570,7 +570,7 @@ def network_violations(channel: Channel, network, sampling_period: float | None 
     if kind == "weakly_hard":
         res = weakly_hard_violation_rate(channel, spec.get("misses"), spec.get("window"), spec.get("n_drop"),
                                          sampling_period=h)
-        out = res.to_dict()
+        out = {k: v for k, v in res.to_dict().items() if k not in ("misses", "window", "n_drop")}
         out.update(network=spec, what="windows with more than misses samples without a fresh packet, "
                                        "or age >= n_drop")
         return out

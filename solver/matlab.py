@@ -17,9 +17,10 @@ name            size                   meaning
 ``h``           scalar                 the sampling period in seconds (empty when unknown)
 ``network``     string                 on a network only: what the gains are certified for
                                        (``Network.describe()``, e.g. ``delays(max_delay=2, n_drop=3)``)
-``node_ages``   nodes x 1              on a network only: the buffer age of each automaton node;
-                                       a node-dependent certificate's ``P`` is nodes x (n n_drop) x
-                                       (n n_drop), ``P(i,:,:)`` for node i
+``P_node``      V x 1                  on a network only: the automaton node (1-based) of each
+                                       ``P(i,:,:)`` of a node-dependent certificate (V matrices)
+``node_ages``   V x 1                  on a network only: the buffer age of that node
+``P_plant``     V x 1                  analyses on a network: the plant mode (1-based) of ``P(i,:,:)``
 ==============  =====================  ==========================================================
 
 ``F``/``G`` use MATLAB's convention so that a written file is also a plant file for
@@ -119,7 +120,16 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
 
         net = check_network(network)
         out["network"] = net.describe()
-        out["node_ages"] = np.asarray(net.ages, dtype=float).reshape(-1, 1)
+        cert = _get(result, "certificate")
+        cert = cert if isinstance(cert, dict) or cert is None else cert.to_dict()
+        nodes = list(range(net.nodes))
+        if cert and cert.get("nodes"):
+            nodes = [int(v) for v in cert["nodes"]]
+        elif cert and cert.get("states"):
+            nodes = [int(s["node"]) for s in cert["states"]]
+            out["P_plant"] = np.asarray([int(s["plant"]) + 1 for s in cert["states"]], dtype=float).reshape(-1, 1)
+        out["P_node"] = np.asarray(nodes, dtype=float).reshape(-1, 1) + 1
+        out["node_ages"] = np.asarray(net.ages, dtype=float)[nodes].reshape(-1, 1)
     return out
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_serializer
+from pydantic import BaseModel, ConfigDict, Field, field_serializer, model_serializer
 
 from app.compute.requests import DESIGN_OUTCOMES, DesignRequest, MarginRequest
 
@@ -38,11 +38,35 @@ class ModeLabel(_Open):
                                                        "the eta samples of the interval.")
     eta: int | None = Field(None, description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
                                  "effective packet.")
+    age: int | None = Field(None, description="On a network: the buffer age d (samples) the mode applies, "
+                                              "`u = K_{d+1} x(t - d)`.")
+    from_: int | None = Field(None, alias="from", description="On a network: the automaton node (0-based) the "
+                                                                "transition leaves.")
+    to: int | None = Field(None, description="On a network: the automaton node (0-based) it enters.")
+    node: int | None = Field(None, description="On a network: the automaton node (0-based) of the sample.")
+
+    @model_serializer(mode="wrap")
+    def _network_fields_when_set(self, handler):
+        # The network fields appear only on networks: the paper's answers stay as they were.
+        return {k: v for k, v in handler(self).items() if v is not None or k not in ("age", "from", "to", "node")}
 
 
 class LeftVector(_Open):
     real: list[Num] = Field(description="Real part of the left eigenvector w (length n).")
     imag: list[Num] = Field(description="Imaginary part of w (length n).")
+
+
+class CertificateState(_Open):
+    node: int = Field(description="Automaton node (0-based) of the network.")
+    plant: int = Field(description="Plant mode (0-based).")
+
+
+class UnstableCycle(_Open):
+    """An admissible cycle of the network whose closed-loop product has spectral radius >= 1 (proven)."""
+
+    ages: list[int] = Field(description="The buffer age at each sample of the cycle (samples).")
+    modes: list[int] = Field(description="The plant mode (0-based) at each sample.")
+    nodes: list[int] = Field(description="The automaton node (0-based) at each sample.")
 
 
 class Certificate(_Open):
@@ -53,6 +77,9 @@ class Certificate(_Open):
     * `farkas` (no design of the method exists): `multipliers` (S x 2n x 2n), `gain_bound`, `delta`, `e_norm`.
     * `uncontrollable` (no gains can stabilize): `plant`, `eigenvalue`, `left_vector`, `residual_eig`,
       `residual_input`.
+    * On a `network`: node-dependent quadratic certificates (`P`: one matrix per automaton node, `nodes`, or
+      per (node, plant mode), `states`; `form` says on which state) and `farkas_network` (the network LMI has
+      no solution: outcome `not_certified`).
     """
 
     kind: str = Field(description="`common_quadratic`, `switched` (stability proofs), `farkas` or "
@@ -87,6 +114,13 @@ class Certificate(_Open):
     P: Matrix | list[Matrix] | None = Field(
         None, description="`common_quadratic`: the augmented Theorem 1 matrix, (n N) x (n N). `switched`: S "
         "matrices n x n, `P[s]` for mode `modes[s]`. Omitted in the designs of a margin curve.")
+    form: str | None = Field(None, description="Network certificates: `lifted` (x at the samples where a packet "
+                                               "takes effect) or `augmented` (xi(t) = (x(t), ..., x(t-N+1))).")
+    nodes: list[int] | None = Field(None, description="Network certificates: the automaton node of each `P[i]`.")
+    states: list[CertificateState] | None = Field(None, description="Network analyses: the (node, plant mode) of "
+                                                                    "each `P[i]`.")
+    worst_edge: list[int] | None = Field(None, description="Network analyses: the edge `[i, j]` (indices into "
+                                                           "`states`) with the smallest decrease.")
     X: Matrix | None = Field(None, description="`common_quadratic`: the reduced certificate on x(i_m), n x n "
                                                "(`A_s^T X A_s < X` for all s).")
     multipliers: list[Matrix] | list[list[Matrix]] | None = Field(
@@ -224,6 +258,11 @@ class NetworkEcho(_Open):
     window: int | None = Field(None, description="`weakly_hard`: the window (samples).")
     ages: list[int] | None = Field(None, description="`automaton`: the age of each node.")
     edges: list[list[int]] | None = Field(None, description="`automaton`: the edges `[i, j]`.")
+
+    @model_serializer(mode="wrap")
+    def _as_given(self, handler):
+        # The network exactly as the request gave it: a delays network has no `ages` (not `"ages": null`).
+        return {k: v for k, v in handler(self).items() if v is not None}
 
 
 #: Every outcome of a design.
@@ -369,6 +408,8 @@ class AnalysisReport(_Open):
     timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
     network: NetworkEcho | None = Field(None, description="The network the verdict is for (as in the request); "
                                                              "null: the paper's.")
+    unstable_cycle: UnstableCycle | None = Field(None, description="On a network, `stable: false`: the admissible "
+                                                                   "cycle proven unstable.")
 
 
 class Simulation(_Open):
@@ -627,6 +668,10 @@ class NetworkViolations(_Open):
     rate_per_second: float | None = Field(None, description="`rate / h` (1/s); null without a sampling period.")
     mean_time_between: float | None = Field(None, description="`1 / rate` samples; null when it never breaks.")
     what: str = Field(description="What counts as a violation.")
+    miss_fraction: float | None = Field(None, description="`weakly_hard`: stationary probability that a sample has "
+                                                          "no fresh packet (lost or late).")
+    states: int | None = Field(None, description="`weakly_hard`: size of the chain solved (age process times the "
+                                                 "window's miss flags).")
 
 
 class ChannelAnalysis(_Open):
