@@ -179,3 +179,31 @@ def test_bad_input_names_the_field(make, field):
     with pytest.raises(InvalidInput) as err:
         make()
     assert err.value.field == field
+
+
+def test_readme_network_example_prints_what_its_comments_say(capsys):
+    """The README's network example: every printed line is the one its `# ...` comment shows."""
+    import pathlib
+    import re
+
+    text = (pathlib.Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = text[text.index("### Networks: delays and weakly-hard patterns"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    exec(compile(code, "README.md", "exec"), {"__name__": "__main__"})
+    printed = capsys.readouterr().out.splitlines()
+    expected = [line.split("#", 1)[1].strip() for line in code.splitlines() if line.startswith("print(")]
+    assert printed == expected
+
+
+def test_trace_figure_draws_the_ages_of_a_network_run():
+    from solver import Network, simulate
+    from solver.plotting import render, trace_figure
+
+    net = Network.delays(1, 2)
+    tr = simulate(TWO, design(TWO, 2, decay_rate=None).gains, x0=[1.0], steps=20, seed=2, network=net)
+    fig = trace_figure([tr], ["delays"], family=TWO)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert "age (samples)" in labels
+    ages_ax = fig.axes[labels.index("age (samples)")]
+    np.testing.assert_array_equal(ages_ax.patches[0].get_data().values, np.asarray(tr.ages, dtype=float)[:20])
+    assert render(fig, "svg").startswith(b"<?xml")
