@@ -153,7 +153,7 @@ async def design_trace(
     body = cache.get(key)
     if body is None:
         out = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
-                             loc=["query"], plant=req["plant"])
+                             req.get("network"), loc=["query"], plant=req["plant"])
         body = canonical_json(out).encode()
         cache.put(key, body)
     return etag_response(request, "application/json", body)
@@ -191,7 +191,7 @@ async def design_trace_image(
     body = cache.get(key)
     if body is None:
         body = await run_sync(request, "trace_plot", req["plant"], result["gains"], req["n_drop"], params, fmt,
-                              size, loc=["query"], plant=req["plant"])
+                              size, req.get("network"), loc=["query"], plant=req["plant"])
         cache.put(key, body)
     return etag_response(request, MEDIA_TYPES[fmt], body)
 

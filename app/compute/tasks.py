@@ -238,15 +238,17 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> dict[str, Any]:
-    """The designed loop's seeded simulation (switching plant) plus one run per fixed mode (Fig. 3/4)."""
+def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any],
+              network: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The designed loop's seeded simulation (switching plant) plus one run per fixed mode (Fig. 3/4); a design
+    made for a ``network`` runs on it (ages drawn from the network, ``ages`` in every run)."""
     from solver import simulate
 
     fam = build_family(plant)
     K = _gains_array(gains)
     common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
                   loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
-                  control_loss=params["control_loss"])
+                  control_loss=params["control_loss"], **network_kwargs("simulate", network_from_request(network)))
     main = simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)
     out = jsonable(main.to_dict())
     out["per_mode"] = [
@@ -358,8 +360,9 @@ def run_channel(req: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
-                   size: dict[str, Any]) -> bytes:
-    """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode."""
+                   size: dict[str, Any], network: dict[str, Any] | None = None) -> bytes:
+    """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode
+    (with a row of buffer ages on a network)."""
     from solver import simulate
     from solver.plotting import SWITCHING_WORDS, mode_title, render, trace_figure
 
@@ -367,7 +370,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
     K = _gains_array(gains)
     common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
                   loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
-                  control_loss=params["control_loss"])
+                  control_loss=params["control_loss"], **network_kwargs("simulate", network_from_request(network)))
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
     first = SWITCHING_WORDS.get(params["plant_switching"], params["plant_switching"])
@@ -402,7 +405,8 @@ def run_controller_zip(result: dict[str, Any], n_drop: int, exhausted: str, pref
 
     from solver import export_c
 
-    files = export_c(_gains_array(result["gains"]), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata)
+    files = export_c(_gains_array(result["gains"]), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata,
+                     **network_kwargs("export_c", network_from_request(result.get("network"))))
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
         for name in sorted(files):

@@ -164,3 +164,21 @@ def test_client_sends_networks(http, delay_design):
     ref = analyze_channel(fam, np.array(PAPER_GAINS_H01), 3, Channel.bernoulli(0.2).with_delays([0.7, 0.3]),
                           network=Network.bounded_drops(3))
     assert rep.raw["network_violations"]["rate"] == pytest.approx(ref.network_violations["rate"], rel=1e-12)
+
+
+def test_a_network_designs_trace_figure_and_c_code_follow_its_network(http, delay_design):
+    import io
+    import zipfile
+
+    job_id = delay_design["id"]
+    resp = http.get(f"/v1/designs/{job_id}/trace?steps=40&seed=4")
+    assert resp.status_code == 200, resp.text
+    trace = resp.json()
+    net = Network.from_dict(DELAYS)
+    assert len(trace["ages"]) == 40 and net.admissible(trace["ages"])
+    assert all(net.admissible(run["ages"]) for run in trace["per_mode"])
+    svg = http.get(f"/v1/designs/{job_id}/trace.svg?steps=40&seed=4")
+    assert svg.status_code == 200 and b"age (samples)" in svg.content
+    z = zipfile.ZipFile(io.BytesIO(http.get(f"/v1/designs/{job_id}/controller.zip").content))
+    header = z.read("ncs_controller.h").decode()
+    assert "delays(max_delay=1, n_drop=2)" in header
