@@ -114,7 +114,8 @@ class AnalysisReport:
         return min(bounds) if bounds else None
 
     def to_dict(self) -> dict:
-        return {
+        extra = {} if self.network is None else {"network": self.network}
+        return extra | {
             "stable": self.stable,
             "reason": self.reason,
             "spectral_radii": self.spectral_radii.tolist(),
@@ -135,7 +136,6 @@ class AnalysisReport:
             "cost": None if self.cost is None else self.cost.to_dict(),
             "hinf": None if self.hinf is None else self.hinf.to_dict(),
             "unstable_cycle": self.unstable_cycle,
-            "network": self.network,
         }
 
 

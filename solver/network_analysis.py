@@ -149,7 +149,7 @@ def recheck_node_dependent(P: np.ndarray, A_states: np.ndarray, product: Product
 
 
 class NodeLMI:
-    """``P_v >= I``, ``A_v^T P_w A_v - rho^2 P_v <= -I`` for every edge, ``P_v <= t I``, minimize t.
+    """``P_v >= I``, ``A_v^T P_w A_v - rho^2 P_v <= -I`` for every edge, minimize ``sum_v trace P_v``.
 
     The conditions are homogeneous in P, so the normalization loses nothing; ``rho^2`` is a
     cvxpy parameter, so a bisection on the rate re-solves without rebuilding.
@@ -161,15 +161,14 @@ class NodeLMI:
         V, D = A_states.shape[0], A_states.shape[1]
         self.rho2 = cp.Parameter(nonneg=True, value=1.0)
         self.P = [cp.Variable((D, D), symmetric=True) for _ in range(V)]
-        t = cp.Variable()
         eye = np.eye(D)
         cons = []
         for v in range(V):
-            cons += [self.P[v] >> eye, self.P[v] << t * eye]
+            cons.append(self.P[v] >> eye)
             for w in product.succ[v]:
                 E = A_states[v].T @ self.P[w] @ A_states[v] - self.rho2 * self.P[v]
                 cons.append(0.5 * (E + E.T) << -eye)
-        self.problem = cp.Problem(cp.Minimize(t), cons)
+        self.problem = cp.Problem(cp.Minimize(sum(cp.trace(P) for P in self.P)), cons)
 
     def solve(self, rho: float, solver: str):
         """The P matrices (V, D, D), or None when the solver reports no solution."""
@@ -194,14 +193,16 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
 
     Every closed walk is searched from its smallest state (the others on it are larger), so each
     cycle is met once per rotation class.  Returns the best ``(estimate, states)`` per length
-    (``states`` in the order applied) and the longest length searched within the budget.
+    (``states`` in the order applied), the length up to which every closed walk was examined, and
+    whether the budget ``max_products`` (walks per start state and length) cut the search short.
     """
     from .network import spectral_radii
 
     V = product.size
+    # products held at once stay under ~80 MB whatever the state dimension
+    max_products = max(1, min(int(max_products), int(1e7 // A_states.shape[-1] ** 2)))
     best: dict = {}
-    checked = 0
-    budget_hit = False
+    searched = max_length  # every closed walk up to this length was examined
     for v in range(V):
         paths = np.array([[v]], dtype=np.int64)
         prods = A_states[v][None]
@@ -212,7 +213,6 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
                 i = int(np.argmax(rho))
                 if rho[i] > best.get(k, (-1.0, None))[0]:
                     best[k] = (float(rho[i]), tuple(int(s) for s in paths[closes][i]))
-            checked = max(checked, k) if not budget_hit else checked
             if k == max_length:
                 break
             parent, nxt = [], []
@@ -224,14 +224,13 @@ def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: 
             if not parent:
                 break
             if len(parent) > max_products:
-                budget_hit = True
+                searched = min(searched, k)
                 break
             parent = np.array(parent)
             nxt = np.array(nxt)
             prods = A_states[nxt] @ prods[parent]
             paths = np.concatenate([paths[parent], nxt[:, None]], axis=1)
-    lengths = sorted(best)
-    return best, (min(max_length, max(lengths)) if lengths else 0), budget_hit
+    return best, searched, searched < max_length
 
 
 def exact_loop(F, G, K, d: int, N: int) -> tuple:
@@ -380,6 +379,13 @@ def certified_cjsr_upper(lmi: NodeLMI, A_states, product, lower: float, tol: flo
     if not known_stable and not ok(hi):
         return None
     lo = max(lower, 0.0)
+    # quadratic bounds are often tight: a rate just above the best cycle usually settles it in one solve
+    first = lower * (1 + 2 * tol)
+    if lo < first < hi:
+        if ok(first):
+            hi = first
+        else:
+            lo = first
     while hi - lo > tol * hi:
         mid = 0.5 * (lo + hi)
         if ok(mid):

@@ -66,7 +66,7 @@ class UnstableCycle(_Open):
 
     ages: list[int] = Field(description="The buffer age at each sample of the cycle (samples).")
     modes: list[int] = Field(description="The plant mode (0-based) at each sample.")
-    nodes: list[int] = Field(description="The automaton node (0-based) at each sample.")
+    nodes: list[int] | None = Field(None, description="On a network: the automaton node (0-based) at each sample.")
 
 
 class Certificate(_Open):
@@ -408,8 +408,9 @@ class AnalysisReport(_Open):
     timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
     network: NetworkEcho | None = Field(None, description="The network the verdict is for (as in the request); "
                                                              "null: the paper's.")
-    unstable_cycle: UnstableCycle | None = Field(None, description="On a network, `stable: false`: the admissible "
-                                                                   "cycle proven unstable.")
+    unstable_cycle: UnstableCycle | None = Field(
+        None, description="When `stable` is false: the destabilizing pattern, one entry per sample, repeated "
+        "forever: `ages` (buffer ages), `modes` (plant modes, 0-based) and on a network `nodes`.")
 
 
 class Simulation(_Open):
@@ -424,6 +425,8 @@ class Simulation(_Open):
     control_arrived: list[bool] = Field(description="Control packet arrived at k (switch S2), steps values.")
     effective: list[bool] = Field(description="Both arrived: a new packet reached the buffer at k.")
     buffer_index: list[int] = Field(description="q of the prediction `K_q x(i_m)` applied at k (1 = fresh).")
+    ages: list[int] | None = Field(None, description="Age of the buffer's packet at each sample, `k - stamp` "
+                                                     "(-1 before the first packet).")
     interval_start: list[int] = Field(description="The effective samples i_m.")
     eta: list[int] = Field(description="`i_{m+1} - i_m` of every completed interval (samples).")
     seed: int | None = Field(None, description="Seed of the packet losses and plant jumps.")
@@ -433,8 +436,6 @@ class Simulation(_Open):
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
     channel_state: list[int] | None = Field(None, description="Channel state (0-based) at each sample, steps "
                                                               "values (runs on a channel only).")
-    ages: list[int] | None = Field(None, description="Age of the buffer's packet at each sample, `k - stamp` "
-                                                     "(runs on a network).")
     network: NetworkEcho | None = Field(None, description="The network the run's ages were drawn from.")
 
 
