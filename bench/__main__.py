@@ -75,6 +75,10 @@ def main(argv=None) -> int:
         from . import ipm_bench
 
         return ipm_bench.main(argv[1:])
+    if argv and argv[0] == "network":
+        from . import network_bench
+
+        return network_bench.main(argv[1:])
     if argv and argv[0] == "ccl":
         from . import ccl_bench
 

@@ -261,7 +261,9 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
     Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
     duals = [c.dual_value for c in blocks] + [c.dual_value for c in pos]
     duals = None if any(d is None for d in duals) else [np.asarray(d, float) for d in duals]
-    return NetworkSolution(float(t.value), Zv, Wv, np.stack([y.value for y in Y]), duals, status, elapsed)
+    # a gain no transition uses (e.g. K_3 when no interval is 3 samples long) stays zero
+    Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
+    return NetworkSolution(float(t.value), Zv, Wv, Yv, duals, status, elapsed)
 
 
 def gains_from(prob: NetworkProblem, sol: NetworkSolution) -> np.ndarray:
@@ -494,7 +496,7 @@ def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, dea
         except cp.error.SolverError:
             return False
         solve_time += problem.solver_stats.solve_time or 0.0
-        return P[0].value is not None and K[0].value is not None
+        return P[0].value is not None
 
     if not solve(cp.Problem(cp.Minimize(sum(cp.trace(P[v] + Q[v]) for v in range(V))), cons)):
         return None, None, history, solve_time
@@ -505,7 +507,7 @@ def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, dea
             Qi[v].value = 0.5 * (Q[v].value + Q[v].value.T)
         if not solve(step):
             break
-        gains = np.stack([x.value for x in K])
+        gains = np.stack([np.zeros((m, n)) if x.value is None else x.value for x in K])
         left = None if deadline is None else deadline - time.perf_counter()
         cert = node_analysis(prob, gains, rate, left)
         gap = float(sum(np.trace(P[v].value @ Q[v].value) for v in range(V)) / (V * k) - 1)

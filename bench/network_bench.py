@@ -1,0 +1,128 @@
+"""``python -m bench network``: design and analysis time on networks against automaton nodes and n.
+
+Each cell is one ``design(family, network=net, decay_rate=None)`` (Clarabel through cvxpy; the network design has
+no structured-IPM path yet) and one ``analyze(family, gains, network=net)`` of the designed gains, in this process.
+Families: the paper's motor (n = 2, r = 3, bench/../tests/solver/paper_data.py) and seeded random stable-ish
+families of n states, one input, one plant mode.  Reported: network, nodes, the design's form (lifted / augmented)
+and its estimated size (``design_size``: transitions x plant modes, LMI size), outcome and the method that
+certified (``network_lmi`` convex, ``network_ccl`` cone complementarity), wall and CPU seconds of the design and
+of the analysis, and the load average.  Bounded drops is timed both ways: ``design(fam, n_drop)`` and
+``design(fam, network=Network.bounded_drops(n_drop))`` (the same code path; the ratio is the overhead).
+
+    python -m bench network [--quick] [--time-limit 120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import warnings
+
+import numpy as np
+
+
+def _load() -> str:
+    return f"{os.getloadavg()[0]:.1f}"
+
+
+def _family(n: int, seed: int):
+    from solver import PlantFamily
+
+    rng = np.random.default_rng(seed)
+    F = rng.normal(size=(n, n))
+    F = 1.1 * F / max(abs(np.linalg.eigvals(F)))  # mildly unstable
+    G = rng.normal(size=(n, 1))
+    return PlantFamily([F], [G])
+
+
+def _paper():
+    from solver import PlantFamily
+
+    F = [[[0.6703, -0.0018], [0.0294, 0.5134]], [[0.6703, -0.0015], [0.0378, 0.3678]],
+         [[0.6702, -0.0010], [0.0502, 0.1353]]]
+    G = [[[0.1648], [0.0035]], [[0.1648], [0.0048]], [[0.1648], [0.0073]]]
+    return PlantFamily(F, G, sampling_period=0.1)
+
+
+def cell(name, fam, net, time_limit):
+    from solver import analyze, design
+    from solver.compiled import design_size
+    from solver.errors import InvalidInput
+
+    size = design_size("lmi", fam.n_states, fam.n_inputs, fam.n_modes, net.n_drop, network=net)
+    row = {"family": name, "n": fam.n_states, "r": fam.n_modes, "network": net.describe(), "nodes": net.nodes,
+           "size": f"{size.n_modes} x {size.state_size or 2 * fam.n_states}", "load": _load()}
+    w0, c0 = time.perf_counter(), time.process_time()
+    try:
+        res = design(fam, network=net, decay_rate=None, time_limit=time_limit)
+    except InvalidInput as err:
+        row["outcome"] = f"refused: {str(err)[:60]}"
+        return row
+    row.update(outcome=res.outcome, method=res.method, design_wall=time.perf_counter() - w0,
+               design_cpu=time.process_time() - c0)
+    if res.gains is not None and res.outcome == "stabilized":
+        w0, c0 = time.perf_counter(), time.process_time()
+        rep = analyze(fam, res.gains, network=net)
+        row.update(analysis_wall=time.perf_counter() - w0, analysis_cpu=time.process_time() - c0,
+                   analysis=str(rep.stable))
+    return row
+
+
+def bounded_drops_overhead(repeats: int = 15) -> list[str]:
+    """Median wall time of today's design and of the same through ``network=bounded_drops``."""
+    from solver import Network, design
+
+    fam = _paper()
+    out = []
+    for kwargs, label in (({"decay_rate": None}, "decay_rate=None"), ({}, 'decay_rate="auto"')):
+        design(fam, 3, **kwargs), design(fam, network=Network.bounded_drops(3), **kwargs)
+        a, b = [], []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            design(fam, 3, **kwargs)
+            a.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            design(fam, network=Network.bounded_drops(3), **kwargs)
+            b.append(time.perf_counter() - t)
+        out.append(f"| paper, n_drop = 3, {label} | {1e3 * np.median(a):.1f} ms | {1e3 * np.median(b):.1f} ms | "
+                   f"{np.median(b) / np.median(a):.2f} |")
+    return out
+
+
+def main(argv=None) -> int:
+    from solver import Network
+
+    ap = argparse.ArgumentParser(prog="python -m bench network")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--time-limit", type=float, default=120.0)
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    cases = [("paper", _paper(), Network.weakly_hard(2, 5, 3)), ("paper", _paper(), Network.delays(1, 3))]
+    sizes = (2, 4) if args.quick else (2, 4, 6, 8)
+    for n in sizes:
+        fam = _family(n, n)
+        cases += [(f"random n={n}", fam, Network.weakly_hard(2, 5, 3)),
+                  (f"random n={n}", fam, Network.weakly_hard(3, 8, 4)),
+                  (f"random n={n}", fam, Network.delays(1, 2)),
+                  (f"random n={n}", fam, Network.delays(2, 3))]
+    print("| family | network | nodes | transitions x state | outcome (method) | design wall [CPU] s | "
+          "analysis wall [CPU] s | load |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, fam, net in cases:
+        row = cell(name, fam, net, args.time_limit)
+        design_t = (f"{row['design_wall']:.2f} [{row['design_cpu']:.2f}]" if "design_wall" in row else "-")
+        analysis_t = (f"{row['analysis_wall']:.2f} [{row['analysis_cpu']:.2f}]" if "analysis_wall" in row else "-")
+        method = f" ({row['method']})" if "method" in row else ""
+        print(f"| {row['family']} | {row['network']} | {row['nodes']} | {row['size']} | {row['outcome']}{method} | "
+              f"{design_t} | {analysis_t} | {row['load']} |", flush=True)
+    print()
+    print("| bounded drops | design(fam, n_drop) | design(fam, network=bounded_drops) | ratio |")
+    print("|---|---|---|---|")
+    for line in bounded_drops_overhead(5 if args.quick else 15):
+        print(line, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
