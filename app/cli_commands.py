@@ -357,9 +357,9 @@ def cmd_simulate(args) -> int:
         if net is not None:
             data["network"] = net.to_dict()
     ages = getattr(run, "ages", None)
-    if ages is not None:
+    if ages is not None and net is not None:
         ages = np.asarray(ages)
-        print(f"buffer ages on {net.describe() if net is not None else 'the network'}: max {int(ages.max())}, "
+        print(f"buffer ages on {net.describe()}: max {int(ages.max())}, "
               f"{int(np.sum(ages > 0))} samples without a fresh packet")
     lost = int(np.sum(~np.asarray(run.effective)))
     peak = float(np.max(np.linalg.norm(run.state, axis=1)))

@@ -116,7 +116,7 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
     n = traces[0].state.shape[1] if traces else (family.n_states if family is not None else 1)
     groups = state_groups(family, n)
     # Runs on a network (late packets) carry the buffer's age per sample: a row of its own.
-    has_ages = any(getattr(tr, "ages", None) is not None for tr in traces)
+    has_ages = any(_network_run(tr) for tr in traces)
     rows = len(groups) + 2 + int(has_ages)
     if height is None:
         height = 1.6 * len(groups) + 3.2 + 1.2 * int(has_ages)
@@ -133,7 +133,7 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
         t = np.asarray(tr.time, dtype=float)
         ax_u, ax_m = axes[len(groups), c], axes[-1, c]
         ages = getattr(tr, "ages", None)
-        if has_ages and ages is not None:
+        if has_ages and ages is not None and _network_run(tr):
             ages = np.asarray(ages, dtype=float)[:len(t) - 1]
             axes[-2, c].stairs(ages, t[:ages.size + 1], baseline=None, color="tab:green",
                                label="buffer age k - stamp (K_{age+1} applied)")
@@ -192,6 +192,15 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
                    fontsize="small", frameon=False)
     _fit_rows(axes, end)
     return fig
+
+
+def _network_run(tr) -> bool:
+    """A run whose ages came from a network or replayed deliveries (on the paper's network they add nothing)."""
+    if getattr(tr, "ages", None) is None:
+        return False
+    raw = getattr(tr, "raw", None) or {}
+    loss_model = getattr(tr, "loss_model", None) or raw.get("loss_model")
+    return (getattr(tr, "network", None) or raw.get("network")) is not None or loss_model in ("network", "arrivals")
 
 
 def _fit_rows(axes, end: float) -> None:
