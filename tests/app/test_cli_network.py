@@ -88,3 +88,18 @@ def test_design_and_analyze_on_a_delay_network(workdir):
 def test_bad_network_arguments_are_one_line_and_exit_2(workdir, args, words):
     out = ncs(*args, cwd=workdir)
     assert out.returncode == 2 and words in out.stderr and "Traceback" not in out.stderr, out.stderr
+
+
+def test_simulate_on_a_network_writes_admissible_ages_and_draws_them(workdir):
+    out = ncs("simulate", "paper.json", "--gains", "gains.json", "--network", "weakly_hard:2,5,3", "--steps", "50",
+              "--seed", "7", "-o", "run.json", "--plot", "run.svg", cwd=workdir)
+    assert out.returncode == 0, out.stderr
+    data = json.loads((workdir / "run.json").read_text())
+    net = Network.weakly_hard(2, 5, 3)
+    assert data["network"] == net.to_dict() and len(data["ages"]) == 50 and net.admissible(data["ages"])
+    fam = PlantFamily(F=EQ20_F, G=EQ20_G, sampling_period=0.1)
+    ref = solver.simulate(fam, np.array(json.loads((workdir / "gains.json").read_text())), x0=[1.0, 1.0], steps=50,
+                          seed=7, network=net)
+    assert data["ages"] == [int(a) for a in ref.ages]
+    assert f"buffer ages on {net.describe()}: max {int(np.max(ref.ages))}" in out.stdout
+    assert b"age (samples)" in (workdir / "run.svg").read_bytes()
