@@ -46,10 +46,10 @@ async def submit_design(
     owner: str | None = Depends(require_api_key),
 ):
     errors: list = []
-    validation.check_network(body, errors, "design")
+    net = validation.check_network(body, errors, "design")
     if errors:
         raise invalid(errors)
-    shape = validation.check_design(body, settings)
+    shape = validation.check_design(body, settings, net)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
     validation.check_performance(req, settings)

@@ -110,12 +110,13 @@ def lmi_size(method: str, n: int, r: int, n_drop: int, plant_switching: str = "p
 
 
 def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: Settings, loc: list,
-               errors: list, solves: int = 1) -> None:
-    """The library's size estimate against the service's budgets: LMI size, worker memory, job time."""
+               errors: list, solves: int = 1, network: Any = None) -> None:
+    """The library's size estimate against the service's budgets: LMI size, worker memory, job time (on a
+    ``network``: its automaton nodes times the plant modes, :func:`solver.compiled.design_size`)."""
     switching = options.plant_switching
     scheme = getattr(options, "scheme", None) or "predictive"
     size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme,
-                       getattr(options, "solver", None) or "AUTO")
+                       getattr(options, "solver", None) or "AUTO", network=network)
     if size.lmi_size > settings.max_lmi_size:
         errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
                                   f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "
@@ -142,13 +143,14 @@ def check_family_request(body: Any, settings: Settings, errors: list) -> Shape |
     return shape
 
 
-def check_design(req: Any, settings: Settings) -> Shape:
+def check_design(req: Any, settings: Settings, network: Any = None) -> Shape:
     errors: list = []
     shape = plant_shape(req.plant, settings, errors)
     check_n_drop(req.n_drop, settings, errors)
     if shape is not None and not errors:
         solves = solve_count(req.method, req.options.decay_rate, 1e-3, getattr(req.options, "max_iter", 50))
-        check_size(req.method, shape, req.n_drop, req.options, settings, ["body", "n_drop"], errors, solves)
+        check_size(req.method, shape, req.n_drop, req.options, settings,
+                   ["body", "n_drop" if network is None else "network"], errors, solves, network=network)
         if req.options.decay_rate not in (None, "auto") and req.method == "ccl":
             errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
                                       "and switched methods, not ccl", "unsupported_option"))

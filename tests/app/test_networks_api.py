@@ -182,3 +182,15 @@ def test_a_network_designs_trace_figure_and_c_code_follow_its_network(http, dela
     z = zipfile.ZipFile(io.BytesIO(http.get(f"/v1/designs/{job_id}/controller.zip").content))
     header = z.read("ncs_controller.h").decode()
     assert "delays(max_delay=1, n_drop=2)" in header
+
+
+def test_a_network_design_too_big_is_refused_up_front_naming_the_network(http):
+    from solver.compiled import design_size
+
+    net = Network.weakly_hard(5, 12, 7)
+    fam = PlantFamily.from_dict(PAPER_PLANT)
+    size = design_size("lmi", fam.n_states, fam.n_inputs, fam.n_modes, net.n_drop, network=net)
+    assert size.lmi_size > 6000  # the service's default NCS_MAX_LMI_SIZE
+    body = {"plant": PAPER_PLANT, "network": net.to_dict()}
+    problem = assert_problem(http.post("/v1/designs", json=body), 422, "/network")
+    assert str(size.lmi_size) in problem["detail"] and "NCS_MAX_LMI_SIZE" in problem["detail"]
