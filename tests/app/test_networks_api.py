@@ -194,3 +194,15 @@ def test_a_network_design_too_big_is_refused_up_front_naming_the_network(http):
     body = {"plant": PAPER_PLANT, "network": net.to_dict()}
     problem = assert_problem(http.post("/v1/designs", json=body), 422, "/network")
     assert str(size.lmi_size) in problem["detail"] and "NCS_MAX_LMI_SIZE" in problem["detail"]
+
+
+def test_the_network_examples_of_the_openapi_document_run(http):
+    from app.examples import CHANNEL_EXAMPLES, DESIGN_EXAMPLES, SIMULATION_EXAMPLES
+
+    resp = http.post("/v1/channels", json=CHANNEL_EXAMPLES["paper_late_packets"]["value"])
+    assert resp.status_code == 200 and resp.json()["network_violations"]["rate"] > 0, resp.text
+    resp = http.post("/v1/simulations", json=SIMULATION_EXAMPLES["paper_weakly_hard"]["value"])
+    assert resp.status_code == 200 and Network.weakly_hard(2, 5, 3).admissible(resp.json()["ages"]), resp.text
+    resp = http.post("/v1/designs", json=DESIGN_EXAMPLES["paper_delays"]["value"], headers={"Prefer": "wait=120"})
+    job = wait_for(http, resp.json()["id"], timeout=300)
+    assert job["status"] == "succeeded" and job["result"]["outcome"] == "stabilized", job
