@@ -521,7 +521,8 @@ class JobSummary(BaseModel):
     cancel_requested: bool = Field(description="A cancel was asked for.")
     progress: Progress | None = Field(None, description="The latest progress record.")
     outcome: str | None = Field(None, description="Design jobs, once succeeded: the outcome (`stabilized`, "
-                                                  "`infeasible`, `not_converged`).")
+                                                  "`infeasible`, `marginal`, `not_certified` on a network, "
+                                                  "`not_converged`).")
     margin: float | int | None = Field(None, description="Margin jobs, once succeeded: the margin (largest N, a "
                                                           "count, or largest h in seconds; see `margin_kind`).")
     margin_kind: str | None = Field(None, description="Margin jobs: the search (`n_drop`, `sampling_period`, "
