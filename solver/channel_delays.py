@@ -17,8 +17,8 @@ and every certificate of :mod:`solver.mjls` applies unchanged.  With ``delays = 
 exactly today's (same modes, dimensions and matrices).
 
 :func:`weakly_hard_violation_rate` is the exact rate at which a window constraint "at most m
-samples without a fresh packet in any K" breaks, from the chain over (age process, last K - 1
-miss flags).
+samples without a fresh packet in any K" breaks: the stationary age process run forward over a
+window, counting misses.
 """
 
 from __future__ import annotations
@@ -31,10 +31,6 @@ import scipy.sparse.linalg as spla
 
 from .channel import STOCHASTIC_TOL, Channel, _positive_int
 from .errors import InvalidInput
-
-#: Above this many states the stationary distribution of the window chain is refused (memory).
-MAX_WINDOW_STATES = 2_000_000
-
 
 def check_delays(delays) -> np.ndarray:
     """Validate a delay pmf (``delays[a]`` = P(delay = a samples), a = 0..D) and trim trailing zeros."""
@@ -213,27 +209,33 @@ def age_chain(channel: Channel, cap: int):
 
 
 def _stationary(P: sp.csr_matrix, initial: np.ndarray) -> np.ndarray:
-    """Stationary distribution of the (single recurrent class reachable from ``initial``) chain."""
+    """Stationary distribution of the chain's recurrent class reached from ``initial`` (one class assumed).
+
+    Fixes the mass of the start state and solves the rest (sparse, no dense normalization row: its
+    fill-in would make large chains quadratic); a transient start or several classes fall back to the
+    Cesaro mean from ``initial``.
+    """
     n = P.shape[0]
     if n == 1:
         return np.ones(1)
-    A = (P.T - sp.identity(n, format="csr")).tolil()
-    A[0, :] = np.ones(n)
-    b = np.zeros(n)
-    b[0] = 1.0
+    k = int(np.argmax(initial))
+    A = (P.T - sp.identity(n, format="csr")).tocsr()
+    keep = np.flatnonzero(np.arange(n) != k)
+    x = None
     with np.errstate(all="ignore"):
         try:
-            x = spla.spsolve(A.tocsc(), b)
+            red = spla.spsolve(A[keep][:, keep].tocsc(), -A[keep][:, [k]].toarray().ravel())
+            x = np.insert(np.atleast_1d(red), k, 1.0)
         except RuntimeError:
             x = None
-    if x is None or not np.all(np.isfinite(x)) or np.any(x < -1e-9):
-        # Several recurrent classes or a singular system: the Cesaro limit from the start distribution.
+    if x is None or not np.all(np.isfinite(x)) or np.any(x < -1e-9 * np.max(np.abs(x))) \
+            or np.abs(A @ x).max() > 1e-9 * np.abs(x).sum():
         x = initial.copy()
         avg = np.zeros(n)
         for _ in range(20_000):
             x = P.T @ x
             avg += x
-        x = avg / avg.sum()
+        x = avg
     x = np.clip(x, 0.0, None)
     return x / x.sum()
 
@@ -265,7 +267,7 @@ class WindowViolations:
     miss_fraction : float
         Stationary probability that a sample has no fresh packet (age > 0).
     states : int
-        Size of the chain (age process times the last ``window - 1`` miss flags).
+        Size of the recursion (age states times ``misses + 2`` counts).
     """
 
     misses: int
@@ -288,10 +290,10 @@ def weakly_hard_violation_rate(channel: Channel, misses: int, window: int, n_dro
                                sampling_period: float | None = None) -> WindowViolations:
     """Exact rate at which the window constraint breaks on ``channel`` (delays included when it has them).
 
-    A *miss* is a sample whose buffer holds no fresh packet (age > 0: lost, or late).  The chain
-    over (age process, the last ``window - 1`` miss flags) is run in its stationary regime; a sample
-    violates when its window holds more than ``misses`` misses (or, with ``n_drop``, when its age is
-    ``>= n_drop``).
+    A *miss* is a sample whose buffer holds no fresh packet (age > 0: lost, or late).  A sample
+    violates when the window ending there holds more than ``misses`` misses (or, with ``n_drop``, when
+    its age is ``>= n_drop``); from the stationary age process, the probability of that is a forward
+    recursion over the window on (age state, misses so far), exact by the Markov property.
 
     Parameters
     ----------
@@ -320,37 +322,30 @@ def weakly_hard_violation_rate(channel: Channel, misses: int, window: int, n_dro
     D = int(_delays_of(channel).size - 1)
     cap = max(D + 1, 1 if n_drop is None else n_drop)
     states, P, initial = age_chain(channel, cap)
-    bits = window - 1
-    size = len(states) << bits
-    if size > MAX_WINDOW_STATES:
-        raise InvalidInput(f"window {window} over {len(states)} age states needs {size} chain states "
-                           f"(limit {MAX_WINDOW_STATES}): use a shorter window", ("window",))
     ages = np.array([d for _, d in states])
-    miss = (ages > 0).astype(np.int64)
-    P = P.tocoo()
-    H = 1 << bits
-    hist = np.arange(H)
-    pop = np.array([bin(x).count("1") for x in range(H)])
-    # State (i, hist): hist holds the miss flags of the previous `bits` samples (bit 0 the newest)
-    r_i = np.repeat(P.row, H)
-    c_i = np.repeat(P.col, H)
-    v = np.repeat(P.data, H)
-    hh = np.tile(hist, P.nnz)
-    new_hist = ((hh << 1) | miss[r_i]) & (H - 1) if bits > 0 else np.zeros_like(hh)
-    M = sp.csr_matrix((v, (r_i * H + hh, c_i * H + new_hist)), shape=(size, size))
-    init = np.zeros(size)
-    init[np.flatnonzero(initial) * H] = initial[initial > 0]
-    pi = _stationary(M, init)
-    state_idx = np.arange(size) // H
-    count = pop[np.arange(size) % H] + miss[state_idx]
-    bad = count > misses
+    miss = ages > 0
+    pi = _stationary(P, initial)
+    # Forward over the window from the stationary age process: v[s, c] = P(age state s, c misses so far),
+    # c capped at misses + 1 (already broken); the Markov property makes this exact, with no window histories.
+    PT = P.T.tocsr()
+    v = np.zeros((len(states), misses + 2))
+    v[:, 0] = np.where(miss, 0.0, pi)
+    v[:, 1] = np.where(miss, pi, 0.0)
+    for _ in range(window - 1):
+        w = PT @ v
+        v = np.zeros_like(w)
+        v[~miss] = w[~miss]
+        v[miss, 1:] = w[miss, :-1]
+        v[miss, -1] += w[miss, -1]
+    broken = v[:, -1].copy()
     if n_drop is not None:
-        bad |= ages[state_idx] >= n_drop
-    rate = float(pi[bad].sum())
+        last = ages >= n_drop
+        broken[last] = v[last].sum(axis=1)
+    rate = float(min(max(broken.sum(), 0.0), 1.0))
     return WindowViolations(misses=int(misses), window=window, n_drop=n_drop, rate=rate,
                             rate_per_second=None if h is None else rate / h,
                             mean_time_between=1.0 / rate if rate > 0 else float("inf"),
-                            miss_fraction=float(pi[miss[state_idx] > 0].sum()), states=size)
+                            miss_fraction=float(pi[miss].sum()), states=len(states) * (misses + 2))
 
 
 def monte_carlo_violations(channel: Channel, misses: int, window: int, n_drop: int | None = None, *,
