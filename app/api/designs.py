@@ -46,7 +46,7 @@ async def submit_design(
     owner: str | None = Depends(require_api_key),
 ):
     errors: list = []
-    net = validation.check_network(body, errors, "design")
+    net = validation.check_network(body, errors, "design", settings=settings)
     if errors:
         raise invalid(errors)
     shape = validation.check_design(body, settings, net)

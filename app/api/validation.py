@@ -338,7 +338,8 @@ def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_sw
         raise invalid([solver_field_error(getattr(exc, "field", ()), str(exc), plant)]) from None
 
 
-def check_network(body: Any, errors: list, function: str | None = None, sets_n_drop: bool = True) -> Any:
+def check_network(body: Any, errors: list, function: str | None = None, sets_n_drop: bool = True,
+                  settings: Settings | None = None) -> Any:
     """A request's ``network``: the solver's own checks (reachability, ages, ``max_delay <= n_drop - 1``, ...)
     as 422s under ``/network/...``; its ``n_drop`` becomes the request's (an explicit, different ``n_drop`` is
     an error); and, for ``function`` (``design``, ``analyze``, ``simulate``), whether this solver takes it.
@@ -347,6 +348,12 @@ def check_network(body: Any, errors: list, function: str | None = None, sets_n_d
         return None
     from app.compute.tasks import network_from_request, network_kwargs
 
+    given = getattr(body.network, "n_drop", None)
+    if settings is not None and given is not None and given > settings.max_n_drop:
+        # before the automaton is built: its size grows with n_drop
+        errors.append(field_error(["body", "network", "n_drop"], f"n_drop = {given} is over the limit of "
+                                  f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
+        return None
     try:
         net = network_from_request(body.network.model_dump())
         if function is not None:

@@ -251,7 +251,7 @@ class BoundedDropsNetwork(_Strict):
     """The paper's network: a packet arrives in its own sample or never, at most n_drop - 1 losses in a row."""
 
     kind: Literal["bounded_drops"] = Field(description="`bounded_drops`: the paper's network (the default).")
-    n_drop: Int = Field(ge=1, description="N: at most N - 1 samples in a row without a fresh packet.")
+    n_drop: Int = Field(ge=1, le=4096, description="N: at most N - 1 samples in a row without a fresh packet.")
 
 
 class DelaysNetwork(_Strict):
@@ -259,7 +259,7 @@ class DelaysNetwork(_Strict):
 
     kind: Literal["delays"] = Field(description="`delays`: late and out-of-order packets.")
     max_delay: Age = Field(description="Largest delay of a packet that arrives (samples); <= n_drop - 1.")
-    n_drop: Int = Field(ge=1, description="N: the buffer's age stays <= N - 1.")
+    n_drop: Int = Field(ge=1, le=4096, description="N: the buffer's age stays <= N - 1.")
     min_delay: Age = Field(0, description="Smallest delay (samples); <= max_delay.")
 
 
@@ -269,7 +269,7 @@ class WeaklyHardNetwork(_Strict):
     kind: Literal["weakly_hard"] = Field(description="`weakly_hard`: an (m, K) window constraint.")
     misses: Age = Field(description="m: samples without a fresh packet allowed in any window.")
     window: Int = Field(ge=1, le=32, description="K: the window (samples).")
-    n_drop: Int = Field(ge=1, description="N: also at most N - 1 in a row.")
+    n_drop: Int = Field(ge=1, le=4096, description="N: also at most N - 1 in a row.")
 
 
 class AutomatonNetwork(_Strict):
@@ -280,7 +280,7 @@ class AutomatonNetwork(_Strict):
     edges: list[Annotated[list[Annotated[int, Strict(), Field(ge=0)]], Field(min_length=2, max_length=2)]] = Field(
         min_length=1, max_length=4096, description="Pairs `[i, j]`: the age may go from node i's to node j's "
         "(j's age <= i's + 1). Every node needs an out-edge.")
-    n_drop: Int | None = Field(None, ge=1, description="N (default: the largest age + 1).")
+    n_drop: Int | None = Field(None, ge=1, le=4096, description="N (default: the largest age + 1).")
 
 
 NetworkSpec = Annotated[Union[BoundedDropsNetwork, DelaysNetwork, WeaklyHardNetwork, AutomatonNetwork], Field(

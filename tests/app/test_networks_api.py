@@ -206,3 +206,14 @@ def test_the_network_examples_of_the_openapi_document_run(http):
     resp = http.post("/v1/designs", json=DESIGN_EXAMPLES["paper_delays"]["value"], headers={"Prefer": "wait=120"})
     job = wait_for(http, resp.json()["id"], timeout=300)
     assert job["status"] == "succeeded" and job["result"]["outcome"] == "stabilized", job
+
+
+def test_a_huge_network_n_drop_is_refused_before_the_automaton_is_built(http):
+    # Network.delays(64, 10**9) would allocate ~20 GB: the service's n_drop limit comes first
+    for network, pointer in (({"kind": "delays", "max_delay": 64, "n_drop": 4000}, "/network/n_drop"),
+                             ({"kind": "bounded_drops", "n_drop": 10**9}, "/network")):
+        for path, body in (("/v1/designs", {"plant": PAPER_PLANT}),
+                           ("/v1/channels", {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01,
+                                             "channel": {"kind": "bernoulli", "loss": 0.1}})):
+            problem = assert_problem(http.post(path, json={**body, "network": network}), 422, pointer)
+            assert "n_drop" in problem["detail"]
