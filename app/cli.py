@@ -59,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="gains: a JSON design result or list (n_drop x m x n), or a .mat with K or K1..KN")
         p.add_argument("--n-drop", type=int, default=None, help="drop bound (default: the number of gains)")
 
+    def network_args(p):
+        p.add_argument("--network", default=None, metavar="SPEC",
+                       help="the network: drops:N, delays:MAX_DELAY,N[,MIN_DELAY] (late, out-of-order packets) or "
+                            "weakly_hard:MISSES,WINDOW,N; join with & for both (its N is the drop bound)")
+
     def performance_args(p):
         p.add_argument("--weights", default=None, metavar="JSON",
                        help='cost weights, inline or @file: {"Q": [[...]], "R": [[...]]}')
@@ -72,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("design", help="design gains K_1..K_N for a plant file")
     plant_args(d)
     d.add_argument("--n-drop", type=int, default=None,
-                   help="at most n_drop - 1 consecutive losses (required unless PLANT is a request file with one)")
+                   help="at most n_drop - 1 consecutive losses (required unless PLANT is a request file with one, "
+                        "or --network gives it)")
     d.add_argument("--method", default=None, help="design method: lmi (one SDP, default), ccl, ...")
     d.add_argument("--solver", choices=("AUTO", "IPM", "CLARABEL", "SCS"), type=str.upper, default=None,
                    help="SDP solver (default AUTO: the fastest with the same verdicts)")
@@ -92,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --feedback output: at most this minus one lost measurements in a row (default --n-drop)")
     d.add_argument("--observer", choices=("per_mode", "common"), default=None,
                    help="with --feedback output: one observer gain per plant mode (default) or one for all")
+    network_args(d)
     performance_args(d)
 
     a = sub.add_parser("analyze", help="certify given gains (Theorem 1) and report spectral radii")
@@ -99,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     gains_args(a)
     performance_args(a)
     a.add_argument("--plant-switching", choices=("per_interval", "per_sample"), default=None)
+    network_args(a)
     a.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the report as JSON")
 
     m = sub.add_parser("simulate", help="seeded simulation of given gains with packet losses")
@@ -109,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int, default=42)
     m.add_argument("--plant-switching", choices=("per_interval", "per_sample", "none"), default="per_interval")
     m.add_argument("--mode", type=int, default=None, help="fixed plant mode (0-based) with --plant-switching none")
+    network_args(m)
     m.add_argument("--plot", default=None, metavar="FILE", help="draw the run: .png or .svg")
     m.add_argument("--output", "-o", default=None, metavar="FILE.json", help="write the run as JSON")
     g = sub.add_parser("codegen", help="C99 code of the controller and the actuator's buffer for given gains")
@@ -149,6 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--channel", dest="channel_file", default=None, metavar="FILE.json",
                       help='channel JSON: {"kind": "markov", "transition": [[...]], "loss": [...]} (or bernoulli, '
                            "gilbert_elliott)")
+    ch.add_argument("--delays", default=None, metavar="P0,P1,...",
+                    help="per-packet delay distribution: P(a packet that arrives is a samples late), a = 0, 1, ...; "
+                         "late packets are applied with their age (newest stamp wins)")
+    ch.add_argument("--network", default=None, metavar="SPEC",
+                    help="also report how often the channel breaks this network (drops:N, delays:D,N, "
+                         "weakly_hard:M,K,N)")
     ch.add_argument("--exhausted", choices=("hold", "zero"), default="hold",
                     help="input once the buffer runs dry (default hold)")
     ch.add_argument("--no-cost", action="store_true", help="skip the expected cost (weights Q = I, R = I)")

@@ -202,6 +202,23 @@ def design_summary(result: dict) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------ commands
+def _network(args):
+    """``--network`` as a :class:`solver.Network` (None without it)."""
+    text = getattr(args, "network", None)
+    if text is None:
+        return None
+    from solver import Network
+
+    return Network.parse(text)
+
+
+def _network_kwargs(function: str, net) -> dict:
+    """``network=`` for an in-process solver call (a solver without network support refuses by name)."""
+    from app.compute.tasks import network_kwargs
+
+    return network_kwargs(function, net)
+
+
 def _client(args):
     from app.client import Client
 
@@ -278,17 +295,27 @@ def cmd_design(args) -> int:
     if suffix not in (None, ".json", ".mat", ".m"):
         raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
     method = args.method or "lmi"
+    net = _network(args)
+    if net is None and args.n_drop is None:
+        raise UsageError("give --n-drop N (or --network SPEC, whose N is the drop bound)")
+    if net is not None and args.n_drop is not None and args.n_drop != net.n_drop:
+        raise UsageError(f"--n-drop {args.n_drop} disagrees with --network {args.network!r} (n_drop = {net.n_drop})")
+    n_drop = net.n_drop if net is not None else args.n_drop
     print(plant_summary(fam))
+    if net is not None:
+        print(f"network: {net.describe()}")
     if args.server:
         with _client(args) as c:
-            result = c.design(fam, n_drop=args.n_drop, method=method, **perf, **options).raw
+            result = c.design(fam, n_drop=n_drop, method=method, network=net, **perf, **options).raw
     else:
         from solver import design
 
-        res = design(fam, n_drop=args.n_drop, method=method, **perf, **options)
+        res = design(fam, n_drop=n_drop, method=method, **perf, **options, **_network_kwargs("design", net))
         result = jsonable(res.to_dict())
         result.update(F=fam.F.tolist(), G=fam.G.tolist(), sampling_period=fam.sampling_period)
-    return _report_design(args, suffix, result, fam)
+        if net is not None:
+            result["network"] = net.to_dict()
+    return _report_design(args, suffix, result, fam, net)
 
 
 def _design_request(request: dict, args) -> int:
@@ -317,11 +344,12 @@ def _design_request(request: dict, args) -> int:
     return _report_design(args, suffix, result, fam)
 
 
-def _report_design(args, suffix, result: dict, fam) -> int:
+def _report_design(args, suffix, result: dict, fam, net=None) -> int:
     print("\n".join(design_summary(result)), flush=True)
     if result.get("observer_gains") is not None:
         print(f"observer gains L (one n x p per plant mode): {json.dumps(result['observer_gains'])}")
-    if result["outcome"] == "stabilized" and result.get("gains") and result.get("feedback", "state") == "state":
+    if result["outcome"] == "stabilized" and result.get("gains") and result.get("feedback", "state") == "state" \
+            and net is None:
         print(simulated_settling(fam, result))
     if args.output:
         _write_design(args.output, suffix, result, fam)
@@ -358,20 +386,25 @@ def _write_design(path: str, suffix: str, result: dict, fam) -> None:
 def cmd_analyze(args) -> int:
     fam = load_plant(args.plant, args.sampling_period)
     gains = load_gains(args.gains)
-    n_drop = args.n_drop or len(gains)
+    net = _network(args)
+    n_drop = args.n_drop or (net.n_drop if net is not None else len(gains))
     kwargs = {"plant_switching": args.plant_switching} if args.plant_switching else {}
     kwargs.update(performance_kwargs(args))
     print(plant_summary(fam))
     if args.server:
         with _client(args) as c:
-            report = c.analyze(fam, gains, n_drop, **kwargs).raw
+            report = c.analyze(fam, gains, n_drop, network=net, **kwargs).raw
     else:
         from solver import analyze
 
-        report = jsonable(analyze(fam, gains, n_drop=n_drop, **kwargs).to_dict())
+        report = jsonable(analyze(fam, gains, n_drop=n_drop, **kwargs, **_network_kwargs("analyze", net)).to_dict())
+        if net is not None:
+            report["network"] = net.to_dict()
     verdict = {True: "stable (certified)", False: "UNSTABLE", None: "unknown"}[report["stable"]]
-    print(f"analysis, n_drop = {n_drop}: {verdict}: {report.get('reason', '')}")
-    print(f"max spectral radius of the interval closed loops: {report['max_spectral_radius']:.4g}")
+    on = "" if net is None else f" on {net.describe()}"
+    print(f"analysis, n_drop = {n_drop}{on}: {verdict}: {report.get('reason', '')}")
+    if report.get("max_spectral_radius") is not None:
+        print(f"max spectral radius of the interval closed loops: {report['max_spectral_radius']:.4g}")
     if report.get("margin") is not None:
         print(f"relative margin of analyze's own certificate P (min decrease / lambda_max(P), the P that maximizes "
               f"it for these gains; a design's P can have a smaller one): {report['margin']:.3g}")
@@ -393,7 +426,8 @@ def cmd_analyze(args) -> int:
 def cmd_simulate(args) -> int:
     fam = load_plant(args.plant, args.sampling_period)
     gains = load_gains(args.gains)
-    n_drop = args.n_drop or len(gains)
+    net = _network(args)
+    n_drop = args.n_drop or (net.n_drop if net is not None else len(gains))
     if args.x0 is None:
         x0 = [1.0] * fam.n_states
     else:
@@ -407,13 +441,20 @@ def cmd_simulate(args) -> int:
     print(plant_summary(fam))
     if args.server:
         with _client(args) as c:
-            run = c.simulate(fam, gains, x0, n_drop, **{k: v for k, v in opts.items() if v is not None})
+            run = c.simulate(fam, gains, x0, n_drop, network=net, **{k: v for k, v in opts.items() if v is not None})
         data = run.raw
     else:
         from solver import simulate
 
-        run = simulate(fam, gains, n_drop, x0=x0, **opts)
+        run = simulate(fam, gains, n_drop, x0=x0, **opts, **_network_kwargs("simulate", net))
         data = jsonable(run.to_dict())
+        if net is not None:
+            data["network"] = net.to_dict()
+    ages = getattr(run, "ages", None)
+    if ages is not None and net is not None:
+        ages = np.asarray(ages)
+        print(f"buffer ages on {net.describe()}: max {int(ages.max())}, "
+              f"{int(np.sum(ages > 0))} samples without a fresh packet")
     lost = int(np.sum(~np.asarray(run.effective)))
     peak = float(np.max(np.linalg.norm(run.state, axis=1)))
     print(f"simulated {args.steps} samples (seed {args.seed}): {lost} without a new packet; "
@@ -506,6 +547,9 @@ def cmd_channel(args) -> int:
     gains = None if args.gains is None else load_gains(args.gains)
     n_drop = args.n_drop or len(gains)
     channel = _channel_from_args(args)
+    if args.delays is not None:
+        channel = channel.with_delays(_numbers(args.delays, "--delays"))
+    net = _network(args)
     weights = None if args.no_cost else (np.eye(fam.n_states), np.eye(fam.n_inputs))
     print(plant_summary(fam))
     if args.design:
@@ -518,11 +562,17 @@ def cmd_channel(args) -> int:
         gains = res.gains
         for q, K in enumerate(gains, start=1):
             print(f"K_{q} = {_fmt_matrix(K)}")
-    rep = analyze_channel(fam, gains, n_drop, channel, exhausted=args.exhausted, weights=weights)
+    rep = analyze_channel(fam, gains, n_drop, channel, exhausted=args.exhausted, weights=weights, network=net)
     h = fam.sampling_period
     per = f"{rep.burst_rate / h * 3600:.4g} per hour" if h else f"{rep.burst_rate:.4g} per sample"
-    print(f"channel: loss fraction {channel.loss_fraction:.4g}; runs of >= {n_drop} lost samples: {per} "
+    runs = (f"the buffer's age reaching {n_drop} (losses and late packets, delays {list(rep.delays)})"
+            if rep.delays is not None else f"runs of >= {n_drop} lost samples")
+    print(f"channel: loss fraction {channel.loss_fraction:.4g}; {runs}: {per} "
           f"(mean time between: {rep.mean_time_between_bursts:.4g} samples)")
+    if rep.network_violations is not None:
+        v = rep.network_violations
+        per = f"{v['rate'] / h * 3600:.4g} per hour" if h else f"{v['rate']:.4g} per sample"
+        print(f"network {net.describe()}: broken at {per} ({v['what']})")
     verdict = {True: "mean-square stable (certified)", False: "NOT mean-square stable (certified)",
                None: "unknown"}[rep.ms_stable]
     print(f"exhausted = {args.exhausted}: {verdict}; radius {rep.ms_radius:.6g}: {rep.reason}")

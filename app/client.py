@@ -169,8 +169,9 @@ class DesignResult:
 
     Attributes
     ----------
-    outcome : {"stabilized", "infeasible", "marginal", "not_converged"}
-        ``stabilized`` only with a certificate that passed the service's float64 re-check.
+    outcome : {"stabilized", "infeasible", "marginal", "not_certified", "not_converged"}
+        ``stabilized`` only with a certificate that passed the service's float64 re-check; ``not_certified``
+        (on a network): the convex condition is proven infeasible, which does not prove that no gains exist.
     gains : ndarray, shape (n_drop, m, n), or None
         ``gains[q-1] = K_q``: after an effective packet at ``i_m`` the buffer plays
         ``u(i_m + q - 1) = K_q x(i_m)``.
@@ -213,6 +214,8 @@ class DesignResult:
     observer_gains : ndarray, shape (r, n, p), or None
         Output feedback (``feedback="output"``): the observer gains L; ``raw["observer"]`` and
         ``raw["joint_certificate"]`` hold their proof and the whole loop's certificate.
+    network : dict or None
+        The network the gains are certified for (null: the paper's ``bounded_drops``).
     raw : dict
         The JSON result (``DesignResult`` in ``/openapi.json``).
     """
@@ -241,6 +244,7 @@ class DesignResult:
     performance: Any = None
     invariant_set: np.ndarray | None = None
     observer_gains: np.ndarray | None = None
+    network: dict | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -257,7 +261,7 @@ class DesignResult:
                    input_names=result.get("input_names"), units=result.get("units"), job_id=job_id,
                    objective=result.get("objective") or "stability", performance=_performance(result.get("performance")),
                    invariant_set=_array(result.get("invariant_set")),
-                   observer_gains=_array(result.get("observer_gains")), raw=result)
+                   observer_gains=_array(result.get("observer_gains")), network=result.get("network"), raw=result)
 
     @property
     def success(self) -> bool:
@@ -329,8 +333,20 @@ def _channel_json(channel) -> dict:
     """A channel as request JSON: a :class:`solver.channel.Channel` becomes its ``markov`` form."""
     if hasattr(channel, "to_dict"):  # the request's markov form has only these fields
         data = channel.to_dict()
-        return {k: data[k] for k in ("kind", "transition", "loss")}
+        return {k: data[k] for k in ("kind", "transition", "loss", "delays") if k in data}
     return channel
+
+
+def network_json(network) -> dict | None:
+    """A network as request JSON: a :class:`solver.Network` (its ``to_dict``), CLI text (``"delays:2,3"``,
+    :meth:`solver.Network.parse`) or the JSON itself."""
+    if network is None or isinstance(network, dict):
+        return network
+    if isinstance(network, str):
+        from solver import Network
+
+        network = Network.parse(network)
+    return network.to_dict()
 
 
 @dataclass
@@ -382,6 +398,8 @@ class SimulationResult:
         A new packet reached the buffer at k.
     per_mode : list of SimulationResult
         For a design's trace: one run per fixed plant mode (same losses).
+    ages : ndarray of int, shape (steps,), or None
+        The buffer packet's age ``k - stamp`` at each sample (runs on a ``network``).
     raw : dict
     """
 
@@ -391,6 +409,7 @@ class SimulationResult:
     mode: np.ndarray
     effective: np.ndarray
     per_mode: list = field(default_factory=list)
+    ages: np.ndarray | None = None
     raw: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -398,7 +417,8 @@ class SimulationResult:
         return cls(time=np.asarray(data["t"], dtype=float), state=np.asarray(data["x"], dtype=float),
                    input=np.asarray(data["u"], dtype=float), mode=np.asarray(data["mode"], dtype=int),
                    effective=np.asarray(data["effective"], dtype=bool),
-                   per_mode=[cls.from_json(run) for run in data.get("per_mode") or []], raw=data)
+                   per_mode=[cls.from_json(run) for run in data.get("per_mode") or []],
+                   ages=None if data.get("ages") is None else np.asarray(data["ages"], dtype=int), raw=data)
 
 
 @dataclass
@@ -590,19 +610,20 @@ class Client:
         return job
 
     # -- designs
-    def design(self, plant, n_drop: int, method: str = "lmi", *, wait: bool | float = True,
+    def design(self, plant, n_drop: int | None = None, method: str = "lmi", *, wait: bool | float = True,
                sampling_period: float | None = None, label: str | None = None, objective: str | None = None,
                weights=None, x0=None, disturbance=None, output=None, u_max=None, channel=None,
                exhausted: str = "hold", feedback: str | None = None, sensor_n_drop: int | None = None,
-               observer: str | None = None, noise=None, **options) -> DesignResult | Job:
+               observer: str | None = None, noise=None, network=None, **options) -> DesignResult | Job:
         """Design gains K_1..K_{n_drop} on the service.
 
         Parameters
         ----------
         plant : PlantFamily, list of control.StateSpace or dict
             See :func:`plant_json`.
-        n_drop : int
-            At most ``n_drop - 1`` consecutive losses.
+        n_drop : int, optional
+            At most ``n_drop - 1`` consecutive losses (the service's default without a network; a
+            network's own ``n_drop`` otherwise).
         method : str, default "lmi"
             ``lmi`` (one SDP), ``ccl`` (the paper's iteration), ... (``GET /openapi.json`` lists them).
         wait : bool or float, default True
@@ -620,6 +641,8 @@ class Client:
         channel, exhausted
             A :class:`solver.channel.Channel` (or its JSON) to judge the designed gains on; the result's
             ``raw["channel"]`` is then the report of :meth:`analyze_channel` (burst rate, ``ms_stable``, ...).
+        network : solver.Network, str or dict, optional
+            The network to design for (``Network.delays(2, 3)``, ``"delays:2,3"`` or its JSON).
         **options
             ``decay_rate``, ``plant_switching``, ``scheme``, ``solver``, ``margin``, ``max_iter``
             (the request's ``options``).
@@ -635,7 +658,11 @@ class Client:
         JobFailed
             The job failed or was cancelled.
         """
-        body = {"plant": plant_json(plant, sampling_period), "n_drop": n_drop, "method": method}
+        body = {"plant": plant_json(plant, sampling_period), "method": method}
+        if n_drop is not None:
+            body["n_drop"] = n_drop
+        if network is not None:
+            body["network"] = network_json(network)
         if label is not None:
             body["label"] = label
         if options:
@@ -692,15 +719,18 @@ class Client:
 
     # -- synchronous computations
     def analyze(self, plant, gains, n_drop: int | None = None, *, sampling_period: float | None = None,
-                weights=None, x0=None, disturbance=None, output=None, **options) -> AnalysisResult:
+                weights=None, x0=None, disturbance=None, output=None, network=None, **options) -> AnalysisResult:
         """Certify given gains (``POST /v1/analyses``): Theorem 1 certificate and spectral radii.
 
         ``gains`` has shape (n_drop, m, n); ``options``: ``plant_switching``, ``bounds``,
         ``max_product_length``.  ``weights``/``x0`` and ``disturbance``/``output`` ask for the cost and
-        l2-gain brackets (``result.cost``, ``result.hinf``), as in :func:`solver.analyze`.
+        l2-gain brackets (``result.cost``, ``result.hinf``), as in :func:`solver.analyze`; ``network`` (a
+        :class:`solver.Network`, ``"delays:2,3"`` or its JSON) the verdict on that network.
         """
         body = {"plant": plant_json(plant, sampling_period), "gains": _gains_json(gains), **_lists(options),
                 **performance_json(weights=weights, x0=x0, disturbance=disturbance, output=output)}
+        if network is not None:
+            body["network"] = network_json(network)
         if n_drop is not None:
             body["n_drop"] = n_drop
         return AnalysisResult.from_json(self._request("POST", "/v1/analyses", json=body).json())
@@ -711,9 +741,12 @@ class Client:
 
         ``channel``: a :class:`solver.channel.Channel` or its JSON (``{"kind": "gilbert_elliott", ...}``);
         ``options``: ``exhausted``, ``plant_transitions``, ``weights`` (``{"Q": ..., "R": ...}`` or a pair),
-        ``noise``.
+        ``noise``, ``network`` (the result's ``raw["network_violations"]``: how often the channel breaks it).
+        A channel made with ``Channel.with_delays`` sends its delays.
         """
         channel = _channel_json(channel)
+        if options.get("network") is not None:
+            options["network"] = network_json(options["network"])
         weights = options.get("weights")
         if isinstance(weights, (tuple, list)):
             options["weights"] = {"Q": np.asarray(weights[0], dtype=float).tolist(),
@@ -732,8 +765,11 @@ class Client:
         """A seeded simulation of given gains (``POST /v1/simulations``).
 
         ``options``: ``loss_model``, ``sensor_loss``, ``control_loss``, ``plant_switching``, ``mode``; or
-        ``channel`` (a :class:`solver.channel.Channel` or its JSON), ``exhausted``, ``plant_transitions``.
+        ``channel`` (a :class:`solver.channel.Channel` or its JSON), ``exhausted``, ``plant_transitions``; or
+        ``network`` (a :class:`solver.Network`, ``"delays:2,3"`` or its JSON): ages drawn from it (``ages``).
         """
+        if options.get("network") is not None:
+            options["network"] = network_json(options["network"])
         if options.get("channel") is not None:
             options["channel"] = _channel_json(options["channel"])
         if isinstance(options.get("plant_transitions"), np.ndarray):

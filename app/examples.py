@@ -26,6 +26,10 @@ DESIGN_EXAMPLES = {
                             "state_names": ["i_a", "omega"], "input_names": ["v_a"],
                             "units": {"i_a": "A", "omega": "rad/s", "v_a": "V"}}},
     },
+    "paper_delays": {
+        "summary": "Paper example on a network with late and reordered packets (one sample late at most)",
+        "value": {"plant": PAPER_PLANT, "method": "lmi", "network": {"kind": "delays", "max_delay": 1, "n_drop": 2}},
+    },
     "paper_ccl": {
         "summary": "Paper example with the paper's CCL iteration",
         "value": {"plant": PAPER_PLANT, "n_drop": 3, "method": "ccl", "options": {"max_iter": 50}},
@@ -63,6 +67,14 @@ CHANNEL_EXAMPLES = {
                               "loss_bad": 0.8},
                   "exhausted": "zero", "weights": {"Q": [[1, 0], [0, 1]], "R": [[1]]}},
     },
+    "paper_late_packets": {
+        "summary": "The same link delivering 30 % of its packets a sample late; how often a (2, 5) window breaks",
+        "value": {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01,
+                  "channel": {"kind": "gilbert_elliott", "p_gb": 0.05, "p_bg": 0.3, "loss_good": 0.01,
+                              "loss_bad": 0.8, "delays": [0.7, 0.3]},
+                  "exhausted": "zero", "weights": {"Q": [[1, 0], [0, 1]], "R": [[1]]},
+                  "network": {"kind": "weakly_hard", "misses": 2, "window": 5, "n_drop": 3}},
+    },
 }
 
 SIMULATION_EXAMPLES = {
@@ -70,6 +82,11 @@ SIMULATION_EXAMPLES = {
         "summary": "Fig. 3-like run: paper plant and gains, x0 = [-3, 2]",
         "value": {"plant": PAPER_PLANT, "n_drop": 3, "gains": PAPER_GAINS_H01, "x0": [-3.0, 2.0],
                   "steps": 100, "seed": 42},
+    },
+    "paper_weakly_hard": {
+        "summary": "Paper plant and gains, ages drawn from a weakly-hard (2, 5) network",
+        "value": {"plant": PAPER_PLANT, "gains": PAPER_GAINS_H01, "x0": [-3.0, 2.0], "steps": 100, "seed": 42,
+                  "network": {"kind": "weakly_hard", "misses": 2, "window": 5, "n_drop": 3}},
     },
 }
 

@@ -211,6 +211,8 @@ class Channel:
         "loss_bad"}`` or ``{"kind": "markov", "transition": [[...]], "loss": [...]}``."""
         if not isinstance(data, dict):
             raise InvalidInput("channel must be an object", ("channel",))
+        if data.get("delays") is not None:
+            return cls.from_dict({k: v for k, v in data.items() if k != "delays"}).with_delays(data["delays"])
         kind = data.get("kind")
         try:
             if kind == "bernoulli":
@@ -223,6 +225,16 @@ class Channel:
         except KeyError as err:
             raise InvalidInput(f"channel of kind {kind!r} needs {err.args[0]!r}", (err.args[0],)) from None
         raise InvalidInput("channel kind must be 'bernoulli', 'gilbert_elliott' or 'markov'", ("kind",))
+
+    def with_delays(self, delays) -> "Channel":
+        """This loss chain with per-packet delays: ``delays[a]`` = P(delay = a samples | not lost).
+
+        Returns a :class:`solver.channel_delays.DelayedChannel`; ``analyze_channel`` then covers late
+        and reordered packets (the newest stamp wins).
+        """
+        from .channel_delays import DelayedChannel
+
+        return DelayedChannel(self.transition, self.loss, self.names, delays=delays)
 
     def to_dict(self) -> dict:
         return {"kind": "markov", "transition": self.transition.tolist(), "loss": self.loss.tolist(),
@@ -468,12 +480,20 @@ class ChannelReport:
     plant_transitions: str
     n_modes: int
     reason: str
+    #: Set for a delayed channel: its delay pmf; with ``network=``: how often the channel breaks it.
+    delays: list | None = None
+    network_violations: dict | None = None
 
     def to_dict(self) -> dict:
         def num(x):
             return None if x is None or not np.isfinite(x) else float(x)
 
-        return {
+        extra = {}
+        if self.delays is not None:
+            extra["delays"] = list(self.delays)
+        if self.network_violations is not None:
+            extra["network_violations"] = self.network_violations
+        return extra | {
             "burst_rate": self.burst_rate,
             "mean_time_between_bursts": num(self.mean_time_between_bursts),
             "mean_time_between_bursts_seconds": num(self.mean_time_between_bursts_seconds),
@@ -598,7 +618,7 @@ def _verdicts(loop, want_lower: bool = True):
 
 
 def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: str = "hold",
-                    plant_transitions=None, weights=None, noise=None, observer_gains=None,
+                    plant_transitions=None, weights=None, noise=None, network=None, observer_gains=None,
                     sensor_channel=None, max_memory: float | None = None,
                     time_limit: float | None = None) -> ChannelReport:
     """The predictive loop on a stochastic channel: bursts, mean-square stability, expected cost.
@@ -627,6 +647,11 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     noise : array_like (n, n), optional
         Process noise covariance W (``x(k+1) = F x + G u + w``): adds ``stationary_cost``, the
         long-run cost per sample.
+    network : Network, optional
+        Adds ``network_violations``: the exact rate at which the channel breaks that network's
+        constraint (drop bound, delay range or weakly-hard window; :mod:`solver.channel_delays`).
+        A channel made with :meth:`Channel.with_delays` is analyzed with its late packets whether or
+        not a network is given.
     max_memory, time_limit : float, optional
         Budget in bytes and seconds (defaults: 4 GiB, ``NCS_SOLVER_MAX_MEMORY``; 300 s,
         ``NCS_SOLVER_MAX_SECONDS``): an analysis whose second-moment operator is estimated over it is
@@ -640,6 +665,8 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     -------
     ChannelReport
     """
+    from .channel_delays import DelayedChannel, build_delayed_loop, exhaustion_rate, initial_moments, \
+        network_violations
     from .mjls import build_loop, cesaro_modes, cost_lower, cost_to_go, cost_upper
 
     if observer_gains is not None or sensor_channel is not None:
@@ -667,13 +694,30 @@ def analyze_channel(family, gains, n_drop: int, channel: Channel, *, exhausted: 
     common = dict(burst_rate=bursts.rate, mean_time_between_bursts=bursts.mean_time_between,
                   mean_time_between_bursts_seconds=bursts.mean_time_between_seconds, bursts=bursts,
                   exhausted=exhausted, plant_transitions=kind)
+    delayed = isinstance(channel, DelayedChannel)
+    if network is not None:
+        common["network_violations"] = network_violations(channel, network, family.sampling_period)
+    if delayed:
+        if kind == "arbitrary":
+            raise InvalidInput("a channel with delays needs a plant chain (None or an r x r matrix), not "
+                               "'arbitrary'", ("plant_transitions",))
+        # The buffer runs dry when its age reaches n_drop (losses and late packets together).
+        rate = exhaustion_rate(channel, n_drop)
+        mtb = 1.0 / rate if rate > 0 else float("inf")
+        h = family.sampling_period
+        common.update(burst_rate=rate, mean_time_between_bursts=mtb,
+                      mean_time_between_bursts_seconds=None if h is None else mtb * h,
+                      delays=channel.delays.tolist())
     if kind == "arbitrary":
         return _dead_link_noted(channel, _analyze_arbitrary(F, G, K, channel, exhausted, W, common))
-    loop = build_loop(F, G, K, channel.transition, channel.loss, channel.stationary, Pi, exhausted, weights=W)
+    if delayed:
+        loop = build_delayed_loop(F, G, K, channel, Pi, exhausted, weights=W)
+    else:
+        loop = build_loop(F, G, K, channel.transition, channel.loss, channel.stationary, Pi, exhausted, weights=W)
     rho, upper, lower, stable, reason = _verdicts(loop)
     cost = cost_hi = cost_lo = stat = None
     if W is not None and stable:
-        X0 = loop.initial_moments()
+        X0 = initial_moments(loop) if delayed else loop.initial_moments()
         P = cost_to_go(loop, loop.stage)
         if P is not None:
             cost = float(sum(np.sum(p * x) for p, x in zip(P, X0)))
@@ -911,6 +955,11 @@ def monte_carlo_cost(family, gains, n_drop: int, channel: Channel, weights, *, e
     if not 0 < float(confidence) < 1:
         raise InvalidInput("confidence must be in (0, 1)", ("confidence",))
     rng = np.random.Generator(np.random.PCG64(int(seed)))
+    from .channel_delays import DelayedChannel, monte_carlo_delayed_cost
+
+    if isinstance(channel, DelayedChannel):
+        cost = monte_carlo_delayed_cost(family, K, channel, Qw, Rw, exhausted, Pi, kind, runs, horizon, rng)
+        return _mc_summary(cost, runs, horizon, seed, confidence)
     _, effective = channel.sample(horizon, rng, size=runs)
     effective[:, 0] = True
     x = rng.standard_normal((runs, n))
@@ -934,6 +983,12 @@ def monte_carlo_cost(family, gains, n_drop: int, channel: Channel, weights, *, e
             x = np.einsum("rij,rj->ri", F[plant], x) + np.einsum("rij,rj->ri", G[plant], u)
             if kind != "stay":
                 plant = np.minimum((draws[k][:, None] >= cum[plant]).sum(axis=1), r - 1)
+    return _mc_summary(cost, runs, horizon, seed, confidence)
+
+
+def _mc_summary(cost, runs, horizon, seed, confidence) -> MonteCarloCost:
+    from scipy.stats import norm
+
     mean = float(np.mean(cost))
     se = float(np.std(cost, ddof=1) / np.sqrt(runs)) if runs > 1 else float("inf")
     z = float(norm.ppf(0.5 + 0.5 * float(confidence)))
@@ -1130,6 +1185,10 @@ def design_channel(family, n_drop: int, channel: Channel, *, exhausted: str = "h
         raise InvalidInput("family must be a PlantFamily", ("family",))
     if not isinstance(channel, Channel):
         raise InvalidInput("channel must be a Channel", ("channel",))
+    if getattr(channel, "delays", None) is not None and len(channel.delays) > 1:
+        raise InvalidInput("design_channel designs for losses only: for late packets design for a network "
+                           "(design(family, network=Network.delays(...))) and check it with analyze_channel",
+                           ("channel", "delays"))
     N = check_n_drop(n_drop)
     exhausted = _check_exhausted(exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs

@@ -15,6 +15,12 @@ name            size                   meaning
 ``outcome``     string                 ``stabilized``, ``infeasible`` or ``not_converged``
 ``certificate`` string                 the certificate's kind, empty when there is none
 ``h``           scalar                 the sampling period in seconds (empty when unknown)
+``network``     string                 on a network only: what the gains are certified for
+                                       (``Network.describe()``, e.g. ``delays(max_delay=2, n_drop=3)``)
+``P_node``      V x 1                  on a network only: the automaton node (1-based) of each
+                                       ``P(i,:,:)`` of a node-dependent certificate (V matrices)
+``node_ages``   V x 1                  on a network only: the buffer age of that node
+``P_plant``     V x 1                  analyses on a network: the plant mode (1-based) of ``P(i,:,:)``
 ==============  =====================  ==========================================================
 
 ``F``/``G`` use MATLAB's convention so that a written file is also a plant file for
@@ -121,6 +127,22 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
             joint = joint if isinstance(joint, dict) else joint.to_dict()
             out["P_joint"] = np.asarray(joint["P"], dtype=float)
             out["Q_joint"] = np.moveaxis(np.asarray(joint["Q"], dtype=float), 0, -1)
+    network = _get(result, "network")
+    if network is not None:  # the certificate holds for this network only: say which
+        from .networks import check_network
+
+        net = check_network(network)
+        out["network"] = net.describe()
+        cert = _get(result, "certificate")
+        cert = cert if isinstance(cert, dict) or cert is None else cert.to_dict()
+        nodes = list(range(net.nodes))
+        if cert and cert.get("nodes"):
+            nodes = [int(v) for v in cert["nodes"]]
+        elif cert and cert.get("states"):
+            nodes = [int(s["node"]) for s in cert["states"]]
+            out["P_plant"] = np.asarray([int(s["plant"]) + 1 for s in cert["states"]], dtype=float).reshape(-1, 1)
+        out["P_node"] = np.asarray(nodes, dtype=float).reshape(-1, 1) + 1
+        out["node_ages"] = np.asarray(net.ages, dtype=float)[nodes].reshape(-1, 1)
     return out
 
 
@@ -175,7 +197,8 @@ def m_script(result, family: PlantFamily | None = None, name: str | None = None)
     K = variables["K"]
     lines = [
         f"% ncs-design controller{' ' + name if name else ''}: outcome {variables['outcome']}, "
-        f"n_drop = {int(variables['n_drop'])}",
+        f"n_drop = {int(variables['n_drop'])}" + (f", network {variables['network']}" if "network" in variables
+                                                  else ""),
         "% K(q,:,:) = K_q (n_drop x m x n); Kq the same one by one; the buffer plays u(i_m+q-1) = Kq * x(i_m).",
         "% F(:,:,l), G(:,:,l): plant mode l; P: the Lyapunov certificate (see docs/design.md); h in seconds.",
         f"% sizes: n = {K.shape[2]} states, m = {K.shape[1]} inputs, r = {variables['F'].shape[2]} plant modes",

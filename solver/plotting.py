@@ -115,12 +115,14 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
     cols = max(len(traces), 1)
     n = traces[0].state.shape[1] if traces else (family.n_states if family is not None else 1)
     groups = state_groups(family, n)
-    rows = len(groups) + 2
+    # Runs on a network (late packets) carry the buffer's age per sample: a row of its own.
+    has_ages = any(_network_run(tr) for tr in traces)
+    rows = len(groups) + 2 + int(has_ages)
     if height is None:
-        height = 1.6 * len(groups) + 3.2
+        height = 1.6 * len(groups) + 3.2 + 1.2 * int(has_ages)
     fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
     axes = fig.subplots(rows, cols, sharex="col", sharey="row", squeeze=False,
-                        gridspec_kw={"height_ratios": [2] * len(groups) + [2, 1.4]})
+                        gridspec_kw={"height_ratios": [2] * len(groups) + [2] + [1.4] * int(has_ages) + [1.4]})
     timed = (family.sampling_period is not None) if family is not None else (
         bool(traces) and float(traces[0].time[1] - traces[0].time[0]) != 1.0)
     n_modes = family.n_modes if family is not None else (
@@ -129,7 +131,12 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for c, tr in enumerate(traces):
         t = np.asarray(tr.time, dtype=float)
-        ax_u, ax_m = axes[-2, c], axes[-1, c]
+        ax_u, ax_m = axes[len(groups), c], axes[-1, c]
+        ages = getattr(tr, "ages", None)
+        if has_ages and ages is not None and _network_run(tr):
+            ages = np.asarray(ages, dtype=float)[:len(t) - 1]
+            axes[-2, c].stairs(ages, t[:ages.size + 1], baseline=None, color="tab:green",
+                               label="buffer age k - stamp (K_{age+1} applied)")
         m = tr.input.shape[1]
         for g, members in enumerate(groups):
             for i in members:
@@ -174,6 +181,9 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
                 axes[g, 0].legend(loc="upper right", fontsize="small")
             ax_u.set_ylabel("input")
             ax_m.set_ylabel("network")
+            if has_ages:
+                axes[-2, 0].set_ylabel("age (samples)")
+                axes[-2, 0].legend(loc="upper right", fontsize="small")
             ax_u.legend(loc="upper right", fontsize="small")
     names = getattr(family, "mode_names", None) if family is not None else None
     for ax in axes[-1]:
@@ -185,6 +195,15 @@ def trace_figure(traces: Sequence[SimulationResult], titles: Sequence[str] | Non
                    fontsize="small", frameon=False)
     _fit_rows(axes, end)
     return fig
+
+
+def _network_run(tr) -> bool:
+    """A run whose ages came from a network or replayed deliveries (on the paper's network they add nothing)."""
+    if getattr(tr, "ages", None) is None:
+        return False
+    raw = getattr(tr, "raw", None) or {}
+    loss_model = getattr(tr, "loss_model", None) or raw.get("loss_model")
+    return (getattr(tr, "network", None) or raw.get("network")) is not None or loss_model in ("network", "arrivals")
 
 
 def _fit_rows(axes, end: float) -> None:

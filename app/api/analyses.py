@@ -28,6 +28,7 @@ async def run_analysis(request: Request,
                    body: Annotated[AnalysisRequest, Body(openapi_examples=ANALYSIS_EXAMPLES)],
                    settings: Settings = Depends(get_settings)):
     errors: list = []
+    validation.check_network(body, errors, "analyze", settings=settings)
     shape = validation.check_family_request(body, settings, errors)
     req = body.model_dump(mode="json")
     if shape is not None:

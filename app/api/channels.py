@@ -30,6 +30,7 @@ async def run_channel(request: Request,
                       body: Annotated[ChannelRequest, Body(openapi_examples=CHANNEL_EXAMPLES)],
                       settings: Settings = Depends(get_settings)):
     errors: list = []
+    validation.check_network(body, errors, sets_n_drop=False, settings=settings)
     shape = validation.check_family_request(body, settings, errors)
     if shape is not None:
         n_drop = validation.check_gains(body.gains, body.n_drop, shape, errors)

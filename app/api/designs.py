@@ -45,7 +45,11 @@ async def submit_design(
     settings: Settings = Depends(get_settings),
     owner: str | None = Depends(require_api_key),
 ):
-    shape = validation.check_design(body, settings)
+    errors: list = []
+    net = validation.check_network(body, errors, "design", settings=settings)
+    if errors:
+        raise invalid(errors)
+    shape = validation.check_design(body, settings, net)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
     validation.check_performance(req, settings)
@@ -150,7 +154,7 @@ async def design_trace(
     body = cache.get(key)
     if body is None:
         body = await run_sync(request, "trace", req["plant"], result["gains"], req["n_drop"], params,
-                              loc=["query"], plant=req["plant"])  # canonical JSON bytes, encoded in the pool
+                              req.get("network"), loc=["query"], plant=req["plant"])  # canonical JSON, encoded in the pool
         cache.put(key, body)
     return etag_response(request, "application/json", body)
 
@@ -187,7 +191,7 @@ async def design_trace_image(
     body = cache.get(key)
     if body is None:
         body = await run_sync(request, "trace_plot", req["plant"], result["gains"], req["n_drop"], params, fmt,
-                              size, loc=["query"], plant=req["plant"])
+                              size, req.get("network"), loc=["query"], plant=req["plant"])
         cache.put(key, body)
     return etag_response(request, MEDIA_TYPES[fmt], body)
 

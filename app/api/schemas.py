@@ -11,11 +11,11 @@ the computation gave a non-finite value. Result models accept fields they do not
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_serializer
+from pydantic import BaseModel, ConfigDict, Field, field_serializer, model_serializer
 
-from app.compute.requests import DesignRequest, MarginRequest
+from app.compute.requests import DESIGN_OUTCOMES, DesignRequest, MarginRequest
 
 #: A number in a result; null where the computation gave a non-finite value (NaN, infinity).
 Num = float | None
@@ -38,13 +38,35 @@ class ModeLabel(_Open):
                                                        "the eta samples of the interval.")
     eta: int | None = Field(None, description="Interval length eta in samples (1 .. n_drop): eta - 1 losses before the next "
                                  "effective packet.")
-    age: int | None = Field(None, description="On a network: the buffer's age d at this sample (`u = K_(d+1) x(t-d)`).")
-    node: int | None = Field(None, description="On a network: the automaton node (0-based) of this sample.")
+    age: int | None = Field(None, description="On a network: the buffer age d (samples) the mode applies, "
+                                              "`u = K_{d+1} x(t - d)`.")
+    from_: int | None = Field(None, alias="from", description="On a network: the automaton node (0-based) the "
+                                                                "transition leaves.")
+    to: int | None = Field(None, description="On a network: the automaton node (0-based) it enters.")
+    node: int | None = Field(None, description="On a network: the automaton node (0-based) of the sample.")
+
+    @model_serializer(mode="wrap")
+    def _network_fields_when_set(self, handler):
+        # The network fields appear only on networks: the paper's answers stay as they were.
+        return {k: v for k, v in handler(self).items() if v is not None or k not in ("age", "from", "to", "node")}
 
 
 class LeftVector(_Open):
     real: list[Num] = Field(description="Real part of the left eigenvector w (length n).")
     imag: list[Num] = Field(description="Imaginary part of w (length n).")
+
+
+class CertificateState(_Open):
+    node: int = Field(description="Automaton node (0-based) of the network.")
+    plant: int = Field(description="Plant mode (0-based).")
+
+
+class UnstableCycle(_Open):
+    """An admissible cycle of the network whose closed-loop product has spectral radius >= 1 (proven)."""
+
+    ages: list[int] = Field(description="The buffer age at each sample of the cycle (samples).")
+    modes: list[int] = Field(description="The plant mode (0-based) at each sample.")
+    nodes: list[int] | None = Field(None, description="On a network: the automaton node (0-based) at each sample.")
 
 
 class Certificate(_Open):
@@ -55,6 +77,9 @@ class Certificate(_Open):
     * `farkas` (no design of the method exists): `multipliers` (S x 2n x 2n), `gain_bound`, `delta`, `e_norm`.
     * `uncontrollable` (no gains can stabilize): `plant`, `eigenvalue`, `left_vector`, `residual_eig`,
       `residual_input`.
+    * On a `network`: node-dependent quadratic certificates (`P`: one matrix per automaton node, `nodes`, or
+      per (node, plant mode), `states`; `form` says on which state) and `farkas_network` (the network LMI has
+      no solution: outcome `not_certified`).
     """
 
     kind: str = Field(description="`common_quadratic`, `switched` (stability proofs), `farkas` or "
@@ -89,6 +114,13 @@ class Certificate(_Open):
     P: Matrix | list[Matrix] | None = Field(
         None, description="`common_quadratic`: the augmented Theorem 1 matrix, (n N) x (n N). `switched`: S "
         "matrices n x n, `P[s]` for mode `modes[s]`. Omitted in the designs of a margin curve.")
+    form: str | None = Field(None, description="Network certificates: `lifted` (x at the samples where a packet "
+                                               "takes effect) or `augmented` (xi(t) = (x(t), ..., x(t-N+1))).")
+    nodes: list[int] | None = Field(None, description="Network certificates: the automaton node of each `P[i]`.")
+    states: list[CertificateState] | None = Field(None, description="Network analyses: the (node, plant mode) of "
+                                                                    "each `P[i]`.")
+    worst_edge: list[int] | None = Field(None, description="Network analyses: the edge `[i, j]` (indices into "
+                                                           "`states`) with the smallest decrease.")
     X: Matrix | None = Field(None, description="`common_quadratic`: the reduced certificate on x(i_m), n x n "
                                                "(`A_s^T X A_s < X` for all s).")
     multipliers: list[Matrix] | list[list[Matrix]] | None = Field(
@@ -269,13 +301,39 @@ class OutputAnalysis(_Open):
     error_cycle: ErrorCycle | None = Field(None, description="When the estimate diverges: the pattern.")
 
 
+class NetworkEcho(_Open):
+    """The network a result is for, as the request gave it (`kind` and its parameters)."""
+
+    kind: str = Field(description="`bounded_drops`, `delays`, `weakly_hard`, `automaton` (or `intersection`).")
+    n_drop: int | None = Field(None, description="N: the buffer's age stays <= N - 1.")
+    max_delay: int | None = Field(None, description="`delays`: largest delay (samples).")
+    min_delay: int | None = Field(None, description="`delays`: smallest delay (samples).")
+    misses: int | None = Field(None, description="`weakly_hard`: misses allowed per window.")
+    window: int | None = Field(None, description="`weakly_hard`: the window (samples).")
+    ages: list[int] | None = Field(None, description="`automaton`: the age of each node.")
+    edges: list[list[int]] | None = Field(None, description="`automaton`: the edges `[i, j]`.")
+
+    @model_serializer(mode="wrap")
+    def _as_given(self, handler):
+        # The network exactly as the request gave it: a delays network has no `ages` (not `"ages": null`).
+        return {k: v for k, v in handler(self).items() if v is not None}
+
+
+#: Every outcome of a design.
+DesignOutcome = Literal[DESIGN_OUTCOMES]  # type: ignore[valid-type]
+
+
 class DesignResult(_Open):
     """The result of a design job (`outcome` is an answer: `infeasible` is a succeeded job too)."""
 
-    outcome: str = Field(description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design "
-                                     "of this method exists, of any margin; `certificate` proves it), `marginal` "
-                                     "(the Farkas certificate excludes only designs with relative margin >= "
-                                     "`certificate.margin`; smaller-margin designs may exist) or `not_converged`.")
+    outcome: DesignOutcome = Field(
+        description="`stabilized` (gains with a re-checked certificate), `infeasible` (no design of this method "
+        "exists, of any margin; `certificate` proves it), `marginal` (the Farkas certificate excludes only designs "
+        "with relative margin >= `certificate.margin`; smaller-margin designs may exist), `not_certified` (on a "
+        "`network`: the convex sufficient condition is proven infeasible, `certificate` attached, which does not "
+        "prove that no gains exist) or `not_converged`.")
+    network: NetworkEcho | None = Field(None, description="The network the gains are designed and certified "
+                                                             "for (as in the request); null: the paper's.")
     method: str | None = Field(None, description="Design method: `lmi`, `ccl` or `switched`.")
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive losses.")
     gains: list[Matrix] | None = Field(
@@ -409,14 +467,16 @@ class AnalysisReport(_Open):
         None, description="Deprecated name of `decay_factor_per_second` (a factor per second, not a rate in 1/s).")
     worst_sequence: list[ModeLabel] | None = Field(None, description="The product attaining `jsr_lower_bound`, "
                                                                      "in the order applied.")
-    unstable_cycle: dict[str, list[int]] | None = Field(
-        None, description="When `stable` is false: the destabilizing pattern, one entry per sample, repeated "
-        "forever: `ages` (buffer ages), `modes` (plant modes, 0-based) and on a network `nodes`.")
     product_length_checked: int | None = Field(None, description="Longest product examined.")
     scaling: list[Num] | None = Field(None, description="State scaling (length n) of a certificate found for "
                                                           "the balanced loops; null: none.")
     modes: list[ModeLabel] | None = Field(None, description="The S closed-loop modes in order.")
     timings: dict[str, float | int | bool | None] | None = Field(None, description="Where the time went (s).")
+    network: NetworkEcho | None = Field(None, description="The network the verdict is for (as in the request); "
+                                                             "null: the paper's.")
+    unstable_cycle: UnstableCycle | None = Field(
+        None, description="When `stable` is false: the destabilizing pattern, one entry per sample, repeated "
+        "forever: `ages` (buffer ages), `modes` (plant modes, 0-based) and on a network `nodes`.")
 
 
 class Simulation(_Open):
@@ -444,6 +504,7 @@ class Simulation(_Open):
     n_drop: int | None = Field(None, description="N: at most N - 1 consecutive non-effective samples.")
     channel_state: list[int] | None = Field(None, description="Channel state (0-based) at each sample, steps "
                                                               "values (runs on a channel only).")
+    network: NetworkEcho | None = Field(None, description="The network the run's ages were drawn from.")
 
 
 class ModeRun(Simulation):
@@ -528,7 +589,8 @@ class JobSummary(BaseModel):
     cancel_requested: bool = Field(description="A cancel was asked for.")
     progress: Progress | None = Field(None, description="The latest progress record.")
     outcome: str | None = Field(None, description="Design jobs, once succeeded: the outcome (`stabilized`, "
-                                                  "`infeasible`, `not_converged`).")
+                                                  "`infeasible`, `marginal`, `not_certified` on a network, "
+                                                  "`not_converged`).")
     margin: float | int | None = Field(None, description="Margin jobs, once succeeded: the margin (largest N, a "
                                                           "count, or largest h in seconds; see `margin_kind`).")
     margin_kind: str | None = Field(None, description="Margin jobs: the search (`n_drop`, `sampling_period`, "
@@ -671,6 +733,20 @@ class ChannelCertificate(_Open):
     steps: int | None = Field(None, description="Steps of the growth certificate.")
 
 
+class NetworkViolations(_Open):
+    """How often a channel breaks a network's constraint (exact, from its Markov chain)."""
+
+    network: NetworkEcho = Field(description="The network (as in the request).")
+    rate: float = Field(description="Stationary probability per sample that the sample breaks it.")
+    rate_per_second: float | None = Field(None, description="`rate / h` (1/s); null without a sampling period.")
+    mean_time_between: float | None = Field(None, description="`1 / rate` samples; null when it never breaks.")
+    what: str = Field(description="What counts as a violation.")
+    miss_fraction: float | None = Field(None, description="`weakly_hard`: stationary probability that a sample has "
+                                                          "no fresh packet (lost or late).")
+    states: int | None = Field(None, description="`weakly_hard`: size of the chain solved (age process times the "
+                                                 "window's miss flags).")
+
+
 class ChannelAnalysis(_Open):
     """Given gains on a stochastic channel (`POST /v1/channels`)."""
 
@@ -697,6 +773,11 @@ class ChannelAnalysis(_Open):
     plant_transitions: str = Field(description="`stay`, `markov` or `arbitrary`.")
     n_modes: int = Field(description="Modes of the jump system (channel state, plant mode, buffer age).")
     reason: str = Field(description="The verdict in words.")
+    delays: list[float] | None = Field(None, description="The channel's delay distribution, when it has one "
+                                                         "(`burst_rate` is then the rate the buffer's age reaches "
+                                                         "n_drop, late packets included).")
+    network_violations: NetworkViolations | None = Field(None, description="With a request `network`: how often "
+                                                                           "the channel breaks it.")
 
 
 DesignResult.model_rebuild()  # its `channel` field names ChannelAnalysis, defined below it

@@ -28,6 +28,7 @@ async def run_simulation(request: Request,
                    body: Annotated[SimulationRequest, Body(openapi_examples=SIMULATION_EXAMPLES)],
                    settings: Settings = Depends(get_settings)):
     errors: list = []
+    validation.check_network(body, errors, "simulate", settings=settings)
     shape = validation.check_family_request(body, settings, errors)
     validation.check_steps(body.steps, settings, errors, ["body", "steps"])
     if shape is not None:

@@ -110,12 +110,13 @@ def lmi_size(method: str, n: int, r: int, n_drop: int, plant_switching: str = "p
 
 
 def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: Settings, loc: list,
-               errors: list, solves: int = 1) -> None:
-    """The library's size estimate against the service's budgets: LMI size, worker memory, job time."""
+               errors: list, solves: int = 1, network: Any = None) -> None:
+    """The library's size estimate against the service's budgets: LMI size, worker memory, job time (on a
+    ``network``: its automaton nodes times the plant modes, :func:`solver.compiled.design_size`)."""
     switching = options.plant_switching
     scheme = getattr(options, "scheme", None) or "predictive"
     size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme,
-                       getattr(options, "solver", None) or "AUTO")
+                       getattr(options, "solver", None) or "AUTO", network=network)
     if size.lmi_size > settings.max_lmi_size:
         errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
                                   f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "
@@ -142,13 +143,14 @@ def check_family_request(body: Any, settings: Settings, errors: list) -> Shape |
     return shape
 
 
-def check_design(req: Any, settings: Settings) -> Shape:
+def check_design(req: Any, settings: Settings, network: Any = None) -> Shape:
     errors: list = []
     shape = plant_shape(req.plant, settings, errors)
     check_n_drop(req.n_drop, settings, errors)
     if shape is not None and not errors:
         solves = solve_count(req.method, req.options.decay_rate, 1e-3, getattr(req.options, "max_iter", 50))
-        check_size(req.method, shape, req.n_drop, req.options, settings, ["body", "n_drop"], errors, solves)
+        check_size(req.method, shape, req.n_drop, req.options, settings,
+                   ["body", "n_drop" if network is None else "network"], errors, solves, network=network)
         if req.options.decay_rate not in (None, "auto") and req.method == "ccl":
             errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
                                       "and switched methods, not ccl", "unsupported_option"))
@@ -313,7 +315,9 @@ def check_feedback(req: dict[str, Any]) -> None:
 def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
     """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
     states = {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
-    size = states * shape.r * (n_drop + 1) * (2 * shape.n) ** 2
+    # Late packets: the chain remembers the states of the last W samples, the state W + 1 past x's.
+    window = max(len(getattr(channel, "delays", None) or [1.0]) - 1, 1)
+    size = states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
     if size > settings.max_channel_size:
         errors.append(field_error(["body", "channel"], f"the channel analysis has an operator of size up to {size}, "
                                   f"over the limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)",
@@ -352,3 +356,36 @@ def check_with_solver(plant: dict[str, Any], n_drop: int | None = None, plant_sw
         check_design_inputs(canonical_json(plant), n_drop, plant_switching, scheme)
     except InvalidInput as exc:
         raise invalid([solver_field_error(getattr(exc, "field", ()), str(exc), plant)]) from None
+
+
+def check_network(body: Any, errors: list, function: str | None = None, sets_n_drop: bool = True,
+                  settings: Settings | None = None) -> Any:
+    """A request's ``network``: the solver's own checks (reachability, ages, ``max_delay <= n_drop - 1``, ...)
+    as 422s under ``/network/...``; its ``n_drop`` becomes the request's (an explicit, different ``n_drop`` is
+    an error); and, for ``function`` (``design``, ``analyze``, ``simulate``), whether this solver takes it.
+    Returns the :class:`solver.Network` or None."""
+    if getattr(body, "network", None) is None:
+        return None
+    from app.compute.tasks import network_from_request, network_kwargs
+
+    given = getattr(body.network, "n_drop", None)
+    if settings is not None and given is not None and given > settings.max_n_drop:
+        # before the automaton is built: its size grows with n_drop
+        errors.append(field_error(["body", "network", "n_drop"], f"n_drop = {given} is over the limit of "
+                                  f"{settings.max_n_drop} (NCS_MAX_N_DROP)", "limit_exceeded"))
+        return None
+    try:
+        net = network_from_request(body.network.model_dump())
+        if function is not None:
+            network_kwargs(function, net)
+    except InvalidInput as exc:
+        errors.append(solver_field_error(getattr(exc, "field", ()), str(exc)))
+        return None
+    if sets_n_drop:
+        given = body.n_drop if "n_drop" in body.model_fields_set else None
+        if given is not None and given != net.n_drop:
+            errors.append(field_error(["body", "n_drop"], f"n_drop = {given} disagrees with the network's n_drop = "
+                                      f"{net.n_drop} ({net.describe()}): give one of them", "network_mismatch"))
+        else:
+            body.n_drop = net.n_drop
+    return net

@@ -27,6 +27,12 @@ except Exception:  # pragma: no cover - solver not importable
     METHODS = ("lmi", "ccl")
 MethodName = Literal[METHODS]  # type: ignore[valid-type]
 
+try:  # a design's outcomes (solver.result.OUTCOMES) and, on networks, "not_certified"
+    from solver.result import OUTCOMES as _SOLVER_OUTCOMES
+except Exception:  # pragma: no cover - solver not importable
+    _SOLVER_OUTCOMES = ("stabilized", "infeasible", "marginal", "not_converged")
+DESIGN_OUTCOMES = tuple(dict.fromkeys((*_SOLVER_OUTCOMES, "not_certified")))
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
@@ -211,11 +217,20 @@ class Output(_Strict):
 Probability = Annotated[float, Strict(), AllowInfNan(False), Field(ge=0, le=1)]
 
 
+#: Delay distribution of a channel's packets (docs/design.md, "Networks"): `delays[a]` = P(an effective packet
+#: arrives a samples late), a = 0..D; sums to 1; D <= n_drop - 1.
+Delays = Annotated[list[Probability], Field(min_length=1, max_length=64)]
+_DELAYS = dict(description="Per-packet delay distribution: `delays[a]` = P(an effective packet arrives a samples "
+                           "after it was sent), a = 0, 1, ...; sums to 1; the largest delay must be <= n_drop - 1. "
+                           "Late packets are applied with their age (the newest stamp wins). Null: no delays.")
+
+
 class BernoulliChannel(_Strict):
     """Independent losses: each sample is not effective with probability `loss`."""
 
     kind: Literal["bernoulli"] = Field(description="`bernoulli`: independent losses.")
     loss: Probability = Field(description="Loss probability per sample (dimensionless).")
+    delays: Delays | None = Field(None, **_DELAYS)
 
 
 class GilbertElliottChannel(_Strict):
@@ -226,6 +241,7 @@ class GilbertElliottChannel(_Strict):
     p_bg: Probability = Field(description="P(bad -> good) per sample.")
     loss_good: Probability = Field(0.0, description="Loss probability of a sample in the good state.")
     loss_bad: Probability = Field(1.0, description="Loss probability of a sample in the bad state.")
+    delays: Delays | None = Field(None, **_DELAYS)
 
 
 class MarkovChannel(_Strict):
@@ -235,10 +251,61 @@ class MarkovChannel(_Strict):
     transition: list[list[Probability]] = Field(max_length=16, description="c x c row-stochastic matrix: "
                                                 "`transition[i][j]` = P(state j next | state i).")
     loss: list[Probability] = Field(max_length=16, description="Loss probability per state (length c).")
+    delays: Delays | None = Field(None, **_DELAYS)
 
 
 ChannelSpec = Annotated[Union[BernoulliChannel, GilbertElliottChannel, MarkovChannel], Field(
     discriminator="kind", description="The packet channel (Markov chain of loss probabilities).")]
+
+
+Age = Annotated[int, Strict(), Field(ge=0, le=64)]
+
+
+class BoundedDropsNetwork(_Strict):
+    """The paper's network: a packet arrives in its own sample or never, at most n_drop - 1 losses in a row."""
+
+    kind: Literal["bounded_drops"] = Field(description="`bounded_drops`: the paper's network (the default).")
+    n_drop: Int = Field(ge=1, le=4096, description="N: at most N - 1 samples in a row without a fresh packet.")
+
+
+class DelaysNetwork(_Strict):
+    """Packets arrive min_delay..max_delay samples late or never; the newest stamp wins; ages <= n_drop - 1."""
+
+    kind: Literal["delays"] = Field(description="`delays`: late and out-of-order packets.")
+    max_delay: Age = Field(description="Largest delay of a packet that arrives (samples); <= n_drop - 1.")
+    n_drop: Int = Field(ge=1, le=4096, description="N: the buffer's age stays <= N - 1.")
+    min_delay: Age = Field(0, description="Smallest delay (samples); <= max_delay.")
+
+
+class WeaklyHardNetwork(_Strict):
+    """At most `misses` samples without a fresh packet in any `window` consecutive samples."""
+
+    kind: Literal["weakly_hard"] = Field(description="`weakly_hard`: an (m, K) window constraint.")
+    misses: Age = Field(description="m: samples without a fresh packet allowed in any window.")
+    window: Int = Field(ge=1, le=32, description="K: the window (samples).")
+    n_drop: Int = Field(ge=1, le=4096, description="N: also at most N - 1 in a row.")
+
+
+class AutomatonNetwork(_Strict):
+    """A general network: an automaton whose runs are the admissible buffer-age sequences."""
+
+    kind: Literal["automaton"] = Field(description="`automaton`: nodes with an age each, and edges.")
+    ages: list[Age] = Field(min_length=1, max_length=256, description="The buffer age of each node (samples).")
+    edges: list[Annotated[list[Annotated[int, Strict(), Field(ge=0)]], Field(min_length=2, max_length=2)]] = Field(
+        min_length=1, max_length=4096, description="Pairs `[i, j]`: the age may go from node i's to node j's "
+        "(j's age <= i's + 1). Every node needs an out-edge.")
+    n_drop: Int | None = Field(None, ge=1, le=4096, description="N (default: the largest age + 1).")
+
+
+NetworkSpec = Annotated[Union[BoundedDropsNetwork, DelaysNetwork, WeaklyHardNetwork, AutomatonNetwork], Field(
+    discriminator="kind",
+    description="The network the loop runs on: which buffer-age sequences can happen (docs/design.md, "
+                "\"Networks\"). `bounded_drops` is the paper's (the default when null); `delays` adds late and "
+                "out-of-order packets; `weakly_hard` an (m, K) window constraint; `automaton` any. The network's "
+                "`n_drop` is the design's: `n_drop`, when given too, must agree.")]
+_NETWORK = dict(default=None, description="The network the loop runs on (null: the paper's `bounded_drops` with "
+                "this `n_drop`): `bounded_drops`, `delays` (late and out-of-order packets), `weakly_hard` (an (m, K) "
+                "window) or `automaton`. Its `n_drop` is the request's.")
 
 
 class _Performance(_Strict):
@@ -297,6 +364,7 @@ class DesignRequest(_Performance):
         "per_mode", description="`feedback: output`: one observer gain per plant mode, or one for all.")
     noise: Noise | None = Field(None, description="`feedback: output`: process and measurement noise covariances; "
                                 "the observer starts from the Kalman gains.")
+    network: NetworkSpec | None = Field(**_NETWORK)
 
     def performance_kwargs(self) -> dict:
         """Keyword arguments of solver.design for the performance fields."""
@@ -358,6 +426,7 @@ class SimulationRequest(_Strict):
     sensor_n_drop: Int | None = Field(None, ge=1, le=20, description="With `observer_gains`: at most "
                                       "sensor_n_drop - 1 measurements lost in a row (default n_drop).")
     xh0: Vector | None = Field(None, description="With `observer_gains`: the initial estimate (default 0).")
+    network: NetworkSpec | None = Field(**_NETWORK)
 
 
 class AnalysisRequest(_Performance):
@@ -382,6 +451,7 @@ class AnalysisRequest(_Performance):
     observer_gains: list[Matrix] | None = Field(None, **_OBSERVER_GAINS)
     sensor_n_drop: Int | None = Field(None, ge=1, le=20, description="With `observer_gains`: at most "
                                       "sensor_n_drop - 1 measurements lost in a row (default n_drop).")
+    network: NetworkSpec | None = Field(**_NETWORK)
 
 
 class CostWeights(_Strict):
@@ -407,6 +477,9 @@ class ChannelRequest(_Strict):
                                                           "`E sum x'Qx + u'Ru` (E x(0) x(0)' = I).")
     noise: Matrix | None = Field(None, description="Process noise covariance W (n x n): adds the stationary cost "
                                                    "per sample (needs weights).")
+    network: NetworkSpec | None = Field(
+        None, description="A network to hold the channel against: the result's `network_violations` gives the "
+        "exact rate at which the channel breaks it (drop bound, delay range or weakly-hard window).")
 
 
 class GridPoint(_Strict):

@@ -145,17 +145,20 @@ def run_design(request: dict[str, Any], callback: Callable[[Any], bool] | None =
     req = DesignRequest.model_validate(request)  # the stored request, with the defaults of its one model
     plant = req.plant.model_dump()
     fam = build_family(plant)
+    net = network_from_request(None if req.network is None else req.network.model_dump())
     res = design(fam, n_drop=req.n_drop, method=req.method, callback=callback, **design_options(req.options),
-                 **req.performance_kwargs(), **req.feedback_kwargs())
+                 **req.performance_kwargs(), **req.feedback_kwargs(), **network_kwargs("design", net))
     out = jsonable(res.to_dict())
     out.update(_family_matrices(fam))
+    if net is not None:
+        out["network"] = net.to_dict()
     if req.channel is not None and res.outcome == "stabilized":
         from solver.channel import analyze_channel
 
         n, m = fam.n_states, fam.n_inputs
         weights = (np.eye(n), np.eye(m)) if req.weights is None else (req.weights.Q, req.weights.R)
         rep = analyze_channel(fam, res.gains, req.n_drop, channel_from_request(req.channel.model_dump()),
-                              exhausted=req.exhausted, weights=weights)
+                              exhausted=req.exhausted, weights=weights, network=net)
         out["channel"] = channel_report_json(rep, req.n_drop)
     return add_per_second_rates(out, fam.sampling_period)
 
@@ -217,13 +220,22 @@ def run_simulation(req: dict[str, Any]) -> dict[str, Any]:
         except InvalidInput as exc:  # the channel's own fields sit under /channel in the request
             raise InvalidInput(str(exc), ("channel", *exc.field)) from None
         extra.update(exhausted=req.get("exhausted", "hold"), plant_transitions=req.get("plant_transitions"))
+        if (req["channel"].get("delays") or [1.0]) != [1.0]:
+            raise InvalidInput("simulations draw losses from a channel, not its delays: give the delays as a "
+                               "network ({\"kind\": \"delays\", ...}) or analyze them with POST /v1/channels",
+                               ("channel", "delays"))
+    net = network_from_request(req.get("network"))
+    extra.update(network_kwargs("simulate", net))
     tr = simulate(
         fam, gains, n_drop=n_drop, x0=list(req["x0"]), steps=req["steps"], seed=req["seed"],
         loss_model=req["loss_model"], sensor_loss=req["sensor_loss"],
         control_loss=req["control_loss"], plant_switching=req["plant_switching"],
         mode=req.get("mode"), **extra, **_observer_kwargs(req, ("observer_gains", "sensor_n_drop", "xh0")),
     )
-    return jsonable(tr.to_dict())
+    out = jsonable(tr.to_dict())
+    if net is not None:
+        out["network"] = net.to_dict()
+    return out
 
 
 def _observer_kwargs(req: dict[str, Any], keys: tuple) -> dict[str, Any]:
@@ -231,15 +243,17 @@ def _observer_kwargs(req: dict[str, Any], keys: tuple) -> dict[str, Any]:
     return {k: req[k] for k in keys if req.get(k) is not None}
 
 
-def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> dict[str, Any]:
-    """The designed loop's seeded simulation (switching plant) plus one run per fixed mode (Fig. 3/4)."""
+def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any],
+              network: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The designed loop's seeded simulation (switching plant) plus one run per fixed mode (Fig. 3/4); a design
+    made for a ``network`` runs on it (ages drawn from the network, ``ages`` in every run)."""
     from solver import simulate
 
     fam = build_family(plant)
     K = _gains_array(gains)
     common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
                   loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
-                  control_loss=params["control_loss"])
+                  control_loss=params["control_loss"], **network_kwargs("simulate", network_from_request(network)))
     main = simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)
     out = jsonable(main.to_dict())
     out["per_mode"] = [
@@ -250,12 +264,13 @@ def run_trace(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str,
     return out
 
 
-def run_trace_json(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any]) -> bytes:
+def run_trace_json(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any],
+                   network: dict[str, Any] | None = None) -> bytes:
     """:func:`run_trace` as the service's canonical JSON bytes (keys sorted, compact). Encoded here, in the pool's
     process: a long trace is tens of MB of JSON, which on the event loop stalled every other request."""
     import json
 
-    return json.dumps(run_trace(plant, gains, n_drop, params), sort_keys=True, separators=(",", ":"),
+    return json.dumps(run_trace(plant, gains, n_drop, params, network), sort_keys=True, separators=(",", ":"),
                       allow_nan=False).encode()
 
 
@@ -281,8 +296,12 @@ def run_analysis(req: dict[str, Any]) -> dict[str, Any]:
         if req.get(key) is not None:
             kwargs[key] = req[key]
     kwargs.update(_observer_kwargs(req, ("observer_gains", "sensor_n_drop")))
-    rep = analyze(fam, gains, n_drop=n_drop, **kwargs)
-    return add_per_second_rates(jsonable(rep.to_dict()), fam.sampling_period)
+    net = network_from_request(req.get("network"))
+    rep = analyze(fam, gains, n_drop=n_drop, **kwargs, **network_kwargs("analyze", net))
+    out = jsonable(rep.to_dict())
+    if net is not None:
+        out["network"] = net.to_dict()
+    return add_per_second_rates(out, fam.sampling_period)
 
 
 def channel_from_request(spec: dict[str, Any]):
@@ -294,6 +313,34 @@ def channel_from_request(spec: dict[str, Any]):
         return Channel.from_dict(spec)
     except InvalidInput as exc:
         raise InvalidInput(str(exc), ("channel", *exc.field)) from None
+
+
+def network_from_request(spec: dict[str, Any] | None):
+    """A request's ``network`` JSON as a :class:`solver.Network` (None when absent); errors name /network/..."""
+    if spec is None:
+        return None
+    from solver.networks import check_network
+
+    return check_network({k: v for k, v in spec.items() if v is not None or k != "n_drop"})
+
+
+def network_kwargs(function: str, net) -> dict[str, Any]:
+    """``{"network": net}`` for a solver function (``design``, ``analyze``, ``simulate``, ``export_c``) that takes
+    one; the paper's network needs none. A solver without network support refuses the others by name (422),
+    instead of silently certifying the paper's network."""
+    if net is None:
+        return {}
+    import inspect
+
+    import solver
+    from solver import InvalidInput
+
+    if "network" in inspect.signature(getattr(solver, function)).parameters:
+        return {"network": net}
+    if net.is_bounded_drops:
+        return {}
+    raise InvalidInput(f"this server's solver.{function} does not take networks yet: {net.describe()} cannot be "
+                       "used here; give a bounded_drops network (or none)", ("network", "kind"))
 
 
 def channel_report_json(rep, n_drop: int) -> dict[str, Any]:
@@ -320,7 +367,7 @@ def run_channel(req: dict[str, Any]) -> dict[str, Any]:
     try:
         rep = analyze_channel(fam, gains, n_drop, channel, exhausted=req["exhausted"],
                               plant_transitions=req.get("plant_transitions"), weights=weights,
-                              noise=req.get("noise"))
+                              noise=req.get("noise"), network=network_from_request(req.get("network")))
     except InvalidInput as exc:
         if exc.field[:1] in (("Q",), ("R",)):
             raise InvalidInput(str(exc), ("weights", *exc.field)) from None
@@ -329,8 +376,9 @@ def run_channel(req: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict[str, Any], fmt: str,
-                   size: dict[str, Any]) -> bytes:
-    """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode."""
+                   size: dict[str, Any], network: dict[str, Any] | None = None) -> bytes:
+    """The trace of :func:`run_trace` drawn like Fig. 3/4: the switching run, then one column per plant mode
+    (with a row of buffer ages on a network)."""
     from solver import simulate
     from solver.plotting import SWITCHING_WORDS, mode_title, render, trace_figure
 
@@ -338,7 +386,7 @@ def run_trace_plot(plant: dict[str, Any], gains: list, n_drop: int, params: dict
     K = _gains_array(gains)
     common = dict(n_drop=n_drop, x0=list(params["x0"]), steps=params["steps"], seed=params["seed"],
                   loss_model=params["loss_model"], sensor_loss=params["sensor_loss"],
-                  control_loss=params["control_loss"])
+                  control_loss=params["control_loss"], **network_kwargs("simulate", network_from_request(network)))
     runs = [simulate(fam, K, plant_switching=params["plant_switching"], mode=params.get("mode"), **common)]
     runs += [simulate(fam, K, plant_switching="none", mode=l, **common) for l in range(fam.n_modes)]
     first = SWITCHING_WORDS.get(params["plant_switching"], params["plant_switching"])
@@ -377,7 +425,8 @@ def run_controller_zip(result: dict[str, Any], n_drop: int, exhausted: str, pref
 
     family = build_family(plant) if plant is not None else None
     files = export_kit(result_view(result), n_drop, exhausted=exhausted, prefix=prefix, metadata=metadata,
-                       precision=precision, family=family)
+                       precision=precision, family=family,
+                       **network_kwargs("export_c", network_from_request(result.get("network"))))
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
         for name in sorted(files):

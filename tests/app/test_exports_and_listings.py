@@ -145,7 +145,7 @@ def _documented(model, data: dict, where: str) -> None:
     from pydantic import BaseModel
 
     obj = model.model_validate(data)
-    undocumented = set(data) - set(model.model_fields)
+    undocumented = set(data) - set(model.model_fields) - {f.alias for f in model.model_fields.values() if f.alias}
     assert not undocumented, f"{where}: undocumented fields {sorted(undocumented)}"
     for name, value in data.items():
         sub = getattr(obj, name, None)
