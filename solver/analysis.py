@@ -265,6 +265,18 @@ def _check_analysis_budget(family, modes, plant_switching, scheme, solver, certi
                    "bounds='none' or fewer max_products", max_memory, time_limit)
 
 
+def _check_search(max_product_length, max_products) -> None:
+    """The product search's options: InvalidInput naming the one out of range."""
+    if isinstance(max_product_length, bool) or not isinstance(max_product_length, (int, np.integer)) or not (
+        1 <= max_product_length <= 12
+    ):
+        raise InvalidInput("max_product_length must be an integer in 1..12", ("max_product_length",))
+    if isinstance(max_products, bool) or not isinstance(max_products, (int, np.integer)) or not (
+        1 <= max_products <= MAX_PRODUCTS
+    ):
+        raise InvalidInput(f"max_products must be an integer in 1..{MAX_PRODUCTS}", ("max_products",))
+
+
 def analyze(
     family: PlantFamily,
     gains,
@@ -391,14 +403,7 @@ def analyze(
     modes = ModeSet.from_family(family, n_drop, plant_switching=plant_switching, scheme=scheme,
                                 max_modes=max_modes)
     K = check_gains(gains, modes.n_drop, family.n_inputs, family.n_states)
-    if isinstance(max_product_length, bool) or not isinstance(max_product_length, (int, np.integer)) or not (
-        1 <= max_product_length <= 12
-    ):
-        raise InvalidInput("max_product_length must be an integer in 1..12", ("max_product_length",))
-    if isinstance(max_products, bool) or not isinstance(max_products, (int, np.integer)) or not (
-        1 <= max_products <= MAX_PRODUCTS
-    ):
-        raise InvalidInput(f"max_products must be an integer in 1..{MAX_PRODUCTS}", ("max_products",))
+    _check_search(max_product_length, max_products)
     for kind in certificates:
         if kind not in ("common_quadratic", "switched"):
             raise InvalidInput("certificates must name 'common_quadratic' and/or 'switched'", ("certificates",))
@@ -524,14 +529,7 @@ def _analyze_network(family, gains, net, start, *, max_product_length, max_produ
         raise InvalidInput(f"cost and H-infinity brackets are computed on bounded_drops networks only, not on "
                            f"{net.describe()}", ("weights" if weights is not None else "disturbance",))
     K = check_gains(gains, net.n_drop, family.n_inputs, family.n_states)
-    if isinstance(max_product_length, bool) or not isinstance(max_product_length, (int, np.integer)) or not (
-        1 <= max_product_length <= 12
-    ):
-        raise InvalidInput("max_product_length must be an integer in 1..12", ("max_product_length",))
-    if isinstance(max_products, bool) or not isinstance(max_products, (int, np.integer)) or not (
-        1 <= max_products <= MAX_PRODUCTS
-    ):
-        raise InvalidInput(f"max_products must be an integer in 1..{MAX_PRODUCTS}", ("max_products",))
+    _check_search(max_product_length, max_products)
     if bounds not in ("quadratic", "all", "none"):
         raise InvalidInput("bounds must be 'quadratic', 'all' or 'none'", ("bounds",))
     solver = check_solver(solver)

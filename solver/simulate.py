@@ -411,26 +411,20 @@ def _simulate_channel(family, K, n_drop, x, steps, seed, mode, channel, exhauste
         qs[k] = q
         current = int(np.searchsorted(cum[current], draw_plant[k], side="right"))
         current = min(current, r - 1)
+    return _one_link_result(family, state, inputs, modes, effective, qs, seed, "channel",
+                            "stay" if kind == "stay" else "markov", n_drop, channel_state=states)
+
+
+def _one_link_result(family, state, inputs, modes, effective, buffer_index, seed, loss_model, plant_switching,
+                     n_drop, channel_state=None) -> SimulationResult:
+    """A run whose only link is the control one (channels, networks, replays): both switches record ``effective``."""
     starts = np.flatnonzero(effective)
     h = family.sampling_period
     return SimulationResult(
-        time=np.arange(steps + 1) * (h if h is not None else 1.0),
-        state=state,
-        input=inputs,
-        mode=modes,
-        sensor_arrived=effective.copy(),
-        control_arrived=effective.copy(),
-        effective=effective,
-        buffer_index=qs,
-        interval_start=starts,
-        eta=np.diff(starts),
-        seed=seed,
-        loss_model="channel",
-        plant_switching="stay" if kind == "stay" else "markov",
-        n_drop=n_drop,
-        channel_state=states,
-        ages=qs - 1,
-    )
+        time=np.arange(len(state)) * (h if h is not None else 1.0), state=state, input=inputs, mode=modes,
+        sensor_arrived=effective.copy(), control_arrived=effective.copy(), effective=effective,
+        buffer_index=buffer_index, interval_start=starts, eta=np.diff(starts), seed=seed, loss_model=loss_model,
+        plant_switching=plant_switching, n_drop=n_drop, channel_state=channel_state, ages=buffer_index - 1)
 
 
 def check_arrivals(arrivals) -> list:
@@ -511,22 +505,5 @@ def _simulate_network(family, K, n_drop, x, steps, seed, mode, net, arrivals, ex
         state[t + 1] = x
         inputs[t] = u
         modes[t] = current
-    starts = np.flatnonzero(effective)
-    h = family.sampling_period
-    return SimulationResult(
-        time=np.arange(steps + 1) * (h if h is not None else 1.0),
-        state=state,
-        input=inputs,
-        mode=modes,
-        sensor_arrived=effective.copy(),
-        control_arrived=effective.copy(),
-        effective=effective,
-        buffer_index=ages + 1,
-        interval_start=starts,
-        eta=np.diff(starts),
-        seed=seed,
-        loss_model="arrivals" if arrivals is not None else "network",
-        plant_switching=plant_switching,
-        n_drop=n_drop,
-        ages=ages,
-    )
+    return _one_link_result(family, state, inputs, modes, effective, ages + 1, seed,
+                            "arrivals" if arrivals is not None else "network", plant_switching, n_drop)
