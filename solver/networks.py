@@ -28,8 +28,19 @@ from .errors import InvalidInput
 
 #: Largest automaton built (nodes); larger ones are refused up front.
 MAX_NODES = 20_000
+#: Most edges a built-in constructor builds (checked from its parameters before anything is allocated).
+MAX_EDGES = 400_000
 
 KINDS = ("bounded_drops", "delays", "weakly_hard", "automaton", "intersection")
+
+
+def _n_drop(value) -> int:
+    """``n_drop`` of a built-in network: an integer in 1..MAX_NODES (its ages are nodes)."""
+    n_drop = _int(value, "n_drop", 1)
+    if n_drop > MAX_NODES:
+        raise InvalidInput(f"n_drop = {n_drop} makes more than {MAX_NODES} automaton nodes: use a smaller n_drop",
+                           ("n_drop",))
+    return n_drop
 
 
 def _int(value, name: str, low: int, field: tuple | None = None) -> int:
@@ -145,7 +156,7 @@ class Network:
 
         Ages ``0..n_drop-1``; ``d -> 0`` always and ``d -> d + 1`` while ``d + 1 <= n_drop - 1``.
         """
-        n_drop = _int(n_drop, "n_drop", 1)
+        n_drop = _n_drop(n_drop)
         edges = [(d, 0) for d in range(n_drop)] + [(d, d + 1) for d in range(n_drop - 1)]
         return cls(list(range(n_drop)), edges, n_drop=n_drop, _kind="bounded_drops",
                    _params={"n_drop": n_drop})
@@ -160,7 +171,7 @@ class Network:
         ``min_delay <= a <= min(max_delay, d(t))``.  ``max_delay = 0`` is :meth:`bounded_drops`.
         Ages below ``min_delay`` never occur (nodes ``min_delay..n_drop-1``).
         """
-        n_drop = _int(n_drop, "n_drop", 1)
+        n_drop = _n_drop(n_drop)
         max_delay = _int(max_delay, "max_delay", 0)
         min_delay = _int(min_delay, "min_delay", 0)
         if max_delay > n_drop - 1:
@@ -169,6 +180,10 @@ class Network:
                 f"played as K_{max_delay + 1}); got n_drop = {n_drop}", ("max_delay",))
         if min_delay > max_delay:
             raise InvalidInput(f"min_delay = {min_delay} must be <= max_delay = {max_delay}", ("min_delay",))
+        if (n_drop - min_delay) * (max_delay - min_delay + 2) > MAX_EDGES:
+            raise InvalidInput(f"delays(max_delay={max_delay}, n_drop={n_drop}) has about "
+                               f"{(n_drop - min_delay) * (max_delay - min_delay + 2)} edges, more than {MAX_EDGES}: "
+                               "use a smaller n_drop or max_delay", ("n_drop",))
         ages = list(range(min_delay, n_drop))
         index = {a: i for i, a in enumerate(ages)}
         edges = []
@@ -190,7 +205,7 @@ class Network:
         ``n_drop - 1`` misses in a row.  A node is the miss history of the last
         ``window - 1`` samples (the current one last) and the current age.
         """
-        n_drop = _int(n_drop, "n_drop", 1)
+        n_drop = _n_drop(n_drop)
         window = _int(window, "window", 1)
         misses = _int(misses, "misses", 0)
         if misses > window:

@@ -172,3 +172,18 @@ def test_loop_matrices_step_the_buffer():
         xs.append(x_next)
         xi = A[l, d] @ xi
         np.testing.assert_allclose(xi, np.concatenate(xs[::-1][:N]), rtol=1e-12, atol=1e-12)
+
+
+def test_huge_networks_are_refused_before_anything_is_built():
+    import tracemalloc
+
+    from solver import InvalidInput, Network
+
+    tracemalloc.start()
+    for make in (lambda: Network.delays(64, 10**9), lambda: Network.bounded_drops(10**9),
+                 lambda: Network.weakly_hard(2, 5, 10**9), lambda: Network.delays(5000, 6000)):
+        with pytest.raises(InvalidInput) as err:
+            make()
+        assert err.value.field == ("n_drop",)
+    assert tracemalloc.get_traced_memory()[1] < 20 * 2**20  # refused up front, not after allocating
+    tracemalloc.stop()
