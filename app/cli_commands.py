@@ -282,8 +282,9 @@ def cmd_design(args) -> int:
     request = _request_file(args.plant)
     if request is not None:
         return _design_request(request, args)
-    if args.n_drop is None:
-        raise UsageError("--n-drop is required (or give a request file with \"n_drop\")")
+    if args.n_drop is None and getattr(args, "network", None) is None:
+        raise UsageError("--n-drop is required (or --network SPEC, whose N is the drop bound, or a request file "
+                         "with \"n_drop\")")
     fam = load_plant(args.plant, args.sampling_period)
     options = {k: v for k, v in (("plant_switching", args.plant_switching), ("scheme", args.scheme),
                                  ("feedback", args.feedback), ("sensor_n_drop", args.sensor_n_drop),
@@ -296,8 +297,6 @@ def cmd_design(args) -> int:
         raise UsageError(f"--output must end in .json, .mat or .m, got {args.output!r}")
     method = args.method or "lmi"
     net = _network(args)
-    if net is None and args.n_drop is None:
-        raise UsageError("give --n-drop N (or --network SPEC, whose N is the drop bound)")
     if net is not None and args.n_drop is not None and args.n_drop != net.n_drop:
         raise UsageError(f"--n-drop {args.n_drop} disagrees with --network {args.network!r} (n_drop = {net.n_drop})")
     n_drop = net.n_drop if net is not None else args.n_drop
