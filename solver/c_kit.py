@@ -98,12 +98,13 @@ def _array(values) -> str:
 
 
 def export_kit(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs", *, metadata: dict | None = None,
-               precision: str = "float64", family=None, steps: int = 200, seed: int = 1) -> dict[str, str]:
+               precision: str = "float64", family=None, steps: int = 200, seed: int = 1,
+               network=None) -> dict[str, str]:
     """:func:`solver.export_c`'s files plus the build and test kit (module docstring).
 
     Parameters
     ----------
-    gains, n_drop, exhausted, prefix, metadata, precision, family
+    gains, n_drop, exhausted, prefix, metadata, precision, family, network
         As for :func:`solver.export_c`.  Without ``family`` the kit has no replay test (nothing to simulate).
     steps : int
         Samples of the replayed run (1..2000).
@@ -117,7 +118,8 @@ def export_kit(gains, n_drop: int, exhausted: str = "hold", prefix: str = "ncs",
     """
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 1 <= steps <= 2000:
         raise InvalidInput("steps must be an integer in 1..2000", ("steps",))
-    files = export_c(gains, n_drop, exhausted, prefix, metadata=metadata, precision=precision, family=family)
+    files = export_c(gains, n_drop, exhausted, prefix, metadata=metadata, precision=precision, family=family,
+                     network=network)
     p, P = prefix.lower(), prefix.upper()
     real = "double" if precision == "float64" else "float"
     files["CMakeLists.txt"] = _CMAKE.replace("@p@", p).replace("@P@", P)
