@@ -197,8 +197,6 @@ def _prove_product(family: PlantFamily, K: np.ndarray, modes: ModeSet, seq: tupl
 
     Returns ``(proven lower bound of the JSR or None, proven rho >= 1, note)``.
     """
-    from fractions import Fraction
-
     from . import exact
 
     if family.n_states > MAX_EXACT_STATES:
@@ -207,15 +205,10 @@ def _prove_product(family: PlantFamily, K: np.ndarray, modes: ModeSet, seq: tupl
         maps = [exact.closed_loop(family.F, family.G, K, modes.plants[s]) for s in seq]
     except ValueError as err:
         return None, False, str(err)
-    M = exact.product(maps)
     k = len(seq)
-    unstable = exact.radius_at_least(M, Fraction(1))
-    lb = exact.proven_radius_lower_bound(M, estimate**k, steps=30)
-    if lb <= 0:
+    bound, unstable = exact.proven_rate(maps, estimate)
+    if bound is None:
         return None, unstable, "no positive lower bound could be proven for the product"
-    bound = lb ** (1.0 / k) * (1 - 8 * 2.0**-53)
-    if unstable:
-        bound = max(bound, 1.0)
     note = "the best product's radius is proven" if abs(bound - estimate) <= 1e-6 * max(estimate, 1e-300) else (
         f"exact arithmetic proves only rho^(1/{k}) >= {bound:.6g}")
     return bound, unstable, note

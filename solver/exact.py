@@ -156,6 +156,22 @@ def proven_radius_lower_bound(M: tuple, estimate: float, steps: int = 40) -> flo
 
 
 # ------------------------------------------------------------------ rational matrices
+def proven_rate(mats: list[tuple], estimate: float) -> tuple[float | None, bool]:
+    """What exact arithmetic proves about the product ``M = mats[-1] ... mats[0]`` of ``k`` exact matrices.
+
+    Returns ``(a proven lower bound of rho(M)^(1/k), or None when no positive one could be proven; whether
+    rho(M) >= 1 is proven)``; ``estimate`` is the float64 estimate of ``rho(M)^(1/k)`` the bound starts from.
+    """
+    M = product(mats)
+    k = len(mats)
+    unstable = radius_at_least(M, Fraction(1))
+    lb = proven_radius_lower_bound(M, estimate**k, steps=30)
+    if lb <= 0:
+        return None, unstable
+    bound = lb ** (1.0 / k) * (1 - 8 * 2.0**-53)
+    return (max(bound, 1.0) if unstable else bound), unstable
+
+
 def fractions(a) -> list[list[Fraction]]:
     """A float64 matrix as exact Fractions."""
     return [[Fraction(float(x)) for x in row] for row in np.asarray(a, dtype=np.float64)]

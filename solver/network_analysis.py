@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from fractions import Fraction
 
 import numpy as np
 
@@ -260,15 +259,9 @@ def prove_cycle(family, K, N: int, product: ProductAutomaton, cycle: tuple, esti
                 for v in cycle]
     except ValueError as err:
         return None, False, str(err)
-    M = exact.product(mats)
-    k = len(cycle)
-    unstable = exact.radius_at_least(M, Fraction(1))
-    lb = exact.proven_radius_lower_bound(M, estimate**k, steps=30)
-    if lb <= 0:
+    bound, unstable = exact.proven_rate(mats, estimate)
+    if bound is None:
         return None, unstable, "no positive lower bound could be proven for the cycle"
-    bound = lb ** (1.0 / k) * (1 - 8 * 2.0**-53)
-    if unstable:
-        bound = max(bound, 1.0)
     return bound, unstable, "proven exactly"
 
 
