@@ -623,13 +623,11 @@ def joint_certificate(family: PlantFamily, gains, n_drop: int, observer_gains, s
     cons = [cp.trace(P) + sum(cp.trace(q) for q in Q) == (M + 1) * n, P >> t * np.eye(n)]
     cons += [q >> t * np.eye(n) for q in Q]
     for J, frm, to in blocks:
-        Jx, Je = J[:, :n], J[:, n:]  # columns acting on x and on e
-        Jtop, Jbot = J[:n], J[n:]
+        Jtop, Jbot = J[:n], J[n:]  # the rows giving x and e at the interval's end
         quad = Jtop.T @ P @ Jtop + Jbot.T @ Q[to] @ Jbot
         D = cp.bmat([[P, np.zeros((n, n))], [np.zeros((n, n)), Q[frm]]])
         blk = D - quad
         cons.append(0.5 * (blk + blk.T) >> t * np.eye(2 * n))
-        del Jx, Je
     prob = cp.Problem(cp.Maximize(t), cons)
     _solve(prob, time_limit)
     if t.value is None or P.value is None or t.value <= 0:
