@@ -212,8 +212,10 @@ def design(
     ------
     InvalidInput
         Bad arguments (the field is named in ``err.field``).
-    SolverFailed
-        The conic solver failed (not by the time limit); never reported as "infeasible".
+
+    A conic solver's failure is never reported as "infeasible" and never raised: the last iterate's gains and
+    multipliers are re-checked, Clarabel tries under ``solver="AUTO"``, and without a proof the outcome is
+    "not_converged" naming the failure.
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
@@ -270,14 +272,18 @@ def design(
             res.network = network.to_dict()
         return res
     except SolverFailed as err:
+        # A valid request gets a verdict, never the solver's exception (issue 29): the methods turn their own
+        # failures into verdicts (the last iterate's re-checks, Clarabel under "AUTO"); this is the last guard.
         if growth is None or growth.per_sample_log <= 1.0:
-            raise
-        # The solver gave up on a plant that grows a lot between samples: the likely cause is the sampling
-        # period (a unit mistake, or too slow a loop), which the user can fix; say that, as a verdict.
+            message = f"the solver gave up and no verdict is proven: {err}"
+        else:
+            # The solver gave up on a plant that grows a lot between samples: the likely cause is the sampling
+            # period (a unit mistake, or too slow a loop), which the user can fix; say that, as a verdict.
+            message = growth.explain(n_drop, "no design was certified") + f" (the solver: {err})"
         return DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
                             n_drop=modes.n_drop, solver=str(solver).upper(),
                             solver_status=getattr(err, "status", "") or "",
-                            message=growth.explain(n_drop, "no design was certified") + f" (the solver: {err})",
+                            message=message,
                             scheme=modes.scheme, plant_switching=modes.plant_switching,
                             mode_labels=[modes.label(s) for s in range(modes.n_modes)])
 
@@ -285,10 +291,22 @@ def design(
 def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback, ccl_start,
             scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes, plant_switching,
             scheme) -> DesignResult:
+    if objective == "stability" and u_max is not None and decay_rate == "auto" and method == "lmi" and \
+            all(v is None for v in (weights, disturbance, output)):
+        def plain_auto(left):
+            return _design(family, modes, method, n_drop, "auto", rate_tol, margin, max_iter, left, None, ccl_start,
+                           scaling, solver, "stability", None, None, None, None, None, max_modes, plant_switching,
+                           scheme)
+
+        return _counted(_limited_auto(family, modes, x0, u_max, solver, margin, max_iter, time_limit, callback,
+                                      scaling, plain_auto))
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
-        return _counted(_performance_design(family, modes, method, objective, weights, x0, disturbance, output,
-                                            u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
-                                            scaling))
+        res = _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max, solver,
+                                  margin, max_iter, time_limit, callback, decay_rate, scaling)
+        if res.outcome == "stabilized" and res.decay_rate is not None and res.settling is None:
+            res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
+                                              family.sampling_period)
+        return _counted(res)
     options = DesignOptions(
         solver=check_solver(solver),
         margin=float(margin),
@@ -601,6 +619,109 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
                          f"{plain.performance.message}")
         return plain
+
+
+#: ``decay_rate="auto"`` with ``u_max``: the limited rate search stops when its bracket is within this relative
+#: tolerance in settling time (as the plain default's, :data:`AUTO_SETTLING_TOLERANCE`).
+LIMITED_SETTLING_TOLERANCE = 0.1
+#: ... and looks no slower than this rate's settling time (``-1 / ln lambda`` samples; 1e7 samples).
+LIMITED_SLOWEST_LOG = 1e-7
+
+
+def _limited_auto(family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin, max_iter, time_limit, callback,
+                  scaling: str, plain_auto) -> DesignResult:
+    """The default design (``decay_rate="auto"``) with input limits: a certified rate, then the limits.
+
+    Without a rate, the input-limited SDP (largest ball in the invariant ellipsoid) is free to return a loop
+    that barely decays (the CTMS pendulum, u_max = 5 N: spectral radius 0.9998 per sample, the cart-position
+    gain 0, settling unbounded).  So, as the default without limits: first the plain default's rate
+    (``plain_auto``: 1.5x the settling time of the fastest certified one); when the limits hold there from
+    ``x0`` (and on the invariant set), that design.  Otherwise the fastest rate at which they do, searched
+    upward from it geometrically in settling time (each step a re-checked design or a Farkas proof of the
+    limits), to :data:`LIMITED_SETTLING_TOLERANCE`.  When no rate is certified under the limits, the design
+    without a rate (today's) with a note saying so: "stabilized" then bounds no settling time.
+    """
+    from .methods import performance
+
+    performance.prepare(modes, "lmi", "stability", None, x0, None, None, u_max, None, solver)  # bad input first
+    start = time.perf_counter()
+
+    def left():
+        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+
+    def out_of_time():
+        return time_limit is not None and time.perf_counter() - start >= time_limit
+
+    def limited(rate):
+        res = _performance_design(family, modes, "lmi", "stability", None, x0, None, None, u_max, solver, margin,
+                                  max_iter, left(), callback, rate, scaling)
+        search.append({"decay_rate": rate, "outcome": res.outcome,
+                       "proof": None if res.certificate is None else res.certificate.kind, "u_max": True})
+        spent["solves"] += int(res.timings.get("solves", 0) or 0)
+        return res
+
+    search: list = []
+    plain = plain_auto(left())
+    spent = {"solves": int(plain.timings.get("solves", 0) or 0), "start": start}
+    search.extend(plain.rate_search or [])
+    if plain.outcome != "stabilized" or plain.decay_rate is None or not plain.decay_rate < 1.0 or out_of_time():
+        res = limited(None)
+        res.message += (f"; decay_rate='auto' with u_max: the design without limits certified no decay rate "
+                        f"({plain.outcome}), so none is asked for here")
+        return _limited_done(res, family, search, None, spent)
+    default = float(plain.decay_rate)
+    first = limited(default)
+    if first.outcome == "stabilized":
+        first.message += (f"; decay_rate='auto' with u_max: the default loop's rate {default:.6g} per sample "
+                          f"(the design without limits: {plain.rate_bracket and plain.rate_bracket.get('slowdown')}x "
+                          f"the settling time of its fastest certified rate), the limits hold there")
+        return _limited_done(first, family, search, {"lower": None, "upper": default, "lower_proven": False,
+                                                     "default_rate": default}, spent)
+    # the limits bind at the default rate: the fastest slower rate where they hold, geometric in settling time
+    s_lo, lo_res, best = -np.log(default), first, None  # s: -ln(lambda) per sample, lo: fails, hi: certified
+    s = s_lo
+    while best is None and s > LIMITED_SLOWEST_LOG and not out_of_time():
+        s = max(s / 4.0, LIMITED_SLOWEST_LOG)
+        res = limited(float(np.exp(-s)))
+        if res.outcome == "stabilized":
+            best, s_hi = res, s
+        else:
+            s_lo, lo_res = s, res
+    if best is None:
+        res = limited(None)
+        res.message += (f"; decay_rate='auto' with u_max: no decay rate was certified under the limits (tried "
+                        f"{sum(1 for e in search if e.get('u_max')) - 1} rates from the default loop's {default:.6g} per sample up to "
+                        f"{np.exp(-s):.9g}; at {np.exp(-s_lo):.9g}: {lo_res.outcome}), so this design asks for "
+                        f"none" + ("" if res.outcome != "stabilized" else ": it is stable, but no settling time is "
+                                   "bounded (try larger u_max, a smaller x0 or a smaller n_drop)"))
+        return _limited_done(res, family, search, None, spent)
+    while s_lo > (1 + LIMITED_SETTLING_TOLERANCE) * s_hi and not out_of_time():
+        s = float(np.sqrt(s_lo * s_hi))
+        res = limited(float(np.exp(-s)))
+        if res.outcome == "stabilized":
+            best, s_hi = res, s
+        else:
+            s_lo, lo_res = s, res
+    lo_rate = float(np.exp(-s_lo))
+    proven = lo_res.outcome in NEGATIVE
+    best.message += (f"; decay_rate='auto' with u_max: the limits do not hold at the default loop's rate "
+                     f"{default:.6g} per sample ({first.outcome}), so the fastest rate where they do, to "
+                     f"{LIMITED_SETTLING_TOLERANCE:g} in settling time: {best.decay_rate:.6g} (at {lo_rate:.6g}: "
+                     f"{lo_res.outcome}" + (", proven" if proven else ", not proven impossible") + ")")
+    return _limited_done(best, family, search, {"lower": lo_rate, "upper": float(best.decay_rate),
+                                                "lower_proven": proven, "default_rate": default,
+                                                "relative_tolerance": LIMITED_SETTLING_TOLERANCE}, spent)
+
+
+def _limited_done(res: DesignResult, family: PlantFamily, search: list, bracket, spent: dict) -> DesignResult:
+    """The limited default's search record, its cost and, with a certified rate, the settling time it guarantees."""
+    res.rate_search = search
+    res.rate_bracket = bracket if res.outcome == "stabilized" else None
+    if res.outcome == "stabilized" and res.decay_rate is not None:
+        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
+                                          family.sampling_period)
+    res.timings.update(solves=spent["solves"], total=time.perf_counter() - spent["start"])
+    return res
 
 
 def _performance_scaled(scale, lifted, options: DesignOptions, objective: str, x0, u_max) -> DesignResult:

@@ -396,8 +396,13 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate", "feasible": "optimal_inaccurate",
               "infeasible": "optimal_inaccurate"}.get(sol.status)
     if status is None:
-        raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations "
+        err = SolverFailed(f"IPM ended with status {sol.status!r} after {sol.iterations} iterations "
                            f"(primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})", status=sol.status)
+        # the last iterate (every block >= t I up to rounding, whatever the status) and its multipliers: the
+        # caller may still re-check a design or a Farkas proof from them (solver.methods.common.run_one_shot)
+        err.iterate = (SolveInfo(status=sol.status, solver="IPM", solve_time=sol.timings["total"], wall_time=wall,
+                                 objective=sol.t, iterations=sol.iterations), sol)
+        raise err
     info = SolveInfo(status=status, solver="IPM", solve_time=sol.timings["total"], wall_time=wall,
                      objective=sol.t, iterations=sol.iterations)
     return info, sol

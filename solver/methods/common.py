@@ -220,27 +220,77 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     clock = RunClock()
     rate = options.decay_rate
     rate_txt = "" if rate is None else f" at decay rate {rate:.6g}"
+    extra = {"sign_only": options.sign_only, "start": options.warm_start} if method == "lmi" and (
+        options.sign_only or options.warm_start is not None) else {}
+    scale = congruent_scale(modes, rate)
     try:
-        extra = {"sign_only": options.sign_only, "start": options.warm_start} if method == "lmi" and (
-            options.sign_only or options.warm_start is not None) else {}
-        sol = solve_sdp(modes, congruent_scale(modes, rate), options.solver, options.time_limit, clock, **extra)
+        sol = solve_sdp(modes, scale, options.solver, options.time_limit, clock, **extra)
     except SolverFailed as err:
-        if not is_time_limit(err, options, clock):
-            raise
-        record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
-        return finish(modes, method, "not_converged", None, None, None, clock, options.solver,
-                      str(err.status), f"time limit reached ({options.time_limit:g} s) inside the solver"
-                                       f"{rate_txt}; no iterate", [record], options)
+        if is_time_limit(err, options, clock):
+            record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
+            return finish(modes, method, "not_converged", None, None, None, clock, options.solver,
+                          str(err.status), f"time limit reached ({options.time_limit:g} s) inside the solver"
+                                           f"{rate_txt}; no iterate", [record], options)
+        return _after_failure(modes, method, options, solve_sdp, scale, clock, err, rate_txt)
+    return _verdict(modes, method, options, clock, sol, rate_txt)
+
+
+def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sdp, scale, clock: RunClock,
+                   err: SolverFailed, rate_txt: str) -> DesignResult:
+    """A verdict after the solver gave up (never an exception out of :func:`run_one_shot`, issue 29).
+
+    The IPM's last iterate is strictly feasible for its own margin ``t`` whatever its status (max_iterations,
+    numerical_error near the feasibility boundary): its gains may pass the float64 re-check, its multipliers
+    the Farkas re-check.  Without a verdict from it, under ``solver="AUTO"`` Clarabel solves the same SDP (when
+    it fits in memory); otherwise "not_converged" naming both failures.
+    """
+    from ..compiled import MAX_SOLVER_MEMORY, clarabel_kkt_bytes
+
+    failures = [str(err)]
+    sol = getattr(err, "solution", None)
+    if sol is not None and sol.W is not None and np.all(np.isfinite(sol.W)):
+        res = _verdict(modes, method, options, clock, sol, rate_txt, note=f"from the last iterate after: {err}")
+        if res.outcome != "not_converged":
+            return res
+        failures.append(f"its last iterate: {res.message}")
+    blocks = [2 * modes.n_states] * (modes.n_modes * (modes.n_modes if method == "switched" else 1))
+    if str(options.solver).upper() == "AUTO" and resolve_solver("AUTO", method, modes.n_modes) != "CLARABEL" \
+            and clarabel_kkt_bytes(blocks) <= MAX_SOLVER_MEMORY:
+        remaining = clock.remaining(options.time_limit)
+        if remaining is None or remaining > 0:
+            try:
+                sol = solve_sdp(modes, scale, "CLARABEL", remaining, clock)
+                res = _verdict(modes, method, options, clock, sol, rate_txt, note=f"Clarabel, after: {err}")
+                if res.outcome != "not_converged":
+                    return res
+                failures.append(f"Clarabel: {res.message}")
+            except SolverFailed as err2:
+                failures.append(f"Clarabel: {err2}")
+    record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
+    return finish(modes, method, "not_converged", None, None, None, clock, options.solver, str(err.status or ""),
+                  f"the solver gave up{rate_txt} and no verdict is proven: " + "; ".join(failures), [record],
+                  options)
+
+
+def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str,
+             note: str = "") -> DesignResult:
+    """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution (``note``: where from)."""
+    rate = options.decay_rate
     clock.add(sol.info)
     info, t = sol.info, sol.t
     gains = cert = A = None
+    theta = None
     if np.isfinite(t) and t > 0:
-        if method == "switched":
-            theta = np.linalg.solve(sol.W.T, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
-            candidate, kind = np.linalg.inv(sol.S), "switched"
-        else:
-            theta = np.linalg.solve(sol.W, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j W^{-1}
-            candidate, kind = np.linalg.inv(sol.W), "reduced"
+        try:
+            if method == "switched":
+                theta = np.linalg.solve(sol.W.T, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j Z^{-1}
+                candidate, kind = np.linalg.inv(sol.S), "switched"
+            else:
+                theta = np.linalg.solve(sol.W, np.swapaxes(sol.Y, 1, 2)).swapaxes(1, 2)  # Theta_j = Y_j W^{-1}
+                candidate, kind = np.linalg.inv(sol.W), "reduced"
+        except np.linalg.LinAlgError:  # a failed solver's iterate may be singular: no gains from it
+            theta = None
+    if theta is not None and np.all(np.isfinite(theta)):
         gains = modes.expand(theta)
         cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_kind=kind,
                                 candidate_source=method)
@@ -251,6 +301,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
 
     def result(outcome, message, certificate=cert):
         keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
+        message += f" ({note})" if note else ""
         res = finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
                      info.solver, info.status, message, [record], options)
         res.sdp = sol  # the rate search's model (solver/rate_search.py) reads the multipliers; not exported

@@ -26,6 +26,7 @@ from .. import ipm
 from ..compiled import cp  # cvxpy, imported on first use
 from ..compiled import (CompiledProblem, DesignSdpSolution, block, check_memory, ipm_memory, problem_cache,
                         resolve_solver, schur_block)
+from ..errors import SolverFailed
 from ..network import ModeSet
 from ..result import DesignResult
 from .common import DesignOptions, run_one_shot
@@ -108,8 +109,17 @@ def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | No
     """The congruent SDP of ``kind`` ("lmi" or "switched") solved by :func:`solver.ipm.design_solve`."""
     values = plant_values(modes, scale)
     S, n, m, J = modes.n_modes, modes.n_states, modes.n_inputs, modes.n_free_gains
-    info, sol = ipm.design_solve(modes, kind, None, time_limit, free=values["free"].reshape(S, n, n),
-                                 coef=values["coef"].reshape(S, J, n, m), sign_only=sign_only, start=start)
+    try:
+        info, sol = ipm.design_solve(modes, kind, None, time_limit, free=values["free"].reshape(S, n, n),
+                                     coef=values["coef"].reshape(S, J, n, m), sign_only=sign_only, start=start)
+    except SolverFailed as err:  # the last iterate travels with the failure, for the caller's re-checks
+        if getattr(err, "iterate", None) is not None:
+            err.solution = _design_solution(kind, *err.iterate)
+        raise
+    return _design_solution(kind, info, sol)
+
+
+def _design_solution(kind: str, info, sol) -> DesignSdpSolution:
     if kind == "switched":
         return DesignSdpSolution(t=float(sol.t), W=sol.Z, Y=sol.Y, S=sol.S, duals=sol.duals, info=info)
     return DesignSdpSolution(t=float(sol.t), W=sol.W, Y=sol.Y, S=None, duals=sol.duals, info=info)

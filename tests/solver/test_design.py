@@ -107,26 +107,59 @@ def test_scs_fallback_gives_the_same_verdict():
     assert design(uncontrollable_unstable(), n_drop=2, method="lmi", solver="scs").outcome == "infeasible"
 
 
-def test_solver_failure_is_an_error_not_infeasible(monkeypatch):
+def test_solver_failure_is_not_converged_never_infeasible_nor_raised(monkeypatch):
     from solver.compiled import CompiledProblem
 
     def broken(self, values, solver="CLARABEL", time_limit=None):
         raise SolverFailed("CLARABEL ended with status 'numerical_error'", status="numerical_error")
 
     monkeypatch.setattr(CompiledProblem, "solve", broken)
-    with pytest.raises(SolverFailed):
-        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi", solver="CLARABEL")
+    for rate in (None, 0.5, "auto", "max"):  # issue 29: no SolverFailed escapes design() on a valid request
+        res = design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi", solver="CLARABEL", decay_rate=rate)
+        assert res.outcome == "not_converged" and res.certificate is None
+        assert "numerical_error" in res.message
 
 
-def test_ipm_failure_is_an_error_not_infeasible(monkeypatch):
+def test_ipm_failure_without_iterate_asks_clarabel_under_auto(monkeypatch):
     from solver import ipm
 
     def broken(*args, **kwargs):
         raise SolverFailed("IPM ended with status 'numerical_error'", status="numerical_error")
 
     monkeypatch.setattr(ipm, "design_solve", broken)
-    with pytest.raises(SolverFailed):
-        design(PlantFamily.paper_example(0.1), n_drop=3, method="lmi")  # AUTO: the IPM for lmi
+    fam = PlantFamily.paper_example(0.1)
+    res = design(fam, n_drop=3, method="lmi", decay_rate=None)  # AUTO: the IPM for lmi, then Clarabel
+    assert res.solver == "CLARABEL" and "IPM ended with status 'numerical_error'" in res.message
+    assert_certified(fam, res)
+    proof = design(fam, n_drop=3, method="lmi", decay_rate=0.3)  # below the best rate (0.3379): Farkas
+    assert proof.outcome == "infeasible" and proof.certificate.verified and proof.solver == "CLARABEL"
+    named = design(fam, n_drop=3, method="lmi", solver="IPM", decay_rate=None)  # no second solver when named
+    assert named.outcome == "not_converged" and "numerical_error" in named.message
+
+
+@pytest.mark.parametrize("rate", [None, 0.5, 0.3])
+def test_ipm_stopping_short_keeps_its_iterate_for_the_rechecks(monkeypatch, rate):
+    # the IPM's max_iterations / numerical_error near the feasibility boundary (issue 29): its last iterate is
+    # strictly feasible for its own margin, so its gains (or its multipliers) are re-checked like any answer
+    from solver.ipm import problems
+
+    solve_lmi = problems.solve_lmi
+
+    def capped(*args, **kwargs):
+        sol = solve_lmi(*args, **kwargs)
+        sol.status = "max_iterations"
+        return sol
+
+    monkeypatch.setattr(problems, "solve_lmi", capped)
+    fam = PlantFamily.paper_example(0.1)
+    res = design(fam, n_drop=3, method="lmi", solver="IPM", decay_rate=rate)
+    assert res.solver == "IPM" and "from the last iterate after: IPM ended with status 'max_iterations'" in res.message
+    if rate == 0.3:  # below the best rate (decay_rate="max" certifies 0.3379): the multipliers prove it
+        assert res.outcome == "infeasible" and res.certificate.kind == "farkas" and res.certificate.verified
+    else:
+        assert_certified(fam, res)
+        if rate is not None:
+            assert res.certificate.decay_rate == rate
 
 
 @pytest.mark.parametrize("method", ["lmi", "switched", "ccl"])
