@@ -330,6 +330,8 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
     if res is not None and res.outcome == "stabilized" and res.decay_rate is not None:
         res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                           family.sampling_period)
+    if res is not None and res.outcome == "not_converged" and scale is None and "solver gave up" in res.message:
+        res.message += "; scaling='none' kept the user's coordinates: scaling='auto' balances them first"
     return _counted(res)
 
 

@@ -249,8 +249,9 @@ def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sd
     failures = [str(err)]
     sol = getattr(err, "solution", None)
     if sol is not None and sol.W is not None and np.all(np.isfinite(sol.W)):
-        res = _verdict(modes, method, options, clock, sol, rate_txt, note=f"from the last iterate after: {err}")
+        res = _verdict(modes, method, options, clock, sol, rate_txt)
         if res.outcome != "not_converged":
+            res.message += f" (from the last iterate after: {err})"
             return res
         failures.append(f"its last iterate: {res.message}")
     blocks = [2 * modes.n_states] * (modes.n_modes * (modes.n_modes if method == "switched" else 1))
@@ -260,8 +261,9 @@ def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sd
         if remaining is None or remaining > 0:
             try:
                 sol = solve_sdp(modes, scale, "CLARABEL", remaining, clock)
-                res = _verdict(modes, method, options, clock, sol, rate_txt, note=f"Clarabel, after: {err}")
+                res = _verdict(modes, method, options, clock, sol, rate_txt)
                 if res.outcome != "not_converged":
+                    res.message += f" (Clarabel, after: {err})"
                     return res
                 failures.append(f"Clarabel: {res.message}")
             except SolverFailed as err2:
@@ -272,9 +274,8 @@ def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sd
                   options)
 
 
-def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str,
-             note: str = "") -> DesignResult:
-    """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution (``note``: where from)."""
+def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str) -> DesignResult:
+    """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution."""
     rate = options.decay_rate
     clock.add(sol.info)
     info, t = sol.info, sol.t
@@ -301,7 +302,6 @@ def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunCloc
 
     def result(outcome, message, certificate=cert):
         keep = outcome not in NEGATIVE  # a proven-infeasible design has no gains to report
-        message += f" ({note})" if note else ""
         res = finish(modes, method, outcome, gains if keep else None, certificate, A if keep else None, clock,
                      info.solver, info.status, message, [record], options)
         res.sdp = sol  # the rate search's model (solver/rate_search.py) reads the multipliers; not exported

@@ -262,3 +262,32 @@ def test_designs_that_cannot_fit_in_memory_are_refused_before_solving():
     assert err.value.field == ("n_drop",) and "GiB" in str(err.value)
     n, N, S = 8, 8, 32
     assert 8 * ((2 * n * N) * (2 * n * N + 1) // 2) ** 2 * (S + 1) > 16 * 2**30  # hand count of the same estimate
+
+
+def _badly_scaled_family():
+    """Two unstable modes around one random plant, states scaled by 10^-4 .. 10^4 (the IPM stops at its
+    iteration cap on the unbalanced SDP: it raised SolverFailed from design() before issue 29's fix)."""
+    rng = np.random.default_rng(0)
+    F0, G0 = rng.standard_normal((4, 4)), rng.standard_normal((4, 1))
+    Fs, Gs = [], []
+    for _ in range(2):
+        F = F0 + 0.3 * rng.standard_normal((4, 4))
+        Fs.append(F * rng.uniform(1.0, 1.5) / np.max(np.abs(np.linalg.eigvals(F))))
+        Gs.append(G0 + 0.3 * rng.standard_normal((4, 1)))
+    d = 10.0 ** np.random.default_rng(100).uniform(-4, 4, 4)
+    return PlantFamily(F=[np.diag(d) @ F @ np.diag(1 / d) for F in Fs], G=[np.diag(d) @ G for G in Gs])
+
+
+@pytest.mark.parametrize("rate", [None, 0.9, "max", "auto"])
+def test_unbalanced_sdp_the_ipm_gives_up_on_is_a_verdict_not_an_exception(rate):
+    fam = _badly_scaled_family()
+    res = design(fam, 4, decay_rate=rate, scaling="none")
+    assert res.outcome in ("stabilized", "infeasible", "marginal", "not_converged")
+    if res.outcome == "not_converged":
+        assert "solver gave up" in res.message and "scaling='auto'" in res.message
+    else:  # a verdict carries its re-checked certificate
+        assert res.certificate is not None and res.certificate.verified
+    balanced = design(fam, 4, decay_rate=rate)  # the same family balanced: the verdicts must not contradict
+    assert {res.outcome, balanced.outcome} != {"stabilized", "infeasible"}
+    if rate is None:
+        assert balanced.outcome == "stabilized" and balanced.certificate.verified
