@@ -270,6 +270,11 @@ def design(
                       plant_switching, scheme)
         if network is not None and res is not None:
             res.network = network.to_dict()
+        if res is not None and res.outcome == "not_converged" and growth is not None and \
+                growth.per_sample_log > 1.0 and "solver gave up" in res.message:
+            # the solver gave up on a plant that grows a lot between samples: the likely cause is the sampling
+            # period (a unit mistake, or too slow a loop), which the user can fix; say that first
+            res.message = growth.explain(n_drop, "no design was certified") + f" (the solver: {res.message})"
         return res
     except SolverFailed as err:
         # A valid request gets a verdict, never the solver's exception (issue 29): the methods turn their own
