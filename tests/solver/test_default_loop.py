@@ -108,3 +108,32 @@ def test_the_default_bisection_ends_when_only_rate_one_certifies(monkeypatch):
     res = design(PlantFamily.paper_example(0.1), n_drop=3)
     assert res.outcome == "stabilized" and res.decay_rate == 1.0 and res.settling is None
     assert 5 < len(res.rate_search) < 40 and res.rate_bracket["lower"] > 1 - 2e-9
+
+
+@pytest.mark.parametrize("u_max", [5.0, 2.0])
+def test_input_limits_with_the_default_rate_still_give_a_settling_loop(u_max):
+    """Issue 33, item 10: with u_max the default asked for no rate, and the largest ellipsoid won: the CTMS two-pole
+    pendulum got a cart-position gain of 0.000, a spectral radius 0.9998 per sample (the cart travelled 42 m) and
+    settling=None at 5 N, "not_converged" at 2 N.  Now: a certified rate, its settling time, the limits from x0."""
+    from .textbook import pendulum
+
+    fam, x0 = pendulum(), np.array([0.0, 0.0, 0.1, 0.0])
+    res = design(fam, 4, u_max=[u_max], x0=x0)
+    assert res.outcome == "stabilized" and res.certificate.verified
+    assert res.decay_rate is not None and res.decay_rate < 1 and res.certificate.decay_rate == res.decay_rate
+    assert res.settling is not None and res.settling["seconds"] < 10.0
+    assert float(x0 @ res.invariant_set @ x0) <= 1.0
+    # the limits on the set, in closed form: max over x' X x <= 1 of |k x| is sqrt(k X^-1 k')
+    Xi = np.linalg.inv(res.invariant_set)
+    assert max(float(np.sqrt(k @ Xi @ k)) for k in res.gains[:, 0, :]) <= u_max * (1 + 1e-9)
+    # not faster than the default loop without limits (whose rate the limits do not allow here), and it says why
+    free = design(fam, 4)
+    assert res.decay_rate >= free.decay_rate and "the limits do not hold at the default loop's rate" in res.message
+    # Monte Carlo over seeded loss and jump sequences: inputs within u_max, settled within the certified time
+    k = res.settling["samples"]
+    for seed in range(10):
+        run = simulate(fam, res.gains, 4, x0=x0, steps=k + 50, seed=seed)
+        assert np.max(np.abs(run.input)) <= u_max * (1 + 1e-9), seed
+        starts = run.interval_start[run.interval_start >= k]
+        assert np.all(np.linalg.norm(run.state[starts], axis=1) <= 0.02 * np.linalg.norm(x0) * (1 + 1e-9)), seed
+        assert np.max(np.abs(run.state[:, 0])) < 0.5  # the cart stays within half a metre (42 m before)
