@@ -99,3 +99,22 @@ def test_prefer_wait_sees_a_job_finished_by_another_replica(db_url):
         got = waiter.get(f"/v1/designs/{job['id']}", headers={"Prefer": "wait=30"}).json()
         assert got["status"] == "succeeded", got
         assert time.monotonic() - t0 < 20
+
+
+def test_a_solver_that_gives_up_is_a_verdict_not_a_failed_job(monkeypatch):
+    # issue 29, item 3: design() returns "not_converged" naming the failure, so the job succeeds with that verdict
+    # (it used to raise SolverFailed, and the job failed)
+    from solver import SolverFailed, ipm
+
+    from app.compute.messages import Succeeded
+    from app.compute.worker import execute
+
+    def gives_up(*args, **kwargs):
+        raise SolverFailed("IPM ended with status 'max_iterations' after 100 iterations", status="max_iterations")
+
+    monkeypatch.setattr(ipm, "design_solve", gives_up)
+    out = execute("job-1", {"plant": PAPER_PLANT, "n_drop": 3, "options": {"solver": "IPM"}}, lambda *_: True,
+                  lambda: False)
+    assert isinstance(out, Succeeded), out
+    assert out.result["outcome"] == "not_converged" and "max_iterations" in out.result["message"]
+    assert "bug" not in out.result["message"]
