@@ -6,7 +6,6 @@ from __future__ import annotations
 import importlib
 
 import numpy as np
-import pytest
 
 from solver import PlantFamily, SolverFailed, design
 from solver.brackets import Performance
