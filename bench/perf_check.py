@@ -44,8 +44,8 @@ def request(objective: str, fam, x0, u_max) -> dict:
         return {"objective": "cost", "x0": x0}
     if objective == "hinf":
         return {"objective": "hinf", "disturbance": list(fam.G)}
-    if objective == "u_max":
-        return {"u_max": u_max, "x0": x0}
+    if objective == "u_max":  # one SDP for both solvers (the default rate's search would pick a rate per solver)
+        return {"u_max": u_max, "x0": x0, "decay_rate": None}
     return {"objective": "cost", "u_max": u_max, "x0": x0}
 
 
