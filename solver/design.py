@@ -121,8 +121,11 @@ def design(
         one, with smaller gains: a coarse bisection (:data:`AUTO_SETTLING_TOLERANCE`) finds a certified
         rate ``lambda*`` within 10 % of the best in settling time, then the design is made at
         ``lambda*^(1 / AUTO_SLOWDOWN)`` (settling time ``AUTO_SLOWDOWN = 1.5`` times longer, where
-        the LMI has room left, so gains are far smaller than at the optimum).  ``ccl`` has no rate
-        and treats ``"auto"`` as None.  ``None``: plain stability (maximizes the LMI's relative
+        the LMI has room left, so gains are far smaller than at the optimum); on a plant whose every mode
+        is stable without control, no faster than ``rho^AUTO_OPEN_LOOP_SPEEDUP`` (``rho`` its open-loop
+        spectral radius per sample: settling at most 10 times faster than the open loop's).  With
+        ``u_max`` (objective "stability"): that rate when the limits hold there, else the fastest slower
+        rate where they do (:func:`_limited_auto`).  ``ccl`` has no rate and treats ``"auto"`` as None.  ``None``: plain stability (maximizes the LMI's relative
         margin; such loops may contract by only 0.99 per sample).  A number: demand a per-sample decay rate lambda (``|x(i_{m+1})| <= lambda^eta |x(i_m)|``
         in the certificate's norm), or find the smallest one (``"max"``) by bisection on the
         congruent SDP (data of mode s times ``lambda^(-eta_s)``; docs/design.md).  A rate is
@@ -211,11 +214,9 @@ def design(
     Raises
     ------
     InvalidInput
-        Bad arguments (the field is named in ``err.field``).
-
-    A conic solver's failure is never reported as "infeasible" and never raised: the last iterate's gains and
-    multipliers are re-checked, Clarabel tries under ``solver="AUTO"``, and without a proof the outcome is
-    "not_converged" naming the failure.
+        Bad arguments (the field is named in ``err.field``).  A conic solver's failure is never raised
+        (nor reported as "infeasible"): the last iterate's gains and multipliers are re-checked, Clarabel
+        tries under ``solver="AUTO"``, and without a proof the outcome is "not_converged" naming it.
     """
     if not isinstance(family, PlantFamily):
         raise InvalidInput("family must be a PlantFamily", ("family",))
