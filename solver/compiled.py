@@ -132,16 +132,16 @@ MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 #: Fitted by least squares on log CPU time by ``python -m bench.size_calibration`` (its table is in
 #: docs/performance.md, "Size estimate"); on the 2-core development machine, loaded by other jobs.
 ESTIMATE_ITERATIONS = 25
-ESTIMATE_FLOPS_PER_SECOND = 5e10
-ESTIMATE_FLOPS_PER_SIDE = 4e8
-ESTIMATE_SECONDS_PER_BLOCK = 1e-4
-ESTIMATE_SECONDS_PER_MODE = 1e-4
-ESTIMATE_SECONDS_FIXED = 2e-3
+ESTIMATE_FLOPS_PER_SECOND = 3.9e10
+ESTIMATE_FLOPS_PER_SIDE = 3.2e8
+ESTIMATE_SECONDS_PER_BLOCK = 2.2e-5
+ESTIMATE_SECONDS_PER_MODE = 7e-6
+ESTIMATE_SECONDS_FIXED = 4e-5
 #: Effective cold solves per structural solve of each path (:func:`design_path`): a warm-started bisection step
 #: costs less than a cold solve; a performance design runs a phase 1, a phase 2 and (cost with x0) a tie-break
 #: stage, and may add Clarabel's proposal.  Calibrated with the constants above.
-ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 1.0, "max": 1.0, "cost": 3.0, "hinf": 3.0,
-                         "u_max": 3.0, "switched": 1.0, "ccl": 1.0, "network": 1.0}
+ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 0.5, "max": 0.48, "cost": 18.0, "hinf": 40.0,
+                         "u_max": 4.2, "switched": 1.5, "ccl": 10.6, "network": 62.0}
 #: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_SOLVE_WEIGHT`).
 DESIGN_PATHS = tuple(ESTIMATE_SOLVE_WEIGHT)
 
@@ -243,6 +243,9 @@ class DesignSize:
     total_seconds: float = 0.0
     #: The interval length n_drop (0: not known).
     n_drop: int = 0
+    #: Entries of the per-block Schur pieces, ``sum_b v_b^2`` (``v_b`` the variables block b touches): the
+    #: assembly's work per iteration is the block side times this.
+    schur_entries: float = 0.0
 
     def _dimension(self) -> tuple[str, tuple]:
         """The hint and the field of the dimension that makes this design large."""
@@ -270,8 +273,9 @@ class DesignSize:
         max_seconds = MAX_SOLVER_SECONDS if max_seconds is None else max_seconds
         states = f"{self.n_states} states, " if self.n_states else ""
         drop = f"n_drop = {self.n_drop}, " if self.n_drop else ""
-        what = (f"the {self.method} design ({states}{drop}{self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
-                f"{self.n_variables} variables)")
+        path = "" if self.path in ("plain", "rate", self.method) else f"{self.path} path, "
+        what = (f"the {self.method} design ({path}{states}{drop}{self.n_modes} closed-loop modes, LMI size "
+                f"{self.lmi_size}, {self.n_variables} variables)")
         hint, field = self._dimension()
         if self.nodes is not None:
             what = (f"the network design ({self.nodes} automaton nodes, {self.n_modes} transitions x plant modes, "
@@ -286,8 +290,7 @@ class DesignSize:
             seconds, count = self.seconds * solves, solves
         if seconds > max_seconds:
             runs = "" if count == 1 else f" ({count} solves)"
-            path = "" if self.path in ("plain", "rate", "network") or solves is not None else f", {self.path} path"
-            raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}{path}, over the limit of "
+            raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}, over the limit of "
                                f"{max_seconds:g} s ({seconds_name}): {hint}", field)
 
 
@@ -304,8 +307,8 @@ def _total(path: str, seconds: float, solves: int, n_modes: int) -> float:
 def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
                 plant_switching: str = "per_interval", scheme: str = "predictive",
                 solver: str = "AUTO", network=None, *, objective: str = "stability", decay_rate=None,
-                rate_tol: float = 1e-3, u_max=None, n_disturbances: int = 1, n_outputs: int | None = None
-                ) -> DesignSize:
+                rate_tol: float = 1e-3, u_max=None, n_disturbances: int = 1, n_outputs: int | None = None,
+                channel_size: int = 0) -> DesignSize:
     """Size and estimated cost of a design request, from its dimensions alone (no arrays are built).
 
     The one estimate behind the library's refusal (:func:`solver.design`, :func:`solver.analyze`) and the
@@ -327,6 +330,10 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
         The request's (``u_max``: anything not None asks for input limits).
     n_disturbances, n_outputs : int
         ``p_w`` and ``p_z`` of an H-infinity design (default ``p_z = n + m``, ``z = [x; u]``).
+    channel_size : int
+        A design for a channel analyzes the designed loop on it: the second-moment operator's size
+        (:func:`solver.workload.channel_operator_size`), whose time and memory
+        (:func:`solver.workload.channel_estimate`) are added.
 
     Returns
     -------
@@ -377,11 +384,17 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(structured, conic)
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
     seconds, _ = _solve_seconds(blocks, p)
+    total = _total(path, seconds, solves, S)
+    if channel_size:
+        from .workload import channel_estimate
+
+        extra_seconds, extra_memory = channel_estimate(channel_size)
+        total, memory = total + extra_seconds, max(memory, extra_memory)
     return DesignSize(method, S, lmi, p, memory, seconds, n_states=n,
                       lyapunov_variables=(n * N) * (n * N + 1) if method == "ccl" else (S * sym if method == "switched"
                                                                                         else sym),
-                      gain_variables=J * m * n, path=path, solves=solves, n_drop=N,
-                      total_seconds=_total(path, seconds, solves, S))
+                      gain_variables=J * m * n, path=path, solves=solves, n_drop=N, total_seconds=total,
+                      schur_entries=float(min(pieces, 1e300)))
 
 
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,

@@ -121,7 +121,8 @@ def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: S
                        getattr(options, "solver", None) or "AUTO", network=network,
                        objective=getattr(req, "objective", None) or "stability",
                        decay_rate=getattr(options, "decay_rate", None), u_max=getattr(req, "u_max", None),
-                       n_disturbances=pw, n_outputs=pz)
+                       n_disturbances=pw, n_outputs=pz,
+                       channel_size=channel_size(req.channel, shape, n_drop) if getattr(req, "channel", None) else 0)
     if size.lmi_size > settings.max_lmi_size:
         errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
                                   f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "
@@ -321,12 +322,17 @@ def check_feedback(req: dict[str, Any]) -> None:
         raise invalid([solver_field_error(tuple(getattr(exc, "field", ())), str(exc), req["plant"])]) from None
 
 
-def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
-    """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
+def channel_size(channel: Any, shape: Shape, n_drop: int) -> int:
+    """Upper bound on the second-moment operator's size of a channel analysis."""
     states = {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
     # Late packets: the chain remembers the states of the last W samples, the state W + 1 past x's.
     window = max(len(getattr(channel, "delays", None) or [1.0]) - 1, 1)
-    size = states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
+    return states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
+
+
+def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
+    """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
+    size = channel_size(channel, shape, n_drop)
     if size > settings.max_channel_size:
         errors.append(field_error(["body", "channel"], f"the channel analysis has an operator of size up to {size}, "
                                   f"over the limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)",
