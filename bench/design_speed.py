@@ -12,7 +12,7 @@ modes; the seed ``speed_bench`` picks for a stabilizable family), one row per si
   ``--peer-max-n``; the ratio is theirs to ``design()``'s plain SDP;
 * est./measured: :func:`solver.compiled.design_size`'s estimate of the whole request (``total_seconds``, the
   one the library's refusal and the service's job time limit use; constants fitted by
-  ``python -m bench.size_calibration``) divided by the measured CPU, for every path (1 = exact).
+  ``python -m bench size``) divided by the measured CPU, for every path (1 = exact).
 
 Each cell runs in a child process (``bench/child.py``) with a memory and a wall-clock cap; times are CPU
 (``time.process_time``) after a warm-up design on the paper's example; a cell repeats its design while the runs

@@ -1,4 +1,4 @@
-"""``python -m bench.size_calibration``: fit the size estimate's constants to measured designs (issue 29, item 4).
+"""``python -m bench size``: fit the size estimate's constants to measured designs (issue 29, item 4).
 
 :func:`solver.compiled.design_size` estimates the CPU time and memory of a whole design request from its
 dimensions alone; the library refuses (:func:`solver.design`, :func:`solver.analyze`) and the service limits
@@ -205,7 +205,7 @@ def error_summary(rows: list) -> str:
 def main(argv=None) -> int:
     import argparse
 
-    p = argparse.ArgumentParser(prog="python -m bench.size_calibration", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m bench size", description=__doc__.splitlines()[0])
     p.add_argument("--cap", type=float, default=120.0, help="time limit of each design (s)")
     p.add_argument("--mem-limit", type=float, default=6.0, help="address-space cap per design, GB")
     p.add_argument("--paths", default="", help="only these paths, e.g. plain,auto")

@@ -129,8 +129,8 @@ MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 #: plus ``ESTIMATE_SECONDS_PER_BLOCK`` per block and iteration (the batched small calls).  The whole request adds
 #: ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64 re-checks) and
 #: ``ESTIMATE_SECONDS_FIXED``, and weighs the solves of each path (:data:`ESTIMATE_SOLVE_WEIGHT`).
-#: Fitted by least squares on log CPU time by ``python -m bench.size_calibration`` (its table is in
-#: docs/performance.md, "Size estimate"); on the 2-core development machine, loaded by other jobs.
+#: Fitted by least squares on log CPU time to 28 designs by ``python -m bench size`` (its table is in
+#: docs/design.md §3.6; worst factor 3.0) on the 2-core development machine, loaded by other jobs.
 ESTIMATE_ITERATIONS = 25
 ESTIMATE_FLOPS_PER_SECOND = 3.9e10
 ESTIMATE_FLOPS_PER_SIDE = 3.2e8
@@ -339,7 +339,7 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     -------
     DesignSize
         ``seconds`` one cold solve, ``total_seconds`` the whole request (calibrated by
-        ``python -m bench.size_calibration``), ``memory`` the peak solver memory (bytes).
+        ``python -m bench size``), ``memory`` the peak solver memory (bytes).
     """
     path = design_path(method, objective, decay_rate, u_max, network)
     solves = request_solves(method, decay_rate, rate_tol, objective, u_max)
