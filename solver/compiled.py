@@ -380,7 +380,8 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
         lmi = k * S
     pieces = sum(count * v**2 for _, v, count in blocks)
     conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in sides)
-    structured = 8 * (pieces + p * p)
+    # + the iterates: about 30 block-diagonal copies of the blocks (X, S, their factors, directions; ipm_memory)
+    structured = 8 * (pieces + p * p + 30 * sum(count * side * side for side, _, count in blocks))
     memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(structured, conic)
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
     seconds, _ = _solve_seconds(blocks, p)
