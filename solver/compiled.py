@@ -130,7 +130,7 @@ MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 #: ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64 re-checks) and
 #: ``ESTIMATE_SECONDS_FIXED``, and weighs the solves of each path (:data:`ESTIMATE_SOLVE_WEIGHT`).
 #: Fitted by least squares on log CPU time to 28 designs by ``python -m bench size`` (its table is in
-#: docs/design.md §3.6; worst factor 3.0) on the 2-core development machine, loaded by other jobs.
+#: docs/design.md §3.6; worst factor 3.3) on the 2-core development machine, loaded by other jobs.
 ESTIMATE_ITERATIONS = 25
 ESTIMATE_FLOPS_PER_SECOND = 3.9e10
 ESTIMATE_FLOPS_PER_SIDE = 3.2e8
