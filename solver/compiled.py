@@ -243,12 +243,20 @@ class DesignSize:
     total_seconds: float = 0.0
     #: The interval length n_drop (0: not known).
     n_drop: int = 0
+    #: A design for a channel: the analysis's operator size and its share of the time and memory estimates.
+    channel_size: int = 0
+    channel_seconds: float = 0.0
+    channel_memory: float = 0.0
     #: Entries of the per-block Schur pieces, ``sum_b v_b^2`` (``v_b`` the variables block b touches): the
     #: assembly's work per iteration is the block side times this.
     schur_entries: float = 0.0
 
-    def _dimension(self) -> tuple[str, tuple]:
-        """The hint and the field of the dimension that makes this design large."""
+    def _dimension(self, over: str = "") -> tuple[str, tuple]:
+        """The hint and the field of the dimension that makes this design large (``over``: "memory" or "time")."""
+        if self.channel_size and (self.channel_memory >= self.memory / 2 if over == "memory"
+                                  else self.channel_seconds >= self.total_seconds / 2):
+            return (f"the channel analysis (its operator of size up to {self.channel_size}) makes it large: use "
+                    "a channel with fewer states, a smaller n_drop or fewer plant modes", ("channel",))
         # ccl's Lyapunov matrices live on the augmented state (n n_drop): there n_drop makes them large too.
         if self.n_states and self.method != "ccl" and self.lyapunov_variables > self.gain_variables:
             return (f"the {self.n_states} states make it large (the Lyapunov matrix alone has "
@@ -276,7 +284,7 @@ class DesignSize:
         path = "" if self.path in ("plain", "rate", self.method) else f"{self.path} path, "
         what = (f"the {self.method} design ({path}{states}{drop}{self.n_modes} closed-loop modes, LMI size "
                 f"{self.lmi_size}, {self.n_variables} variables)")
-        hint, field = self._dimension()
+        hint, field = self._dimension("memory" if max_memory and self.memory > max_memory else "time")
         if self.nodes is not None:
             what = (f"the network design ({self.nodes} automaton nodes, {self.n_modes} transitions x plant modes, "
                     f"state size {self.state_size}, LMI size {self.lmi_size}, {self.n_variables} variables)")
@@ -386,16 +394,18 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
     seconds, _ = _solve_seconds(blocks, p)
     total = _total(path, seconds, solves, S)
+    channel_seconds = channel_memory = 0.0
     if channel_size:
         from .workload import channel_estimate
 
-        extra_seconds, extra_memory = channel_estimate(channel_size)
-        total, memory = total + extra_seconds, max(memory, extra_memory)
+        channel_seconds, channel_memory = channel_estimate(channel_size)
+        total, memory = total + channel_seconds, max(memory, channel_memory)
     return DesignSize(method, S, lmi, p, memory, seconds, n_states=n,
                       lyapunov_variables=(n * N) * (n * N + 1) if method == "ccl" else (S * sym if method == "switched"
                                                                                         else sym),
                       gain_variables=J * m * n, path=path, solves=solves, n_drop=N, total_seconds=total,
-                      schur_entries=float(min(pieces, 1e300)))
+                      schur_entries=float(min(pieces, 1e300)), channel_size=int(channel_size),
+                      channel_seconds=channel_seconds, channel_memory=channel_memory)
 
 
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,

@@ -666,12 +666,13 @@ def performance_dims(disturbance, output) -> tuple[int, int | None]:
 
 def request_size(method: str, family: PlantFamily, n_drop: int, plant_switching: str = "per_interval",
                  scheme: str = "predictive", solver: str = "AUTO", *, objective: str = "stability", decay_rate=None,
-                 rate_tol: float = 1e-3, u_max=None, disturbance=None, output=None, network=None):
+                 rate_tol: float = 1e-3, u_max=None, disturbance=None, output=None, network=None,
+                 channel_size: int = 0):
     """:func:`solver.compiled.design_size` of a request on ``family`` (the disturbance and output give p_w, p_z)."""
     pw, pz = performance_dims(disturbance, output)
     return design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme,
                        solver, network=network, objective=objective, decay_rate=decay_rate, rate_tol=rate_tol,
-                       u_max=u_max, n_disturbances=pw, n_outputs=pz)
+                       u_max=u_max, n_disturbances=pw, n_outputs=pz, channel_size=channel_size)
 
 
 def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str, scheme: str, max_modes: int,

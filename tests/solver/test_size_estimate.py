@@ -138,3 +138,26 @@ def test_states_are_named_when_they_make_the_design_large(monkeypatch):
         design(fam, 3)
     text = str(err.value)
     assert err.value.field == ("F",) and "the 200 states make it large" in text and "n_drop = 3 makes" not in text
+
+
+def test_a_design_for_a_channel_counts_its_analysis_and_names_the_channel(monkeypatch):
+    import sys
+
+    from solver.channel import Channel, design_for_channel
+    from solver.workload import channel_operator_size
+
+    fam, ch = pendulum(), Channel.gilbert_elliott(0.05, 0.5, 0.0, 0.9)
+    N = ch.smallest_n_drop(1e-4, max_n_drop=50)
+    size = channel_operator_size(ch.n_states, fam.n_modes, N, fam.n_states)
+    plain = request_size("lmi", fam, N)
+    both = request_size("lmi", fam, N, channel_size=size)
+    assert both.channel_size == size == ch.n_states * fam.n_modes * (N + 1) * (2 * fam.n_states) ** 2
+    assert both.total_seconds == pytest.approx(plain.total_seconds + both.channel_seconds)
+    assert both.memory == max(plain.memory, both.channel_memory)
+    # a budget between the design's memory and the analysis's refuses before the design runs, naming the channel
+    monkeypatch.setattr(sys.modules["solver.design"], "design",
+                        lambda *a, **k: (_ for _ in ()).throw(AssertionError("designed before the refusal")))
+    assert plain.memory < both.channel_memory
+    with pytest.raises(InvalidInput) as err:
+        design_for_channel(fam, ch, 1e-4, per="sample", max_memory=(plain.memory + both.channel_memory) / 2)
+    assert err.value.field == ("channel",) and f"operator of size up to {size}" in str(err.value), str(err.value)
