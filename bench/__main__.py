@@ -17,6 +17,8 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 against one plain SDP, Clarabel and CVXOPT, with the solves and the time estimate's error (``bench/design_speed.py``);
 ``python -m bench speed --solvers [--quick] [--service]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT
 for n = 2..64, feasible and infeasible families (``bench/speed_bench.py``).
+``python -m bench size [--no-fit]`` fits the size estimate (``design_size``) to measured designs on every path and
+prints estimate / measured per path and size (``bench/size_calibration.py``).
 ``python -m bench startup`` times ``import solver`` and the command line's first output (``bench/startup_bench.py``).
 
 Options::
@@ -101,6 +103,10 @@ def main(argv=None) -> int:
         from . import design_speed
 
         return design_speed.main(argv[1:])
+    if argv and argv[0] == "size":
+        from . import size_calibration
+
+        return size_calibration.main(argv[1:])
     if argv and argv[0] == "startup":
         from . import startup_bench
 

@@ -10,8 +10,9 @@ modes; the seed ``speed_bench`` picks for a stabilizable family), one row per si
   ``--perf-max-n`` (their lifted blocks are issue 29's other part);
 * Clarabel and CVXOPT: one plain SDP through cvxpy's compiled problem (canonicalization excluded), up to
   ``--peer-max-n``; the ratio is theirs to ``design()``'s plain SDP;
-* est.: :func:`solver.compiled.design_size`'s time estimate of each path (``seconds`` times the solves
-  :func:`solver.design.solve_count` budgets for it) divided by the measured CPU (1 = exact).
+* est./measured: :func:`solver.compiled.design_size`'s estimate of the whole request (``total_seconds``, the
+  one the library's refusal and the service's job time limit use; constants fitted by
+  ``python -m bench size``) divided by the measured CPU, for every path (1 = exact).
 
 Each cell runs in a child process (``bench/child.py``) with a memory and a wall-clock cap; times are CPU
 (``time.process_time``) after a warm-up design on the paper's example; a cell repeats its design while the runs
@@ -51,8 +52,7 @@ def child(n, what: str) -> dict:
     import numpy as np
 
     from solver import PlantFamily, design
-    from solver.compiled import design_size
-    from solver.design import solve_count
+    from solver.design import request_size
 
     fam, n_drop = family(n)
     design(PlantFamily.paper_example(0.1), 3)  # first-use costs (imports, BLAS handles, caches)
@@ -89,9 +89,10 @@ def child(n, what: str) -> dict:
     out["cpu"] = statistics.median(cpus)
     out["outcome"] = res.outcome
     out["solves"] = res.solve_count
-    if what in ("plain", "auto", "max"):
-        size = design_size("lmi", fam.n_states, fam.n_inputs, fam.n_modes, n_drop)
-        out["estimate"] = size.seconds * solve_count("lmi", kw.get("decay_rate", "auto"), 1e-3, 50)
+    size = request_size("lmi", fam, n_drop, decay_rate=kw.get("decay_rate", "auto"),
+                        objective=kw.get("objective", "stability"), u_max=kw.get("u_max"),
+                        disturbance=kw.get("disturbance"))
+    out["estimate"] = size.total_seconds
     return out
 
 
@@ -107,7 +108,7 @@ def cell_text(c: dict) -> str:
 
 def table(rows: list) -> str:
     head = ("| n | plain | auto (x plain, solves) | max (x plain, solves) | cost (x) | hinf (x) | u_max (x) "
-            "| Clarabel (x plain) | CVXOPT (x plain) | est./measured plain, auto, max |")
+            "| Clarabel (x plain) | CVXOPT (x plain) | est./measured plain, auto, max, cost, hinf, u_max |")
     lines = [head, "|---" * (head.count("|") - 1) + "|"]
     for row in rows:
         base = row["plain"].get("cpu")
@@ -126,7 +127,7 @@ def table(rows: list) -> str:
             return f"{fmt(c['cpu'])} ({c['cpu'] / base:.1f}x)"
 
         est = ", ".join(f"{row[w]['estimate'] / row[w]['cpu']:.2f}" if row[w].get("estimate") and row[w].get("cpu")
-                        else "-" for w in ("plain", "auto", "max"))
+                        else "-" for w in ("plain", "auto", "max", "cost", "hinf", "u_max"))
         plain = row["plain"]
         plain_txt = cell_text(plain) + ("" if plain.get("outcome") in ("stabilized", None) else f" {plain['outcome']}")
         lines.append(f"| {row['n']} | {plain_txt} | {rel(row['auto'], True)} | {rel(row['max'], True)} "
@@ -179,6 +180,11 @@ def main(argv=None) -> int:
     worst = max((row[w]["cpu"] / row["plain"]["cpu"] for row in rows for w in ("auto", "max")
                  if row[w].get("cpu") and row["plain"].get("cpu")), default=float("nan"))
     print(f"\nlargest auto or max / plain: {worst:.1f} (target <= 2)")
+    errors = [row[w]["estimate"] / row[w]["cpu"] for row in rows for w in WHAT
+              if row[w].get("estimate") and row[w].get("cpu")]
+    if errors:
+        print(f"size estimate / measured over every path: {min(errors):.2f} .. {max(errors):.2f} "
+              f"(worst factor {max(max(errors), 1 / min(errors)):.2f})")
     print(f"(total {time.perf_counter() - t0:.0f} s wall)")
     return 0
 

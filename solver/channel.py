@@ -1081,12 +1081,38 @@ def design_for_channel(family, channel: Channel, target_rate: float, *, per: str
     N = channel.smallest_n_drop(target_rate, sampling_period=h, max_n_drop=max_n_drop)
     if N is None:
         return ChannelDesign(None, None, None, None)
+    _check_channel_design(family, channel, N, design_options)
     res = design(family, N, **design_options)
     rep = None
     if res.outcome == "stabilized":
         rep = analyze_channel(family, res.gains, N, channel, exhausted=exhausted,
                               plant_transitions=plant_transitions, weights=weights)
     return ChannelDesign(N, channel.burst_statistics(N, family.sampling_period), res, rep)
+
+
+def _check_channel_design(family, channel: Channel, n_drop: int, options: dict) -> None:
+    """The whole request's estimate (the design and the analysis on the channel, :func:`solver.compiled.design_size`)
+    against the budget, before either runs; a request :func:`solver.design` would refuse is left to it."""
+    from .design import request_size
+    from .network import MAX_MODES, PLANT_SWITCHING, mode_count
+
+    switching = options.get("plant_switching", "per_interval")
+    if options.get("network") is not None or switching not in PLANT_SWITCHING:
+        return
+    if mode_count(family.n_modes, n_drop, switching) > options.get("max_modes", MAX_MODES):
+        return
+    try:
+        size = request_size(options.get("method", "lmi"), family, n_drop, switching,
+                            options.get("scheme", "predictive"), options.get("solver", "AUTO"),
+                            objective=options.get("objective", "stability"),
+                            decay_rate=options.get("decay_rate", "auto"), rate_tol=options.get("rate_tol", 1e-3),
+                            u_max=options.get("u_max"), disturbance=options.get("disturbance"),
+                            output=options.get("output"),
+                            channel_size=channel_operator_size(channel.n_states, family.n_modes, n_drop,
+                                                               family.n_states))
+    except (TypeError, ValueError):  # a malformed option: design() names it
+        return
+    size.check(options.get("max_memory"), float("inf") if options.get("time_limit") is not None else None)
 
 
 def loss_sweep(family, gains, n_drop: int, losses, *, exhausted=("hold", "zero"), weights=None,

@@ -122,23 +122,79 @@ def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
 #: service's job time limit (``NCS_JOB_TIME_LIMIT``).
 MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 
-#: The time estimate of :func:`design_size`, made to refuse only designs that surely run over budget:
-#: ``ESTIMATE_ITERATIONS`` interior-point iterations, each its flops at a rate that grows with the block side k
-#: (the Schur assembly is rank-k work: ``ESTIMATE_FLOPS_PER_SIDE`` per unit of k, at most
-#: ``ESTIMATE_FLOPS_PER_SECOND``, near the large GEMMs' rate on one core of the 2-core development machine) plus
-#: ``ESTIMATE_SECONDS_PER_BLOCK`` per LMI block (the batched small calls).  Measured CPU per solve (estimate):
-#: lmi, r = 5, n_drop = 10, m = 2: n = 20 1.6 s (0.9 s), n = 40 7.3 s (5.6 s), n = 50 13.3 s (13.3 s),
-#: n = 60 44 s (25 s); a 4-state, 3-mode cart-pole (side 8) at n_drop = 60: 0.75 s (0.74 s).  With the Schur
-#: assembly in the reduced coordinates (docs/performance.md) n = 50 takes about 0.63x of that: the estimate errs high.
+#: The time estimate of :func:`design_size` (one cold solve): ``ESTIMATE_ITERATIONS`` interior-point
+#: iterations, each its flops (per block of side k touching v variables: ``k v^2`` for the Schur assembly and
+#: ``k^3`` for its factorization, plus ``p^3 / 3`` for the Schur complement's) at a rate that grows with the
+#: block side (rank-k work: ``ESTIMATE_FLOPS_PER_SIDE`` per unit of k, at most ``ESTIMATE_FLOPS_PER_SECOND``),
+#: plus ``ESTIMATE_SECONDS_PER_BLOCK`` per block and iteration (the batched small calls).  The whole request adds
+#: ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64 re-checks) and
+#: ``ESTIMATE_SECONDS_FIXED``, and weighs the solves of each path (:data:`ESTIMATE_SOLVE_WEIGHT`).
+#: Fitted by least squares on log CPU time to 28 designs by ``python -m bench size`` (its table is in
+#: docs/design.md §3.6; worst factor 3.3) on the 2-core development machine, loaded by other jobs.
 ESTIMATE_ITERATIONS = 25
-ESTIMATE_FLOPS_PER_SECOND = 5e10
-ESTIMATE_FLOPS_PER_SIDE = 4e8
-ESTIMATE_SECONDS_PER_BLOCK = 1e-4
+ESTIMATE_FLOPS_PER_SECOND = 3.9e10
+ESTIMATE_FLOPS_PER_SIDE = 3.2e8
+ESTIMATE_SECONDS_PER_BLOCK = 2.2e-5
+ESTIMATE_SECONDS_PER_MODE = 7e-6
+ESTIMATE_SECONDS_FIXED = 4e-5
+#: Effective cold solves per structural solve of each path (:func:`design_path`): a warm-started bisection step
+#: costs less than a cold solve; a performance design runs a phase 1, a phase 2 and (cost with x0) a tie-break
+#: stage, and may add Clarabel's proposal.  Calibrated with the constants above.
+ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 0.5, "max": 0.48, "cost": 18.0, "hinf": 40.0,
+                         "u_max": 4.2, "switched": 1.5, "ccl": 10.6, "network": 62.0}
+#: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_SOLVE_WEIGHT`).
+DESIGN_PATHS = tuple(ESTIMATE_SOLVE_WEIGHT)
+
+
+def design_path(method: str = "lmi", objective: str = "stability", decay_rate=None, u_max=None,
+                network=None) -> str:
+    """The estimate's name for a request's path: "plain", "rate" (a given decay rate), "auto", "max", "cost",
+    "hinf", "u_max", "switched", "ccl" or "network" (a network other than bounded drops)."""
+    if network is not None and not getattr(network, "is_bounded_drops", False):
+        return "network"
+    if objective in ("cost", "hinf"):
+        return objective
+    if u_max is not None and u_max is not False:
+        return "u_max"
+    if method in ("switched", "ccl"):
+        return method
+    if decay_rate in ("auto", "max"):
+        return decay_rate
+    return "plain" if decay_rate is None else "rate"
+
+
+def request_solves(method: str, decay_rate, rate_tol: float = 1e-3, objective: str = "stability",
+                   u_max=None) -> int:
+    """How many SDPs a design solves at least, structurally (a decay-rate bisection counts its steps).
+
+    ``ccl`` counts Step 1 and one iteration, not ``max_iter``: how many iterations it takes is not known
+    before it runs, and the time limit (``time_limit``, the service's job time limit) stops it if needed.
+    A performance design (``objective`` or ``u_max``) runs at a given rate or none ("auto" is plain there).
+    """
+    if method == "ccl":
+        return 2
+    if objective != "stability" or (u_max is not None and u_max is not False):
+        return 1
+    if decay_rate in ("max", "auto"):
+        return int(np.ceil(np.log2(1.0 / float(rate_tol)))) + 2
+    return 1
+
+
+def _solve_seconds(blocks, p: int) -> tuple[float, int]:
+    """(seconds of one cold solve, blocks) for ``blocks`` = [(side k, variables touched v, count)] and p variables."""
+    seconds, n_blocks = 0.0, 0
+    for k, v, count in blocks:
+        rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * k)
+        seconds += min(float(count) * (k * float(v) ** 2 + float(k) ** 3), 1e300) / rate
+        n_blocks += count
+    seconds += float(p) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND
+    seconds = ESTIMATE_ITERATIONS * (seconds + min(n_blocks, 10**300) * ESTIMATE_SECONDS_PER_BLOCK)
+    return float(min(seconds, 1e300)), n_blocks
 
 
 @dataclass(frozen=True)
 class DesignSize:
-    """The size of one design SDP and its estimated cost (:func:`design_size`).
+    """The size of a design's SDP and the estimated cost of the whole request (:func:`design_size`).
 
     Attributes
     ----------
@@ -155,8 +211,16 @@ class DesignSize:
         dense ``p x p`` Schur complement) and a general conic solver's (a dense
         ``(k(k+1)/2)^2`` scaling per PSD cone of side k).
     seconds : float
-        Estimated time of one solve (s): :data:`ESTIMATE_ITERATIONS` iterations of Schur assembly
-        (``k sum_b v_b^2`` flops) and factorization (``p^3 / 3``) at :data:`ESTIMATE_FLOPS_PER_SECOND`.
+        Estimated CPU time of one cold solve of the path's SDP (s): :data:`ESTIMATE_ITERATIONS` iterations of
+        Schur assembly and factorizations at the calibrated rates.
+    path : str
+        The request's path (:func:`design_path`): "plain", "rate", "auto", "max", "cost", "hinf", "u_max",
+        "switched", "ccl" or "network".
+    solves : int
+        SDPs the path solves at least (:func:`request_solves`; a decay-rate bisection about 12).
+    total_seconds : float
+        Estimated CPU time of the whole request (s): the solves weighed by the path's calibrated
+        :data:`ESTIMATE_SOLVE_WEIGHT`, plus the per-mode work (building the modes, re-checks) and a fixed part.
     """
 
     method: str
@@ -174,32 +238,53 @@ class DesignSize:
     n_states: int = 0
     lyapunov_variables: int = 0
     gain_variables: int = 0
+    path: str = "plain"
+    solves: int = 1
+    total_seconds: float = 0.0
+    #: The interval length n_drop (0: not known).
+    n_drop: int = 0
+    #: A design for a channel: the analysis's operator size and its share of the time and memory estimates.
+    channel_size: int = 0
+    channel_seconds: float = 0.0
+    channel_memory: float = 0.0
+    #: Entries of the per-block Schur pieces, ``sum_b v_b^2`` (``v_b`` the variables block b touches): the
+    #: assembly's work per iteration is the block side times this.
+    schur_entries: float = 0.0
 
-    def _dimension(self) -> tuple[str, tuple]:
-        """The hint and the field of the dimension that makes this design large."""
+    def _dimension(self, over: str = "") -> tuple[str, tuple]:
+        """The hint and the field of the dimension that makes this design large (``over``: "memory" or "time")."""
+        if self.channel_size and (self.channel_memory >= self.memory / 2 if over == "memory"
+                                  else self.channel_seconds >= self.total_seconds / 2):
+            return (f"the channel analysis (its operator of size up to {self.channel_size}) makes it large: use "
+                    "a channel with fewer states, a smaller n_drop or fewer plant modes", ("channel",))
         # ccl's Lyapunov matrices live on the augmented state (n n_drop): there n_drop makes them large too.
         if self.n_states and self.method != "ccl" and self.lyapunov_variables > self.gain_variables:
             return (f"the {self.n_states} states make it large (the Lyapunov matrix alone has "
                     f"{self.lyapunov_variables} variables): reduce the model's order (e.g. a balanced truncation) or "
                     "design for fewer states", ("F",))
-        hint = "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else ", or the lmi method")
+        drop = f"n_drop = {self.n_drop} makes it large: " if self.n_drop and self.n_states else ""
+        hint = drop + "use a smaller n_drop or fewer plant modes" + ("" if self.method == "lmi" else
+                                                                     ", or the lmi method")
         return hint, ("n_drop",)
 
-    def check(self, max_memory: float | None = None, max_seconds: float | None = None, *, solves: int = 1,
+    def check(self, max_memory: float | None = None, max_seconds: float | None = None, *, solves: int | None = None,
               memory_name: str = "NCS_SOLVER_MAX_MEMORY or max_memory=",
               seconds_name: str = "NCS_SOLVER_MAX_SECONDS, or give a time_limit") -> None:
-        """Raise InvalidInput (field ``n_drop``) when the estimate is over a budget.
+        """Raise InvalidInput (the field of the dimension that makes it large) when the estimate is over a budget.
 
         ``max_memory`` (bytes) and ``max_seconds`` default to :data:`MAX_SOLVER_MEMORY` and
         :data:`MAX_SOLVER_SECONDS`; ``inf`` (or 0 for memory, like ``NCS_WORKER_MEMORY_MB``) turns a
-        check off.  ``solves``: how many SDPs the design solves (a decay-rate bisection ~ 12).
+        check off.  The time is the whole request's (:attr:`total_seconds`); ``solves`` given: that many
+        cold solves of :attr:`seconds` instead (an analysis's certificate SDPs).
         """
         max_memory = MAX_SOLVER_MEMORY if max_memory is None else max_memory
         max_seconds = MAX_SOLVER_SECONDS if max_seconds is None else max_seconds
         states = f"{self.n_states} states, " if self.n_states else ""
-        what = (f"the {self.method} design ({states}{self.n_modes} closed-loop modes, LMI size {self.lmi_size}, "
-                f"{self.n_variables} variables)")
-        hint, field = self._dimension()
+        drop = f"n_drop = {self.n_drop}, " if self.n_drop else ""
+        path = "" if self.path in ("plain", "rate", self.method) else f"{self.path} path, "
+        what = (f"the {self.method} design ({path}{states}{drop}{self.n_modes} closed-loop modes, LMI size "
+                f"{self.lmi_size}, {self.n_variables} variables)")
+        hint, field = self._dimension("memory" if max_memory and self.memory > max_memory else "time")
         if self.nodes is not None:
             what = (f"the network design ({self.nodes} automaton nodes, {self.n_modes} transitions x plant modes, "
                     f"state size {self.state_size}, LMI size {self.lmi_size}, {self.n_variables} variables)")
@@ -207,35 +292,67 @@ class DesignSize:
         if max_memory and self.memory > max_memory:
             raise InvalidInput(f"{what} would need about {_bytes(self.memory)} of solver memory, over the limit "
                                f"of {_bytes(max_memory)} ({memory_name}): {hint}", field)
-        seconds = self.seconds * solves
+        if solves is None:
+            seconds, count = self.total_seconds or self.seconds * self.solves, self.solves
+        else:
+            seconds, count = self.seconds * solves, solves
         if seconds > max_seconds:
-            runs = "" if solves == 1 else f" ({solves} solves)"
-            raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}, over the limit of {max_seconds:g} s "
-                               f"({seconds_name}): {hint}", field)
+            runs = "" if count == 1 else f" ({count} solves)"
+            raise InvalidInput(f"{what} would take about {seconds:.3g} s{runs}, over the limit of "
+                               f"{max_seconds:g} s ({seconds_name}): {hint}", field)
 
 
 def _bytes(x: float) -> str:
     return f"{x / 2**30:.3g} GiB" if x >= 2**30 else f"{x / 2**20:.3g} MiB"
 
 
+def _total(path: str, seconds: float, solves: int, n_modes: int) -> float:
+    """The whole request's CPU estimate from one cold solve's (see :data:`ESTIMATE_SOLVE_WEIGHT`)."""
+    return float(min(ESTIMATE_SOLVE_WEIGHT.get(path, 1.0) * solves * seconds
+                     + ESTIMATE_SECONDS_PER_MODE * min(n_modes, 10**300) + ESTIMATE_SECONDS_FIXED, 1e300))
+
+
 def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
                 plant_switching: str = "per_interval", scheme: str = "predictive",
-                solver: str = "AUTO", network=None) -> DesignSize:
-    """Size and estimated cost of a design SDP, from its dimensions alone (no arrays are built).
+                solver: str = "AUTO", network=None, *, objective: str = "stability", decay_rate=None,
+                rate_tol: float = 1e-3, u_max=None, n_disturbances: int = 1, n_outputs: int | None = None,
+                channel_size: int = 0) -> DesignSize:
+    """Size and estimated cost of a design request, from its dimensions alone (no arrays are built).
 
-    ``network`` (a :class:`solver.Network` other than bounded drops): the network design's SDP
-    (:func:`network_design_size`) instead; ``n_drop`` is then the network's.
+    The one estimate behind the library's refusal (:func:`solver.design`, :func:`solver.analyze`) and the
+    service's limits (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``), for every path:
+    plain, a given rate, ``decay_rate="auto"``/``"max"`` (a bisection), the cost, H-infinity and input-limited
+    designs (their lifted blocks of side ``2n + eta (n + m)``, ``2n + eta (p_w + p_z)``; the input blocks
+    ``n + 1``), switched, ccl, and a network (:func:`network_design_size`; ``n_drop`` is then the network's).
+    ``n_drop`` is the interval length of a design for a channel too (:func:`solver.design_for_channel`).
 
-    ``solver``: with ``"AUTO"``/``"IPM"`` the memory is the structured IPM's (Schur pieces per block and
-    the Schur complement); with a general conic solver (``"CLARABEL"``, ``"SCS"``) also its dense
-    scaling per PSD cone, whichever is larger.
+    Parameters
+    ----------
+    method, n_states, n_inputs, n_plants, n_drop, plant_switching, scheme
+        As :func:`solver.design` (``n_plants``: the family's modes r).
+    solver : str
+        ``"AUTO"``/``"IPM"``: the memory is the structured IPM's (Schur pieces per block and the Schur
+        complement); a general conic solver (``"CLARABEL"``, ``"SCS"``): also its dense scaling per PSD cone.
+    network : solver.Network, optional
+    objective, decay_rate, rate_tol, u_max
+        The request's (``u_max``: anything not None asks for input limits).
+    n_disturbances, n_outputs : int
+        ``p_w`` and ``p_z`` of an H-infinity design (default ``p_z = n + m``, ``z = [x; u]``).
+    channel_size : int
+        A design for a channel analyzes the designed loop on it: the second-moment operator's size
+        (:func:`solver.workload.channel_operator_size`), whose time and memory
+        (:func:`solver.workload.channel_estimate`) are added.
 
-    The one estimate behind the library's refusal (:func:`solver.design`) and the service's limits
-    (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``).  A mode of interval
-    length eta involves the gains ``K_1..K_eta`` only, so the variables a block touches grow with eta.
+    Returns
+    -------
+    DesignSize
+        ``seconds`` one cold solve, ``total_seconds`` the whole request (calibrated by
+        ``python -m bench size``), ``memory`` the peak solver memory (bytes).
     """
-    if network is not None and not getattr(network, "is_bounded_drops", False):
-        return network_design_size(network, n_states, n_inputs, n_plants, plant_switching)
+    path = design_path(method, objective, decay_rate, u_max, network)
+    solves = request_solves(method, decay_rate, rate_tol, objective, u_max)
+    if path == "network":
+        return network_design_size(network, n_states, n_inputs, n_plants, plant_switching, path=path, solves=solves)
     n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(n_drop)
     J = N if scheme == "predictive" else 1
     sym = n * (n + 1) // 2
@@ -245,37 +362,55 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     k = 2 * n
     if method == "switched":
         p = n * n + S * sym + J * m * n + 1
-        blocks = sum(count * S for _, count in lengths)
-        pieces = sum(count * S * (n * n + 2 * sym + min(eta, J) * m * n + 1) ** 2 for eta, count in lengths)
-        sides = [(k, blocks)]
-        lmi = k * blocks
+        blocks = [(k, n * n + 2 * sym + min(eta, J) * m * n + 1, count * S) for eta, count in lengths]
+        sides = [(k, S * S)]
+        lmi = k * S * S
     elif method == "ccl":
         k = 2 * n * N
         p = 2 * (n * N) * (n * N + 1) // 2 + J * m * n + 1
-        pieces = (S + 1) * p**2
+        blocks = [(k, p, S + 1)]
         sides = [(k, S + 1)]
         lmi = k * (S + 1)
+    elif path in ("cost", "hinf", "u_max"):
+        p = 2 * sym + J * m * n + 2  # W, Z (trace objective), the gains, gamma / g and t
+        per = {"cost": n + m, "hinf": int(n_disturbances) + (n + m if n_outputs is None else int(n_outputs)),
+               "u_max": 0}[path]
+        blocks = [(2 * n + eta * per, sym + min(eta, J) * m * n + 2, count) for eta, count in lengths]
+        blocks += [(2 * n, sym + sym, 1), (n + 1, sym + 1, 1)]  # Z (or the ball) and x0
+        if u_max is not None and u_max is not False:
+            blocks.append((n + 1, sym + n + 1, J * m))
+        sides = [(side, count) for side, _, count in blocks]
+        lmi = sum(side * count for side, count in sides)
     else:
         p = sym + J * m * n + 1
-        pieces = sum(count * (sym + min(eta, J) * m * n + 1) ** 2 for eta, count in lengths)
+        blocks = [(k, sym + min(eta, J) * m * n + 1, count) for eta, count in lengths]
         sides = [(k, S)]
         lmi = k * S
+    pieces = sum(count * v**2 for _, v, count in blocks)
     conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in sides)
-    structured = 8 * (pieces + p * p)
+    # + the iterates: about 30 block-diagonal copies of the blocks (X, S, their factors, directions; ipm_memory)
+    structured = 8 * (pieces + p * p + 30 * sum(count * side * side for side, _, count in blocks))
     memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(structured, conic)
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
-    flops = float(min(sides[0][0] * pieces + p**3 / 3, 10**300))
-    n_blocks = sum(count for _, count in sides)
-    rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * sides[0][0])
-    seconds = ESTIMATE_ITERATIONS * (flops / rate + n_blocks * ESTIMATE_SECONDS_PER_BLOCK)
-    return DesignSize(method, S, lmi, p, memory, float(min(seconds, 10**300)), n_states=n,
+    seconds, _ = _solve_seconds(blocks, p)
+    total = _total(path, seconds, solves, S)
+    channel_seconds = channel_memory = 0.0
+    if channel_size:
+        from .workload import channel_estimate
+
+        channel_seconds, channel_memory = channel_estimate(channel_size)
+        total, memory = total + channel_seconds, max(memory, channel_memory)
+    return DesignSize(method, S, lmi, p, memory, seconds, n_states=n,
                       lyapunov_variables=(n * N) * (n * N + 1) if method == "ccl" else (S * sym if method == "switched"
                                                                                         else sym),
-                      gain_variables=J * m * n)
+                      gain_variables=J * m * n, path=path, solves=solves, n_drop=N, total_seconds=total,
+                      schur_entries=float(min(pieces, 1e300)), channel_size=int(channel_size),
+                      channel_seconds=channel_seconds, channel_memory=channel_memory)
 
 
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
-                        plant_switching: str = "per_interval") -> DesignSize:
+                        plant_switching: str = "per_interval", *, path: str = "network", solves: int = 1
+                        ) -> DesignSize:
     """Size of the network design (:mod:`solver.methods.network_lmi`), from the automaton's structure alone.
 
     Nodes x plant modes x the state the Lyapunov matrices live on: the lifted form (every packet that takes
@@ -283,7 +418,7 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     matrix per reception node; the augmented form one block of side ``2 n N`` per edge and plant mode and one
     ``n N x n N`` matrix per node.  Its cone complementarity fallback has twice the node matrices.  Memory: the
     larger of the Schur pieces and a general conic solver's dense ``(k(k+1)/2)^2`` scaling per PSD cone of side k
-    (Clarabel runs it).
+    (Clarabel runs it).  ``solves``: a decay-rate bisection's count (:func:`request_solves`).
     """
     from .methods.network_lmi import fresh_age, lifted_edges
 
@@ -302,11 +437,10 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     cones = [(2 * k, E + V), (k, V)]
     conic = sum(count * 8 * (side * (side + 1) // 2) ** 2 for side, count in cones)
     memory = float(min(max(8 * (pieces + p * p), conic), 10**300))
-    flops = float(min(2 * k * pieces + p**3 / 3, 10**300))
-    rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * 2 * k)
-    seconds = ESTIMATE_ITERATIONS * (flops / rate + (E + 2 * V) * ESTIMATE_SECONDS_PER_BLOCK)
-    return DesignSize("network", E, 2 * k * E + k * V, p, memory, float(min(seconds, 10**300)),
-                      nodes=int(network.nodes), state_size=k)
+    seconds, _ = _solve_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
+    return DesignSize("network", E, 2 * k * E + k * V, p, memory, seconds,
+                      nodes=int(network.nodes), state_size=k, path=path, solves=solves,
+                      total_seconds=_total(path, seconds, solves, E))
 
 
 def check_solver(solver: str) -> str:

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver, design_size
+from .compiled import check_solver, design_size, request_solves
 from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
@@ -257,8 +257,9 @@ def design(
     _check_options(margin, max_iter, time_limit, ccl_start, decay_rate, rate_tol, method)
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
-    check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit,
-                 solves=solve_count(method, decay_rate, rate_tol, max_iter), solver=solver)
+    check_budget(method, family, n_drop, plant_switching, scheme, max_modes, max_memory, time_limit, solver=solver,
+                 objective=objective, decay_rate=decay_rate, rate_tol=rate_tol, u_max=u_max, disturbance=disturbance,
+                 output=output)
     growth = unstable_growth(family)
     if growth is not None and growth.per_sample_log > HOPELESS_GROWTH_LOG:
         raise InvalidInput(growth.explain(n_drop, "no loop can be certified at this sampling period in double "
@@ -379,9 +380,8 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
             raise InvalidInput(f"{name} is {where}", (name,))
     check_solver(solver)
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
-                       solver=solver, network=network)
-    size.check(max_memory, float("inf") if time_limit is not None else None,
-               solves=solve_count("lmi", decay_rate, rate_tol, max_iter))
+                       solver=solver, network=network, decay_rate=decay_rate, rate_tol=rate_tol)
+    size.check(max_memory, float("inf") if time_limit is not None else None)
     start = time.perf_counter()
     with blas_threads(1):
         prob = network_lmi.build_problem(family, network, plant_switching)
@@ -770,24 +770,46 @@ def _input_limit_message(u_max, x0, cause: str) -> str:
 
 
 def solve_count(method: str, decay_rate, rate_tol: float, max_iter: int) -> int:
-    """How many SDPs a design solves at least (for the time estimate that refuses a design up front).
+    """How many SDPs a design solves at least (:func:`solver.compiled.request_solves`; ``max_iter`` is not used:
+    how many ccl iterations run is not known before they run, and the time limit stops them if needed)."""
+    return request_solves(method, decay_rate, rate_tol)
 
-    ``ccl`` counts Step 1 and one iteration, not ``max_iter``: how many iterations it takes is not known
-    before it runs, and the time limit (``time_limit``, the service's job time limit) stops it if needed.
-    """
-    if method == "ccl":
-        return 2
-    if decay_rate in ("max", "auto"):
-        return int(np.ceil(np.log2(1.0 / rate_tol))) + 2
-    return 1
+
+def performance_dims(disturbance, output) -> tuple[int, int | None]:
+    """``(p_w, p_z)`` of an H-infinity request for :func:`solver.compiled.design_size` (1 and None when not
+    given or malformed: the checks after the estimate name a malformed field)."""
+    def rows(x, axis):
+        try:
+            a = np.asarray(x, dtype=float)
+        except (TypeError, ValueError, IndexError):
+            return None
+        return int(a.shape[axis]) if a.ndim in (2, 3) else None
+
+    pw = None if disturbance is None else rows(disturbance, -1)
+    pz = None  # output is (C, D) or one pair per mode: p_z is the rows of C
+    if isinstance(output, (list, tuple)) and output:
+        pz = rows(output[0], 0) or (rows(output[0][0], 0) if isinstance(output[0], (list, tuple)) else None)
+    return pw or 1, pz
+
+
+def request_size(method: str, family: PlantFamily, n_drop: int, plant_switching: str = "per_interval",
+                 scheme: str = "predictive", solver: str = "AUTO", *, objective: str = "stability", decay_rate=None,
+                 rate_tol: float = 1e-3, u_max=None, disturbance=None, output=None, network=None,
+                 channel_size: int = 0):
+    """:func:`solver.compiled.design_size` of a request on ``family`` (the disturbance and output give p_w, p_z)."""
+    pw, pz = performance_dims(disturbance, output)
+    return design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme,
+                       solver, network=network, objective=objective, decay_rate=decay_rate, rate_tol=rate_tol,
+                       u_max=u_max, n_disturbances=pw, n_outputs=pz, channel_size=channel_size)
 
 
 def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str, scheme: str, max_modes: int,
-                 max_memory: float | None, time_limit: float | None, solves: int = 1, solver: str = "AUTO") -> None:
+                 max_memory: float | None, time_limit: float | None, solver: str = "AUTO", **request) -> None:
     """Refuse, before building anything, a design whose estimated memory or time is over budget.
 
-    A thin layer over :func:`solver.compiled.design_size` (the estimate the service's limits use too).
-    Bad ``n_drop``, ``plant_switching``, ``scheme`` or too many modes are left to
+    A thin layer over :func:`solver.compiled.design_size` (the estimate the service's limits use too) on the
+    whole request (``request``: ``objective``, ``decay_rate``, ``rate_tol``, ``u_max``, ``disturbance``,
+    ``output``).  Bad ``n_drop``, ``plant_switching``, ``scheme`` or too many modes are left to
     :class:`ModeSet`, which names them.  With a ``time_limit`` the caller bounded the time, so only
     memory is checked.
     """
@@ -796,9 +818,8 @@ def check_budget(method: str, family: PlantFamily, n_drop, plant_switching: str,
         return
     if mode_count(family.n_modes, n_drop, plant_switching) > max_modes:
         return
-    size = design_size(method, family.n_states, family.n_inputs, family.n_modes, n_drop, plant_switching, scheme,
-                       solver)
-    size.check(max_memory, float("inf") if time_limit is not None else None, solves=solves)
+    size = request_size(method, family, n_drop, plant_switching, scheme, solver, **request)
+    size.check(max_memory, float("inf") if time_limit is not None else None)
 
 
 def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_tol: float) -> DesignResult:

@@ -72,9 +72,13 @@ def channel_operator_size(channel_states: int, n_modes: int, n_drop: int, n: int
     return int(channel_states) * int(n_modes) * (int(n_drop) + 1) * (2 * int(n)) ** 2
 
 
+def channel_estimate(size: int, radius_estimates: int = 1) -> tuple[float, float]:
+    """(seconds, bytes) of a channel analysis whose operator has size ``size``."""
+    return radius_estimates * size * CHANNEL_SECONDS_PER_SIZE, size * float(CHANNEL_BYTES_PER_SIZE)
+
+
 def check_channel(what: str, size: int, radius_estimates: int = 1, max_memory=None, time_limit=None) -> None:
-    seconds = radius_estimates * size * CHANNEL_SECONDS_PER_SIZE
-    memory = size * CHANNEL_BYTES_PER_SIZE
+    seconds, memory = channel_estimate(size, radius_estimates)
     runs = "" if radius_estimates == 1 else f", {radius_estimates} spectral-radius estimates"
     check_estimate(f"{what} has an operator of size up to {size}{runs}; it", seconds, memory, ("channel",),
                    "use a smaller n_drop, fewer channel states or fewer plant modes", max_memory, time_limit)

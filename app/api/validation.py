@@ -10,7 +10,7 @@ from typing import Any
 from app.api.problems import field_error, invalid
 from app.settings import Settings
 from solver.compiled import design_size
-from solver.design import solve_count
+from solver.design import performance_dims
 from solver.errors import InvalidInput
 from solver.network import mode_count  # noqa: F401 (re-exported: the service's name for it)
 
@@ -110,23 +110,34 @@ def lmi_size(method: str, n: int, r: int, n_drop: int, plant_switching: str = "p
 
 
 def check_size(method: str, shape: Shape, n_drop: int, options: Any, settings: Settings, loc: list,
-               errors: list, solves: int = 1, network: Any = None) -> None:
-    """The library's size estimate against the service's budgets: LMI size, worker memory, job time (on a
-    ``network``: its automaton nodes times the plant modes, :func:`solver.compiled.design_size`)."""
+               errors: list, network: Any = None, req: Any = None) -> None:
+    """The library's estimate of the whole request (:func:`solver.compiled.design_size`: the path its
+    ``decay_rate``, ``objective`` and ``u_max`` take, on a ``network`` its automaton nodes times the plant
+    modes) against the service's budgets: LMI size, worker memory, job time."""
     switching = options.plant_switching
     scheme = getattr(options, "scheme", None) or "predictive"
+    pw, pz = performance_dims(getattr(req, "disturbance", None), _output_pair(getattr(req, "output", None)))
     size = design_size(method, shape.n, shape.m, shape.r, n_drop, switching, scheme,
-                       getattr(options, "solver", None) or "AUTO", network=network)
+                       getattr(options, "solver", None) or "AUTO", network=network,
+                       objective=getattr(req, "objective", None) or "stability",
+                       decay_rate=getattr(options, "decay_rate", None), u_max=getattr(req, "u_max", None),
+                       n_disturbances=pw, n_outputs=pz,
+                       channel_size=channel_size(req.channel, shape, n_drop) if getattr(req, "channel", None) else 0)
     if size.lmi_size > settings.max_lmi_size:
         errors.append(field_error(loc, f"at n_drop = {n_drop} the {method} design has total LMI size "
                                   f"{size.lmi_size} (n = {shape.n}, r = {shape.r}, {switching} switching), over "
                                   f"the limit of {settings.max_lmi_size} (NCS_MAX_LMI_SIZE)", "limit_exceeded"))
         return
     try:
-        size.check(settings.worker_memory_mb * 2**20, settings.job_time_limit, solves=solves,
+        size.check(settings.worker_memory_mb * 2**20, settings.job_time_limit,
                    memory_name="NCS_WORKER_MEMORY_MB", seconds_name="NCS_JOB_TIME_LIMIT")
     except InvalidInput as err:
         errors.append(field_error(loc, str(err), "limit_exceeded"))
+
+
+def _output_pair(output: Any) -> Any:
+    """A request's ``output`` ({C, D} model or None) as the library's ``(C, D)``."""
+    return None if output is None else (getattr(output, "C", None), getattr(output, "D", None))
 
 
 def check_n_drop(n_drop: int, settings: Settings, errors: list) -> None:
@@ -148,9 +159,8 @@ def check_design(req: Any, settings: Settings, network: Any = None) -> Shape:
     shape = plant_shape(req.plant, settings, errors)
     check_n_drop(req.n_drop, settings, errors)
     if shape is not None and not errors:
-        solves = solve_count(req.method, req.options.decay_rate, 1e-3, getattr(req.options, "max_iter", 50))
         check_size(req.method, shape, req.n_drop, req.options, settings,
-                   ["body", "n_drop" if network is None else "network"], errors, solves, network=network)
+                   ["body", "n_drop" if network is None else "network"], errors, network=network, req=req)
         if req.options.decay_rate not in (None, "auto") and req.method == "ccl":
             errors.append(field_error(["body", "options", "decay_rate"], "decay_rate is available for the lmi "
                                       "and switched methods, not ccl", "unsupported_option"))
@@ -312,12 +322,17 @@ def check_feedback(req: dict[str, Any]) -> None:
         raise invalid([solver_field_error(tuple(getattr(exc, "field", ())), str(exc), req["plant"])]) from None
 
 
-def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
-    """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
+def channel_size(channel: Any, shape: Shape, n_drop: int) -> int:
+    """Upper bound on the second-moment operator's size of a channel analysis."""
     states = {"bernoulli": 1, "gilbert_elliott": 2}.get(channel.kind) or len(channel.loss)
     # Late packets: the chain remembers the states of the last W samples, the state W + 1 past x's.
     window = max(len(getattr(channel, "delays", None) or [1.0]) - 1, 1)
-    size = states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
+    return states ** window * shape.r * (n_drop + 1) * ((window + 1) * shape.n) ** 2
+
+
+def check_channel_size(channel: Any, shape: Shape, n_drop: int, settings: Settings, errors: list) -> None:
+    """The second-moment operator of a channel analysis against ``NCS_MAX_CHANNEL_SIZE``."""
+    size = channel_size(channel, shape, n_drop)
     if size > settings.max_channel_size:
         errors.append(field_error(["body", "channel"], f"the channel analysis has an operator of size up to {size}, "
                                   f"over the limit of {settings.max_channel_size} (NCS_MAX_CHANNEL_SIZE)",

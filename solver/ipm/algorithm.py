@@ -301,6 +301,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     best = None
     it = 0
     ap = ad = 0.0
+    rp = gap = math.inf  # reported as such when the start itself cannot be factored
     y_prev = X_prev = dy = dX = None  # the last step, shortened when rounding breaks the next factorization
     for it in range(o.max_iter + 1):
         Z = [np.concatenate([x, s]) for x, s in zip(X, S)]
