@@ -731,7 +731,8 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     if remaining is not None and remaining <= 0:
         return best
     try:
-        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining,
+                                                 warm_start=_final_start(best, target)))
     except SolverFailed:  # keep the certified faster loop
         return best
     if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
@@ -747,6 +748,23 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     res.timings.update(total=total, solves=best.timings.get("solves", 0) + res.timings.get("solves", 0),
                        solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
     return res
+
+
+def _final_start(best: DesignResult, target: float):
+    """The warm start of ``"auto"``'s final (full) solve, or None: the search's certified probe nearest to
+    ``target`` (in ln lambda).  The final solve runs to the IPM's tolerances either way (only the start moves);
+    measured: 20 -> 13 interior-point iterations at n = 20, 12 -> 11 on the paper's example."""
+    probes = [(rate, sdp) for rate, sdp in getattr(best, "probes", ()) if np.isfinite(sdp.t) and sdp.t > 0]
+    if not (FINAL_WARM and probes):
+        return None
+    from .ipm import WarmStart
+
+    rate, sdp = min(probes, key=lambda p: abs(np.log(p[0] / target)))
+    return WarmStart([sdp.W, sdp.Y], sdp.duals, shift=WARM_SHIFT, blend=WARM_BLEND)
+
+
+#: ``decay_rate="auto"``: warm-start the final design at the target rate from the nearest certified probe.
+FINAL_WARM = True
 
 
 #: What a bisection step whose solver failed returns (no certificate, no proof).
@@ -909,6 +927,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
     best.decay_rate = hi
+    best.probes = solved  # (rate, SDP solution) of the IPM probes: "auto"'s final warm start; not exported
     total = time.perf_counter() - start
     best.timings.update(totals, total=total, overhead=max(total - totals["setup"] - totals["solver"], 0.0))
     if timed_out:
