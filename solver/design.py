@@ -882,8 +882,13 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return float(np.exp(-np.sqrt(s_hi * s_lo)))
         return 0.5 * (lo + hi)
 
+    def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or lambda itself
+        if not settling:
+            return lam
+        return -np.log(-np.log(min(max(lam, MIN_RATE), 1 - 1e-9)))
+
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
-    t_lo, previous, from_above, anchor, stalls = None, None, True, hi - lo, 0
+    t_lo, previous, from_above, anchor, stalls, model_lo = None, None, True, hi - lo, 0, None
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
         # three model steps that did not halve the bracket hand one step to the bisection: never much slower
         if strategy == "model" and stalls < 3:
@@ -891,7 +896,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             model = None if sdp is None else margin_model(modes, sdp, hi)
             # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
             mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
-                                 lambda a, b: 0.5 * (a + b), from_above, previous)
+                                 lambda a, b: 0.5 * (a + b), from_above, previous, measure, model_lo,
+                                 search[-1].get("step"))
             if model is not None and (previous is None or previous[0] != hi):
                 previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
@@ -902,11 +908,13 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         search[-1]["step"] = how
         t_res = getattr(getattr(res, "sdp", None), "t", None)
         if res is FAILED_STEP:
-            lo, lo_proven, t_lo = mid, False, None
+            lo, lo_proven, t_lo, model_lo = mid, False, None, None
         elif res.outcome == "stabilized":
             hi, best, t_hi = mid, res, t_res
         else:
             lo, lo_proven, t_lo = mid, res.outcome == "infeasible", t_res
+            sdp_lo = getattr(res, "sdp", None)
+            model_lo = None if sdp_lo is None or sdp_lo.W is None else margin_model(modes, sdp_lo, mid)
             lo_proof = res.outcome if res.outcome in NEGATIVE else None
             lo_margin = res.certificate.margin if lo_proof == "marginal" else None
         from_above = res is not FAILED_STEP and res.outcome == "stabilized"
