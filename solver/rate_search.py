@@ -130,8 +130,9 @@ def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mo
     between the margins at ``lo`` and ``hi`` when both are known, or the fixed point of the Newton map
     by a secant through the last two certified ends (Steffensen), or the Newton step mirrored, less half
     the tolerance); after a failed one, ``newton``.  Once the root is within the tolerance of ``hi``,
-    ``close`` tries the tolerance's end below ``hi``.  A candidate outside the bracket's inner 96 % (in
-    ``measure``'s coordinate) is replaced by the bisection's midpoint (``bisect``) (in the settling measure: 2 % of at most one unit).
+    ``close`` tries the tolerance's end below ``hi``.  After a refuted rate, the Newton root of the model at
+    ``lo`` (``newton_lo``) comes first.  A candidate outside the bracket's inner 96 % (in ``measure``'s
+    coordinate; 2 % of at most one unit from each end) is replaced by the bisection's midpoint (``bisect``).
 
     Parameters
     ----------
@@ -151,9 +152,8 @@ def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mo
         ``(hi', newton')``: the previous certified end and its Newton root.
     model_lo : tuple, optional
         :func:`margin_model` of the solve at ``lo`` (a refuted rate: a converged solve, exact multipliers).
-        After a refuted rate, when the model at ``hi`` has no root above ``lo``, its Newton root
-        (``newton_lo``) comes before the secant's, which creeps up from below where the margin is convex
-        (n = 8: four refuted secant steps).
+        Its Newton root comes before the model at ``hi``'s and the secant's (which creeps up from below where
+        the margin is convex: n = 8, four refuted secant steps), once in a row.
     last : str, optional
         How the previous rate was chosen.
     measure : callable, optional
