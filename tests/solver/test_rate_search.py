@@ -245,3 +245,43 @@ def test_max_rate_equals_a_cold_bisection():
             assert res.rate_bracket["lower"] <= b
             compared += 1
     assert compared >= 20
+
+
+def _settling(tol):
+    """``done`` and the measure of "auto"'s settling-time rule (as in solver.design._smallest_rate)."""
+    def done(lo, hi):
+        return -np.log(max(lo, 1e-4)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+
+    def measure(lam):
+        return -np.log(-np.log(min(max(lam, 1e-4), 1 - 1e-9)))
+
+    return done, measure
+
+
+def test_model_step_next_to_one_is_taken_in_the_settling_measure():
+    """A root next to lambda = 1 (large n): the Newton root, not the midpoint of [1e-4, 1]."""
+    from solver.rate_search import next_rate
+
+    done, measure = _settling(0.1)
+    model = (0.0015, np.array([-0.3]), np.array([1.0]))  # m = 0.0015 - 0.3 (1 / lambda - 1): root 1 / 1.005
+    rate, how = next_rate(1e-4, 1.0, None, 0.0015, model, done, lambda a, b: 0.5 * (a + b), measure=measure)
+    assert how == "newton" and abs(rate - 1 / 1.005) < 1e-9
+    # in lambda itself the root lies in the outer 2 % of [1e-4, 1]: the bisection's midpoint
+    rate, how = next_rate(1e-4, 1.0, None, 0.0015, model, done, lambda a, b: 0.5 * (a + b))
+    assert how == "bisect"
+
+
+def test_close_high_ends_the_bracket():
+    from solver.rate_search import _closing_high, next_rate
+
+    done, measure = _settling(0.1)
+    lo, hi = 0.98718, 0.9907
+    h = _closing_high(lo, hi, done)
+    assert lo < h < hi and done(lo, h) and not done(lo, h * (1 + 1e-7))
+    # a refuted lo with a model whose Newton root lies just above that end: the end itself is tried
+    eta = np.array([1.0])
+    q = np.array([-0.01])
+    t_lo = -0.01 * (1 - lo / (h * (1 + 1e-5)))  # m_lo(lambda) = t_lo - 0.01 (lo / lambda - 1): root h (1 + 1e-5)
+    rate, how = next_rate(lo, hi, t_lo, 1e-4, None, done, lambda a, b: 0.5 * (a + b), from_above=False,
+                          measure=measure, model_lo=(t_lo, q, eta))
+    assert how == "close_high" and rate == h
