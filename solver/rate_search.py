@@ -190,7 +190,10 @@ def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mo
         # margin's tangent there); far from the root the margin can be concave (a Newton root then fails);
         # the secant's root lies above the root there
         # (once: a refuted newton_lo says the margin is flat below the root, where its steps shrink linearly)
-        first = None if last == "newton_lo" else newton_lo
+        # (and only above the secant's root: where the margin is convex the secant's root lies below the root and
+        # the tangent's above; below the secant's, the margin is concave there: the paper's example, flat below)
+        first = None if last == "newton_lo" or (secant is not None and newton_lo is not None
+                                                and newton_lo < secant) else newton_lo
         for cand, how in ((first, "newton_lo"), (newton, "newton"), (secant, "secant")):
             if not from_above and inside(cand):
                 return cand, how
