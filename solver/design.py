@@ -713,7 +713,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     """
     start = time.perf_counter()
     try:
-        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True, keep_probes=True)
     except SolverFailed:  # at lambda = 1 already: plain stability's SDP is better conditioned
         best = DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
                             n_drop=modes.n_drop, message="the solver failed at decay rate 1")
@@ -732,7 +732,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
         return best
     try:
         res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining,
-                                                 warm_start=_final_start(best, target)))
+                                                 warm_start=_final_start(best.__dict__.pop("probes", ()), target)))
     except SolverFailed:  # keep the certified faster loop
         return best
     if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
@@ -750,11 +750,12 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     return res
 
 
-def _final_start(best: DesignResult, target: float):
-    """The warm start of ``"auto"``'s final (full) solve, or None: the search's certified probe nearest to
-    ``target`` (in ln lambda).  The final solve runs to the IPM's tolerances either way (only the start moves);
-    measured: 20 -> 13 interior-point iterations at n = 20, 12 -> 11 on the paper's example."""
-    probes = [(rate, sdp) for rate, sdp in getattr(best, "probes", ()) if np.isfinite(sdp.t) and sdp.t > 0]
+def _final_start(probes, target: float):
+    """The warm start of ``"auto"``'s final (full) solve, or None: of the search's probes ``(rate, SDP
+    solution)``, the certified one nearest to ``target`` (in ln lambda).  The final solve runs to the IPM's
+    tolerances either way (only the start moves); measured: 20 -> 13 interior-point iterations at n = 20,
+    12 -> 11 on the paper's example."""
+    probes = [(rate, sdp) for rate, sdp in probes if np.isfinite(sdp.t) and sdp.t > 0]
     if not (FINAL_WARM and probes):
         return None
     from .ipm import WarmStart
@@ -792,7 +793,7 @@ WARM_BLEND = 0.5
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
                    upper: DesignResult | None = None, user_limit: float | None = None,
-                   settling: bool = False, strategy: str | None = None) -> DesignResult:
+                   settling: bool = False, strategy: str | None = None, keep_probes: bool = False) -> DesignResult:
     """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
 
     ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the
@@ -935,7 +936,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
     best.decay_rate = hi
-    best.probes = solved  # (rate, SDP solution) of the IPM probes: "auto"'s final warm start; not exported
+    if keep_probes:  # (rate, SDP solution) of the IPM probes: "auto"'s final warm start (popped there)
+        best.probes = solved
     total = time.perf_counter() - start
     best.timings.update(totals, total=total, overhead=max(total - totals["setup"] - totals["solver"], 0.0))
     if timed_out:
