@@ -883,10 +883,12 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return float(np.exp(-np.sqrt(s_hi * s_lo)))
         return 0.5 * (lo + hi)
 
-    def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or lambda itself
+    def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or ln lambda
         if not settling:
-            return lam
+            return float(np.log(lam)) if lam > 0.0 else -np.inf
         return -np.log(-np.log(min(max(lam, MIN_RATE), 1 - 1e-9)))
+
+    tol_width = float(np.log1p(tol) if settling else -np.log1p(-tol))  # done(lo, hi) <=> measure gap <= this
 
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
     t_lo, previous, from_above, anchor, stalls, model_lo = None, None, True, hi - lo, 0, None
@@ -898,7 +900,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
             mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
                                  lambda a, b: 0.5 * (a + b), from_above, previous, measure, model_lo,
-                                 search[-1].get("step"))
+                                 search[-1].get("step"), tol_width)
             if model is not None and (previous is None or previous[0] != hi):
                 previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:

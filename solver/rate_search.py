@@ -101,7 +101,7 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
 
 def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
               from_above: bool = True, previous: tuple | None = None, measure=None,
-              model_lo=None, last: str | None = None) -> tuple[float, str]:
+              model_lo=None, last: str | None = None, tol_width: float | None = None) -> tuple[float, str]:
     """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen (see :func:`_model_step`).
 
     A rate aimed to be certified (``newton``, ``newton_lo``, ``secant``) that lies below the tolerance's end
@@ -109,7 +109,7 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
     search (n = 50: the Newton root landed 1e-5 below that end, and one more refuted probe followed).
     """
     rate, how = _model_step(lo, hi, t_lo, t_hi, model, done, midpoint, from_above, previous, measure, model_lo,
-                            last)
+                            last, tol_width)
     if lo > 0.0 and how in ("newton", "newton_lo", "secant"):
         high_end = _closing_high(lo, hi, done)
         # (also when the rate lies a little above that end: a Newton root lies above the root where the margin
@@ -121,7 +121,7 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
 
 def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
                 from_above: bool = True, previous: tuple | None = None, measure=None,
-                model_lo=None, last: str | None = None) -> tuple[float, str]:
+                model_lo=None, last: str | None = None, tol_width: float | None = None) -> tuple[float, str]:
     """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen.
 
     The margin is usually convex in lambda near the root (it flattens towards it), so the Newton root
@@ -156,6 +156,8 @@ def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mo
         the margin is convex: n = 8, four refuted secant steps), once in a row.
     last : str, optional
         How the previous rate was chosen.
+    tol_width : float, optional
+        The tolerance's width in ``measure``'s coordinate: the inner margin is at most twice it.
     measure : callable, optional
         An increasing map of the rate to the coordinate the tolerance is on (default: the rate itself).
         The settling search (``decay_rate="auto"``) passes ``-ln(-ln lambda)``: its roots lie next to
@@ -175,8 +177,12 @@ def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mo
     u = measure if measure is not None else (lambda x: x)
     u_lo, u_hi = u(lo), u(hi)
     # (capped: the settling measure puts hi = 1 at 1 - 1e-9, i.e. 20 units up; its differences are log-ratios
-    # of settling times, and 2 % of one unit is as far from the ends as a model step needs to keep)
+    # of settling times, and 2 % of one unit is as far from the ends as a model step needs to keep; and at most
+    # twice the tolerance: with lo = 0, 2 % of [0, hi] refused a Newton root 0.4 % below hi for a bisection
+    # step to hi / 2, n = 30)
     room = 0.02 * min(u_hi - u_lo, 1.0)
+    if tol_width is not None:
+        room = min(room, 2.0 * tol_width)
 
     def inside(c):
         return c is not None and lo < c < hi and u_lo + room < u(c) < u_hi - room
