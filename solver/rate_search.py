@@ -78,10 +78,15 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
     t0, q, eta = model
     if not np.any(q < 0):
         return None
+    # the blocks' terms summed per interval length (a few distinct eta): plain floats in the bisection below
+    # (numpy calls per evaluation cost more than the paper example's interior-point iterations)
+    powers, inverse = np.unique(np.asarray(eta, dtype=float), return_inverse=True)
+    terms = list(zip(powers.tolist(), np.bincount(inverse.ravel(), weights=q, minlength=powers.size).tolist()))
+    t0, log_rate = float(t0), math.log(rate)
 
     def m(lam):
-        with np.errstate(over="ignore"):
-            return t0 + float(np.sum(q * (np.exp(eta * (math.log(rate) - math.log(lam))) - 1.0)))
+        d = log_rate - math.log(lam)
+        return t0 + sum(w * (math.exp(min(e * d, 700.0)) - 1.0) for e, w in terms)
 
     a, b = max(lo, 1e-12), hi
     ma, mb = m(a), m(b)
