@@ -880,7 +880,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     """
     start = time.perf_counter()
     try:
-        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True)
+        best = _smallest_rate(method, modes, options, AUTO_SETTLING_TOLERANCE, settling=True, keep_probes=True)
     except SolverFailed:  # at lambda = 1 already: plain stability's SDP is better conditioned
         best = DesignResult(outcome="not_converged", gains=None, certificate=None, method=method,
                             n_drop=modes.n_drop, message="the solver failed at decay rate 1")
@@ -907,7 +907,8 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     if remaining is not None and remaining <= 0:
         return best
     try:
-        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining))
+        res = METHODS[method].run(modes, replace(options, decay_rate=target, time_limit=remaining,
+                                                 warm_start=_final_start(best.__dict__.pop("probes", ()), target)))
     except SolverFailed:  # keep the certified faster loop
         return best
     if res.outcome != "stabilized":  # cannot happen for a convex rate LMI (feasible at a smaller rate)
@@ -924,6 +925,24 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
     res.timings.update(total=total, solves=best.timings.get("solves", 0) + res.timings.get("solves", 0),
                        solver=best.timings.get("solver", 0.0) + res.timings.get("solver", 0.0))
     return res
+
+
+def _final_start(probes, target: float):
+    """The warm start of ``"auto"``'s final (full) solve, or None: of the search's probes ``(rate, SDP
+    solution)``, the certified one nearest to ``target`` (in ln lambda).  The final solve runs to the IPM's
+    tolerances either way (only the start moves); measured: 20 -> 13 interior-point iterations at n = 20,
+    12 -> 11 on the paper's example."""
+    probes = [(rate, sdp) for rate, sdp in probes if np.isfinite(sdp.t) and sdp.t > 0]
+    if not (FINAL_WARM and probes):
+        return None
+    from .ipm import WarmStart
+
+    rate, sdp = min(probes, key=lambda p: abs(np.log(p[0] / target)))
+    return WarmStart([sdp.W, sdp.Y], sdp.duals, shift=WARM_SHIFT, blend=WARM_BLEND)
+
+
+#: ``decay_rate="auto"``: warm-start the final design at the target rate from the nearest certified probe.
+FINAL_WARM = True
 
 
 #: What a bisection step whose solver failed returns (no certificate, no proof).
@@ -951,7 +970,7 @@ WARM_BLEND = 0.5
 
 def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: float,
                    upper: DesignResult | None = None, user_limit: float | None = None,
-                   settling: bool = False, strategy: str | None = None) -> DesignResult:
+                   settling: bool = False, strategy: str | None = None, keep_probes: bool = False) -> DesignResult:
     """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
 
     ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the
@@ -1041,8 +1060,15 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return float(np.exp(-np.sqrt(s_hi * s_lo)))
         return 0.5 * (lo + hi)
 
+    def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or ln lambda
+        if not settling:
+            return float(np.log(lam)) if lam > 0.0 else -np.inf
+        return -np.log(-np.log(min(max(lam, MIN_RATE), 1 - 1e-9)))
+
+    tol_width = float(np.log1p(tol) if settling else -np.log1p(-tol))  # done(lo, hi) <=> measure gap <= this
+
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
-    t_lo, previous, from_above, anchor, stalls = None, None, True, hi - lo, 0
+    t_lo, previous, from_above, anchor, stalls, model_lo = None, None, True, hi - lo, 0, None
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
         # three model steps that did not halve the bracket hand one step to the bisection: never much slower
         if strategy == "model" and stalls < 3:
@@ -1050,7 +1076,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             model = None if sdp is None else margin_model(modes, sdp, hi)
             # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
             mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
-                                 lambda a, b: 0.5 * (a + b), from_above, previous)
+                                 lambda a, b: 0.5 * (a + b), from_above, previous, measure, model_lo,
+                                 search[-1].get("step"), tol_width)
             if model is not None and (previous is None or previous[0] != hi):
                 previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
@@ -1061,11 +1088,13 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         search[-1]["step"] = how
         t_res = getattr(getattr(res, "sdp", None), "t", None)
         if res is FAILED_STEP:
-            lo, lo_proven, t_lo = mid, False, None
+            lo, lo_proven, t_lo, model_lo = mid, False, None, None
         elif res.outcome == "stabilized":
             hi, best, t_hi = mid, res, t_res
         else:
             lo, lo_proven, t_lo = mid, res.outcome == "infeasible", t_res
+            sdp_lo = getattr(res, "sdp", None)
+            model_lo = None if sdp_lo is None or sdp_lo.W is None else margin_model(modes, sdp_lo, mid)
             lo_proof = res.outcome if res.outcome in NEGATIVE else None
             lo_margin = res.certificate.margin if lo_proof == "marginal" else None
         from_above = res is not FAILED_STEP and res.outcome == "stabilized"
@@ -1086,6 +1115,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                      f"relative tolerance {tol:g}, {len(search)} designs)")
     best.rate_search = search
     best.decay_rate = hi
+    if keep_probes:  # (rate, SDP solution) of the IPM probes: "auto"'s final warm start (popped there)
+        best.probes = solved
     total = time.perf_counter() - start
     best.timings.update(totals, total=total, overhead=max(total - totals["setup"] - totals["solver"], 0.0))
     if timed_out:

@@ -25,6 +25,12 @@ import numpy as np
 
 __all__ = ["margin_model", "model_root", "next_rate"]
 
+#: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
+#: or above it by at most this fraction of ``end - lo``.
+CLOSE_HIGH_SLACK = 0.25
+#: :func:`next_rate`'s first step from the first certified end with no failed rate yet: the Newton root.
+FIRST_NEWTON = True
+
 
 def margin_model(modes, sdp, rate: float):
     """``(t0, q, eta)`` of the first-order model at ``rate`` from one solve, or None.
@@ -72,10 +78,15 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
     t0, q, eta = model
     if not np.any(q < 0):
         return None
+    # the blocks' terms summed per interval length (a few distinct eta): plain floats in the bisection below
+    # (numpy calls per evaluation cost more than the paper example's interior-point iterations)
+    powers, inverse = np.unique(np.asarray(eta, dtype=float), return_inverse=True)
+    terms = list(zip(powers.tolist(), np.bincount(inverse.ravel(), weights=q, minlength=powers.size).tolist()))
+    t0, log_rate = float(t0), math.log(rate)
 
     def m(lam):
-        with np.errstate(over="ignore"):
-            return t0 + float(np.sum(q * (np.exp(eta * (math.log(rate) - math.log(lam))) - 1.0)))
+        d = log_rate - math.log(lam)
+        return t0 + sum(w * (math.exp(min(e * d, 700.0)) - 1.0) for e, w in terms)
 
     a, b = max(lo, 1e-12), hi
     ma, mb = m(a), m(b)
@@ -94,7 +105,28 @@ def model_root(model, rate: float, lo: float, hi: float) -> float | None:
 
 
 def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
-              from_above: bool = True, previous: tuple | None = None) -> tuple[float, str]:
+              from_above: bool = True, previous: tuple | None = None, measure=None,
+              model_lo=None, last: str | None = None, tol_width: float | None = None) -> tuple[float, str]:
+    """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen (see :func:`_model_step`).
+
+    A rate aimed to be certified (``newton``, ``newton_lo``, ``secant``) that lies below the tolerance's end
+    above ``lo`` is raised to that end (``close_high``): more room to certify, and a certified one ends the
+    search (n = 50: the Newton root landed 1e-5 below that end, and one more refuted probe followed).
+    """
+    rate, how = _model_step(lo, hi, t_lo, t_hi, model, done, midpoint, from_above, previous, measure, model_lo,
+                            last, tol_width)
+    if lo > 0.0 and how in ("newton", "newton_lo", "secant"):
+        high_end = _closing_high(lo, hi, done)
+        # (also when the rate lies a little above that end: a Newton root lies above the root where the margin
+        # is convex; n = 50: 1 % of the bracket above it, and one more refuted probe followed)
+        if lo < high_end < hi and rate <= high_end + CLOSE_HIGH_SLACK * (high_end - lo):
+            return high_end, "close_high"
+    return rate, how
+
+
+def _model_step(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,
+                from_above: bool = True, previous: tuple | None = None, measure=None,
+                model_lo=None, last: str | None = None, tol_width: float | None = None) -> tuple[float, str]:
     """The next rate to try in the bracket ``[lo, hi]`` and how it was chosen.
 
     The margin is usually convex in lambda near the root (it flattens towards it), so the Newton root
@@ -103,8 +135,9 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
     between the margins at ``lo`` and ``hi`` when both are known, or the fixed point of the Newton map
     by a secant through the last two certified ends (Steffensen), or the Newton step mirrored, less half
     the tolerance); after a failed one, ``newton``.  Once the root is within the tolerance of ``hi``,
-    ``close`` tries the tolerance's end below ``hi``.  A candidate outside the bracket's inner 96 % is
-    replaced by the bisection's midpoint (``bisect``).
+    ``close`` tries the tolerance's end below ``hi``.  After a refuted rate, the Newton root of the model at
+    ``lo`` (``newton_lo``) comes first.  A candidate outside the bracket's inner 96 % (in ``measure``'s
+    coordinate; 2 % of at most one unit from each end) is replaced by the bisection's midpoint (``bisect``).
 
     Parameters
     ----------
@@ -122,6 +155,20 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
         Whether the last rate tried was certified (it moved ``hi``).
     previous : tuple, optional
         ``(hi', newton')``: the previous certified end and its Newton root.
+    model_lo : tuple, optional
+        :func:`margin_model` of the solve at ``lo`` (a refuted rate: a converged solve, exact multipliers).
+        Its Newton root comes before the model at ``hi``'s and the secant's (which creeps up from below where
+        the margin is convex: n = 8, four refuted secant steps), once in a row.
+    last : str, optional
+        How the previous rate was chosen.
+    tol_width : float, optional
+        The tolerance's width in ``measure``'s coordinate: the inner margin is at most twice it.
+    measure : callable, optional
+        An increasing map of the rate to the coordinate the tolerance is on (default: the rate itself).
+        The settling search (``decay_rate="auto"``) passes ``-ln(-ln lambda)``: its roots lie next to
+        lambda = 1 at large n (0.988 at n = 50), where the inner 96 % of ``[lo, 1]`` in lambda excluded
+        every model step and the search bisected from ``[1e-4, 1]`` (four refuted probes, 70 interior-point
+        iterations, before the first model step).
 
     Returns
     -------
@@ -132,23 +179,41 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
     low_end = _closing_low(hi, done)
     if newton is not None and done(newton, hi) and low_end > lo:
         return low_end, "close"
-    width = hi - lo
+    u = measure if measure is not None else (lambda x: x)
+    u_lo, u_hi = u(lo), u(hi)
+    # (capped: the settling measure puts hi = 1 at 1 - 1e-9, i.e. 20 units up; its differences are log-ratios
+    # of settling times, and 2 % of one unit is as far from the ends as a model step needs to keep; and at most
+    # twice the tolerance: with lo = 0, 2 % of [0, hi] refused a Newton root 0.4 % below hi for a bisection
+    # step to hi / 2, n = 30)
+    room = 0.02 * min(u_hi - u_lo, 1.0)
+    if tol_width is not None:
+        room = min(room, 2.0 * tol_width)
 
     def inside(c):
-        return c is not None and lo + 0.02 * width < c < hi - 0.02 * width
+        return c is not None and lo < c < hi and u_lo + room < u(c) < u_hi - room
 
     secant = None
     if lo > 0.0 and t_lo is not None and t_hi is not None and t_lo < 0.0 < t_hi:
         secant = lo + (hi - lo) * (-t_lo) / (t_hi - t_lo)
-    if newton is None:
-        return midpoint(lo, hi), "bisect"
-    if not from_above:
-        # far from the root the margin can be concave (the Newton root then fails); the secant's root lies
-        # above the root there
-        for cand, how in ((newton, "newton"), (secant, "secant")):
-            if inside(cand):
+    newton_lo = None if model_lo is None or lo <= 0.0 else model_root(model_lo, lo, lo, hi)
+    if not from_above or newton is None:
+        # after a refuted rate: first the Newton root of the model at lo (a converged solve's multipliers: the
+        # margin's tangent there); far from the root the margin can be concave (a Newton root then fails);
+        # the secant's root lies above the root there
+        # (once: a refuted newton_lo says the margin is flat below the root, where its steps shrink linearly)
+        # (and only above the secant's root: where the margin is convex the secant's root lies below the root and
+        # the tangent's above; below the secant's, the margin is concave there: the paper's example, flat below)
+        first = None if last == "newton_lo" or (secant is not None and newton_lo is not None
+                                                and newton_lo < secant) else newton_lo
+        for cand, how in ((first, "newton_lo"), (newton, "newton"), (secant, "secant")):
+            if not from_above and inside(cand):
                 return cand, how
         return midpoint(lo, hi), "bisect"
+    if FIRST_NEWTON and previous is None and secant is None and inside(newton):
+        # the first step from the first probe (lambda = 1, far from the root, where the margin is not yet flat):
+        # the mirrored step below overshot the root there (n = 8: 0.44 for a root at 0.78; n = 20: 0.82 for
+        # 0.86, 25 interior-point steps to refute), the Newton root is a certified rate close above it
+        return newton, "newton"
     below = None
     if previous is not None and previous[1] is not None and previous[0] != hi:
         h1, h2 = previous[1] - previous[0], newton - hi
@@ -164,6 +229,22 @@ def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, mode
     if inside(newton):
         return newton, "newton"
     return midpoint(lo, hi), "bisect"
+
+
+def _closing_high(lo: float, hi: float, done) -> float:
+    """The largest ``h`` in ``(lo, hi]`` with ``done(lo, h)`` (to 1e-9 relative, by bisection; ``lo`` when none)."""
+    a, b = lo, hi
+    if done(lo, hi):
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (a + b)
+        if done(lo, mid):
+            a = mid
+        else:
+            b = mid
+        if b - a <= 1e-12 * hi:
+            break
+    return a * (1.0 - 1e-9) if a * (1.0 - 1e-9) > lo else a
 
 
 def _closing_low(hi: float, done) -> float:

@@ -180,3 +180,108 @@ def test_model_slope_is_the_finite_difference(rate):
     root = model_root((t0, q, eta), rate, 0.05, rate)
     if t0 > 0:
         assert root is not None and 0.05 < root < rate
+
+
+class _Undecided(Exception):
+    """The reference's solve settled no sign (the family is left out)."""
+
+
+def _cold_margin(family, n_drop, rate):
+    """``t*`` of the congruent rate SDP at ``rate``: a cold solve to the IPM's default tolerances (no warm
+    start, no early stop), in the user's coordinates: its attained ``t`` (every block is ``>= t I`` at its W, Y)."""
+    _, f, c, act = _lmi_data(family, n_drop, rate)
+    sol = solve_lmi(f, c, act)
+    if sol.status in ("optimal", "inaccurate") or sol.t > 0:
+        return sol.t
+    if sol.upper < -1e-3 and sol.primal_residual < 1e-5:
+        return sol.upper  # stopped early far below the best rate (c_s = lambda^-eta large): a clear sign
+    raise _Undecided
+
+
+def _cold_bisection(family, n_drop, tol):
+    """The best rate by a plain bisection on the sign of ``t*(lambda)`` (cold full solves), to ``tol``
+    relative: ``(a, b)`` with ``t*(a) <= 0 < t*(b)`` (a = 0 when every rate tried is feasible), or None when
+    lambda = 1 is not."""
+    if _cold_margin(family, n_drop, 1.0) <= 0:
+        return None
+    a, b = 0.0, 1.0
+    while b - a > tol * b:
+        mid = 0.5 * (a + b)
+        if _cold_margin(family, n_drop, mid) > 0:
+            b = mid
+        else:
+            a = mid
+    return a, b
+
+
+def test_max_rate_equals_a_cold_bisection():
+    """``decay_rate="max"`` (the default search: warm sign-only probes, model steps, float64 re-checks and
+    Farkas proofs) against a plain cold bisection written here: the paper's example and 30 small random
+    families, to rate_tol."""
+    tol = 1e-3
+    fams = [(PlantFamily.paper_example(0.1), 3)]
+    for seed in range(30):  # two or three plant modes: one-mode plants have best rates near 0 (deadbeat)
+        rng = np.random.default_rng(500 + seed)
+        n, r = int(rng.integers(2, 4)), int(rng.integers(2, 4))
+        fams.append((random_family(n, r, 1, seed=500 + seed, spread=0.3), int(rng.integers(1, 3))))
+    compared = 0
+    for family, n_drop in fams:
+        try:
+            ref = _cold_bisection(family, n_drop, tol)
+        except _Undecided:
+            continue
+        res = design(family, n_drop, decay_rate="max", rate_tol=tol)
+        if ref is None or res.outcome != "stabilized":
+            continue
+        a, b = ref
+        rate = res.decay_rate
+        assert res.certificate.verified and res.certificate.decay_rate == rate
+        # a certified rate is never one the reference's solver finds infeasible (beyond its rounding)
+        assert rate >= a * (1 - 1e-6), (n_drop, rate, ref)
+        if res.rate_bracket["lower_proven"]:
+            # both brackets hold the best rate and are within tol: their upper ends agree to about tol
+            assert abs(rate - b) <= 1.05 * tol * b, (n_drop, rate, ref)
+            # the proven lower end of the search is refuted by the reference too
+            assert res.rate_bracket["lower"] <= b
+            compared += 1
+    assert compared >= 20
+
+
+def _settling(tol):
+    """``done`` and the measure of "auto"'s settling-time rule (as in solver.design._smallest_rate)."""
+    def done(lo, hi):
+        return -np.log(max(lo, 1e-4)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+
+    def measure(lam):
+        return -np.log(-np.log(min(max(lam, 1e-4), 1 - 1e-9)))
+
+    return done, measure
+
+
+def test_model_step_next_to_one_is_taken_in_the_settling_measure():
+    """A root next to lambda = 1 (large n): the Newton root, not the midpoint of [1e-4, 1]."""
+    from solver.rate_search import next_rate
+
+    done, measure = _settling(0.1)
+    model = (0.0015, np.array([-0.3]), np.array([1.0]))  # m = 0.0015 - 0.3 (1 / lambda - 1): root 1 / 1.005
+    rate, how = next_rate(1e-4, 1.0, None, 0.0015, model, done, lambda a, b: 0.5 * (a + b), measure=measure)
+    assert how == "newton" and abs(rate - 1 / 1.005) < 1e-9
+    # in lambda itself the root lies in the outer 2 % of [1e-4, 1]: the bisection's midpoint
+    rate, how = next_rate(1e-4, 1.0, None, 0.0015, model, done, lambda a, b: 0.5 * (a + b))
+    assert how == "bisect"
+
+
+def test_close_high_ends_the_bracket():
+    from solver.rate_search import _closing_high, next_rate
+
+    done, measure = _settling(0.1)
+    lo, hi = 0.98718, 0.9907
+    h = _closing_high(lo, hi, done)
+    assert lo < h < hi and done(lo, h) and not done(lo, h * (1 + 1e-7))
+    # a refuted lo with a model whose Newton root lies just above that end: the end itself is tried
+    eta = np.array([1.0])
+    q = np.array([-0.01])
+    t_lo = -0.01 * (1 - lo / (h * (1 + 1e-5)))  # m_lo(lambda) = t_lo - 0.01 (lo / lambda - 1): root h (1 + 1e-5)
+    rate, how = next_rate(lo, hi, t_lo, 1e-4, None, done, lambda a, b: 0.5 * (a + b), from_above=False,
+                          measure=measure, model_lo=(t_lo, q, eta))
+    assert how == "close_high" and rate == h
