@@ -74,14 +74,43 @@ def _stack(items: list, nb: int, k: int, cols: int) -> np.ndarray:
     return out
 
 
-def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool):
-    """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side)."""
+def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool, compact: bool = True):
+    """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side).
+
+    ``compact``: the tail rows (cost or output rows) replaced by the triangular factor of their coefficient
+    matrix (exact, docs/design.md §8.3.1): side ``2n + min(eta (n+m), n + eta m)`` for the cost instead of
+    ``2n + eta (n + m)``.
+    """
     lms = [lifted.lifted[s] for s in s_list]
     nb = len(lms)
+    tails = []
+    for s, lm in zip(s_list, lms):
+        rows = lm.cost if kind == "cost" else lm.output if kind == "hinf" else None
+        if rows is None:
+            tails.append(None)
+            continue
+        Ys = _scheme(rows, M, scale) if JM else np.zeros((rows.free.shape[0], 0))
+        tails.append((rows.free, Ys, lm.D if kind == "hinf" else None))
+    if compact and kind in ("cost", "hinf"):
+        # The tail rows T = [free, Ys, D] meet only an identity (or gamma I) on the diagonal, so the orthogonal
+        # congruence diag(I, Q') maps them to Q' T without touching that identity; with T = Q R (thin QR over
+        # T's nonzero columns, the union over the group so that its blocks keep one side) the rows Q_perp' T
+        # vanish and drop out with their identity rows: the same LMI, exactly (docs/design.md §8.3.1).
+        T = np.stack([np.hstack([t for t in tl if t is not None]) for tl in tails])
+        cols = np.flatnonzero(np.any(T != 0, axis=(0, 1)))
+        if T.shape[1] > cols.size:
+            out = []
+            for f, Ys, D in tails:
+                Tb = np.hstack([f, Ys] + ([] if D is None else [D]))
+                R = np.zeros((cols.size, Tb.shape[1]))
+                R[:, cols] = np.linalg.qr(Tb[:, cols], mode="r")
+                a, b = n, n + Ys.shape[1]
+                out.append((R[:, :a], R[:, a:b], None if D is None else R[:, b:]))
+            tails = out
     if kind == "cost":
-        extra, tail = 0, lms[0].cost.free.shape[0]
+        extra, tail = 0, tails[0][0].shape[0]
     elif kind == "hinf":
-        extra, tail = lms[0].B.shape[1], lms[0].D.shape[0]
+        extra, tail = lms[0].B.shape[1], tails[0][0].shape[0]
     else:
         extra, tail = 0, 0
     k = 2 * n + extra + tail
@@ -94,15 +123,15 @@ def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, koth
         Lf[b, a0:a0 + n] = c[s] * lm.state.free
         if JM:
             LY[b, a0:a0 + n] = c[s] * _scheme(lm.state, M, scale)
-        rows = lm.cost if kind == "cost" else lm.output if kind == "hinf" else None
-        if rows is not None:
-            Lf[b, a0 + n:] = rows.free
+        if tails[b] is not None:
+            free, Ys, D = tails[b]
+            Lf[b, a0 + n:] = free
             if JM:
-                LY[b, a0 + n:] = _scheme(rows, M, scale)
+                LY[b, a0 + n:] = Ys
         if kind == "hinf":
             C[b, a0:a0 + n, n:a0] = lm.B
-            C[b, a0 + n:, n:a0] = lm.D
-            C[b, n:a0, a0:] = np.vstack([lm.B, lm.D]).T
+            C[b, a0 + n:, n:a0] = D
+            C[b, n:a0, a0:] = np.vstack([lm.B, D]).T
     R = np.broadcast_to(np.eye(n, k), (nb, n, k))
     Lb = np.zeros((1, k, n))
     Lb[0, a0:a0 + n] = np.eye(n)
@@ -136,7 +165,8 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
-                        limit_slack: float = 0.0, trace_weight: np.ndarray | None = None) -> PerformanceProblem:
+                        limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
+                        compact: bool = True) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -157,6 +187,10 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         ``u_max (1 - limit_slack)`` in the input blocks.
     trace_weight : ndarray, shape (n,), optional
         Minimize ``sum_i w_i Z_ii`` instead of ``trace Z`` (the user's trace in balanced coordinates).
+    compact : bool
+        Cost and output rows of each lifted block reduced to their triangular factor (docs/design.md §8.3.1:
+        the same LMI, side ``3n + eta m`` instead of ``2n + eta (n + m)`` for the cost); False: the lifted
+        blocks as written (the reference the tests compare with).
     """
     modes = lifted.modes
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
@@ -182,7 +216,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
             for s, lm in enumerate(lifted.lifted):
                 by_side.setdefault(lm.eta, []).append(s)
         for eta, s_list in sorted(by_side.items()):
-            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare)
+            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare, compact)
             name = "stability" if kind == "stability" else f"{kind}_eta{eta}"
             groups.append(BlockGroup(name, C, terms, sc))
             group_modes[name] = s_list
