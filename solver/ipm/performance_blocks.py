@@ -9,9 +9,10 @@ Clarabel path solves), one group per block kind and side:
 ========================  ======================================================  =============
 group                     blocks (in this order)                                  side
 ========================  ======================================================  =============
-``cost_eta{e}``           ``[[W, V_s'], [V_s, diag(W, I or gamma I)]]``, the      2n + e(n+m)
-                          modes s with ``eta_s = e`` (``modes`` lists them)
-``hinf_eta{e}``           ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]]``           2n + e(p_w+p_z)
+``cost_eta{e}``           ``[[W, V_s'], [V_s, diag(W, I or gamma I)]]``, the      2n + min(e(n+m),
+                          modes s with ``eta_s = e`` (``modes`` lists them)      n + e m)
+``hinf_eta{e}``           ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]]``           2n + e p_w +
+                                                                                  min(e p_z, c)
 ``stability``             ``[[W, c_s (A_s W)'], [c_s A_s W, W]]``, every mode     2n
 ``Z``                     ``[[Z, I], [I, W]]``                                    2n
 ``x0``                    ``[[level, x0'], [x0, W]]`` (level 1 or gamma)          n + 1
@@ -22,6 +23,9 @@ group                     blocks (in this order)                                
 ``ball``                  ``W - tau I``                                           n
 ``cap``                   ``cap - gamma``                                         1
 ========================  ======================================================  =============
+
+The cost and output rows of the lifted blocks are replaced by the triangular factor of their coefficients
+(``compact=True``, the default; docs/design.md §8.3.1): the same LMIs, with ``c = n + e (m + p_w)``.
 """
 
 from __future__ import annotations
