@@ -113,6 +113,8 @@ class IPMSolution(_SolveStatus):
 STALL_SCORE = 1e-4
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
 REFINE_STEPS = 4
+#: ... until the direction's error in ``adj(dX) = r_p`` is below this fraction of ``|r_p|``.
+REFINE_TO = 0.1
 _potrf = scipy.linalg.lapack.dpotrf
 _potrs = scipy.linalg.lapack.dpotrs
 
@@ -424,7 +426,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 if anydead:
                     e[dead] = 0.0
                 ne = math.sqrt(float(e @ e))
-                if not ne > 1e-3 * math.sqrt(float(r_p @ r_p)) + 1e-14 * normb or ne > 0.5 * ne_prev:
+                if not ne > REFINE_TO * math.sqrt(float(r_p @ r_p)) + 1e-14 * normb or ne > 0.5 * ne_prev:
                     if ne > ne_prev:  # the last correction made it worse: undo it
                         dy, dS, dX = best_dir
                     break

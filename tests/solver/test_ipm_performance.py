@@ -29,9 +29,10 @@ def test_grouped_schur_complement_is_its_definition():
     for objective, x0, u_max, dist in [("cost", None, None, None), ("cost", X0, [0.5], None),
                                        ("hinf", None, None, np.stack(fam.G))]:
         lifted = lift_modes(modes, None, dist, None, cost=objective == "cost")
-        pp = ipm.performance_problem(lifted, objective, x0, None if u_max is None else np.array(u_max))
+        pp = ipm.performance_problem(lifted, objective, x0, None if u_max is None else np.array(u_max), merge=False)
         assert len(set(pp.lmi.sides)) > 1  # blocks of several sides
-        for lmi in (pp.lmi, pp.lmi.at(0.1 * rng.standard_normal(pp.lmi.p), pp.objective)):
+        merged = ipm.performance_problem(lifted, objective, x0, None if u_max is None else np.array(u_max))
+        for lmi in (pp.lmi, pp.lmi.at(0.1 * rng.standard_normal(pp.lmi.p), pp.objective), merged.lmi):
             X = [_psd(rng, c.shape) for c in lmi.C]
             G = [_psd(rng, c.shape) for c in lmi.C]
             op_d, _, schur_d = lmi.ops(dense=True)
@@ -131,15 +132,16 @@ def _tail_schur(blocks: np.ndarray, tail: int) -> np.ndarray:
 @pytest.mark.parametrize("objective", ["cost", "hinf"])
 def test_compact_blocks_are_the_lifted_ones(objective):
     """docs/design.md §8.3.1: the compact block's Schur complement on its identity tail is the lifted block's, at
-    random points (so one is PSD exactly when the other is), with shorter sides; the IPM reaches the same optimum."""
+    random points (so one is PSD exactly when the other is), with shorter sides; the IPM reaches the same optimum
+    on the lifted blocks and on the solver's form (compact, all lengths in one padded group)."""
     rng = np.random.default_rng(7)
     fams = [("paper", PlantFamily.paper_example(0.1), 3)] + list(_families())[1:]
     for name, fam, N in fams:
         modes = ModeSet.from_family(fam, N)
         dist = np.stack(fam.G) if objective == "hinf" else None
         lifted = lift_modes(modes, None, dist, None, cost=objective == "cost")
-        a = ipm.performance_problem(lifted, objective, None, None)
-        b = ipm.performance_problem(lifted, objective, None, None, compact=False)
+        a = ipm.performance_problem(lifted, objective, None, None, merge=False)
+        b = ipm.performance_problem(lifted, objective, None, None, compact=False, merge=False)
         assert a.lmi.p == b.lmi.p and [g.name for g in a.lmi.groups_spec] == [g.name for g in b.lmi.groups_spec]
         y = rng.standard_normal(a.lmi.p)
         y[-1] = 0.0  # the max-t form's t (last coordinate): the blocks themselves
@@ -159,7 +161,10 @@ def test_compact_blocks_are_the_lifted_ones(objective):
             sa, sb = _tail_schur(ca + ba, compact_tail), _tail_schur(cb + bb, lifted_tail)
             np.testing.assert_allclose(sa, sb, rtol=1e-10, atol=1e-10 * np.abs(sb).max())
         assert shorter >= 1, name
-        va = ipm.solve_performance(a, ipm.IPMOptions(gap_tol=1e-11, feas_tol=1e-11))
+        # the solver's own form: compact blocks of all lengths in one group, padded with identities
+        merged = ipm.performance_problem(lifted, objective, None, None)
+        assert len(merged.lmi.groups_spec) < len(a.lmi.groups_spec) or len(a.lmi.groups_spec) <= 2
+        va = ipm.solve_performance(merged, ipm.IPMOptions(gap_tol=1e-11, feas_tol=1e-11))
         vb = ipm.solve_performance(b, ipm.IPMOptions(gap_tol=1e-11, feas_tol=1e-11))
         assert va.value == pytest.approx(vb.value, rel=1e-6), name
 
