@@ -158,6 +158,10 @@ def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, koth
     return C, terms, scalars
 
 
+#: Interval lengths whose blocks' sides are within this ratio share one group (padded to the largest side).
+MERGE_RATIO = 1.25
+
+
 def _merge_groups(parts: list, n: int):
     """One group of the blocks of several ``(C, terms, scalars)`` (different sides): each block padded to the
     largest side with an identity (``[[B, 0], [0, I]] >= 0`` iff ``B >= 0``), so the Schur complement is assembled
@@ -264,8 +268,21 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
             parts.append((C, terms, sc))
             group_modes[name] = s_list
         if merge and len(parts) > 1:
-            groups.append(BlockGroup(kind, *_merge_groups(parts, n)))
-            group_modes = {kind: [s for sl in group_modes.values() for s in sl]}
+            # lengths whose sides are within MERGE_RATIO of the bucket's smallest share one padded group (the
+            # padding costs (k / k_b)^3 in the blocks' factorizations, one group per length a Schur assembly each)
+            buckets, names = [], list(group_modes)
+            for name, pt in zip(names, parts):
+                if buckets and pt[0].shape[1] <= MERGE_RATIO * buckets[-1][0][1][0].shape[1]:
+                    buckets[-1].append((name, pt))
+                else:
+                    buckets.append([(name, pt)])
+            merged_modes = {}
+            for i, bucket in enumerate(buckets):
+                name = kind if len(buckets) == 1 else f"{kind}_{i}"
+                pts = [pt for _, pt in bucket]
+                groups.append(BlockGroup(name, *(_merge_groups(pts, n) if len(pts) > 1 else pts[0])))
+                merged_modes[name] = [s for nm, _ in bucket for s in group_modes[nm]]
+            group_modes = merged_modes
         else:
             groups += [BlockGroup(name, *pt) for name, pt in zip(group_modes, parts)]
     else:
