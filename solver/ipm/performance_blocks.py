@@ -25,7 +25,9 @@ group                     blocks (in this order)                                
 ========================  ======================================================  =============
 
 The cost and output rows of the lifted blocks are replaced by the triangular factor of their coefficients
-(``compact=True``, the default; docs/design.md §8.3.1): the same LMIs, with ``c = n + e (m + p_w)``.
+(``compact=True``, the default; docs/design.md §8.3.1): the same LMIs, with ``c = n + e (m + p_w)``.  With
+``merge=True`` (the default) interval lengths whose sides are within :data:`MERGE_RATIO` share one group
+(``cost``, or ``cost_0``, ``cost_1``, ... by increasing side), each block padded to the group's side with an identity.
 """
 
 from __future__ import annotations
