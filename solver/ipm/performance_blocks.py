@@ -9,9 +9,10 @@ Clarabel path solves), one group per block kind and side:
 ========================  ======================================================  =============
 group                     blocks (in this order)                                  side
 ========================  ======================================================  =============
-``cost_eta{e}``           ``[[W, V_s'], [V_s, diag(W, I or gamma I)]]``, the      2n + e(n+m)
-                          modes s with ``eta_s = e`` (``modes`` lists them)
-``hinf_eta{e}``           ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]]``           2n + e(p_w+p_z)
+``cost_eta{e}``           ``[[W, V_s'], [V_s, diag(W, I or gamma I)]]``, the      2n + min(e(n+m),
+                          modes s with ``eta_s = e`` (``modes`` lists them)      n + e m)
+``hinf_eta{e}``           ``[[diag(W, g I), U_s'], [U_s, diag(W, I)]]``           2n + e p_w +
+                                                                                  min(e p_z, c)
 ``stability``             ``[[W, c_s (A_s W)'], [c_s A_s W, W]]``, every mode     2n
 ``Z``                     ``[[Z, I], [I, W]]``                                    2n
 ``x0``                    ``[[level, x0'], [x0, W]]`` (level 1 or gamma)          n + 1
@@ -22,6 +23,11 @@ group                     blocks (in this order)                                
 ``ball``                  ``W - tau I``                                           n
 ``cap``                   ``cap - gamma``                                         1
 ========================  ======================================================  =============
+
+The cost and output rows of the lifted blocks are replaced by the triangular factor of their coefficients
+(``compact=True``, the default; docs/design.md §8.3.1): the same LMIs, with ``c = n + e (m + p_w)``.  With
+``merge=True`` (the default) interval lengths whose sides are within :data:`MERGE_RATIO` share one group
+(``cost``, or ``cost_0``, ``cost_1``, ... by increasing side), each block padded to the group's side with an identity.
 """
 
 from __future__ import annotations
@@ -74,14 +80,43 @@ def _stack(items: list, nb: int, k: int, cols: int) -> np.ndarray:
     return out
 
 
-def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool):
-    """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side)."""
+def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool, compact: bool = True):
+    """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side).
+
+    ``compact``: the tail rows (cost or output rows) replaced by the triangular factor of their coefficient
+    matrix (exact, docs/design.md §8.3.1): side ``2n + min(eta (n+m), n + eta m)`` for the cost instead of
+    ``2n + eta (n + m)``.
+    """
     lms = [lifted.lifted[s] for s in s_list]
     nb = len(lms)
+    tails = []
+    for s, lm in zip(s_list, lms):
+        rows = lm.cost if kind == "cost" else lm.output if kind == "hinf" else None
+        if rows is None:
+            tails.append(None)
+            continue
+        Ys = _scheme(rows, M, scale) if JM else np.zeros((rows.free.shape[0], 0))
+        tails.append((rows.free, Ys, lm.D if kind == "hinf" else None))
+    if compact and kind in ("cost", "hinf"):
+        # The tail rows T = [free, Ys, D] meet only an identity (or gamma I) on the diagonal, so the orthogonal
+        # congruence diag(I, Q') maps them to Q' T without touching that identity; with T = Q R (thin QR over
+        # T's nonzero columns, the union over the group so that its blocks keep one side) the rows Q_perp' T
+        # vanish and drop out with their identity rows: the same LMI, exactly (docs/design.md §8.3.1).
+        T = np.stack([np.hstack([t for t in tl if t is not None]) for tl in tails])
+        cols = np.flatnonzero(np.any(T != 0, axis=(0, 1)))
+        if T.shape[1] > cols.size:
+            out = []
+            for f, Ys, D in tails:
+                Tb = np.hstack([f, Ys] + ([] if D is None else [D]))
+                R = np.zeros((cols.size, Tb.shape[1]))
+                R[:, cols] = np.linalg.qr(Tb[:, cols], mode="r")
+                a, b = n, n + Ys.shape[1]
+                out.append((R[:, :a], R[:, a:b], None if D is None else R[:, b:]))
+            tails = out
     if kind == "cost":
-        extra, tail = 0, lms[0].cost.free.shape[0]
+        extra, tail = 0, tails[0][0].shape[0]
     elif kind == "hinf":
-        extra, tail = lms[0].B.shape[1], lms[0].D.shape[0]
+        extra, tail = lms[0].B.shape[1], tails[0][0].shape[0]
     else:
         extra, tail = 0, 0
     k = 2 * n + extra + tail
@@ -94,15 +129,15 @@ def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, koth
         Lf[b, a0:a0 + n] = c[s] * lm.state.free
         if JM:
             LY[b, a0:a0 + n] = c[s] * _scheme(lm.state, M, scale)
-        rows = lm.cost if kind == "cost" else lm.output if kind == "hinf" else None
-        if rows is not None:
-            Lf[b, a0 + n:] = rows.free
+        if tails[b] is not None:
+            free, Ys, D = tails[b]
+            Lf[b, a0 + n:] = free
             if JM:
-                LY[b, a0 + n:] = _scheme(rows, M, scale)
+                LY[b, a0 + n:] = Ys
         if kind == "hinf":
             C[b, a0:a0 + n, n:a0] = lm.B
-            C[b, a0 + n:, n:a0] = lm.D
-            C[b, n:a0, a0:] = np.vstack([lm.B, lm.D]).T
+            C[b, a0 + n:, n:a0] = D
+            C[b, n:a0, a0:] = np.vstack([lm.B, D]).T
     R = np.broadcast_to(np.eye(n, k), (nb, n, k))
     Lb = np.zeros((1, k, n))
     Lb[0, a0:a0 + n] = np.eye(n)
@@ -125,6 +160,45 @@ def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, koth
     return C, terms, scalars
 
 
+#: Interval lengths whose blocks' sides are within this ratio share one group (padded to the largest side).
+MERGE_RATIO = 1.25
+
+
+def _merge_groups(parts: list, n: int):
+    """One group of the blocks of several ``(C, terms, scalars)`` (different sides): each block padded to the
+    largest side with an identity (``[[B, 0], [0, I]] >= 0`` iff ``B >= 0``), so the Schur complement is assembled
+    once instead of once per interval length (the per-group overhead dominated at n = 12, n_drop = 10)."""
+    k = max(C.shape[1] for C, _, _ in parts)
+    nb = sum(C.shape[0] for C, _, _ in parts)
+
+    def pad(M, rows: bool, cols: bool):
+        M = np.asarray(M)
+        out = np.zeros((M.shape[0], k if rows else M.shape[1], k if cols else M.shape[2]))
+        out[:, :M.shape[1], :M.shape[2]] = M
+        return out
+
+    C = np.concatenate([pad(Cg, True, True) for Cg, _, _ in parts])
+    b0 = 0
+    for Cg, _, _ in parts:
+        kg = Cg.shape[1]
+        C[b0:b0 + Cg.shape[0], kg:, kg:] += np.eye(k - kg)
+        b0 += Cg.shape[0]
+    terms = {}
+    for var, lst in parts[0][1].items():
+        merged = []
+        for i, (_, R0, c0) in enumerate(lst):
+            Ls = [np.broadcast_to(pt[1][var][i][0], (pt[0].shape[0],) + pt[1][var][i][0].shape[1:]) for pt in parts]
+            L = np.concatenate([pad(x, True, False) for x in Ls])
+            if np.all(L == L[:1]):  # the same in every block (a selector): keep it broadcast
+                L = np.broadcast_to(L[:1], L.shape)
+            R = None if R0 is None else np.broadcast_to(np.eye(n, k), (nb, n, k))
+            merged.append((L, R, c0))
+        terms[var] = merged
+    scalars = {v: np.concatenate([pad(np.broadcast_to(pt[2][v], pt[0].shape), True, True) for pt in parts])
+               for v in parts[0][2]}
+    return C, terms, scalars
+
+
 def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
     """``[[corner, border'], [border, 0]]``, shape (1, n + 1, n + 1)."""
     C = np.zeros((1, n + 1, n + 1))
@@ -136,7 +210,8 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
-                        limit_slack: float = 0.0, trace_weight: np.ndarray | None = None) -> PerformanceProblem:
+                        limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
+                        compact: bool = True, merge: bool = True) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -157,6 +232,13 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         ``u_max (1 - limit_slack)`` in the input blocks.
     trace_weight : ndarray, shape (n,), optional
         Minimize ``sum_i w_i Z_ii`` instead of ``trace Z`` (the user's trace in balanced coordinates).
+    compact : bool
+        Cost and output rows of each lifted block reduced to their triangular factor (docs/design.md §8.3.1:
+        the same LMI, side ``3n + eta m`` instead of ``2n + eta (n + m)`` for the cost); False: the lifted
+        blocks as written (the reference the tests compare with).
+    merge : bool
+        The per-mode blocks of every interval length in one group ``cost`` / ``hinf``, each padded to the largest
+        side with an identity (:func:`_merge_groups`); False: one group per length (``cost_eta{e}``).
     """
     modes = lifted.modes
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
@@ -181,11 +263,30 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
             by_side = {}
             for s, lm in enumerate(lifted.lifted):
                 by_side.setdefault(lm.eta, []).append(s)
+        parts = []
         for eta, s_list in sorted(by_side.items()):
-            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare)
+            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare, compact)
             name = "stability" if kind == "stability" else f"{kind}_eta{eta}"
-            groups.append(BlockGroup(name, C, terms, sc))
+            parts.append((C, terms, sc))
             group_modes[name] = s_list
+        if merge and len(parts) > 1:
+            # lengths whose sides are within MERGE_RATIO of the bucket's smallest share one padded group (the
+            # padding costs (k / k_b)^3 in the blocks' factorizations, one group per length a Schur assembly each)
+            buckets, names = [], list(group_modes)
+            for name, pt in zip(names, parts):
+                if buckets and pt[0].shape[1] <= MERGE_RATIO * buckets[-1][0][1][0].shape[1]:
+                    buckets[-1].append((name, pt))
+                else:
+                    buckets.append([(name, pt)])
+            merged_modes = {}
+            for i, bucket in enumerate(buckets):
+                name = kind if len(buckets) == 1 else f"{kind}_{i}"
+                pts = [pt for _, pt in bucket]
+                groups.append(BlockGroup(name, *(_merge_groups(pts, n) if len(pts) > 1 else pts[0])))
+                merged_modes[name] = [s for nm, _ in bucket for s in group_modes[nm]]
+            group_modes = merged_modes
+        else:
+            groups += [BlockGroup(name, *pt) for name, pt in zip(group_modes, parts)]
     else:
         raise ValueError(f"objective must be 'cost', 'hinf' or 'stability', got {objective!r}")
     Ltop = np.zeros((1, 2 * n, n))

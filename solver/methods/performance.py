@@ -273,18 +273,25 @@ def ipm_bytes(lifted: Lifted, objective: str) -> int:
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
     sym = n * (n + 1) // 2
     p = 2 * sym + J * m * n + 2  # W, Z (trace objective), the gains, gamma / g and t
-    sides = block_sides(lifted, objective) + [n + 1] * (modes.n_drop * m)  # + the input-limit blocks
+    sides = block_sides(lifted, objective, compact=True) + [n + 1] * (modes.n_drop * m)  # + the input-limit blocks
     groups = len(set(sides)) + 3
     return ipm_memory(p, p, len(sides), max(sides), J * m * n) + 8 * groups * p * p
 
 
-def block_sides(lifted: Lifted, objective: str) -> list[int]:
-    """Side of every per-mode LMI block of the design (the input-limit blocks are n + 1 each)."""
-    n = lifted.modes.n_states
+def block_sides(lifted: Lifted, objective: str, compact: bool = False) -> list[int]:
+    """Side of every per-mode LMI block of the design (the input-limit blocks are n + 1 each).
+
+    ``compact``: the structured IPM's blocks (docs/design.md §8.3.1: the tail rows reduced to at most
+    ``n + eta m`` (cost) or ``n + eta (m + p_w)`` (hinf)); otherwise the lifted ones (the cvxpy form).
+    """
+    n, m = lifted.modes.n_states, lifted.modes.n_inputs
+    J = lifted.modes.n_free_gains
     if objective == "cost":
-        return [2 * n + lm.cost.free.shape[0] for lm in lifted.lifted]
+        return [2 * n + (min(lm.cost.free.shape[0], n + min(lm.eta, J) * m) if compact else lm.cost.free.shape[0])
+                for lm in lifted.lifted]
     if objective == "hinf":
-        return [2 * n + lm.B.shape[1] + lm.D.shape[0] for lm in lifted.lifted]
+        return [2 * n + lm.B.shape[1] + (min(lm.D.shape[0], n + min(lm.eta, J) * m + lm.B.shape[1]) if compact
+                                         else lm.D.shape[0]) for lm in lifted.lifted]
     return [2 * n] * len(lifted.lifted)
 
 
