@@ -235,7 +235,7 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     length eta involves the gains ``K_1..K_eta`` only, so the variables a block touches grow with eta.
     """
     if network is not None and not getattr(network, "is_bounded_drops", False):
-        return network_design_size(network, n_states, n_inputs, n_plants, plant_switching)
+        return network_design_size(network, n_states, n_inputs, n_plants, plant_switching, solver)
     n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(n_drop)
     J = N if scheme == "predictive" else 1
     sym = n * (n + 1) // 2
@@ -275,7 +275,7 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
 
 
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
-                        plant_switching: str = "per_interval") -> DesignSize:
+                        plant_switching: str = "per_interval", solver: str = "AUTO") -> DesignSize:
     """Size of the network design (:mod:`solver.methods.network_lmi`), from the automaton's structure alone.
 
     Nodes x plant modes x the state the Lyapunov matrices live on: the lifted form (every packet that takes

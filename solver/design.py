@@ -356,6 +356,13 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                        solver=solver, network=network)
     size.check(max_memory, float("inf") if time_limit is not None else None,
                solves=solve_count("lmi", decay_rate, rate_tol, max_iter))
+    # "AUTO" falls back to Clarabel only where Clarabel's KKT system fits the memory budget too
+    from .compiled import MAX_SOLVER_MEMORY
+
+    budget = MAX_SOLVER_MEMORY if max_memory is None else max_memory
+    fallback = str(solver).upper() != "AUTO" or not budget or design_size(
+        "lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching, solver="CLARABEL",
+        network=network).memory <= budget
     start = time.perf_counter()
     with blas_threads(1):
         prob = network_lmi.build_problem(family, network, plant_switching)
@@ -366,7 +373,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                                message=f"{unc.statement()}: no gains stabilize the loop on {network.describe()}")
         else:
             res = _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter,
-                                 plant_switching, start)
+                                 plant_switching, start, solver, fallback)
         if res.outcome not in ("stabilized", "infeasible") and network_lmi.contains_bounded_drops(network):
             res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
     res.network = network.to_dict() if hasattr(network, "to_dict") else None
@@ -403,7 +410,7 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
 
 
 def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter, plant_switching,
-                   start) -> DesignResult:
+                   start, solver="AUTO", fallback=True) -> DesignResult:
     """``decay_rate`` on a network: a number or None directly; "max"/"auto" by bisection on the convex condition.
 
     The bisection accepts a rate only with a re-checked certificate; a step without one (not proven
@@ -438,7 +445,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     def one(rate, use_ccl=True):
         return network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
                                time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
-                               recheck=recheck)
+                               recheck=recheck, solver=solver, fallback=fallback)
 
     if decay_rate not in ("max", "auto"):
         res = one(None if decay_rate is None else float(decay_rate))
