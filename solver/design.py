@@ -17,7 +17,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .rate_search import margin_model, model_root, next_rate
+from .rate_search import margin_model, model_root, network_margin_model, next_rate
 from .result import DesignResult, certified_settling, metric_condition
 from .brackets import bracket_back
 from .scaling import Scaling, balance, performance_balance
@@ -442,50 +442,91 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
             return False, None
         return rep.stable is True, rep.certificate
 
-    def one(rate, use_ccl=True):
-        return network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
-                               time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
-                               recheck=recheck, solver=solver, fallback=fallback)
+    solved = []  # (rate, NetworkSolution) of the IPM's solves, for the warm starts
+
+    def one(rate, use_ccl=True, probe=False):
+        """One design at ``rate``, warm started from the nearest rate solved; a probe of the search stops once the
+        margin's sign is settled."""
+        warm = None
+        if rate is not None and WARM_PROBES and solved:
+            from .ipm.network_blocks import warm_start
+
+            near = min(solved, key=lambda p: abs(np.log(p[0] / rate)))[1]
+            warm = warm_start(near.ipm, WARM_SHIFT, WARM_BLEND)
+        res = network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
+                              time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
+                              recheck=recheck, solver=solver, fallback=fallback, start=warm,
+                              sign_only=probe and SIGN_ONLY_PROBES)
+        sdp = getattr(res, "sdp", None)
+        if rate is not None and sdp is not None and sdp.ipm is not None:
+            solved.append((rate, sdp))
+        return res
 
     if decay_rate not in ("max", "auto"):
         res = one(None if decay_rate is None else float(decay_rate))
         if notes and res.outcome == "stabilized":
             res.message += "; " + notes[-1]
         return res
-    best = one(1.0, use_ccl=False)
+    best = one(1.0, use_ccl=False, probe=True)
     if best.outcome != "stabilized":
         plain = one(None)
         plain.message += f"; decay_rate={decay_rate!r}: the convex condition certifies no decay rate"
         return plain
-    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
     tol = AUTO_SETTLING_TOLERANCE if decay_rate == "auto" else rate_tol
-    while hi > MIN_RATE and (time_limit is None or time.perf_counter() - start < time_limit):
-        if decay_rate == "auto":
+    settling = decay_rate == "auto"
+
+    def done(lo, hi):
+        if not settling:
+            return hi - lo <= tol * hi
+        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+
+    def midpoint(lo, hi):
+        if settling:
             s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            if s_lo <= (1 + tol) * s_hi:
-                break
-            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+            return float(np.exp(-np.sqrt(s_hi * s_lo)))
+        return 0.5 * (lo + hi)
+
+    solves = best.timings.get("solves", 0)
+    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized", "solver": best.solver}]
+    t_hi, t_lo = best.sdp.t, None
+    previous, from_above, anchor, stalls = None, True, 1.0, 0
+    # the search of the plain design (solver/rate_search.py): the root of the margin's first-order model from
+    # the last certified solve's multipliers, safeguarded by the bracket; every third stalled step bisects
+    while not done(lo, hi) and hi > MIN_RATE and (time_limit is None or time.perf_counter() - start < time_limit):
+        if RATE_SEARCH == "model" and stalls < 3:
+            model = network_margin_model(prob, best.sdp, hi)
+            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
+                                 lambda a, b: 0.5 * (a + b), from_above, previous)
+            if model is not None and (previous is None or previous[0] != hi):
+                previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
-            if hi - lo <= tol * hi:
-                break
-            mid = 0.5 * (lo + hi)
-        res = one(mid, use_ccl=False)
-        tries.append({"decay_rate": mid, "outcome": res.outcome})
+            mid, how = midpoint(lo, hi), "bisect"
+        res = one(mid, use_ccl=False, probe=True)
+        solves += res.timings.get("solves", 0)
+        tries.append({"decay_rate": mid, "outcome": res.outcome, "step": how, "solver": res.solver})
+        sdp = getattr(res, "sdp", None)
         if res.outcome == "stabilized":
-            hi, best = mid, res
+            hi, best, t_hi = mid, res, sdp.t
         else:
-            lo = mid
+            lo, t_lo = mid, None if sdp is None else sdp.t
+        from_above = res.outcome == "stabilized"
+        if hi - lo <= 0.5 * anchor or how == "bisect":
+            anchor, stalls = hi - lo, 0
+        else:
+            stalls += 1
     fastest = hi
     if decay_rate == "auto" and hi < 1.0:
         target = fastest ** (1.0 / AUTO_SLOWDOWN)
         res = one(target, use_ccl=False)
-        tries.append({"decay_rate": target, "outcome": res.outcome})
+        solves += res.timings.get("solves", 0)
+        tries.append({"decay_rate": target, "outcome": res.outcome, "solver": res.solver})
         if res.outcome == "stabilized":
             best = res
     best.rate_search = tries
+    best.timings["solves"] = solves
     best.rate_bracket = {"lower": lo, "upper": fastest, "lower_proven": False, "relative_tolerance": tol}
     best.message += (f"; decay_rate={decay_rate!r}: smallest rate certified by the convex condition {fastest:.6g}, "
-                     f"bracket [{lo:.6g}, {fastest:.6g}] (lower end not proven)")
+                     f"bracket [{lo:.6g}, {fastest:.6g}] (lower end not proven; {len(tries)} designs)")
     return best
 
 
