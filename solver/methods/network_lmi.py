@@ -32,6 +32,7 @@ condition has no solution), never "infeasible" by itself.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -280,7 +281,9 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
         opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
     start_t = time.perf_counter()
     try:
-        problem.solve(solver=getattr(cp, name), **opts)
+        with warnings.catch_warnings():  # cvxpy warns on inaccurate solutions: the status is acted on instead
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=getattr(cp, name), **opts)
     except cp.error.SolverError as err:
         raise SolverFailed(f"{name} failed on the network LMI: {err}", status="solver_error") from None
     elapsed = time.perf_counter() - start_t
