@@ -454,7 +454,8 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
             near = min(solved, key=lambda p: abs(np.log(p[0] / rate)))[1]
             warm = warm_start(near.ipm, WARM_SHIFT, WARM_BLEND)
         res = network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
-                              time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
+                              time_limit=left(), callback=callback, max_iter=max_iter,
+                              use_ccl=use_ccl and fallback, prob=prob,
                               recheck=recheck, solver=solver, fallback=fallback, start=warm,
                               sign_only=probe and SIGN_ONLY_PROBES)
         sdp = getattr(res, "sdp", None)
@@ -466,6 +467,9 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
         res = one(None if decay_rate is None else float(decay_rate))
         if notes and res.outcome == "stabilized":
             res.message += "; " + notes[-1]
+        if not fallback and res.outcome != "stabilized":
+            res.message += ("; Clarabel (the fallback and the cone complementarity iteration) was not run: its memory "
+                            "estimate is over the budget")
         return res
     best = one(1.0, use_ccl=False, probe=True)
     if best.outcome != "stabilized":
@@ -487,7 +491,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
         return 0.5 * (lo + hi)
 
     solves = best.timings.get("solves", 0)
-    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized", "solver": best.solver}]
+    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
     t_hi, t_lo = best.sdp.t, None
     previous, from_above, anchor, stalls = None, True, 1.0, 0
     # the search of the plain design (solver/rate_search.py): the root of the margin's first-order model from
@@ -503,7 +507,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
             mid, how = midpoint(lo, hi), "bisect"
         res = one(mid, use_ccl=False, probe=True)
         solves += res.timings.get("solves", 0)
-        tries.append({"decay_rate": mid, "outcome": res.outcome, "step": how, "solver": res.solver})
+        tries.append({"decay_rate": mid, "outcome": res.outcome, "step": how})
         sdp = getattr(res, "sdp", None)
         if res.outcome == "stabilized":
             hi, best, t_hi = mid, res, sdp.t
@@ -519,7 +523,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
         target = fastest ** (1.0 / AUTO_SLOWDOWN)
         res = one(target, use_ccl=False)
         solves += res.timings.get("solves", 0)
-        tries.append({"decay_rate": target, "outcome": res.outcome, "solver": res.solver})
+        tries.append({"decay_rate": target, "outcome": res.outcome})
         if res.outcome == "stabilized":
             best = res
     best.rate_search = tries
