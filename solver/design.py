@@ -192,8 +192,10 @@ def design(
         network runs exactly the design above with its ``n_drop``.  Any other runs the network design
         (:mod:`solver.methods.network_lmi`: node-dependent Lyapunov matrices with a common slack, then cone
         complementarity on the exact node conditions when the convex one certifies nothing), method "lmi"
-        and scheme "predictive" only, Clarabel; ``decay_rate`` None, a number, "max" or "auto" (the
-        bisection runs on the convex condition); ``objective``, ``u_max`` and the other performance options
+        and scheme "predictive" only; the convex condition on the structured IPM under "AUTO" (Clarabel as its
+        fallback) and "IPM", on Clarabel under "CLARABEL"; cone complementarity on Clarabel; ``decay_rate``
+        None, a number, "max" or "auto" (the model search of solver/rate_search.py on the convex
+        condition); ``objective``, ``u_max`` and the other performance options
         are not supported yet there.  Outcomes: "stabilized" (a node certificate re-checked in float64),
         "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
         and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven

@@ -27,6 +27,11 @@ Normalized by ``trace(Z + Z^T) = 2 n_Z``; ``max t``.  ``t* > 0`` gives gains, ac
 re-check of the node matrices passes (:func:`recheck_network`).  ``t* <= 0``: the dual multipliers are re-checked
 as a Farkas certificate of this LMI (:func:`check_network_farkas`): the outcome is "not_certified" (this sufficient
 condition has no solution), never "infeasible" by itself.
+
+Solved by the structured IPM (:mod:`solver.ipm.network_blocks`, the same blocks; ``solver="AUTO"``, ``"IPM"``) or by
+Clarabel through cvxpy (``"CLARABEL"``; under ``"AUTO"`` the fallback when the IPM's answer decides nothing); the
+re-checks above judge either solver's numbers.  The cone complementarity fallback and the fixed-gain node SDP run on
+Clarabel.
 """
 
 from __future__ import annotations
