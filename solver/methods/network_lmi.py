@@ -598,8 +598,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     """One design on ``network`` at ``decay_rate`` (None: plain stability).
 
     The convex network LMI first, on the solvers of :func:`solver_order` (``"AUTO"``: the structured IPM, and
-    Clarabel when the IPM fails or its answer neither passes the float64 re-check nor gives a Farkas
-    certificate; ``fallback=False`` keeps to the IPM, e.g. when Clarabel's memory is over budget); when it
+    Clarabel when the IPM fails, or stops early, or its ``t* > 0`` does not pass the float64 re-check, or its
+    ``t* <= 0`` short of optimality gives no Farkas certificate; ``fallback=False`` keeps to the IPM, e.g. when Clarabel's memory is over budget); when it
     certifies nothing, the cone complementarity iteration on the exact node conditions (``use_ccl``, at most
     ``max_iter`` iterations, Clarabel).  ``recheck(gains, rate) -> (ok, certificate or None)``: the independent
     network analysis that must also accept the gains (None: the float64 :func:`recheck_network` of the design's
@@ -675,6 +675,10 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         if callback is not None:
             callback(record)
         if cert is not None or proof is not None or last or (deadline is not None and time.perf_counter() >= deadline):
+            break
+        if name == "IPM" and sol.status == "optimal" and not sol.t > 0:
+            # converged to t* <= 0 without a proof: the LMI sits on its boundary (the augmented form always can,
+            # docs/design.md 11.1); a second solver would only confirm it
             break
         notes.append(f"{name}: t* = {sol.t:.3g} with neither a certificate passing the float64 re-check nor a Farkas "
                      f"proof, {order[i + 1]} instead")
