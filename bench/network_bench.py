@@ -1,7 +1,10 @@
 """``python -m bench network``: design and analysis time on networks against automaton nodes and n.
 
-Each cell is one ``design(family, network=net, decay_rate=None)`` (Clarabel through cvxpy; the network design has
-no structured-IPM path yet) and one ``analyze(family, gains, network=net)`` of the designed gains, in this process.
+Each cell is one ``design(family, network=net, decay_rate=None)`` (``solver="AUTO"``: the structured IPM, Clarabel as
+its fallback) and one ``analyze(family, gains, network=net)`` of the designed gains, in this process.  ``--solvers``
+prints the IPM beside Clarabel instead: per cell and solver, in a fresh forked process each, the network LMI alone
+(``network_lmi.solve_sdp``: its t*, CPU seconds and the process's peak resident-set growth, ``ru_maxrss``) and the whole
+``design(..., solver=...)`` (CPU seconds, outcome, solves; its analysis re-check runs on Clarabel either way).
 Families: the paper's motor (n = 2, r = 3, bench/../tests/solver/paper_data.py) and seeded random stable-ish
 families of n states, one input, one plant mode.  Reported: network, nodes, the design's form (lifted / augmented)
 and its estimated size (``design_size``: transitions x plant modes, LMI size), outcome and the method that
@@ -9,7 +12,7 @@ certified (``network_lmi`` convex, ``network_ccl`` cone complementarity), wall a
 of the analysis, and the load average.  Bounded drops is timed both ways: ``design(fam, n_drop)`` and
 ``design(fam, network=Network.bounded_drops(n_drop))`` (the same code path; the ratio is the overhead).
 
-    python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only]
+    python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only] [--solvers]
 """
 
 from __future__ import annotations
@@ -69,6 +72,60 @@ def cell(name, fam, net, time_limit):
     return row
 
 
+def _one_solver(args):
+    """In a forked child: the network LMI alone and the whole design on one solver (CPU s, peak RSS growth)."""
+    import resource
+
+    from solver import design
+    from solver.methods import network_lmi
+
+    fam, net, solver, time_limit = args
+    prob = network_lmi.build_problem(fam, net)
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    c0 = time.process_time()
+    try:
+        sol = network_lmi.solve_sdp(prob, np.ones(prob.n_blocks), time_limit, solver=solver)
+        out = {"t": sol.t, "iterations": sol.iterations}
+    except Exception as err:  # noqa: BLE001 - a benchmark row, not a verdict
+        out = {"t": float("nan"), "error": str(err)[:40]}
+    out["sdp_cpu"] = time.process_time() - c0
+    out["sdp_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024
+    c0 = time.process_time()
+    res = design(fam, network=net, decay_rate=None, solver=solver, time_limit=time_limit)
+    out.update(design_cpu=time.process_time() - c0, outcome=res.outcome, method=res.method, solver=res.solver,
+               solves=res.solve_count)
+    return out
+
+
+def solver_cell(name, fam, net, time_limit):
+    """One row of the ``--solvers`` table: the IPM and Clarabel, each in a fresh forked process."""
+    import multiprocessing as mp
+
+    from solver.methods import network_lmi
+
+    prob = network_lmi.build_problem(fam, net)
+    row = {"family": name, "network": net.describe(), "nodes": net.nodes, "form": prob.form,
+           "size": f"{prob.n_blocks} x {2 * prob.k}", "load": _load()}
+    for solver in ("IPM", "CLARABEL"):
+        with mp.get_context("fork").Pool(1) as pool:
+            row[solver] = pool.apply(_one_solver, ((fam, net, solver, time_limit),))
+    return row
+
+
+def solver_table(cases, time_limit) -> None:
+    print("| family | network | nodes | form | blocks x side | t* IPM / Clarabel | LMI CPU s IPM / Clarabel | "
+          "LMI peak MB IPM / Clarabel | design CPU s IPM / Clarabel | outcome (solves) IPM / Clarabel | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, fam, net in cases:
+        row = solver_cell(name, fam, net, time_limit)
+        a, b = row["IPM"], row["CLARABEL"]
+        print(f"| {row['family']} | {row['network']} | {row['nodes']} | {row['form']} | {row['size']} | "
+              f"{a['t']:.6g} / {b['t']:.6g} | {a['sdp_cpu']:.3f} / {b['sdp_cpu']:.3f} | "
+              f"{a['sdp_mb']:.0f} / {b['sdp_mb']:.0f} | {a['design_cpu']:.2f} / {b['design_cpu']:.2f} | "
+              f"{a['outcome']} ({a['solves']}, {a['solver']}) / {b['outcome']} ({b['solves']}) | {row['load']} |",
+              flush=True)
+
+
 def bounded_drops_overhead(repeats: int = 15) -> list[str]:
     """Best and median wall time of today's design and of the same through ``network=bounded_drops``.
 
@@ -101,6 +158,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--overhead-only", action="store_true")
+    ap.add_argument("--solvers", action="store_true", help="the IPM beside Clarabel (the network LMI and design())")
     ap.add_argument("--largest", action="store_true",
                     help="also weakly_hard(4, 10, 5) at n = 2 (256 nodes) and delays(3, 5) at n = 4 (~15 min)")
     args = ap.parse_args(argv)
@@ -120,6 +178,9 @@ def main(argv=None) -> int:
     if args.largest:
         cases += [("random n=2", _family(2, 2), Network.weakly_hard(4, 10, 5)),
                   ("random n=4", _family(4, 4), Network.delays(3, 5))]
+    if args.solvers:
+        solver_table(cases, args.time_limit)
+        return 0
     print("| family | network | nodes | transitions x state | outcome (method) | design wall [CPU] s | "
           "analysis wall [CPU] s | load |")
     print("|---|---|---|---|---|---|---|---|")

@@ -17,7 +17,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .rate_search import margin_model, model_root, next_rate
+from .rate_search import margin_model, model_root, network_margin_model, next_rate
 from .result import DesignResult, certified_settling, metric_condition
 from .brackets import bracket_back
 from .scaling import Scaling, balance, performance_balance
@@ -195,8 +195,10 @@ def design(
         network runs exactly the design above with its ``n_drop``.  Any other runs the network design
         (:mod:`solver.methods.network_lmi`: node-dependent Lyapunov matrices with a common slack, then cone
         complementarity on the exact node conditions when the convex one certifies nothing), method "lmi"
-        and scheme "predictive" only, Clarabel; ``decay_rate`` None, a number, "max" or "auto" (the
-        bisection runs on the convex condition); ``objective``, ``u_max`` and the other performance options
+        and scheme "predictive" only; the convex condition on the structured IPM under "AUTO" (Clarabel as its
+        fallback) and "IPM", on Clarabel under "CLARABEL"; cone complementarity on Clarabel; ``decay_rate``
+        None, a number, "max" or "auto" (the model search of solver/rate_search.py on the convex
+        condition); ``objective``, ``u_max`` and the other performance options
         are not supported yet there.  Outcomes: "stabilized" (a node certificate re-checked in float64),
         "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
         and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven
@@ -382,6 +384,13 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
                        solver=solver, network=network, decay_rate=decay_rate, rate_tol=rate_tol)
     size.check(max_memory, float("inf") if time_limit is not None else None)
+    # "AUTO" falls back to Clarabel only where Clarabel's KKT system fits the memory budget too
+    from .compiled import MAX_SOLVER_MEMORY
+
+    budget = MAX_SOLVER_MEMORY if max_memory is None else max_memory
+    fallback = str(solver).upper() != "AUTO" or not budget or design_size(
+        "lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching, solver="CLARABEL",
+        network=network).memory <= budget
     start = time.perf_counter()
     with blas_threads(1):
         prob = network_lmi.build_problem(family, network, plant_switching)
@@ -392,7 +401,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                                message=f"{unc.statement()}: no gains stabilize the loop on {network.describe()}")
         else:
             res = _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter,
-                                 plant_switching, start)
+                                 plant_switching, start, solver, fallback)
         if res.outcome not in ("stabilized", "infeasible") and network_lmi.contains_bounded_drops(network):
             res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
     res.network = network.to_dict() if hasattr(network, "to_dict") else None
@@ -429,7 +438,7 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
 
 
 def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter, plant_switching,
-                   start) -> DesignResult:
+                   start, solver="AUTO", fallback=True) -> DesignResult:
     """``decay_rate`` on a network: a number or None directly; "max"/"auto" by bisection on the convex condition.
 
     The bisection accepts a rate only with a re-checked certificate; a step without one (not proven
@@ -461,50 +470,95 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
             return False, None
         return rep.stable is True, rep.certificate
 
-    def one(rate, use_ccl=True):
-        return network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
-                               time_limit=left(), callback=callback, max_iter=max_iter, use_ccl=use_ccl, prob=prob,
-                               recheck=recheck)
+    solved = []  # (rate, NetworkSolution) of the IPM's solves, for the warm starts
+
+    def one(rate, use_ccl=True, probe=False):
+        """One design at ``rate``, warm started from the nearest rate solved; a probe of the search stops once the
+        margin's sign is settled."""
+        warm = None
+        if rate is not None and WARM_PROBES and solved:
+            from .ipm.network_blocks import warm_start
+
+            near = min(solved, key=lambda p: abs(np.log(p[0] / rate)))[1]
+            warm = warm_start(near.ipm, WARM_SHIFT, WARM_BLEND)
+        res = network_lmi.run(family, network, decay_rate=rate, plant_switching=plant_switching,
+                              time_limit=left(), callback=callback, max_iter=max_iter,
+                              use_ccl=use_ccl and fallback, prob=prob,
+                              recheck=recheck, solver=solver, fallback=fallback, start=warm,
+                              sign_only=probe and SIGN_ONLY_PROBES)
+        sdp = getattr(res, "sdp", None)
+        if rate is not None and sdp is not None and sdp.ipm is not None:
+            solved.append((rate, sdp))
+        return res
 
     if decay_rate not in ("max", "auto"):
         res = one(None if decay_rate is None else float(decay_rate))
         if notes and res.outcome == "stabilized":
             res.message += "; " + notes[-1]
+        if not fallback and res.outcome != "stabilized":
+            res.message += ("; Clarabel (the fallback and the cone complementarity iteration) was not run: its memory "
+                            "estimate is over the budget")
         return res
-    best = one(1.0, use_ccl=False)
+    best = one(1.0, use_ccl=False, probe=True)
     if best.outcome != "stabilized":
         plain = one(None)
         plain.message += f"; decay_rate={decay_rate!r}: the convex condition certifies no decay rate"
         return plain
-    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
     tol = AUTO_SETTLING_TOLERANCE if decay_rate == "auto" else rate_tol
-    while hi > MIN_RATE and (time_limit is None or time.perf_counter() - start < time_limit):
-        if decay_rate == "auto":
+    settling = decay_rate == "auto"
+
+    def done(lo, hi):
+        if not settling:
+            return hi - lo <= tol * hi
+        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+
+    def midpoint(lo, hi):
+        if settling:
             s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            if s_lo <= (1 + tol) * s_hi:
-                break
-            mid = float(np.exp(-np.sqrt(s_hi * s_lo)))
+            return float(np.exp(-np.sqrt(s_hi * s_lo)))
+        return 0.5 * (lo + hi)
+
+    solves = best.timings.get("solves", 0)
+    lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
+    t_hi, t_lo = best.sdp.t, None
+    previous, from_above, anchor, stalls = None, True, 1.0, 0
+    # the search of the plain design (solver/rate_search.py): the root of the margin's first-order model from
+    # the last certified solve's multipliers, safeguarded by the bracket; every third stalled step bisects
+    while not done(lo, hi) and hi > MIN_RATE and (time_limit is None or time.perf_counter() - start < time_limit):
+        if RATE_SEARCH == "model" and stalls < 3:
+            model = network_margin_model(prob, best.sdp, hi)
+            mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
+                                 lambda a, b: 0.5 * (a + b), from_above, previous)
+            if model is not None and (previous is None or previous[0] != hi):
+                previous = (hi, model_root(model, hi, max(lo, 1e-12), hi))
         else:
-            if hi - lo <= tol * hi:
-                break
-            mid = 0.5 * (lo + hi)
-        res = one(mid, use_ccl=False)
-        tries.append({"decay_rate": mid, "outcome": res.outcome})
+            mid, how = midpoint(lo, hi), "bisect"
+        res = one(mid, use_ccl=False, probe=True)
+        solves += res.timings.get("solves", 0)
+        tries.append({"decay_rate": mid, "outcome": res.outcome, "step": how})
+        sdp = getattr(res, "sdp", None)
         if res.outcome == "stabilized":
-            hi, best = mid, res
+            hi, best, t_hi = mid, res, sdp.t
         else:
-            lo = mid
+            lo, t_lo = mid, None if sdp is None else sdp.t
+        from_above = res.outcome == "stabilized"
+        if hi - lo <= 0.5 * anchor or how == "bisect":
+            anchor, stalls = hi - lo, 0
+        else:
+            stalls += 1
     fastest = hi
     if decay_rate == "auto" and hi < 1.0:
         target = fastest ** (1.0 / AUTO_SLOWDOWN)
         res = one(target, use_ccl=False)
+        solves += res.timings.get("solves", 0)
         tries.append({"decay_rate": target, "outcome": res.outcome})
         if res.outcome == "stabilized":
             best = res
     best.rate_search = tries
+    best.timings["solves"] = solves
     best.rate_bracket = {"lower": lo, "upper": fastest, "lower_proven": False, "relative_tolerance": tol}
     best.message += (f"; decay_rate={decay_rate!r}: smallest rate certified by the convex condition {fastest:.6g}, "
-                     f"bracket [{lo:.6g}, {fastest:.6g}] (lower end not proven)")
+                     f"bracket [{lo:.6g}, {fastest:.6g}] (lower end not proven; {len(tries)} designs)")
     return best
 
 

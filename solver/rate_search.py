@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-__all__ = ["margin_model", "model_root", "next_rate"]
+__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate"]
 
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
 #: or above it by at most this fraction of ``end - lo``.
@@ -68,6 +68,47 @@ def margin_model(modes, sdp, rate: float):
     if not np.all(np.isfinite(q)):
         return None
     return float(sdp.t), q, modes.eta[s_of].astype(float)
+
+
+def network_margin_model(prob, sdp, rate: float):
+    """``(t0, q, eta)`` of the first-order model for the network LMI (:mod:`solver.methods.network_lmi`).
+
+    The same model as :func:`margin_model`: transition e's off-diagonal block ``c_e A_e Z`` is the only part
+    that depends on the rate (``c_e = lambda^(-length_e)``), so ``q_e = 2 c_e tr(M_e[k:, :k]^T A_e Z)`` with
+    ``M_e`` the transition's multiplier and ``eta_e = length_e``.
+
+    Parameters
+    ----------
+    prob : solver.methods.network_lmi.NetworkProblem
+    sdp : solver.methods.network_lmi.NetworkSolution
+        The solve at ``rate`` (its ``duals``: one multiplier per transition first).
+    rate : float
+
+    Returns
+    -------
+    tuple or None
+    """
+    duals = getattr(sdp, "duals", None)
+    if duals is None or sdp.Z is None or not np.isfinite(sdp.t) or len(duals) < prob.n_blocks:
+        return None
+    k, n, E = prob.k, prob.n, prob.n_blocks
+    M = np.stack([np.asarray(X, dtype=np.float64) for X in duals[:E]])
+    if M.shape[1:] != (2 * k, 2 * k) or not np.all(np.isfinite(M)):
+        return None
+    Z = np.zeros((k, k))
+    for b in range(prob.zblocks):
+        Z[b * n:(b + 1) * n, b * n:(b + 1) * n] = sdp.Z[b]
+    AZ = prob.free @ Z  # (E, k, k)
+    for e in range(E):
+        for j in range(prob.N):
+            b = prob.right[e, j]
+            if b >= 0:
+                AZ[e][:, b * n:(b + 1) * n] += prob.coef[e, j] @ sdp.Y[j]
+    c = float(rate) ** (-prob.length.astype(float))
+    q = 2.0 * c * np.einsum("bij,bij->b", M[:, k:, :k], AZ)
+    if not np.all(np.isfinite(q)):
+        return None
+    return float(sdp.t), q, prob.length.astype(float)
 
 
 def model_root(model, rate: float, lo: float, hi: float) -> float | None:

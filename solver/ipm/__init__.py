@@ -41,6 +41,7 @@ Public entry points: :func:`solve_lmi` (the ``lmi`` design),
 from .algorithm import GroupedSolution, IPMOptions, IPMSolution, WarmStart, solve_block_lmi, solve_grouped
 from .blas import blas_threads, heap_reuse
 from .model import BlockGroup, BlockLMI, GroupedLMI, MatrixVariable
+from .network_blocks import NetworkIPMSolution, network_problem, solve_network
 from .performance_blocks import PerformanceProblem, PerformanceSolution, performance_problem, solve_performance
 from .problems import (LMISolution, SwitchedSolution, _gain_L, _gain_scale, _split_Y, design_solve,  # noqa: F401 (ccl)
                        design_solve_fixed_gain, lmi_problem, solve_common_fixed_gain, solve_lmi, solve_switched,
@@ -52,6 +53,9 @@ __all__ = [
     "BlockGroup",
     "GroupedLMI",
     "GroupedSolution",
+    "NetworkIPMSolution",
+    "network_problem",
+    "solve_network",
     "PerformanceProblem",
     "PerformanceSolution",
     "performance_problem",

@@ -27,11 +27,17 @@ Normalized by ``trace(Z + Z^T) = 2 n_Z``; ``max t``.  ``t* > 0`` gives gains, ac
 re-check of the node matrices passes (:func:`recheck_network`).  ``t* <= 0``: the dual multipliers are re-checked
 as a Farkas certificate of this LMI (:func:`check_network_farkas`): the outcome is "not_certified" (this sufficient
 condition has no solution), never "infeasible" by itself.
+
+Solved by the structured IPM (:mod:`solver.ipm.network_blocks`, the same blocks; ``solver="AUTO"``, ``"IPM"``) or by
+Clarabel through cvxpy (``"CLARABEL"``; under ``"AUTO"`` the fallback when the IPM's answer decides nothing); the
+re-checks above judge either solver's numbers.  The cone complementarity fallback and the fixed-gain node SDP run on
+Clarabel.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -210,6 +216,13 @@ def lmi_size(prob: NetworkProblem) -> tuple[list[int], int]:
 
 @dataclass
 class NetworkSolution:
+    """One solve of the network LMI: the variables, the multipliers (Farkas layout), how it ended.
+
+    ``duals``: one (2k, 2k) multiplier per transition, then one (k, k) per node matrix (None when the solver
+    returned none); ``solver``: "IPM" or the cvxpy solver's name; ``ipm``: the IPM's own solution (its
+    warm start for a neighbouring rate), None for Clarabel.
+    """
+
     t: float
     Z: np.ndarray  # (zblocks, n, n)
     W: np.ndarray  # (V, k, k)
@@ -217,10 +230,27 @@ class NetworkSolution:
     duals: list | None
     status: str
     solve_time: float
+    solver: str = "CLARABEL"
+    iterations: int | None = None
+    ipm: object | None = None
 
 
-def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None = None) -> NetworkSolution:
-    """``max t`` of the network LMI (data of transition e multiplied by ``scale[e]``), with Clarabel."""
+def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None = None, solver: str = "CLARABEL",
+              start=None, sign_only: bool = False) -> NetworkSolution:
+    """``max t`` of the network LMI (data of transition e multiplied by ``scale[e]``).
+
+    ``solver``: "IPM" (the structured interior-point solver, :func:`solver.ipm.network_blocks.solve_network`;
+    ``start`` a :class:`solver.ipm.WarmStart` from a neighbouring rate, ``sign_only`` stops once the margin's
+    sign is settled), "CLARABEL" or "SCS" (cvxpy).
+
+    Raises
+    ------
+    SolverFailed
+        When the solver ends without an (almost) optimal point.
+    """
+    name = str(solver).upper()
+    if name == "IPM":
+        return _solve_ipm(prob, scale, time_limit, start, sign_only)
     n, m, N, k = prob.n, prob.m, prob.N, prob.k
     Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
     Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
@@ -247,23 +277,52 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
         blocks.append(0.5 * (M + M.T) - t * np.eye(2 * k) >> 0)
     pos = [Wv - t * eye_k >> 0 for Wv in W]
     problem = cp.Problem(cp.Maximize(t), cons + blocks + pos)
-    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
-    start = time.perf_counter()
+    if name == "SCS":
+        opts = {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iters": 200_000}
+        if time_limit is not None:
+            opts["time_limit_secs"] = float(max(time_limit, 1e-3))
+    else:
+        name = "CLARABEL"
+        opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start_t = time.perf_counter()
     try:
-        problem.solve(solver=cp.CLARABEL, **opts)
+        with warnings.catch_warnings():  # cvxpy warns on inaccurate solutions: the status is acted on instead
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=getattr(cp, name), **opts)
     except cp.error.SolverError as err:
-        raise SolverFailed(f"Clarabel failed on the network LMI: {err}", status="solver_error") from None
-    elapsed = time.perf_counter() - start
+        raise SolverFailed(f"{name} failed on the network LMI: {err}", status="solver_error") from None
+    elapsed = time.perf_counter() - start_t
     status = str(problem.status)
     if t.value is None:
-        raise SolverFailed(f"Clarabel ended with status {status} on the network LMI", status=status)
+        raise SolverFailed(f"{name} ended with status {status} on the network LMI", status=status)
     Zv = np.stack([z.value for z in Zb])
     Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
     duals = [c.dual_value for c in blocks] + [c.dual_value for c in pos]
     duals = None if any(d is None for d in duals) else [np.asarray(d, float) for d in duals]
     # a gain no transition uses (e.g. K_3 when no interval is 3 samples long) stays zero
     Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
-    return NetworkSolution(float(t.value), Zv, Wv, Yv, duals, status, elapsed)
+    stats = problem.solver_stats
+    return NetworkSolution(float(t.value), Zv, Wv, Yv, duals, status, elapsed, name,
+                           None if stats is None else stats.num_iters)
+
+
+def _solve_ipm(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None, start,
+               sign_only: bool) -> NetworkSolution:
+    """The network LMI on the structured IPM (its blocks: :mod:`solver.ipm.network_blocks`)."""
+    from ..ipm import IPMOptions
+    from ..ipm.network_blocks import solve_network
+
+    sol = solve_network(prob.free, prob.coef, prob.right, prob.src, prob.dst, len(prob.nodes), prob.zblocks,
+                        scale, IPMOptions(time_limit=time_limit, sign_only=sign_only), start)
+    status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate", "feasible": "optimal_inaccurate",
+              "infeasible": "optimal_inaccurate"}.get(sol.status)
+    if status is None:
+        raise SolverFailed(f"IPM ended with status {sol.status!r} on the network LMI after {sol.iterations} "
+                           f"iterations (primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})",
+                           status=sol.status)
+    duals = sol.multipliers if all(np.all(np.isfinite(X)) for X in sol.multipliers) else None
+    return NetworkSolution(float(sol.t), sol.Z, sol.W, sol.Y, duals, status, sol.timings["total"], "IPM",
+                           sol.iterations, sol)
 
 
 def gains_from(prob: NetworkProblem, sol: NetworkSolution) -> np.ndarray:
@@ -524,29 +583,44 @@ def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, dea
 
 
 # ------------------------------------------------------------------------------------------- the design
+def solver_order(solver: str, fallback: bool = True) -> list:
+    """The solvers the network LMI tries, in order: "AUTO" is the IPM, then Clarabel (``fallback``)."""
+    name = str(solver).upper()
+    if name == "AUTO":
+        return ["IPM", "CLARABEL"] if fallback else ["IPM"]
+    return [name]
+
+
 def run(family, network, *, decay_rate: float | None = None, plant_switching: str = "per_interval",
         time_limit: float | None = None, callback=None, max_iter: int = 50, use_ccl: bool = True,
-        prob: NetworkProblem | None = None, recheck=None) -> DesignResult:
+        prob: NetworkProblem | None = None, recheck=None, solver: str = "AUTO", fallback: bool = True,
+        start=None, sign_only: bool = False) -> DesignResult:
     """One design on ``network`` at ``decay_rate`` (None: plain stability).
 
-    The convex network LMI first; when it certifies nothing, the cone complementarity iteration on the exact
-    node conditions (``use_ccl``, at most ``max_iter`` iterations).  ``recheck(gains, rate) -> (ok, certificate
-    or None)``: the independent network analysis that must also accept the gains (None: the float64
-    :func:`recheck_network` of the design's own node matrices is the only check).
+    The convex network LMI first, on the solvers of :func:`solver_order` (``"AUTO"``: the structured IPM, and
+    Clarabel when the IPM fails, or stops early, or its ``t* > 0`` does not pass the float64 re-check, or its
+    ``t* <= 0`` short of optimality gives no Farkas certificate; ``fallback=False`` keeps to the IPM, e.g. when Clarabel's memory is over budget); when it
+    certifies nothing, the cone complementarity iteration on the exact node conditions (``use_ccl``, at most
+    ``max_iter`` iterations, Clarabel).  ``recheck(gains, rate) -> (ok, certificate or None)``: the independent
+    network analysis that must also accept the gains (None: the float64 :func:`recheck_network` of the design's
+    own node matrices is the only check).  ``start``, ``sign_only``: the IPM's warm start and early stop (the
+    rate search's probes).
 
     Returns
     -------
     DesignResult
         "stabilized" with a :class:`NodeCertificate`; "not_certified" with a
         :class:`NetworkFarkasCertificate` when the convex LMI is proven infeasible and CCL found nothing;
-        "not_converged" otherwise.
+        "not_converged" otherwise.  ``solver`` names the solver whose answer decided, ``timings["solves"]``
+        counts every SDP solved; ``res.sdp`` (not exported) is the deciding :class:`NetworkSolution`.
     """
-    start = time.perf_counter()
-    deadline = None if time_limit is None else start + float(time_limit)
+    start_t = time.perf_counter()
+    deadline = None if time_limit is None else start_t + float(time_limit)
     prob = build_problem(family, network, plant_switching) if prob is None else prob
     scale = np.ones(prob.n_blocks) if decay_rate is None else float(decay_rate) ** (-prob.length.astype(float))
     rate_txt = "" if decay_rate is None else f" at decay rate {decay_rate:.6g}"
-    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+    order = solver_order(solver, fallback)
+    base = dict(method="network_lmi", n_drop=prob.N, solver=order[0], plant_switching=plant_switching,
                 mode_labels=prob.labels)
 
     def accept(gains, own):
@@ -558,47 +632,74 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         return (other if other is not None else own) if ok else None
 
     def timings(solver_time, solves):
-        total = time.perf_counter() - start
+        total = time.perf_counter() - start_t
         return {"total": total, "solver": solver_time, "setup": max(total - solver_time, 0.0), "solves": solves,
                 "cached": False}
 
-    try:
-        sol = solve_sdp(prob, scale, time_limit)
-    except SolverFailed:
-        if deadline is not None and time.perf_counter() >= deadline:
-            return DesignResult(outcome="not_converged", gains=None, certificate=None, **base, timings=timings(0, 1),
-                                message=f"time limit reached ({time_limit:g} s) inside the solver{rate_txt}")
-        raise
-    gains = cert = None
-    if np.isfinite(sol.t) and sol.t > 0:
-        gains = gains_from(prob, sol)
-        if np.all(np.isfinite(gains)):
-            cert = accept(gains, recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate))
-    record = IterationRecord(0, sol.t, None, cert is not None, None if cert is None else cert.margin,
-                             sol.solve_time, time.perf_counter() - start)
-    history = [record]
-    if callback is not None:
-        callback(record)
+    def left():
+        return None if deadline is None else max(deadline - time.perf_counter(), 1e-3)
+
+    sol = gains = cert = proof = None
+    solver_time, solves, history, notes = 0.0, 0, [], []
+    for i, name in enumerate(order):
+        last = i == len(order) - 1
+        try:
+            sol = solve_sdp(prob, scale, left(), name, start=start if name == "IPM" else None,
+                            sign_only=sign_only and name == "IPM")
+        except SolverFailed as err:
+            solves += 1
+            if deadline is not None and time.perf_counter() >= deadline:
+                return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history, **base,
+                                    timings=timings(solver_time, solves),
+                                    message=f"time limit reached ({time_limit:g} s) inside the solver{rate_txt}")
+            if last:
+                if sol is not None:  # the IPM's answer (neither certified nor proven) stands
+                    break
+                raise
+            notes.append(f"{name} failed ({err}), {order[i + 1]} instead")
+            continue
+        solves += 1
+        solver_time += sol.solve_time
+        base["solver"] = sol.solver
+        gains = cert = proof = None
+        if np.isfinite(sol.t) and sol.t > 0:
+            gains = gains_from(prob, sol)
+            if np.all(np.isfinite(gains)):
+                cert = accept(gains, recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate))
+        elif sol.duals is not None:
+            proof = check_network_farkas(prob, sol.duals, scale, decay_rate)
+            proof = proof if proof.verified else None
+        record = IterationRecord(0, sol.t, None, cert is not None, None if cert is None else cert.margin,
+                                 sol.solve_time, time.perf_counter() - start_t)
+        history.append(record)
+        if callback is not None:
+            callback(record)
+        if cert is not None or proof is not None or last or (deadline is not None and time.perf_counter() >= deadline):
+            break
+        if name == "IPM" and sol.status == "optimal" and not sol.t > 0:
+            # converged to t* <= 0 without a proof: the LMI sits on its boundary (the augmented form always can,
+            # docs/design.md 11.1); a second solver would only confirm it
+            break
+        notes.append(f"{name}: t* = {sol.t:.3g} with neither a certificate passing the float64 re-check nor a Farkas "
+                     f"proof, {order[i + 1]} instead")
+    via = "" if not notes else "; " + "; ".join(notes)
     where = (f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, "
              f"{prob.n_blocks} transitions")
     if cert is not None:
-        return DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history,
-                            solver_status=sol.status, timings=timings(sol.solve_time, 1), decay_rate=decay_rate,
-                            spectral_radii=spectral_radii(prob.closed_loops(gains)), **base,
-                            message=f"stabilized on {where}; network LMI margin t* = {sol.t:.3g}, certificate "
-                                    f"re-checked (relative margin {cert.margin:.3g}){rate_txt}")
-    proof = None
-    if sol.duals is not None and not (sol.t > 0):
-        proof = check_network_farkas(prob, sol.duals, scale, decay_rate)
-        proof = proof if proof.verified else None
-    solver_time, solves = sol.solve_time, 1
+        res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history,
+                           solver_status=sol.status, timings=timings(solver_time, solves), decay_rate=decay_rate,
+                           spectral_radii=spectral_radii(prob.closed_loops(gains)), **base,
+                           message=f"stabilized on {where}; network LMI margin t* = {sol.t:.3g} ({sol.solver}), "
+                                   f"certificate re-checked (relative margin {cert.margin:.3g}){rate_txt}{via}")
+        res.sdp = sol
+        return res
     if use_ccl and (deadline is None or time.perf_counter() < deadline):
-        cgains, ccert, chist, ctime = ccl(prob, decay_rate, max_iter, deadline, callback, start)
+        cgains, ccert, chist, ctime = ccl(prob, decay_rate, max_iter, deadline, callback, start_t)
         history += chist
         solver_time, solves = solver_time + ctime, solves + 1 + 2 * len(chist)
         ccert = None if cgains is None else accept(cgains, ccert)
         if ccert is not None:
-            base["method"] = "network_ccl"
+            base.update(method="network_ccl", solver="CLARABEL")
             return DesignResult(outcome="stabilized", gains=cgains, certificate=ccert, history=history,
                                 solver_status="optimal", timings=timings(solver_time, solves),
                                 decay_rate=decay_rate, spectral_radii=spectral_radii(prob.closed_loops(cgains)),
@@ -606,13 +707,18 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
                                 message=f"stabilized on {where}; the convex network LMI certified nothing (t* = "
                                         f"{sol.t:.3g}), cone complementarity on the exact node conditions did in "
                                         f"{len(chist)} iterations; certificate re-checked (relative margin "
-                                        f"{ccert.margin:.3g}){rate_txt}")
-    tried = f"; cone complementarity: {len(history) - 1} iterations without a certificate" if use_ccl else ""
+                                        f"{ccert.margin:.3g}){rate_txt}{via}")
+    tried = (f"; cone complementarity: {len(history) - sum(r.iteration == 0 for r in history)} iterations without "
+             "a certificate") if use_ccl else ""
     if proof is not None:
-        return DesignResult(outcome="not_certified", gains=None, certificate=proof, history=history,
-                            solver_status=sol.status, timings=timings(solver_time, solves), **base,
-                            message=f"{proof.statement()}; t* = {sol.t:.3g}{tried}")
-    return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history,
-                        solver_status=sol.status, timings=timings(solver_time, solves), **base,
-                        message=f"the network LMI's best margin is t* = {sol.t:.3g}{rate_txt}: no certificate passed "
-                                f"the float64 re-check and no Farkas certificate was proven{tried}")
+        res = DesignResult(outcome="not_certified", gains=None, certificate=proof, history=history,
+                           solver_status=sol.status, timings=timings(solver_time, solves), **base,
+                           message=f"{proof.statement()}; t* = {sol.t:.3g} ({sol.solver}){tried}{via}")
+        res.sdp = sol
+        return res
+    res = DesignResult(outcome="not_converged", gains=None, certificate=None, history=history,
+                       solver_status=sol.status, timings=timings(solver_time, solves), **base,
+                       message=f"the network LMI's best margin is t* = {sol.t:.3g}{rate_txt}: no certificate passed "
+                               f"the float64 re-check and no Farkas certificate was proven{tried}{via}")
+    res.sdp = sol
+    return res

@@ -1,0 +1,233 @@
+"""The network design's LMI as a structured LMI (docs/design.md §11.2 "The network LMI on the IPM").
+
+:func:`network_problem` builds the :class:`solver.ipm.model.BlockLMI` of the network LMI of
+:mod:`solver.methods.network_lmi` (lifted and augmented forms alike); :func:`solve_network` solves it with
+:func:`solver.ipm.algorithm.solve_block_lmi` and returns the variables and multipliers in the design's
+coordinates.  The model only: which blocks, which variables; the algorithm is untouched.
+
+Blocks (all of side ``2k``), one per transition e (``v -> w``, a plant mode)::
+
+    [[Z + Z^T - W_v, (A_e Z)^T], [A_e Z, W_w]] - t I >= 0,    A_e Z = free_e Z + sum_j coef_{e,j} Y_j E_b^T
+
+and, for a node that is no transition's end (so that ``W_v >= t I`` is not already a diagonal block of one),
+the block of the pseudo-transition ``v -> v`` with ``A = 0``: ``[[Z + Z^T - W_v, 0], [0, W_v]] - t I >= 0``
+(its top-left block is implied by any transition that leaves v).  The same ``t*`` as the cone program of
+:func:`solver.methods.network_lmi.solve_sdp` with its separate ``W_v >= t I``.
+
+Variables: the slack's diagonal blocks ``Z_0..Z_{zb-1}`` (n x n, general; one term each, placed by a 0/1
+selector, with the transition's ``free_e E_b`` below it: the ``lmi`` design's ``[I/2; F]`` trick), the node
+matrices as one stacked symmetric variable ``W`` (V k x k; each block reads row block ``src`` top left and
+``dst`` bottom right, the ``switched`` design's ``S_s``), and the gains as one stack ``Y`` (N m x n), each
+gain's coefficients scaled to unit size.  Equality: ``sum_b trace Z_b = zb n`` (``trace(Z + Z^T) = 2 n_Z``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .algorithm import IPMOptions, WarmStart, _SolveStatus, solve_block_lmi
+from .model import BlockLMI, MatrixVariable
+
+__all__ = ["NetworkIPMSolution", "network_problem", "solve_network"]
+
+
+def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
+    """Nodes no transition ends in (they get a pseudo-transition ``v -> v`` with ``A = 0``)."""
+    return np.setdiff1d(np.arange(V), np.asarray(dst, dtype=int))
+
+
+def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None):
+    """The network LMI as a :class:`BlockLMI`, and the gains' scale.
+
+    Parameters
+    ----------
+    free : ndarray, shape (E, k, k)
+        Gain-free parts of the transitions' maps (``k = zblocks n``).
+    coef : ndarray, shape (E, N, k, m)
+        ``A_e = free_e + sum_j coef[e, j] K_j E_{right[e, j]}^T``.
+    right : ndarray of int, shape (E, N)
+        Slack block gain j reads in transition e (-1: absent).
+    src, dst : ndarray of int, shape (E,)
+        Node matrix of each transition's start and end.
+    n_nodes : int
+        V, the number of node matrices.
+    zblocks : int
+        Diagonal blocks of the slack (each n x n).
+    scale : ndarray, shape (E,), optional
+        Multiplies transition e's data (the congruent decay-rate form ``lambda^(-length_e)``).
+
+    Returns
+    -------
+    problem : BlockLMI
+        Variables ``Z0..Z{zb-1}``, ``W`` (V k, k), ``Y`` (N m, n) when there are gains; blocks: the E
+        transitions, then the pseudo-transitions of :func:`_pseudo`.
+    gscale : ndarray, shape (N,)
+        ``Y_j = Y'_j / gscale[j]`` (the solver's ``Y'`` has unit-size coefficients).
+    """
+    free = np.asarray(free, dtype=np.float64)
+    coef = np.asarray(coef, dtype=np.float64)
+    right = np.asarray(right, dtype=int)
+    E, k, _ = free.shape
+    N, m = coef.shape[1], coef.shape[3]
+    zb = int(zblocks)
+    n = k // zb
+    V = int(n_nodes)
+    sc = np.ones(E) if scale is None else np.asarray(scale, dtype=np.float64)
+    extra = _pseudo(src, dst, V)
+    nb = E + len(extra)
+    src_all = np.concatenate([np.asarray(src, dtype=int), extra])
+    dst_all = np.concatenate([np.asarray(dst, dtype=int), extra])
+    A0 = np.zeros((nb, k, k))
+    A0[:E] = sc[:, None, None] * free
+    # the gains' coefficients, each gain scaled to unit size (as solver.ipm.problems._gain_scale)
+    cf = np.zeros((nb, N, k, m))
+    for j in range(N):
+        on = right[:, j] >= 0
+        cf[:E][on, j] = sc[on, None, None] * coef[on, j]
+    gscale = np.abs(cf).max(axis=(0, 2, 3)) if cf.size else np.ones(N)
+    gscale = np.where(gscale > 0, gscale, 1.0)
+    cf = cf / gscale[None, :, None, None]
+    eye_n = np.eye(n)
+    variables = []
+    for b in range(zb):
+        Eb = np.zeros((k, n))
+        Eb[b * n:(b + 1) * n] = eye_n
+        # sym([E_b; A0 E_b] Z_b [E_b^T 0]) = [[E_b (Z_b + Z_b^T) E_b^T, (A0 E_b Z_b E_b^T)^T], [A0 E_b Z_b E_b^T, 0]]
+        L = np.zeros((nb, 2 * k, n))
+        L[:, :k] = Eb
+        L[:, k:] = A0 @ Eb
+        R = np.zeros((2 * k, n))
+        R[:k] = Eb
+        variables.append(MatrixVariable(f"Z{b}", (n, n), None, [(L, np.broadcast_to(R.T, (nb, n, 2 * k)), 1.0)]))
+    P1 = np.zeros((2 * k, k))
+    P1[:k] = np.eye(k)
+    P2 = np.zeros((2 * k, k))
+    P2[k:] = np.eye(k)
+    W = MatrixVariable("W", (V * k, k), k, [
+        (np.broadcast_to(P1, (nb, 2 * k, k)), np.broadcast_to(P1.T, (nb, k, 2 * k)), -0.5, src_all),
+        (np.broadcast_to(P2, (nb, 2 * k, k)), np.broadcast_to(P2.T, (nb, k, 2 * k)), 0.5, dst_all)])
+    variables.append(W)
+    if N * m > 0:
+        terms = []
+        for b in range(zb):
+            LY = np.zeros((nb, 2 * k, N * m))
+            for j in range(N):
+                on = np.flatnonzero(right[:, j] == b)
+                LY[on, k:, j * m:(j + 1) * m] = cf[on, j]
+            if not LY.any():
+                continue
+            R = np.zeros((2 * k, n))
+            R[b * n:(b + 1) * n] = eye_n
+            terms.append((LY, np.broadcast_to(R.T, (nb, n, 2 * k)), 1.0))
+        if terms:
+            variables.append(MatrixVariable("Y", (N * m, n), None, terms))
+    C = np.zeros((nb, 2 * k, 2 * k))  # the blocks at Z_b = I, W_v = I, Y = 0
+    C[:, :k, :k] = np.eye(k)
+    C[:, k:, k:] = np.eye(k)
+    C[:, k:, :k] = A0
+    C[:, :k, k:] = np.swapaxes(A0, 1, 2)
+    a = np.zeros(sum(v.size for v in variables))
+    for b in range(zb):
+        a[b * n * n: (b + 1) * n * n: n + 1] = 1.0  # trace Z_b
+    V0 = [eye_n.copy() for _ in range(zb)] + [np.tile(np.eye(k), (V, 1))]
+    if len(variables) > zb + 1:
+        V0.append(np.zeros((N * m, n)))
+    return BlockLMI(C=C, variables=variables, V0=V0, equality=a), gscale
+
+
+@dataclass(kw_only=True)
+class NetworkIPMSolution(_SolveStatus):
+    """Result of :func:`solve_network` in the design's coordinates.
+
+    Attributes
+    ----------
+    t : float
+        Attained margin (every block ``>= t I`` at the returned variables, whatever the status).
+    upper : float
+        ``sum_b <C_b, X_b>``: an upper bound on ``t*`` up to ``primal_residual``.
+    Z : ndarray, shape (zblocks, n, n)
+    W : ndarray, shape (V, k, k)
+        Symmetric node matrices.
+    Y : ndarray, shape (N, m, n)
+    multipliers : list of ndarray
+        One (2k, 2k) per transition, then one (k, k) per node matrix (the multiplier of ``W_v >= 0``):
+        the layout :func:`solver.methods.network_lmi.check_network_farkas` re-checks.  A pseudo-transition's
+        multiplier is split exactly: its bottom-right block is the node's, its top-left block (it pairs with
+        ``Z + Z^T - W_v`` only) goes to the top-left block of a transition leaving v.
+    duals : ndarray, shape (nb, 2k, 2k)
+        The blocks' multipliers as the solver returns them (``sum trace = 1``), for a warm start.
+    V : list of ndarray
+        The variables in the solver's layout (``Z_b``..., ``W`` stacked, ``Y`` stacked (N m, n)), in the
+        design's coordinates: a warm start's ``V`` (:func:`warm_start`).
+    """
+
+    t: float
+    upper: float
+    Z: np.ndarray
+    W: np.ndarray
+    Y: np.ndarray
+    multipliers: list
+    duals: np.ndarray
+    V: list
+
+
+def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None,
+                  options: IPMOptions | None = None, start: WarmStart | None = None) -> NetworkIPMSolution:
+    """``max t`` of the network LMI (:func:`network_problem`) with the structured IPM.
+
+    Parameters are those of :func:`network_problem`; ``start``: a warm start in the solver's coordinates
+    (:attr:`NetworkIPMSolution.V` and ``duals`` of a neighbouring rate's solve).
+
+    Returns
+    -------
+    NetworkIPMSolution
+    """
+    t0 = time.perf_counter()
+    problem, gscale = network_problem(free, coef, right, src, dst, n_nodes, zblocks, scale)
+    if start is not None:  # the start's Y is in the design's coordinates: scale it as this problem's gains
+        Vs = list(start.V)
+        if len(Vs) != len(problem.variables) or any(np.shape(v) != np.shape(v0) for v, v0 in zip(Vs, problem.V0)):
+            start = None
+        else:
+            if len(Vs) > int(zblocks) + 1:
+                N, m = np.asarray(coef).shape[1], np.asarray(coef).shape[3]
+                Vs[-1] = (np.asarray(Vs[-1]).reshape(N, m, -1) * gscale[:, None, None]).reshape(Vs[-1].shape)
+            start = replace(start, V=Vs)
+    setup = time.perf_counter() - t0
+    sol = solve_block_lmi(problem, options, start)
+    zb = int(zblocks)
+    E = len(src)
+    N, m = np.asarray(coef).shape[1], np.asarray(coef).shape[3]
+    k = problem.k // 2
+    n = k // zb
+    V = int(n_nodes)
+    Z = np.stack(sol.V[:zb])
+    W = sol.V[zb].reshape(V, k, k)
+    W = 0.5 * (W + np.swapaxes(W, 1, 2))
+    Y = np.zeros((N, m, n)) if len(sol.V) <= zb + 1 else sol.V[zb + 1].reshape(N, m, n) / gscale[:, None, None]
+    X = sol.X
+    M = [X[e].copy() for e in range(E)]
+    Nv = [np.zeros((k, k)) for _ in range(V)]
+    src = np.asarray(src, dtype=int)
+    for i, v in enumerate(_pseudo(src, dst, V)):
+        Xp = X[E + i]
+        Nv[v] += Xp[k:, k:]
+        leaving = np.flatnonzero(src == v)
+        if len(leaving):
+            M[leaving[0]][:k, :k] += Xp[:k, :k]
+        else:  # no transition leaves v (not a valid network): keep the block's claim honest, drop nothing silently
+            Nv[v] += np.nan
+    timings = dict(sol.timings, setup=setup)
+    timings["total"] = time.perf_counter() - t0
+    Vd = list(sol.V[:zb]) + [W.reshape(V * k, k)] + ([Y.reshape(N * m, n)] if len(sol.V) > zb + 1 else [])
+    return NetworkIPMSolution(t=sol.t, upper=sol.upper, Z=Z, W=W, Y=Y, multipliers=M + Nv, duals=X, V=Vd,
+                              status=sol.status, iterations=sol.iterations, primal_residual=sol.primal_residual,
+                              dual_residual=sol.dual_residual, gap=sol.gap, timings=timings)
+
+
+def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float = 0.5) -> WarmStart:
+    """A :class:`WarmStart` from a neighbouring rate's solve (same network, other ``scale``)."""
+    return replace(WarmStart(list(previous.V), previous.duals), shift=shift, blend=blend)

@@ -1,0 +1,189 @@
+"""The network design on the structured IPM (solver/ipm/network_blocks.py) against a second solver (Clarabel),
+the plain lmi design, the solver-independent Farkas re-check and brute force over admissible cycles."""
+
+import numpy as np
+import pytest
+
+from solver import Network, PlantFamily, analyze, design
+from solver import ipm
+from solver.methods import network_lmi
+from solver.network import ModeSet
+from solver.rate_search import network_margin_model
+
+from .paper_data import EQ20_F, EQ20_G
+from .test_network_design import DELAY_FAMILY, WEAKLY_HARD_FAMILY, max_cycle_rate, random_runs_decay
+from .textbook import pendulum
+
+MOTOR = PlantFamily(list(EQ20_F), list(EQ20_G), sampling_period=0.1)
+#: x+ = 4 x + 0.1 u (either sign of F): no gain holds it over intervals of 1..3 samples
+TOO_UNSTABLE = PlantFamily([[[4.0]], [[-4.0]]], [[[0.1]], [[0.1]]])
+
+
+def _random_family(n, seed):
+    rng = np.random.default_rng(seed)
+    F = rng.normal(size=(n, n))
+    F = 1.05 * F / max(abs(np.linalg.eigvals(F)))
+    return PlantFamily([F], [rng.normal(size=(n, 1))])
+
+
+def _both(fam, net, rate=None):
+    prob = network_lmi.build_problem(fam, net)
+    scale = np.ones(prob.n_blocks) if rate is None else rate ** (-prob.length.astype(float))
+    a = network_lmi.solve_sdp(prob, scale, solver="IPM")
+    b = network_lmi.solve_sdp(prob, scale, solver="CLARABEL")
+    return prob, scale, a, b
+
+
+CASES = [
+    (DELAY_FAMILY, Network.delays(1, 2), None),
+    (MOTOR, Network.delays(1, 3), None),
+    (MOTOR, Network.delays(1, 3), 0.8),
+    (MOTOR, Network.weakly_hard(2, 5, 3), None),
+    (WEAKLY_HARD_FAMILY, Network.weakly_hard(2, 5, 3), 0.95),
+    (TOO_UNSTABLE, Network.weakly_hard(1, 3, 3), None),
+    (TOO_UNSTABLE, Network.delays(2, 3, min_delay=1), None),
+    (_random_family(3, 3), Network.delays(2, 3), None),
+    (_random_family(3, 4), Network.weakly_hard(3, 8, 4) & Network.delays(1, 4), None),
+]
+
+
+@pytest.mark.parametrize("fam,net,rate", CASES, ids=lambda x: x.describe() if hasattr(x, "describe") else None)
+def test_ipm_and_clarabel_reach_the_same_optimal_margin(fam, net, rate):
+    prob, scale, a, b = _both(fam, net, rate)
+    assert a.solver == "IPM" and b.solver == "CLARABEL"
+    assert a.status in ("optimal", "optimal_inaccurate")
+    assert abs(a.t - b.t) <= 1e-6 * max(1.0, abs(b.t)), (prob.form, a.t, b.t)
+    if a.t > 1e-6:
+        # the IPM's variables attain its margin: every block >= t I up to rounding (the IPM's iterates are feasible)
+        K = network_lmi.gains_from(prob, a)
+        cert = network_lmi.recheck_network(prob, np.linalg.inv(a.W), K, rate)
+        assert cert.verified, cert.margin
+
+
+def test_bounded_drops_network_lmi_on_the_ipm_contains_the_lmi_design():
+    """One reception node: Z = W is the lmi design, so the network LMI's margin is at least the lmi SDP's, and
+    the lmi design's own (W, Y) is a feasible point of the network LMI with that margin."""
+    net = Network.bounded_drops(3)
+    prob, scale, a, b = _both(MOTOR, net)
+    modes = ModeSet.from_family(MOTOR, 3)
+    _, plain = ipm.design_solve(modes, "lmi")
+    assert prob.form == "lifted" and len(prob.nodes) == 1
+    assert a.t >= plain.t - 1e-7 and abs(a.t - b.t) <= 1e-6
+    # the lmi design's gains, through the network method forced onto the IPM, are certified on the network
+    res = network_lmi.run(MOTOR, net, solver="IPM", use_ccl=False)
+    assert res.outcome == "stabilized" and res.solver == "IPM" and res.timings["solves"] == 1
+    assert max_cycle_rate(MOTOR, res.gains, net, 5) < 1.0
+    # the lmi point in the network LMI: blocks [[2W - W, (A W)^T], [A W, W]] are the lmi blocks
+    theta = np.linalg.solve(plain.W, np.swapaxes(plain.Y, 1, 2)).swapaxes(1, 2)
+    gains = modes.expand(theta)
+    A = prob.closed_loops(gains)
+    low = min(np.linalg.eigvalsh(np.block([[plain.W, (Ae @ plain.W).T], [Ae @ plain.W, plain.W]]))[0] for Ae in A)
+    assert low >= plain.t - 1e-7
+    # and design() on bounded_drops is today's design, to solver tolerance
+    np.testing.assert_allclose(design(MOTOR, network=net, decay_rate=None).gains, design(MOTOR, 3, decay_rate=None).gains,
+                               rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("net", [Network.weakly_hard(1, 3, 3), Network.weakly_hard(3, 8, 4) & Network.delays(1, 4)],
+                         ids=["weakly_hard", "weakly_hard_and_delays"])
+def test_not_certified_carries_a_farkas_certificate_from_the_ipm_dual(net):
+    res = design(TOO_UNSTABLE, network=net, decay_rate=None, solver="IPM", max_iter=2)
+    prob = network_lmi.build_problem(TOO_UNSTABLE, net)
+    assert res.outcome == "not_certified", res.message
+    assert res.solver == "IPM" and res.certificate.kind == "farkas_network" and res.certificate.verified
+    assert res.certificate.delta > 0 and res.gains is None
+    again = network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks))
+    assert again.verified and again.form == prob.form
+    assert not network_lmi.check_network_farkas(prob, [-M for M in res.certificate.multipliers],
+                                                np.ones(prob.n_blocks)).verified
+    # the multipliers are PSD (to rounding), one per transition and one per node matrix
+    E, V = prob.n_blocks, len(prob.nodes)
+    M, Nv = res.certificate.multipliers[:E], res.certificate.multipliers[E:]
+    assert len(Nv) == V and min(np.linalg.eigvalsh(X)[0] for X in M + Nv) > -1e-9 * max(np.trace(X) for X in M)
+
+
+def test_design_reports_the_ipm_and_clarabel_as_asked():
+    net = Network.weakly_hard(2, 5, 3)
+    auto = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None)
+    clar = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, solver="CLARABEL")
+    forced = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, solver="IPM")
+    assert auto.solver == forced.solver == "IPM" and clar.solver == "CLARABEL"
+    assert auto.outcome == clar.outcome == forced.outcome == "stabilized"
+    assert auto.solve_count == 1 and clar.solve_count == 1
+    for res in (auto, clar):
+        assert analyze(WEAKLY_HARD_FAMILY, res.gains, network=net).stable is True
+        assert max_cycle_rate(WEAKLY_HARD_FAMILY, res.gains, net, 8) < 1.0
+
+
+def test_auto_falls_back_to_clarabel_when_the_ipm_fails(monkeypatch):
+    from solver.errors import SolverFailed
+
+    real = network_lmi._solve_ipm
+
+    def broken(*args, **kwargs):
+        raise SolverFailed("IPM ended with status 'numerical_error'", status="numerical_error")
+
+    monkeypatch.setattr(network_lmi, "_solve_ipm", broken)
+    net = Network.weakly_hard(2, 5, 3)
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None)
+    assert res.outcome == "stabilized" and res.solver == "CLARABEL" and res.solve_count == 2
+    assert "IPM failed" in res.message
+    with pytest.raises(SolverFailed):
+        design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, solver="IPM")
+    monkeypatch.setattr(network_lmi, "_solve_ipm", real)
+
+
+def test_textbook_motor_on_a_delays_network_on_the_ipm():
+    """The paper's motor with packets up to one sample late (delays(1, 3)): the augmented form on the IPM."""
+    net = Network.delays(1, 3)
+    res = design(MOTOR, network=net, decay_rate=None)
+    assert res.outcome == "stabilized" and res.solver == "IPM" and res.method == "network_lmi", res.message
+    assert "augmented form" in res.message
+    assert analyze(MOTOR, res.gains, network=net).stable is True
+    assert max_cycle_rate(MOTOR, res.gains, net, 5) < 1.0
+    assert random_runs_decay(MOTOR, res.gains, net, runs=20, steps=300) < 1e-3
+
+
+def test_textbook_pendulum_on_a_weakly_hard_network_on_the_ipm():
+    """CTMS inverted pendulum (two pole lengths), at most one lost packet in any 3: IPM and Clarabel agree."""
+    fam = pendulum()
+    net = Network.weakly_hard(1, 3, 2)
+    prob, scale, a, b = _both(fam, net)
+    assert abs(a.t - b.t) <= 1e-6 * max(1.0, abs(b.t)) and a.t > 0
+    res = design(fam, network=net, decay_rate=None)
+    assert res.outcome == "stabilized" and res.solver == "IPM", res.message
+    assert analyze(fam, res.gains, network=net).stable is True
+    assert random_runs_decay(fam, res.gains, net, runs=10, steps=3000) < 1e-2
+
+
+def test_decay_rate_max_on_the_ipm_matches_clarabel_and_bounds_every_cycle():
+    """The rate search (solver/rate_search.py's model steps, IPM probes warm started) against Clarabel's."""
+    net = Network.weakly_hard(2, 5, 3)
+    tol = 1e-2
+    ipm_res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate="max", rate_tol=tol)
+    clar = design(WEAKLY_HARD_FAMILY, network=net, decay_rate="max", rate_tol=tol, solver="CLARABEL")
+    assert ipm_res.outcome == clar.outcome == "stabilized" and ipm_res.solver == "IPM"
+    lo, hi = ipm_res.rate_bracket["lower"], ipm_res.rate_bracket["upper"]
+    assert hi - lo <= tol * hi and hi == ipm_res.decay_rate
+    # the two searches bracket the same smallest rate of the convex condition (each to its tolerance)
+    assert clar.rate_bracket["lower"] <= hi * (1 + 1e-6) and lo <= clar.decay_rate * (1 + 1e-6)
+    assert max_cycle_rate(WEAKLY_HARD_FAMILY, ipm_res.gains, net, 8) <= ipm_res.decay_rate * (1 + 1e-9)
+    auto = design(WEAKLY_HARD_FAMILY, network=net)  # decay_rate="auto"
+    assert auto.outcome == "stabilized" and hi <= auto.decay_rate < 1.0
+
+
+def test_network_margin_model_is_tangent_to_the_margin():
+    """The model's slope at a rate against a finite difference of the IPM's optimal margin."""
+    net = Network.delays(1, 3)
+    prob = network_lmi.build_problem(MOTOR, net)
+    lam, h = 0.85, 1e-4
+
+    def t_at(rate):
+        return network_lmi.solve_sdp(prob, rate ** (-prob.length.astype(float)), solver="IPM")
+
+    sol = t_at(lam)
+    t0, q, eta = network_margin_model(prob, sol, lam)
+    slope_model = float(np.sum(q * (-eta) / lam))
+    slope_fd = (t_at(lam + h).t - t_at(lam - h).t) / (2 * h)
+    assert abs(t0 - sol.t) < 1e-12
+    assert abs(slope_model - slope_fd) <= 1e-3 * max(1.0, abs(slope_fd)), (slope_model, slope_fd)
