@@ -346,17 +346,28 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
-    if objective != "stability":
-        raise InvalidInput(f"objective={objective!r} is {where}", ("objective",))
-    for name, value in zip(("weights", "x0", "disturbance", "output", "u_max"), performance):
-        if value is not None:
-            raise InvalidInput(f"{name} is {where}", (name,))
+    from .methods import network_performance
+
+    weights, x0, disturbance, output, u_max = performance
+    x0 = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max, decay_rate,
+                                           family.n_states)
     check_solver(solver)
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
                        solver=solver, network=network)
     size.check(max_memory, float("inf") if time_limit is not None else None,
                solves=solve_count("lmi", decay_rate, rate_tol, max_iter))
     start = time.perf_counter()
+    if objective != "stability":  # docs/design.md §11.2
+        with blas_threads(1):
+            res = network_performance.run(family, network, objective, weights=weights, x0=x0,
+                                          disturbance=disturbance, output=output, plant_switching=plant_switching,
+                                          scaling=scaling, time_limit=time_limit, callback=callback)
+        res.network = network.to_dict()
+        if res.certificate is not None and res.certificate.form == "augmented" and family.n_modes > 1 and \
+                plant_switching == "per_interval":
+            res.message += ("; the augmented certificate lets the plant mode switch at every sample (it covers "
+                            "per_interval)")
+        return res
     with blas_threads(1):
         prob = network_lmi.build_problem(family, network, plant_switching)
         unc = uncontrollable_mode(np.asarray(family.F, float), np.asarray(family.G, float), 1.0)
