@@ -349,14 +349,22 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     from .methods import network_performance
 
     weights, x0, disturbance, output, u_max = performance
-    x0 = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max, decay_rate,
-                                           family.n_states)
+    x0, u_max = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max,
+                                                  decay_rate, family.n_states, family.n_inputs)
     check_solver(solver)
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
                        solver=solver, network=network)
     size.check(max_memory, float("inf") if time_limit is not None else None,
                solves=solve_count("lmi", decay_rate, rate_tol, max_iter))
     start = time.perf_counter()
+    if u_max is not None:  # docs/design.md §11.2
+        with blas_threads(1):
+            res = network_performance.run_limits(family, network, u_max, x0=x0,
+                                                 decay_rate=None if decay_rate == "auto" else decay_rate,
+                                                 plant_switching=plant_switching, scaling=scaling,
+                                                 time_limit=time_limit, callback=callback)
+        res.network = network.to_dict()
+        return res
     if objective != "stability":  # docs/design.md §11.2
         with blas_threads(1):
             res = network_performance.run(family, network, objective, weights=weights, x0=x0,

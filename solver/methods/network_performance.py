@@ -508,21 +508,43 @@ def gains_from(prob, Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
 OBJECTIVES = ("cost", "hinf")
 
 
-def check_request(network, objective: str, weights, x0, disturbance, output, u_max, decay_rate, n: int):
-    """Refuse what does not carry over to a network (docs/design.md §11.2), naming the field and why."""
+def check_u_max(u_max, m: int) -> np.ndarray:
+    try:
+        u = np.array(u_max, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
+    if u.size != m or not np.all(np.isfinite(u)) or np.any(u <= 0):
+        raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+    return u
+
+
+def check_request(network, objective: str, weights, x0, disturbance, output, u_max, decay_rate, n: int, m: int):
+    """Refuse what does not carry over to a network (docs/design.md §11.2), naming the field and why.
+
+    Returns ``(x0, u_max)`` checked (float arrays or None)."""
     where = f"network={network.describe()}"
     if objective not in ("stability",) + OBJECTIVES:
         raise InvalidInput(f"objective must be one of ('stability', 'cost', 'hinf'), got {objective!r}",
                            ("objective",))
     if u_max is not None:
-        raise InvalidInput(f"u_max is not available on {where}: the node-dependent invariant ellipsoids and their "
-                           "input rows are derived in docs/design.md §11.2 but not built yet; design for the network "
-                           "without u_max, or use bounded_drops", ("u_max",))
+        if objective == "hinf":
+            raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
+                               "disturbance energy)", ("u_max",))
+        if objective == "cost":
+            raise InvalidInput(f"u_max with objective='cost' is not available on {where}: the Kothare form "
+                               "(P = gamma W^-1) needs one level gamma shared by node-dependent W_v, not built yet "
+                               "(docs/design.md §11.2); use objective='stability' with u_max, or bounded_drops",
+                               ("u_max",))
+        u_max = check_u_max(u_max, m)
     if objective == "stability":
-        for name, value in (("weights", weights), ("x0", x0), ("disturbance", disturbance), ("output", output)):
+        for name, value in (("weights", weights), ("disturbance", disturbance), ("output", output)) + (
+                (("x0", x0),) if u_max is None else ()):
             if value is not None:
-                raise InvalidInput(f"{name} needs objective='cost' or 'hinf'", (name,))
-        return None
+                raise InvalidInput(f"{name} needs objective='cost' or 'hinf'" + (" (or u_max, for x0)"
+                                                                                 if name == "x0" else ""), (name,))
+        if decay_rate == "max":
+            raise InvalidInput("decay_rate='max' cannot be combined with u_max; give a rate", ("decay_rate",))
+        return check_x0(x0, n), u_max
     if decay_rate not in (None, "auto"):
         raise InvalidInput(f"decay_rate combines with objective='stability' only (on {where} too)",
                            ("decay_rate",))
@@ -534,7 +556,7 @@ def check_request(network, objective: str, weights, x0, disturbance, output, u_m
         raise InvalidInput("weights go with objective='cost'", ("weights",))
     if objective == "hinf" and x0 is not None:
         raise InvalidInput("x0 goes with objective='cost' (the l2 gain starts from x = 0)", ("x0",))
-    return check_x0(x0, n)
+    return check_x0(x0, n), None
 
 
 def _scaled(family, objective, weights, disturbance, output, scaling: str):
@@ -630,3 +652,177 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                         spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
                         message=f"stabilized on {where}; node certificate re-checked (relative margin "
                                 f"{cert.margin:.3g}); {perf.message}")
+
+
+# ------------------------------------------------------------------------------------------- input limits
+#: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
+STRICT = 1e-5
+LIMIT_SLACK = 1e-6
+#: Largest semi-axis of the node ellipsoids searched (times max(1, |x0|)): K = 0 may keep a stable plant anywhere.
+MAX_RADIUS = 1e3
+
+
+def gain_rows(prob) -> list[list[tuple[int, int]]]:
+    """Per Lyapunov index v, the ``(j, b)`` pairs: gain ``K_(j+1)`` applied to slack/state block b from node v."""
+    out = [set() for _ in prob.nodes]
+    for e in range(prob.n_blocks):
+        for j in range(prob.N):
+            b = prob.right[e, j]
+            if b >= 0 and np.any(prob.coef[e, j]):
+                out[prob.src[e]].add((j, int(b)))
+    return [sorted(s) for s in out]
+
+
+def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndarray, history: np.ndarray,
+                          x0=None, rate: float | None = None):
+    """Node ellipsoids ``{xi : xi' (c X_v) xi <= 1}`` whose inputs meet the limits, re-checked in float64.
+
+    Needs every ``X_v > 0`` and ``A_e' X_w A_e - rho_e X_v`` below minus the rounding allowance (``rho_e = 1``, or
+    ``lambda^(2 length_e)``): a state in ``E_v`` at node v is in ``E_w`` at the next node w.  Every input applied
+    from node v is ``K_j R_b xi`` (``R_b`` the state block the gain reads), whose largest value on ``E_v`` is
+    ``sqrt(r X_v^-1 r') / sqrt(c)``; ``c`` makes the tightest of them ``u_max``.  x0 (its initial history ``S x0``)
+    must lie in every node's set.  Returns ``(c X or None, reason)``.
+    """
+    X = _sym(np.asarray(X, float))
+    if not np.all(np.isfinite(X)) or np.linalg.eigvalsh(X)[:, 0].min() <= 0:
+        return None, "a node ellipsoid matrix is not positive definite"
+    A = prob.closed_loops(gains)
+    rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
+    for e in range(prob.n_blocks):
+        APA = A[e].T @ X[prob.dst[e]] @ A[e]
+        size = np.linalg.norm(APA, 2) + np.linalg.norm(X[prob.src[e]], 2)
+        if np.linalg.eigvalsh(_sym(APA - rho[e] * X[prob.src[e]]))[-1] / size >= -_allowance(X.shape[-1]):
+            return None, f"the node ellipsoids are not shown invariant on transition {e} (float64 re-check)"
+    n, k = prob.n, prob.k
+    need = 0.0
+    for v, pairs in enumerate(gain_rows(prob)):
+        for j, b in pairs:
+            rows = np.zeros((prob.m, k))
+            rows[:, b * n:(b + 1) * n] = gains[j]
+            need = max(need, float(np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(X[v], rows.T).T)
+                                          / u_max**2)))
+    if need <= 0:
+        return None, "all gains are zero: the inputs stay at zero (no ellipsoid needed)"
+    Xc = need * (1 + 1e-9) * X
+    if x0 is not None:
+        s = history @ x0
+        level = max(float(s @ Xv @ s) for Xv in Xc)
+        if level > 1:
+            return None, f"x0 lies outside the certified node sets (max xi0' X_v xi0 = {level:.6g} > 1)"
+    return Xc, ""
+
+
+def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: float | None = None,
+                 time_limit: float | None = None):
+    """``max tau`` s.t. the invariance blocks, the input blocks ``[[u^2, y], [y', Z + Z' - W_v]] >= 0``,
+    ``tau I <= W_v <= radius^2 I`` and x0's history inside every ``W_v`` ellipsoid: ``(W, Y, Z, status, s)``."""
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
+    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
+        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
+    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    tau = cp.Variable()
+    c = (np.ones(prob.n_blocks) if rate is None else float(rate) ** (-prob.length.astype(float))) * (1 + STRICT)
+    cons = []
+    for e in range(prob.n_blocks):
+        AZ = Rows(prob.free[e], prob.coef[e], prob.right[e]).times_z(Z, Y, n, prob.zblocks)
+        M = cp.bmat([[Z + Z.T - W[prob.src[e]], c[e] * AZ.T], [c[e] * AZ, W[prob.dst[e]]]])
+        cons.append(0.5 * (M + M.T) >> 0)
+    for v, pairs in enumerate(gain_rows(prob)):
+        H = Z + Z.T - W[v]
+        for j, b in pairs:
+            for i in range(m):
+                row = Y[j][i:i + 1, :]
+                if prob.zblocks > 1:
+                    row = cp.hstack([row if col == b else np.zeros((1, n)) for col in range(prob.zblocks)])
+                M = cp.bmat([[np.array([[(u_max[i] * (1 - LIMIT_SLACK)) ** 2]]), row], [row.T, H]])
+                cons.append(0.5 * (M + M.T) >> 0)
+    radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
+    for Wv in W:
+        cons += [Wv << radius**2 * np.eye(k), Wv >> tau * np.eye(k)]
+        if x0 is not None:
+            s = (history @ x0).reshape(-1, 1)
+            cons.append(cp.bmat([[np.ones((1, 1)), s.T], [s, Wv]]) >> 0)
+    problem = cp.Problem(cp.Maximize(tau), cons)
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start = time.perf_counter()
+    try:
+        problem.solve(solver=cp.CLARABEL, **opts)
+    except cp.error.SolverError as err:
+        raise SolverFailed(f"Clarabel failed on the network input-limit SDP: {err}", status="solver_error") from None
+    elapsed = time.perf_counter() - start
+    if W[0].value is None or Zb[0].value is None or tau.value is None or not tau.value > 0:
+        return None, None, None, str(problem.status), elapsed
+    Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
+    Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
+    return Wv, Yv, np.stack([z.value for z in Zb]), str(problem.status), elapsed
+
+
+def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = None,
+               plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
+               callback=None) -> DesignResult:
+    """A design on ``network`` whose inputs meet ``u_max`` from node-dependent invariant ellipsoids (§11.2).
+
+    Solved in balanced coordinates (:func:`solver.scaling.balance`, the plain part of the scaling layer); the
+    gains and the node ellipsoids are mapped back and re-checked in the user's (:func:`check_invariant_nodes`,
+    :func:`network_lmi.recheck_network`).  ``res.invariant_set`` holds the node matrices (V, k, k).
+    """
+    from ..scaling import balance
+
+    start = time.perf_counter()
+    u_max = np.asarray(u_max, float)
+    x0 = None if x0 is None else np.asarray(x0, float)
+    prob = network_lmi.build_problem(family, network, plant_switching)
+    history = np.eye(prob.n) if prob.form == "lifted" else np.vstack([np.eye(prob.n)] * prob.N)
+    scale = balance(family) if scaling == "auto" else None
+    scale = None if scale is None or scale.is_identity else scale
+    prob_s = prob if scale is None else network_lmi.build_problem(scale.family(family), network, plant_switching)
+    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+                mode_labels=prob.labels)
+    try:
+        W, Y, Z, status, seconds = solve_limits(
+            prob_s, history, u_max if scale is None else u_max / scale.input,
+            x0 if (x0 is None or scale is None) else x0 / scale.state, decay_rate, time_limit)
+    except SolverFailed as err:
+        W, status, seconds = None, str(err), 0.0
+    timings = {"total": 0.0, "solver": seconds, "setup": 0.0, "solves": 1, "cached": False}
+    record = IterationRecord(0, float("nan"), None, False, None, seconds, time.perf_counter() - start)
+    if callback is not None:
+        callback(record)
+    where = f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, {prob.n_blocks} transitions"
+    rate_txt = "" if decay_rate is None else f" at decay rate {decay_rate:.6g}"
+    gains = inv = None
+    reason = f"the network input-limit SDP gave no ellipsoids ({status})"
+    if W is not None:
+        try:
+            gains = gains_from(prob_s, Y, Z)
+            X = np.linalg.inv(W)
+        except np.linalg.LinAlgError:
+            gains = None
+        if gains is not None and np.all(np.isfinite(gains)):
+            if scale is not None:
+                gains = scale.gains_back(gains)
+                X = scale.quadratic_back(X)
+            inv, reason = check_invariant_nodes(X, prob, gains, u_max, history, x0, decay_rate)
+        else:
+            gains = None
+    cert = None
+    if inv is not None:
+        cert = network_lmi.recheck_network(prob, inv, gains, decay_rate, source="network_limits")
+        cert = cert if cert.verified else network_lmi.node_analysis(prob, gains, decay_rate, time_limit)
+    timings["total"] = time.perf_counter() - start
+    timings["setup"] = max(timings["total"] - seconds, 0.0)
+    if cert is None:
+        why = reason if inv is None else "no node certificate passed the float64 re-check"
+        return DesignResult(outcome="not_converged", gains=None, certificate=None, history=[record], timings=timings,
+                            solver_status=status, objective="stability", decay_rate=decay_rate, **base,
+                            message=f"no input-limited design certified on {where}{rate_txt}: {why}")
+    res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
+                       solver_status=status, objective="stability", decay_rate=decay_rate,
+                       spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
+                       message=f"stabilized on {where}{rate_txt}; node certificate re-checked (relative margin "
+                               f"{cert.margin:.3g}); inputs within u_max from every state of the node ellipsoids "
+                               f"(invariant along every admissible run; re-checked)")
+    res.invariant_set = inv
+    return res

@@ -157,3 +157,49 @@ def test_bad_objectives_on_a_network_are_refused(kwargs, field, words):
     with pytest.raises(InvalidInput) as err:
         design(MOTOR, network=Network.delays(1, 3), **kwargs)
     assert err.value.field[0] == field and words in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------- input limits
+def run_inputs(F, G, K, x0, ages, plants):
+    """Inputs of a finite admissible run stepped sample by sample (state before sample 0 is x0)."""
+    hist = {t: x0 for t in range(-K.shape[0], 1)}
+    x, out = x0, []
+    for t, (d, l) in enumerate(zip(ages, plants)):
+        u = K[d] @ hist[t - d]
+        out.append(u)
+        x = F[l] @ x + G[l] @ u
+        hist[t + 1] = x
+    return np.array(out)
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_input_limits_hold_on_every_admissible_run_from_the_boundary(net):
+    """x0 scaled onto the boundary of the certified node sets: every admissible run up to 7 samples (every plant
+    mode sequence) keeps |u| <= u_max, stepped sample by sample."""
+    u_max = np.array([2.0])
+    res = design(MOTOR, network=net, u_max=u_max, x0=[1.0, -1.0])
+    assert res.outcome == "stabilized"
+    X = res.invariant_set
+    lifted = res.certificate.form == "lifted"
+    S = np.eye(2) if lifted else np.vstack([np.eye(2)] * net.n_drop)
+    x0 = np.array([1.0, -1.0])
+    assert max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X) <= 1.0
+    x0 = x0 / np.sqrt(max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X))  # on the boundary
+    peak, T = 0.0, 7
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if (lifted and ages[0] != 0) or not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
+            seq = [plants[0]] * 3 + [plants[1]] * (T - 3)
+            peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
+    assert peak <= u_max[0] * (1 + 1e-9)
+    assert peak > 0.05 * u_max[0]  # the runs do use the inputs
+
+
+@pytest.mark.parametrize("kwargs,words", [({"objective": "cost", "x0": [1.0, 0.0]}, "Kothare"),
+                                          ({"objective": "hinf", "disturbance": [[1.0], [0.0]]}, "disturbance"),
+                                          ({"decay_rate": "max"}, "give a rate")])
+def test_u_max_combinations_that_do_not_carry_over_are_refused(kwargs, words):
+    with pytest.raises(InvalidInput) as err:
+        design(MOTOR, network=Network.delays(1, 3), u_max=[2.0], **kwargs)
+    assert words in str(err.value)
