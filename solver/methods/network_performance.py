@@ -542,7 +542,7 @@ def check_request(network, objective: str, weights, x0, disturbance, output, u_m
             if value is not None:
                 raise InvalidInput(f"{name} needs objective='cost' or 'hinf'" + (" (or u_max, for x0)"
                                                                                  if name == "x0" else ""), (name,))
-        if decay_rate == "max":
+        if decay_rate == "max" and u_max is not None:
             raise InvalidInput("decay_rate='max' cannot be combined with u_max; give a rate", ("decay_rate",))
         return check_x0(x0, n), u_max
     if decay_rate not in (None, "auto"):
