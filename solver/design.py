@@ -193,8 +193,11 @@ def design(
         (:mod:`solver.methods.network_lmi`: node-dependent Lyapunov matrices with a common slack, then cone
         complementarity on the exact node conditions when the convex one certifies nothing), method "lmi"
         and scheme "predictive" only, Clarabel; ``decay_rate`` None, a number, "max" or "auto" (the
-        bisection runs on the convex condition); ``objective``, ``u_max`` and the other performance options
-        are not supported yet there.  Outcomes: "stabilized" (a node certificate re-checked in float64),
+        bisection runs on the convex condition).  ``objective="cost"``/``"hinf"`` (weights, x0, disturbance,
+        output) and ``u_max`` (with ``objective="stability"``, x0 and a rate optional) run
+        :mod:`solver.methods.network_performance` (docs/design.md §11.2): ``res.performance`` is a certified
+        bracket over every admissible run, ``res.invariant_set`` one ellipsoid per node; ``u_max`` with a cost
+        or hinf objective and ``decay_rate`` with a cost or hinf objective are refused.  Outcomes: "stabilized" (a node certificate re-checked in float64),
         "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
         and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven
         infeasible by a Farkas certificate: other gains may exist), "not_converged".
