@@ -70,7 +70,6 @@ class Rows:
     def times_z(self, Z, Y, n: int, zblocks: int):
         """``rows(K) Z`` with ``Y_j = K_j Z_(right_j)`` (cvxpy)."""
         out = self.free @ Z
-        k = self.free.shape[1]
         for j, b in enumerate(self.right):
             if b >= 0 and np.any(self.coef[j]):
                 term = self.coef[j] @ Y[j]
@@ -80,7 +79,6 @@ class Rows:
                     p = self.free.shape[0]
                     cols = [term if c == b else np.zeros((p, n)) for c in range(zblocks)]
                     out = out + cp.hstack(cols)
-        assert k == n * zblocks
         return out
 
 
@@ -153,7 +151,7 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
             Qh, Rh = _psd_root(Q), _psd_root(R)
             cost = []
             for e in range(prob.n_blocks):
-                d = int(ages[network_lmi_node(prob, e)])
+                d = int(ages[_source_node(prob, e)])
                 free = np.vstack([Qh @ e0, np.zeros((m, k))])
                 coef = np.zeros((N, n + m, m))
                 coef[d, n:] = Rh
@@ -164,7 +162,7 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
             E, C, D = check_channel(disturbance, output, r, n, m)
             out_rows, Bs, Ds = [], [], []
             for e in range(prob.n_blocks):
-                d, l = int(ages[network_lmi_node(prob, e)]), plants[e]
+                d, l = int(ages[_source_node(prob, e)]), plants[e]
                 coef = np.zeros((N, C.shape[1], m))
                 coef[d] = D[l]
                 right = np.full(N, -1)
@@ -177,7 +175,7 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
     return Channels(prob, state, cost, out_rows, Bs, Ds, start, history, Q, R)
 
 
-def network_lmi_node(prob, e: int) -> int:
+def _source_node(prob, e: int) -> int:
     """Automaton node a transition starts from."""
     return int(prob.nodes[prob.src[e]])
 
@@ -323,8 +321,6 @@ def closed_walks(prob, start, max_length: int = MAX_WALK_LENGTH, max_count: int 
     for e in range(prob.n_blocks):
         out_edges[prob.src[e]].append(e)
     found, open_ = [], [((), int(v)) for v in start]
-    starts = {(): None}
-    del starts
     for _ in range(max_length):
         nxt = []
         for walk, node in open_:
