@@ -20,6 +20,7 @@ float64 (:func:`certify`) and the lower bound is the exact value of the worst ad
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -302,7 +303,9 @@ def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None):
         cons += [X >> 0 for X in P]
         obj = g
     try:
-        cp.Problem(cp.Minimize(obj), cons).solve(solver=cp.CLARABEL)
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            cp.Problem(cp.Minimize(obj), cons).solve(solver=cp.CLARABEL)
     except cp.error.SolverError as err:
         return None, f"the fixed-gain SDP failed ({err})"
     if P[0].value is None:
@@ -480,7 +483,9 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
     opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
     start = time.perf_counter()
     try:
-        problem.solve(solver=cp.CLARABEL, **opts)
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **opts)
     except cp.error.SolverError as err:
         raise SolverFailed(f"Clarabel failed on the network {kind} SDP: {err}", status="solver_error") from None
     elapsed = time.perf_counter() - start
@@ -744,7 +749,9 @@ def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: fl
     opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
     start = time.perf_counter()
     try:
-        problem.solve(solver=cp.CLARABEL, **opts)
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **opts)
     except cp.error.SolverError as err:
         raise SolverFailed(f"Clarabel failed on the network input-limit SDP: {err}", status="solver_error") from None
     elapsed = time.perf_counter() - start
