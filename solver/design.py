@@ -198,8 +198,12 @@ def design(
         and scheme "predictive" only; the convex condition on the structured IPM under "AUTO" (Clarabel as its
         fallback) and "IPM", on Clarabel under "CLARABEL"; cone complementarity on Clarabel; ``decay_rate``
         None, a number, "max" or "auto" (the model search of solver/rate_search.py on the convex
-        condition); ``objective``, ``u_max`` and the other performance options
-        are not supported yet there.  Outcomes: "stabilized" (a node certificate re-checked in float64),
+        condition).  ``objective="cost"``/``"hinf"`` (weights, x0, disturbance, output) and ``u_max`` (with
+        ``objective="stability"``, x0 and a rate optional) run :mod:`solver.methods.network_performance`
+        (docs/design.md §11.3, on Clarabel): ``res.performance`` is a certified bracket over every admissible
+        run, ``res.invariant_set`` one ellipsoid per node; ``u_max`` with a cost or hinf objective and
+        ``decay_rate`` with a cost or hinf objective are refused.  Outcomes: "stabilized" (a node certificate
+        re-checked in float64),
         "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
         and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven
         infeasible by a Farkas certificate: other gains may exist), "not_converged".
@@ -375,11 +379,11 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         raise InvalidInput(f"plant_switching must be one of {PLANT_SWITCHING}", ("plant_switching",))
     if scaling not in ("auto", "none"):
         raise InvalidInput("scaling must be 'auto' or 'none'", ("scaling",))
-    if objective != "stability":
-        raise InvalidInput(f"objective={objective!r} is {where}", ("objective",))
-    for name, value in zip(("weights", "x0", "disturbance", "output", "u_max"), performance):
-        if value is not None:
-            raise InvalidInput(f"{name} is {where}", (name,))
+    from .methods import network_performance
+
+    weights, x0, disturbance, output, u_max = performance
+    x0, u_max = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max,
+                                                  decay_rate, family.n_states, family.n_inputs)
     check_solver(solver)
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
                        solver=solver, network=network, decay_rate=decay_rate, rate_tol=rate_tol)
@@ -392,6 +396,25 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         "lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching, solver="CLARABEL",
         network=network).memory <= budget
     start = time.perf_counter()
+    if u_max is not None:  # docs/design.md §11.3
+        with blas_threads(1):
+            res = network_performance.run_limits(family, network, u_max, x0=x0,
+                                                 decay_rate=None if decay_rate == "auto" else decay_rate,
+                                                 plant_switching=plant_switching, scaling=scaling,
+                                                 time_limit=time_limit, callback=callback)
+        res.network = network.to_dict()
+        return res
+    if objective != "stability":  # docs/design.md §11.3
+        with blas_threads(1):
+            res = network_performance.run(family, network, objective, weights=weights, x0=x0,
+                                          disturbance=disturbance, output=output, plant_switching=plant_switching,
+                                          scaling=scaling, time_limit=time_limit, callback=callback)
+        res.network = network.to_dict()
+        if res.certificate is not None and res.certificate.form == "augmented" and family.n_modes > 1 and \
+                plant_switching == "per_interval":
+            res.message += ("; the augmented certificate lets the plant mode switch at every sample (it covers "
+                            "per_interval)")
+        return res
     with blas_threads(1):
         prob = network_lmi.build_problem(family, network, plant_switching)
         unc = uncontrollable_mode(np.asarray(family.F, float), np.asarray(family.G, float), 1.0)

@@ -52,7 +52,7 @@ async def submit_design(
     shape = validation.check_design(body, settings, net)
     req = body.model_dump(mode="json")
     validation.check_with_solver(req["plant"], body.n_drop, body.options.plant_switching, body.options.scheme)
-    validation.check_performance(req, settings)
+    validation.check_performance(req, settings, net)
     validation.check_feedback(req)
     validation.check_design_channel(body, shape, settings)
     return await submit(request, response, "design", req, body.n_drop, idempotency_key, owner, prefer)

@@ -238,13 +238,21 @@ class Performance(_Open):
     witness: list[list[int | list[int]]] | None = Field(
         None, description="That pattern, one period: `[plant_mode, eta]` per interval (`plant_mode` a list of "
         "plant modes per sample under per-sample switching).")
-    certificate: Matrix | None = Field(None, description="P (n x n) of the upper bound: `x'Px` bounds the cost "
-                                                         "from x (cost), or is the bounded-real storage (hinf).")
+    certificate: Matrix | list[Matrix] | None = Field(
+        None, description="P (n x n) of the upper bound: `x'Px` bounds the cost from x (cost), or is the bounded-real "
+        "storage (hinf). On a `network`: one P per node matrix (V x k x k, `form` says on which state).")
     verified: bool | None = Field(None, description="Whether `certificate` passed the float64 re-check.")
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")
     message: str | None = Field(None, description="The bracket in words.")
+    walk: list[dict[str, int]] | None = Field(
+        None, description="On a `network`: the witness's transitions (`from`, `to` automaton nodes, `plant`, and `age` "
+        "or `eta`); repeating them forever is an admissible run whose value is `lower` (docs/design.md §11.3).")
+    form: str | None = Field(None, description="On a `network`: `lifted` (x at packet receptions) or `augmented` "
+                                               "(the stacked state (x(t), ..., x(t-N+1))).")
+    start_nodes: list[int] | None = Field(None, description="On a `network`: the automaton nodes a run may start "
+                                                            "in; the bound is the largest over them.")
 
 
 class ObserverObstruction(_Open):
@@ -385,9 +393,10 @@ class DesignResult(_Open):
     units: dict[str, str] | None = Field(None, description="Unit of each named state or input.")
     objective: str | None = Field(None, description="`stability`, `cost` or `hinf`: what the design optimized.")
     performance: Performance | None = Field(None, description="`cost`/`hinf`: the certified bracket.")
-    invariant_set: Matrix | None = Field(
+    invariant_set: Matrix | list[Matrix] | None = Field(
         None, description="With `u_max`: X (n x n) of `{x : x'Xx <= 1}`: from every state in it, under every "
-        "allowed pattern, every applied input meets the limits (re-checked).")
+        "allowed pattern, every applied input meets the limits (re-checked). On a `network`: one X per node matrix "
+        "(V x k x k, docs/design.md §11.3).")
     channel: "ChannelAnalysis | None" = Field(
         None, description="With a `channel` in the request and a stabilized design: the designed gains on that "
         "channel (as `POST /v1/channels` answers).")

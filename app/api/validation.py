@@ -275,9 +275,9 @@ def solver_field_error(field: tuple, message: str, plant: dict[str, Any] | None 
     return field_error([*(loc_base or ["body"]), *field], message, "solver_invalid_input")
 
 
-def check_performance(req: dict[str, Any], settings: Settings) -> None:
-    """The solver's checks of a design request's performance fields (docs/design.md §8) and the size of their
-    LMI blocks against ``NCS_MAX_LMI_SIZE``; 422 naming the field."""
+def check_performance(req: dict[str, Any], settings: Settings, network: Any = None) -> None:
+    """The solver's checks of a design request's performance fields (docs/design.md §8; on a ``network`` other than
+    bounded drops, §11.3's) and the size of their LMI blocks against ``NCS_MAX_LMI_SIZE``; 422 naming the field."""
     if req.get("objective", "stability") == "stability" and all(
             req.get(k) is None for k in ("weights", "x0", "disturbance", "output", "u_max")):
         return
@@ -286,6 +286,10 @@ def check_performance(req: dict[str, Any], settings: Settings) -> None:
     from app.compute.tasks import check_performance_inputs
 
     try:
+        if network is not None and not network.is_bounded_drops:
+            from app.compute.tasks import check_network_performance_inputs
+
+            check_network_performance_inputs(req["plant"], req, network)
         size = check_performance_inputs(req["plant"], req)
     except InvalidInput as exc:
         field = tuple(getattr(exc, "field", ()))

@@ -475,6 +475,20 @@ def check_performance_inputs(plant: dict[str, Any], request: dict[str, Any]) -> 
     return 0 if lifted is None else sum(block_sides(lifted, objective))
 
 
+def check_network_performance_inputs(plant: dict[str, Any], request: dict[str, Any], network) -> None:
+    """What of a design request's performance fields carries over to ``network`` (docs/design.md §11.3); raises
+    the solver's InvalidInput naming the field."""
+    from solver.methods.network_performance import check_request
+
+    from app.compute.requests import DesignRequest
+
+    req = DesignRequest.model_validate(request)
+    fam = build_family(plant)
+    kw = req.performance_kwargs()
+    check_request(network, kw.pop("objective"), kw.get("weights"), kw.get("x0"), kw.get("disturbance"),
+                  kw.get("output"), kw.get("u_max"), req.options.decay_rate, fam.n_states, fam.n_inputs)
+
+
 def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: str, scheme: str) -> None:
     """Build the family and (given ``n_drop``) its closed-loop modes as a design would; raises the solver's
     InvalidInput. Inputs that passed are remembered by digest (not by their JSON, which may be large): a

@@ -217,3 +217,36 @@ def test_a_huge_network_n_drop_is_refused_before_the_automaton_is_built(http):
                                              "channel": {"kind": "bernoulli", "loss": 0.1}})):
             problem = assert_problem(http.post(path, json={**body, "network": network}), 422, pointer)
             assert "n_drop" in problem["detail"]
+
+
+def test_cost_design_on_a_delay_network_matches_the_library(http):
+    """objective="cost" with a network (docs/design.md §11.3): the job's bracket is the library's, the node
+    matrices and the witness walk are documented fields."""
+    from solver import design
+
+    body = {"plant": PAPER_PLANT, "network": DELAYS, "objective": "cost", "x0": [1.0, -1.0]}
+    resp = http.post("/v1/designs", json=body, headers={"Prefer": "wait=120"})
+    assert resp.status_code in (201, 202), resp.text
+    job = wait_for(http, resp.json()["id"], timeout=300)
+    assert job["status"] == "succeeded", job
+    _documented(DesignJob, job, "design job")
+    res = job["result"]
+    assert res["outcome"] == "stabilized" and res["objective"] == "cost" and res["network"] == DELAYS
+    perf = res["performance"]
+    direct = design(PlantFamily.from_dict(PAPER_PLANT), network=Network.from_dict(DELAYS), objective="cost",
+                    x0=[1.0, -1.0]).performance
+    assert perf["verified"] and perf["form"] == "augmented" and perf["walk"]
+    assert perf["upper"] == pytest.approx(direct.upper, rel=1e-6)
+    assert perf["lower"] == pytest.approx(direct.lower, rel=1e-6)
+    nodes = Network.from_dict(DELAYS).nodes
+    assert np.array(perf["certificate"]).shape == (nodes, 4, 4)  # one P per node on (x(t), x(t-1))
+
+
+@pytest.mark.parametrize("extra, pointer, words", [
+    ({"objective": "cost", "x0": [1.0, 0.0], "u_max": [1.0]}, "/u_max", "Kothare"),
+    ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "x0": [1.0, 0.0]}, "/x0", "x = 0"),
+])
+def test_network_performance_requests_that_do_not_carry_over_are_422s(http, extra, pointer, words):
+    problem = assert_problem(http.post("/v1/designs", json={"plant": PAPER_PLANT, "network": DELAYS, **extra}), 422,
+                             pointer)
+    assert words in problem["detail"]

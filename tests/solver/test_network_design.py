@@ -152,8 +152,7 @@ def test_n_drop_must_agree_with_the_network():
         design(DELAY_FAMILY)
 
 
-@pytest.mark.parametrize("kwargs,field", [({"objective": "cost"}, "objective"), ({"u_max": [1.0]}, "u_max"),
-                                          ({"method": "switched"}, "method"), ({"scheme": "hold"}, "scheme")])
+@pytest.mark.parametrize("kwargs,field", [({"method": "switched"}, "method"), ({"scheme": "hold"}, "scheme")])
 def test_unsupported_options_on_a_network_are_refused(kwargs, field):
     with pytest.raises(InvalidInput) as err:
         design(DELAY_FAMILY, network=Network.delays(1, 2), **kwargs)

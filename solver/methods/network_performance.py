@@ -1,0 +1,831 @@
+"""Cost and l2-gain designs on a network automaton (docs/design.md §11.3).
+
+The network LMI of :mod:`solver.methods.network_lmi` (one Lyapunov matrix per node, one slack ``Z`` common to
+every transition) with the performance channels of each transition ``e: v -> w`` (and plant mode), all of them
+affine in ``(Z, Y)`` after ``Y_j = K_j Z_b``:
+
+* cost:  ``[[Z + Z' - W_v, (A_e Z)', (L_e Z)'], [A_e Z, W_w, 0], [L_e Z, 0, I]] >= 0``, so that
+  ``A_e' P_w A_e - P_v + L_e' L_e <= 0`` (``P_v = W_v^{-1}``): ``V`` drops by at least the transition's stage cost;
+* hinf:  ``[[Z + Z' - W_v, 0, (A_e Z)', (C_e Z)'], [0, g I, B_e', D_e'], [A_e Z, B_e, W_w, 0], [C_e Z, D_e, 0, I]]
+  >= 0``, the bounded-real inequality with node-dependent P.
+
+``L_e`` (``C_e``, ``B_e``, ``D_e``) are the lifted interval's cost rows (channel) of :mod:`solver.lifting` on the
+lifted form, and one sample's ``[Q^(1/2) e_0'; R^(1/2) K_(d+1) e_d']`` (``z = C x + D u``, ``B = [E; 0]``) on the
+augmented one.  The bound is ``max_v x0' S' P_v S x0`` (``trace S' P_v S``) over the nodes a run may start in,
+``S`` the initial history (``x0``, or ``x0`` repeated on the augmented state).  Every figure is re-checked in
+float64 (:func:`certify`) and the lower bound is the exact value of the worst admissible closed walk searched
+(:func:`lower_bound`), both independent of the solver.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from ..brackets import Performance, _allowance, check_x0, hinf_norm_lower, period_system
+from ..compiled import cp
+from ..errors import InvalidInput, SolverFailed
+from ..lifting import check_channel, check_weights, lift_modes
+from ..network import ModeSet
+from ..result import DesignResult, IterationRecord
+from . import network_lmi
+
+#: Closed walks valued for the lower bound at most (cost; hinf: ``MAX_WALKS_HINF``), shortest first.
+MAX_WALKS = 4000
+MAX_WALKS_HINF = 300
+#: Longest closed walk searched (transitions).
+MAX_WALK_LENGTH = 12
+#: Open walks kept while extending (the breadth of the search).
+MAX_OPEN = 20000
+#: Walks re-valued with the refined sweep (hinf).
+REFINED = 4
+
+
+def _sym(M):
+    return 0.5 * (M + np.swapaxes(M, -1, -2))
+
+
+# ------------------------------------------------------------------------------------------- the channels
+@dataclass
+class Rows:
+    """Rows ``free + sum_j coef[j] K_j R_j`` on the Lyapunov state (``R_j`` reads slack block ``right[j]``).
+
+    free : (p, k); coef : (N, p, m); right : (N,) int, -1 where ``K_j`` is absent.
+    """
+
+    free: np.ndarray
+    coef: np.ndarray
+    right: np.ndarray
+
+    def value(self, gains: np.ndarray, n: int) -> np.ndarray:
+        out = self.free.copy()
+        for j, b in enumerate(self.right):
+            if b >= 0 and np.any(self.coef[j]):
+                out[:, b * n:(b + 1) * n] += self.coef[j] @ gains[j]
+        return out
+
+    def times_z(self, Z, Y, n: int, zblocks: int):
+        """``rows(K) Z`` with ``Y_j = K_j Z_(right_j)`` (cvxpy)."""
+        out = self.free @ Z
+        for j, b in enumerate(self.right):
+            if b >= 0 and np.any(self.coef[j]):
+                term = self.coef[j] @ Y[j]
+                if zblocks == 1:
+                    out = out + term
+                else:
+                    p = self.free.shape[0]
+                    cols = [term if c == b else np.zeros((p, n)) for c in range(zblocks)]
+                    out = out + cp.hstack(cols)
+        return out
+
+
+@dataclass
+class Channels:
+    """The performance data of every transition of a :class:`network_lmi.NetworkProblem`.
+
+    state : list of Rows (``A_e``); cost : list of Rows (``L_e``) or None; output : list of Rows (``C_e``) or
+    None; B, D : lists of arrays or None; start : Lyapunov-matrix indices a run may start in; history : (k, n)
+    ``S``, the initial state on the Lyapunov state from ``x0``.
+    """
+
+    prob: object
+    state: list
+    cost: list | None
+    output: list | None
+    B: list | None
+    D: list | None
+    start: np.ndarray
+    history: np.ndarray
+    Q: np.ndarray | None = None
+    R: np.ndarray | None = None
+
+    def numeric(self, gains: np.ndarray) -> list[dict]:
+        n = self.prob.n
+        out = []
+        for e in range(self.prob.n_blocks):
+            L = None if self.cost is None else self.cost[e].value(gains, n)
+            out.append({"A": self.state[e].value(gains, n), "L": L, "S": None if L is None else L.T @ L,
+                        "B": None if self.B is None else self.B[e], "D": None if self.D is None else self.D[e],
+                        "C": None if self.output is None else self.output[e].value(gains, n),
+                        "src": int(self.prob.src[e]), "dst": int(self.prob.dst[e])})
+        return out
+
+
+def channels(family, network, objective: str, weights=None, disturbance=None, output=None,
+             plant_switching: str = "per_interval") -> Channels:
+    """Build the network problem and the performance channels of ``objective`` ("cost" or "hinf")."""
+    prob = network_lmi.build_problem(family, network, plant_switching)
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    r = family.n_modes
+    state = [Rows(prob.free[e], prob.coef[e], prob.right[e]) for e in range(prob.n_blocks)]
+    cost = out_rows = Bs = Ds = None
+    Q = R = None
+    if objective == "cost":
+        Q, R = check_weights(weights, n, m)
+    if prob.form == "lifted":
+        modes = ModeSet.from_family(family, N, plant_switching=plant_switching)
+        lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
+                            cost=objective == "cost")
+        edges = network_lmi.lifted_edges(network)
+        seq = [s for _, _, eta in edges for s in range(modes.n_modes) if modes.eta[s] == eta]
+        assert len(seq) == prob.n_blocks
+        zero = np.zeros(N, dtype=int)
+        if objective == "cost":
+            cost = [Rows(lifted.lifted[s].cost.free, lifted.lifted[s].cost.coef, zero) for s in seq]
+        else:
+            out_rows = [Rows(lifted.lifted[s].output.free, lifted.lifted[s].output.coef, zero) for s in seq]
+            Bs = [lifted.lifted[s].B for s in seq]
+            Ds = [lifted.lifted[s].D for s in seq]
+        history = np.eye(n)
+    else:
+        ages = np.asarray(network.ages)
+        plants = [int(lab["plant"]) for lab in prob.labels]
+        e0 = np.zeros((n, k))
+        e0[:, :n] = np.eye(n)
+        if objective == "cost":
+            from ..lifting import _psd_root
+
+            Qh, Rh = _psd_root(Q), _psd_root(R)
+            cost = []
+            for e in range(prob.n_blocks):
+                d = int(ages[_source_node(prob, e)])
+                free = np.vstack([Qh @ e0, np.zeros((m, k))])
+                coef = np.zeros((N, n + m, m))
+                coef[d, n:] = Rh
+                right = np.full(N, -1)
+                right[d] = d
+                cost.append(Rows(free, coef, right))
+        else:
+            E, C, D = check_channel(disturbance, output, r, n, m)
+            out_rows, Bs, Ds = [], [], []
+            for e in range(prob.n_blocks):
+                d, l = int(ages[_source_node(prob, e)]), plants[e]
+                coef = np.zeros((N, C.shape[1], m))
+                coef[d] = D[l]
+                right = np.full(N, -1)
+                right[d] = d
+                out_rows.append(Rows(C[l] @ e0, coef, right))
+                Bs.append(np.vstack([E[l], np.zeros((k - n, E.shape[2]))]))
+                Ds.append(np.zeros((C.shape[1], E.shape[2])))
+        history = np.vstack([np.eye(n)] * N)  # the state before sample 0 is x0 (simulate's convention)
+    start = np.arange(len(prob.nodes))
+    return Channels(prob, state, cost, out_rows, Bs, Ds, start, history, Q, R)
+
+
+def _source_node(prob, e: int) -> int:
+    """Automaton node a transition starts from."""
+    return int(prob.nodes[prob.src[e]])
+
+
+# ------------------------------------------------------------------------------------------- re-checks
+def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
+    """Float64 re-check: every ``P_v > 0`` and ``A_e' P_w A_e - P_v + S_e <= 0`` below the rounding allowance."""
+    P = _sym(P)
+    if not np.all(np.isfinite(P)) or np.linalg.eigvalsh(P)[:, 0].min() <= 0:
+        return False, np.inf
+    worst = -np.inf
+    for d in data:
+        Pv, Pw = P[d["src"]], P[d["dst"]]
+        APA = d["A"].T @ Pw @ d["A"]
+        size = np.linalg.norm(APA, 2) + np.linalg.norm(Pv, 2) + np.linalg.norm(d["S"], 2)
+        worst = max(worst, np.linalg.eigvalsh(_sym(APA - Pv + d["S"]))[-1] / size)
+    return bool(worst < -_allowance(P.shape[-1])), float(worst)
+
+
+def _brl(Pv, Pw, d, g):
+    AB = np.hstack([d["A"], d["B"]])
+    CD = np.hstack([d["C"], d["D"]])
+    k, p = d["A"].shape[0], d["B"].shape[1]
+    M = AB.T @ Pw @ AB + CD.T @ CD
+    M[:k, :k] -= Pv
+    M[k:, k:] -= g * np.eye(p)
+    return _sym(M), AB, CD
+
+
+def check_hinf_nodes(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
+    """Float64 re-check of ``P_v > 0`` and the node-dependent bounded-real inequality at ``gamma^2 = g``."""
+    P = _sym(P)
+    if not np.all(np.isfinite(P)) or np.linalg.eigvalsh(P)[:, 0].min() <= 0:
+        return False, np.inf
+    worst = -np.inf
+    for d in data:
+        M, AB, CD = _brl(P[d["src"]], P[d["dst"]], d, g)
+        size = (np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P[d["dst"]], 2) + np.linalg.norm(CD, 2) ** 2
+                + np.linalg.norm(P[d["src"]], 2) + g)
+        worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
+    p = max(d["B"].shape[1] for d in data)
+    return bool(worst < -_allowance(P.shape[-1] + p)), float(worst)
+
+
+def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None) -> float:
+    """``max_v x0' S' P_v S x0`` (``trace S' P_v S`` without x0) over the start nodes."""
+    S = ch.history
+    vals = [float(x0 @ S.T @ P[v] @ S @ x0) if x0 is not None else float(np.trace(S.T @ P[v] @ S))
+            for v in ch.start]
+    return max(vals)
+
+
+def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
+    """The solver's node matrices scaled until the float64 re-check passes: ``(P, upper, reason)``.
+
+    cost: ``c P0`` passes when ``c (P0_v - A_e' P0_w A_e) >= S_e``: ``c`` is the largest generalized eigenvalue over
+    the transitions.  hinf: for ``P = c P0`` (c near 1) the smallest g is the largest eigenvalue of the Schur
+    complement ``N22 - N21 N11^-1 N12`` of the bounded-real matrix at g = 0.  Either is then re-checked.
+    """
+    P0 = _sym(np.asarray(P0, float))
+    if not np.all(np.isfinite(P0)):
+        return None, None, "the solver's node matrices are not finite"
+    if kind == "cost":
+        try:
+            c = max(float(scipy.linalg.eigh(_sym(d["S"]), _sym(P0[d["src"]] - d["A"].T @ P0[d["dst"]] @ d["A"]),
+                                            eigvals_only=True)[-1]) for d in data)
+            c = max(c, 1e-300)
+        except (np.linalg.LinAlgError, ValueError):
+            c = 1.0
+        worst = np.inf
+        for bump in (1e-12, 1e-10, 1e-8, 1e-6, 1e-4):
+            P = c * (1 + bump) * P0
+            ok, worst = check_cost_nodes(P, data)
+            if ok:
+                return P, bound_of(P, ch, x0), ""
+        return None, None, f"no multiple of the solver's node matrices passes the re-check (worst {worst:.3g})"
+    reason = "the state block of the bounded-real matrix is not negative definite"
+    for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
+        P = c * P0
+        g = 0.0
+        try:
+            for d in data:
+                M, _, _ = _brl(P[d["src"]], P[d["dst"]], d, 0.0)
+                k = d["A"].shape[0]
+                N11, N12, N22 = M[:k, :k], M[:k, k:], M[k:, k:]
+                if np.linalg.eigvalsh(N11)[-1] >= 0:
+                    raise np.linalg.LinAlgError
+                g = max(g, float(np.linalg.eigvalsh(_sym(N22 - N12.T @ np.linalg.solve(N11, N12)))[-1]))
+        except np.linalg.LinAlgError:
+            continue
+        for bump in (1e-10, 1e-8, 1e-6):
+            gb = max(g, 0.0) * (1 + bump) + bump * 1e-3 * float(np.max(np.linalg.norm(P, 2, axis=(1, 2)))) + 1e-300
+            ok, worst = check_hinf_nodes(P, gb, data)
+            if ok:
+                return P, float(np.sqrt(gb)), ""
+            reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
+    return None, None, reason
+
+
+def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None):
+    """Node matrices for fixed gains (the smallest bound, a Clarabel SDP): a candidate for :func:`certify`."""
+    k, V = ch.prob.k, len(ch.prob.nodes)
+    P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
+    cons, S = [], ch.history
+    if kind == "cost":
+        tau = cp.Variable()
+        for d in data:
+            M = P[d["src"]] - d["A"].T @ P[d["dst"]] @ d["A"] - d["S"]
+            cons.append(0.5 * (M + M.T) >> 0)
+        for v in ch.start:
+            val = x0 @ S.T @ P[v] @ S @ x0 if x0 is not None else cp.trace(S.T @ P[v] @ S)
+            cons.append(val <= tau)
+        cons += [X >> 0 for X in P]
+        obj = tau
+    else:
+        g = cp.Variable()
+        for d in data:
+            AB = np.hstack([d["A"], d["B"]])
+            CD = np.hstack([d["C"], d["D"]])
+            p = d["B"].shape[1]
+            top = cp.bmat([[P[d["src"]], np.zeros((k, p))], [np.zeros((p, k)), g * np.eye(p)]])
+            M = top - AB.T @ P[d["dst"]] @ AB - CD.T @ CD
+            cons.append(0.5 * (M + M.T) >> 0)
+        cons += [X >> 0 for X in P]
+        obj = g
+    try:
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            cp.Problem(cp.Minimize(obj), cons).solve(solver=cp.CLARABEL)
+    except cp.error.SolverError as err:
+        return None, f"the fixed-gain SDP failed ({err})"
+    if P[0].value is None:
+        return None, "the fixed-gain SDP has no solution (the gains may not stabilize every admissible run)"
+    return np.stack([X.value for X in P]), ""
+
+
+# ------------------------------------------------------------------------------------------- lower bound
+def closed_walks(prob, start, max_length: int = MAX_WALK_LENGTH, max_count: int = MAX_WALKS,
+                 max_open: int = MAX_OPEN) -> list[tuple]:
+    """Closed walks of the transition graph from each start index, shortest first (each a tuple of transitions).
+
+    Each is an admissible run when repeated forever from its first node.
+    """
+    out_edges = [[] for _ in range(len(prob.nodes))]
+    for e in range(prob.n_blocks):
+        out_edges[prob.src[e]].append(e)
+    found, open_ = [], [((), int(v)) for v in start]
+    for _ in range(max_length):
+        nxt = []
+        for walk, node in open_:
+            first = int(prob.src[walk[0]]) if walk else node
+            for e in out_edges[node]:
+                w = walk + (e,)
+                if prob.dst[e] == first:
+                    found.append(w)
+                    if len(found) >= max_count:
+                        return found
+                nxt.append((w, int(prob.dst[e])))
+        open_ = nxt[:max_open]
+        if not open_:
+            break
+    return found
+
+
+def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None) -> float:
+    """The exact cost from the walk's start (``x0' S' P_per S x0``, ``trace``) of repeating it, or a lower bound
+    on its l2 gain (frequency sweep of the period's lifted system); ``inf`` for an unstable costly walk."""
+    sys = period_system(data, list(walk))
+    if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
+        return np.inf if kind == "cost" else np.nan
+    if kind == "cost":
+        Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+        S = ch.history
+        return float(x0 @ S.T @ Pp @ S @ x0) if x0 is not None else float(np.trace(S.T @ Pp @ S))
+    return hinf_norm_lower(sys, refine=False)
+
+
+def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float = np.inf,
+                max_length: int = MAX_WALK_LENGTH):
+    """Worst closed walk searched: ``(value, walk, walks valued)``; the search stops once ``stop`` is reached."""
+    start = ch.start if kind == "cost" else np.arange(len(ch.prob.nodes))
+    walks = closed_walks(ch.prob, start, max_length, MAX_WALKS if kind == "cost" else MAX_WALKS_HINF)
+    best, arg, count = -np.inf, None, 0
+    values = []
+    for w in walks:
+        v = walk_value(data, w, ch, kind, x0)
+        count += 1
+        values.append(v)
+        if np.isfinite(v) or (kind == "cost" and v == np.inf):
+            if v > best:
+                best, arg = v, w
+        if best >= stop:
+            break
+    if kind == "hinf" and arg is not None:  # the best coarse sweeps refined
+        order = np.argsort(-np.nan_to_num(np.array(values), nan=-np.inf))[:REFINED]
+        for i in order:
+            if np.isfinite(values[i]):
+                fine = hinf_norm_lower(period_system(data, list(walks[i])))
+                if fine > best:
+                    best, arg = fine, walks[i]
+    return (None if arg is None else best), arg, count
+
+
+def _walk_labels(prob, walk) -> list:
+    """``(plant, eta)`` (lifted) or ``(plant, age)`` (augmented) per transition: the witness."""
+    out = []
+    for e in walk:
+        lab = prob.labels[e]
+        if prob.form == "lifted":
+            plant = lab.get("plant", lab.get("plants", [0]))
+            plant = plant[0] if isinstance(plant, (list, tuple)) and len(set(plant)) == 1 else plant
+            out.append((tuple(plant) if isinstance(plant, list) else plant, int(prob.length[e])))
+        else:
+            out.append((int(lab["plant"]), int(lab["age"])))
+    return out
+
+
+@dataclass
+class NetworkPerformance(Performance):
+    """A certified bracket on a network: ``certificate`` holds one P per node matrix (shape (V, k, k)).
+
+    ``walk`` lists the witness's transitions (``from``/``to`` automaton nodes, plant, age or interval length): its
+    repetition from its first node is an admissible run whose value is ``lower``.  ``form`` as in
+    :class:`network_lmi.NodeCertificate`; ``start_nodes``: the nodes the bound covers as starts.
+    """
+
+    walk: list = field(default_factory=list)
+    form: str = "lifted"
+    start_nodes: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        out.update({"walk": self.walk, "form": self.form, "start_nodes": [int(v) for v in self.start_nodes]})
+        return out
+
+
+def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None) -> NetworkPerformance:
+    """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower)."""
+    data = ch.numeric(gains)
+    P = upper = None
+    reason = ""
+    if P0 is not None:
+        P, upper, reason = certify(P0, ch, data, kind, x0)
+    if P is None:
+        Pf, why = fixed_gain(ch, data, kind, x0)
+        if Pf is not None:
+            P, upper, why = certify(Pf, ch, data, kind, x0)
+        reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
+    lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper)
+    if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
+        P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
+    what = "cost" if kind == "cost" else "l2 gain"
+    message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None
+               else f"no certified upper bound: {reason}")
+    if lower is not None:
+        message += f"; worst admissible closed walk searched: {lower:.6g} ({count} walks)"
+    prob = ch.prob
+    return NetworkPerformance(
+        kind=kind, upper=upper, lower=lower, witness=[] if walk is None else _walk_labels(prob, walk),
+        certificate=P, verified=P is not None, x0=x0, patterns=count, message=message,
+        walk=[] if walk is None else [dict(prob.labels[e]) for e in walk], form=prob.form,
+        start_nodes=[int(prob.nodes[v]) for v in ch.start])
+
+
+# ------------------------------------------------------------------------------------------- the design SDP
+def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
+    """The design SDP (Clarabel): ``(W, Y, Z, value, status, seconds)``; ``W`` None without an answer."""
+    prob = ch.prob
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
+    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
+        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
+    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    cons = []
+    g = cp.Variable()
+    for e in range(prob.n_blocks):
+        AZ = ch.state[e].times_z(Z, Y, n, prob.zblocks)
+        top = Z + Z.T - W[prob.src[e]]
+        if kind == "cost":
+            LZ = ch.cost[e].times_z(Z, Y, n, prob.zblocks)
+            p = ch.cost[e].free.shape[0]
+            M = cp.bmat([[top, AZ.T, LZ.T], [AZ, W[prob.dst[e]], np.zeros((k, p))],
+                         [LZ, np.zeros((p, k)), np.eye(p)]])
+        else:
+            CZ = ch.output[e].times_z(Z, Y, n, prob.zblocks)
+            B, D = ch.B[e], ch.D[e]
+            pw, pz = B.shape[1], D.shape[0]
+            M = cp.bmat([[top, np.zeros((k, pw)), AZ.T, CZ.T],
+                         [np.zeros((pw, k)), g * np.eye(pw), B.T, D.T],
+                         [AZ, B, W[prob.dst[e]], np.zeros((k, pz))],
+                         [CZ, D, np.zeros((pz, k)), np.eye(pz)]])
+        cons.append(0.5 * (M + M.T) >> 0)
+    if kind == "cost":
+        S = ch.history
+        for v in ch.start:
+            if x0 is None:
+                X = cp.Variable((n, n), symmetric=True)
+                cons += [cp.bmat([[X, S.T], [S, W[v]]]) >> 0, cp.trace(X) <= g]
+            else:
+                s = (S @ x0).reshape(-1, 1)
+                cons.append(cp.bmat([[cp.reshape(g, (1, 1), order="C"), s.T], [s, W[v]]]) >> 0)
+    problem = cp.Problem(cp.Minimize(g), cons)
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start = time.perf_counter()
+    try:
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **opts)
+    except cp.error.SolverError as err:
+        raise SolverFailed(f"Clarabel failed on the network {kind} SDP: {err}", status="solver_error") from None
+    elapsed = time.perf_counter() - start
+    if W[0].value is None or Zb[0].value is None:
+        return None, None, None, np.nan, str(problem.status), elapsed
+    Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
+    Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
+    Zv = np.stack([z.value for z in Zb])
+    return Wv, Yv, Zv, float(g.value), str(problem.status), elapsed
+
+
+def gains_from(prob, Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    K = np.empty_like(Y)
+    for j in range(prob.N):
+        b = 0 if prob.zblocks == 1 else j
+        K[j] = np.linalg.solve(Z[b].T, Y[j].T).T
+    return K
+
+
+# ------------------------------------------------------------------------------------------- the design
+OBJECTIVES = ("cost", "hinf")
+
+
+def check_u_max(u_max, m: int) -> np.ndarray:
+    try:
+        u = np.array(u_max, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
+    if u.size != m or not np.all(np.isfinite(u)) or np.any(u <= 0):
+        raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+    return u
+
+
+def check_request(network, objective: str, weights, x0, disturbance, output, u_max, decay_rate, n: int, m: int):
+    """Refuse what does not carry over to a network (docs/design.md §11.3), naming the field and why.
+
+    Returns ``(x0, u_max)`` checked (float arrays or None)."""
+    where = f"network={network.describe()}"
+    if objective not in ("stability",) + OBJECTIVES:
+        raise InvalidInput(f"objective must be one of ('stability', 'cost', 'hinf'), got {objective!r}",
+                           ("objective",))
+    if u_max is not None:
+        if objective == "hinf":
+            raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
+                               "disturbance energy)", ("u_max",))
+        if objective == "cost":
+            raise InvalidInput(f"u_max with objective='cost' is not available on {where}: the Kothare form "
+                               "(P = gamma W^-1) needs one level gamma shared by node-dependent W_v, not built yet "
+                               "(docs/design.md §11.3); use objective='stability' with u_max, or bounded_drops",
+                               ("u_max",))
+        u_max = check_u_max(u_max, m)
+    if objective == "stability":
+        for name, value in (("weights", weights), ("disturbance", disturbance), ("output", output)) + (
+                (("x0", x0),) if u_max is None else ()):
+            if value is not None:
+                raise InvalidInput(f"{name} needs objective='cost' or 'hinf'" + (" (or u_max, for x0)"
+                                                                                 if name == "x0" else ""), (name,))
+        if decay_rate == "max" and u_max is not None:
+            raise InvalidInput("decay_rate='max' cannot be combined with u_max; give a rate", ("decay_rate",))
+        return check_x0(x0, n), u_max
+    if decay_rate not in (None, "auto"):
+        raise InvalidInput(f"decay_rate combines with objective='stability' only (on {where} too)",
+                           ("decay_rate",))
+    if objective == "hinf" and disturbance is None:
+        raise InvalidInput("objective='hinf' needs disturbance=E", ("disturbance",))
+    if objective == "cost" and (disturbance is not None or output is not None):
+        raise InvalidInput("disturbance and output go with objective='hinf'", ("disturbance",))
+    if objective == "hinf" and weights is not None:
+        raise InvalidInput("weights go with objective='cost'", ("weights",))
+    if objective == "hinf" and x0 is not None:
+        raise InvalidInput("x0 goes with objective='cost' (the l2 gain starts from x = 0)", ("x0",))
+    return check_x0(x0, n), None
+
+
+def _scaled(family, objective, weights, disturbance, output, scaling: str):
+    """The scaling layer (:func:`solver.scaling.performance_balance`): ``(scale or None, family~, weights~,
+    disturbance~, output~)`` in balanced coordinates."""
+    from ..scaling import performance_balance
+
+    if scaling == "none":
+        return None, family, weights, disturbance, output
+    N = 1
+    modes = ModeSet.from_family(family, N)
+    lifted = lift_modes(modes, weights, disturbance if objective == "hinf" else None, output,
+                        cost=objective == "cost")
+    scale = performance_balance(family, lifted)
+    if scale.is_identity:
+        return None, family, weights, disturbance, output
+    t, u = scale.plain.state, scale.plain.input
+    fam = scale.plain.family(family)
+    if objective == "cost":
+        Q, R = check_weights(weights, family.n_states, family.n_inputs)
+        return scale, fam, (Q * t[:, None] * t[None, :] / scale.cost, R * u[:, None] * u[None, :] / scale.cost), \
+            None, None
+    E, C, D = check_channel(disturbance, output, family.n_modes, family.n_states, family.n_inputs)
+    sw, sz = scale.disturbance, scale.output
+    return scale, fam, None, E / t[None, :, None] * sw, (C * t[None, None, :] / sz, D * u[None, None, :] / sz)
+
+
+def run(family, network, objective: str, *, weights=None, x0=None, disturbance=None, output=None,
+        plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
+        callback=None) -> DesignResult:
+    """A cost or l2-gain design on ``network`` with its certified bracket (docs/design.md §11.3).
+
+    The SDP runs in balanced coordinates (``scaling="auto"``); the gains are mapped back and every reported figure
+    is re-checked in the user's: the bracket (:func:`bracket`, the mapped node matrices as candidate, the fixed-gain
+    SDP otherwise) and the stability certificate (:func:`network_lmi.recheck_network` of the bound's matrices, else
+    the fixed-gain node analysis).
+
+    Returns
+    -------
+    DesignResult
+        "stabilized" with a :class:`network_lmi.NodeCertificate` and ``performance`` (a :class:`NetworkPerformance`);
+        "not_converged" otherwise (the reason in ``message``).
+    """
+    start = time.perf_counter()
+    x0 = None if x0 is None else np.asarray(x0, float)
+    ch_user = channels(family, network, objective, weights, disturbance, output, plant_switching)
+    scale, fam, w_s, d_s, o_s = _scaled(family, objective, weights, disturbance, output, scaling)
+    ch = ch_user if scale is None else channels(fam, network, objective, w_s, d_s, o_s, plant_switching)
+    prob = ch_user.prob
+    x0_s = None if x0 is None or scale is None else x0 / scale.plain.state
+    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+                mode_labels=prob.labels)
+    try:
+        W, Y, Z, value, status, seconds = solve(ch, objective, x0 if scale is None else x0_s, time_limit)
+    except SolverFailed as err:
+        W, status, seconds, value = None, str(err), 0.0, np.nan
+    timings = {"total": 0.0, "solver": seconds, "setup": 0.0, "solves": 1, "cached": False}
+    record = IterationRecord(0, value, None, False, None, seconds, time.perf_counter() - start)
+    if callback is not None:
+        callback(record)
+    where = f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, {prob.n_blocks} transitions"
+    gains = None
+    if W is not None:
+        try:
+            gains = gains_from(prob, Y, Z)
+            P0 = np.linalg.inv(W)
+        except np.linalg.LinAlgError:
+            gains = None
+    if gains is None or not np.all(np.isfinite(gains)):
+        timings["total"] = time.perf_counter() - start
+        return DesignResult(outcome="not_converged", gains=None, certificate=None, history=[record], timings=timings,
+                            solver_status=status, objective=objective, **base,
+                            message=f"the network {objective} SDP gave no gains ({status}) on {where}")
+    if scale is not None:
+        gains = scale.plain.gains_back(gains)
+        P0 = scale.plain.quadratic_back(P0) * (scale.cost if objective == "cost" else scale.output**2)
+    perf = bracket(ch_user, gains, objective, P0=P0, x0=x0)
+    cert = None
+    if perf.verified:
+        cert = network_lmi.recheck_network(prob, perf.certificate, gains, source=f"network_{objective}")
+        cert = cert if cert.verified else None
+    if cert is None:
+        cert = network_lmi.node_analysis(prob, gains, None, time_limit)
+    timings["total"] = time.perf_counter() - start
+    timings["setup"] = max(timings["total"] - seconds, 0.0)
+    if cert is None:
+        return DesignResult(outcome="not_converged", gains=gains, certificate=None, history=[record], timings=timings,
+                            solver_status=status, objective=objective, performance=perf, **base,
+                            message=f"the network {objective} SDP gave gains but no node certificate passed the "
+                                    f"float64 re-check on {where}; {perf.message}")
+    return DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
+                        solver_status=status, objective=objective, performance=perf,
+                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
+                        message=f"stabilized on {where}; node certificate re-checked (relative margin "
+                                f"{cert.margin:.3g}); {perf.message}")
+
+
+# ------------------------------------------------------------------------------------------- input limits
+#: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
+STRICT = 1e-5
+LIMIT_SLACK = 1e-6
+#: Largest semi-axis of the node ellipsoids searched (times max(1, |x0|)): K = 0 may keep a stable plant anywhere.
+MAX_RADIUS = 1e3
+
+
+def gain_rows(prob) -> list[list[tuple[int, int]]]:
+    """Per Lyapunov index v, the ``(j, b)`` pairs: gain ``K_(j+1)`` applied to slack/state block b from node v."""
+    out = [set() for _ in prob.nodes]
+    for e in range(prob.n_blocks):
+        for j in range(prob.N):
+            b = prob.right[e, j]
+            if b >= 0 and np.any(prob.coef[e, j]):
+                out[prob.src[e]].add((j, int(b)))
+    return [sorted(s) for s in out]
+
+
+def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndarray, history: np.ndarray,
+                          x0=None, rate: float | None = None):
+    """Node ellipsoids ``{xi : xi' (c X_v) xi <= 1}`` whose inputs meet the limits, re-checked in float64.
+
+    Needs every ``X_v > 0`` and ``A_e' X_w A_e - rho_e X_v`` below minus the rounding allowance (``rho_e = 1``, or
+    ``lambda^(2 length_e)``): a state in ``E_v`` at node v is in ``E_w`` at the next node w.  Every input applied
+    from node v is ``K_j R_b xi`` (``R_b`` the state block the gain reads), whose largest value on ``E_v`` is
+    ``sqrt(r X_v^-1 r') / sqrt(c)``; ``c`` makes the tightest of them ``u_max``.  x0 (its initial history ``S x0``)
+    must lie in every node's set.  Returns ``(c X or None, reason)``.
+    """
+    X = _sym(np.asarray(X, float))
+    if not np.all(np.isfinite(X)) or np.linalg.eigvalsh(X)[:, 0].min() <= 0:
+        return None, "a node ellipsoid matrix is not positive definite"
+    A = prob.closed_loops(gains)
+    rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
+    for e in range(prob.n_blocks):
+        APA = A[e].T @ X[prob.dst[e]] @ A[e]
+        size = np.linalg.norm(APA, 2) + np.linalg.norm(X[prob.src[e]], 2)
+        if np.linalg.eigvalsh(_sym(APA - rho[e] * X[prob.src[e]]))[-1] / size >= -_allowance(X.shape[-1]):
+            return None, f"the node ellipsoids are not shown invariant on transition {e} (float64 re-check)"
+    n, k = prob.n, prob.k
+    need = 0.0
+    for v, pairs in enumerate(gain_rows(prob)):
+        for j, b in pairs:
+            rows = np.zeros((prob.m, k))
+            rows[:, b * n:(b + 1) * n] = gains[j]
+            need = max(need, float(np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(X[v], rows.T).T)
+                                          / u_max**2)))
+    if need <= 0:
+        return None, "all gains are zero: the inputs stay at zero (no ellipsoid needed)"
+    Xc = need * (1 + 1e-9) * X
+    if x0 is not None:
+        s = history @ x0
+        level = max(float(s @ Xv @ s) for Xv in Xc)
+        if level > 1:
+            return None, f"x0 lies outside the certified node sets (max xi0' X_v xi0 = {level:.6g} > 1)"
+    return Xc, ""
+
+
+def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: float | None = None,
+                 time_limit: float | None = None):
+    """``max tau`` s.t. the invariance blocks, the input blocks ``[[u^2, y], [y', Z + Z' - W_v]] >= 0``,
+    ``tau I <= W_v <= radius^2 I`` and x0's history inside every ``W_v`` ellipsoid: ``(W, Y, Z, status, s)``."""
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
+    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
+        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
+    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    tau = cp.Variable()
+    c = (np.ones(prob.n_blocks) if rate is None else float(rate) ** (-prob.length.astype(float))) * (1 + STRICT)
+    cons = []
+    for e in range(prob.n_blocks):
+        AZ = Rows(prob.free[e], prob.coef[e], prob.right[e]).times_z(Z, Y, n, prob.zblocks)
+        M = cp.bmat([[Z + Z.T - W[prob.src[e]], c[e] * AZ.T], [c[e] * AZ, W[prob.dst[e]]]])
+        cons.append(0.5 * (M + M.T) >> 0)
+    for v, pairs in enumerate(gain_rows(prob)):
+        H = Z + Z.T - W[v]
+        for j, b in pairs:
+            for i in range(m):
+                row = Y[j][i:i + 1, :]
+                if prob.zblocks > 1:
+                    row = cp.hstack([row if col == b else np.zeros((1, n)) for col in range(prob.zblocks)])
+                M = cp.bmat([[np.array([[(u_max[i] * (1 - LIMIT_SLACK)) ** 2]]), row], [row.T, H]])
+                cons.append(0.5 * (M + M.T) >> 0)
+    radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
+    for Wv in W:
+        cons += [Wv << radius**2 * np.eye(k), Wv >> tau * np.eye(k)]
+        if x0 is not None:
+            s = (history @ x0).reshape(-1, 1)
+            cons.append(cp.bmat([[np.ones((1, 1)), s.T], [s, Wv]]) >> 0)
+    problem = cp.Problem(cp.Maximize(tau), cons)
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start = time.perf_counter()
+    try:
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **opts)
+    except cp.error.SolverError as err:
+        raise SolverFailed(f"Clarabel failed on the network input-limit SDP: {err}", status="solver_error") from None
+    elapsed = time.perf_counter() - start
+    if W[0].value is None or Zb[0].value is None or tau.value is None or not tau.value > 0:
+        return None, None, None, str(problem.status), elapsed
+    Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
+    Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
+    return Wv, Yv, np.stack([z.value for z in Zb]), str(problem.status), elapsed
+
+
+def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = None,
+               plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
+               callback=None) -> DesignResult:
+    """A design on ``network`` whose inputs meet ``u_max`` from node-dependent invariant ellipsoids (§11.3).
+
+    Solved in balanced coordinates (:func:`solver.scaling.balance`, the plain part of the scaling layer); the
+    gains and the node ellipsoids are mapped back and re-checked in the user's (:func:`check_invariant_nodes`,
+    :func:`network_lmi.recheck_network`).  ``res.invariant_set`` holds the node matrices (V, k, k).
+    """
+    from ..scaling import balance
+
+    start = time.perf_counter()
+    u_max = np.asarray(u_max, float)
+    x0 = None if x0 is None else np.asarray(x0, float)
+    prob = network_lmi.build_problem(family, network, plant_switching)
+    history = np.eye(prob.n) if prob.form == "lifted" else np.vstack([np.eye(prob.n)] * prob.N)
+    scale = balance(family) if scaling == "auto" else None
+    scale = None if scale is None or scale.is_identity else scale
+    prob_s = prob if scale is None else network_lmi.build_problem(scale.family(family), network, plant_switching)
+    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+                mode_labels=prob.labels)
+    try:
+        W, Y, Z, status, seconds = solve_limits(
+            prob_s, history, u_max if scale is None else u_max / scale.input,
+            x0 if (x0 is None or scale is None) else x0 / scale.state, decay_rate, time_limit)
+    except SolverFailed as err:
+        W, status, seconds = None, str(err), 0.0
+    timings = {"total": 0.0, "solver": seconds, "setup": 0.0, "solves": 1, "cached": False}
+    record = IterationRecord(0, float("nan"), None, False, None, seconds, time.perf_counter() - start)
+    if callback is not None:
+        callback(record)
+    where = f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, {prob.n_blocks} transitions"
+    rate_txt = "" if decay_rate is None else f" at decay rate {decay_rate:.6g}"
+    gains = inv = None
+    reason = f"the network input-limit SDP gave no ellipsoids ({status})"
+    if W is not None:
+        try:
+            gains = gains_from(prob_s, Y, Z)
+            X = np.linalg.inv(W)
+        except np.linalg.LinAlgError:
+            gains = None
+        if gains is not None and np.all(np.isfinite(gains)):
+            if scale is not None:
+                gains = scale.gains_back(gains)
+                X = scale.quadratic_back(X)
+            inv, reason = check_invariant_nodes(X, prob, gains, u_max, history, x0, decay_rate)
+        else:
+            gains = None
+    cert = None
+    if inv is not None:
+        cert = network_lmi.recheck_network(prob, inv, gains, decay_rate, source="network_limits")
+        cert = cert if cert.verified else network_lmi.node_analysis(prob, gains, decay_rate, time_limit)
+    timings["total"] = time.perf_counter() - start
+    timings["setup"] = max(timings["total"] - seconds, 0.0)
+    if cert is None:
+        why = reason if inv is None else "no node certificate passed the float64 re-check"
+        return DesignResult(outcome="not_converged", gains=None, certificate=None, history=[record], timings=timings,
+                            solver_status=status, objective="stability", decay_rate=decay_rate, **base,
+                            message=f"no input-limited design certified on {where}{rate_txt}: {why}")
+    res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
+                       solver_status=status, objective="stability", decay_rate=decay_rate,
+                       spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
+                       message=f"stabilized on {where}{rate_txt}; node certificate re-checked (relative margin "
+                               f"{cert.margin:.3g}); inputs within u_max from every state of the node ellipsoids "
+                               f"(invariant along every admissible run; re-checked)")
+    res.invariant_set = inv
+    return res

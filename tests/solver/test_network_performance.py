@@ -1,0 +1,211 @@
+"""design(..., network=net, objective="cost"|"hinf") against independent references: today's bracket on the
+paper's network, the Riccati equation (dlqr), every admissible run stepped sample by sample, and the witness
+walk repeated sample by sample (docs/design.md §11.3)."""
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from solver import InvalidInput, Network, PlantFamily, design
+from solver.methods import network_performance
+
+from .paper_data import EQ20_F, EQ20_G
+
+MOTOR = PlantFamily(EQ20_F, EQ20_G, sampling_period=0.1)
+E = np.array([[1.0], [0.0]])
+
+
+def run_cost(F, G, K, Q, R, x0, ages, plants, start_age):
+    """Cost of a finite admissible run, stepped sample by sample: ``u(t) = K_(d+1) x(t-d)``, the state before
+    sample 0 is x0 (independent of solver.networks and of the lifted data)."""
+    hist = {t: x0 for t in range(-K.shape[0], 1)}
+    x, total = x0, 0.0
+    for t, (d, l) in enumerate(zip(ages, plants)):
+        u = K[d] @ hist[t - d]
+        total += float(x @ Q @ x + u @ R @ u)
+        x = F[l] @ x + G[l] @ u
+        hist[t + 1] = x
+    return total
+
+
+def walk_samples(walk):
+    """(age, plant) per sample of a witness walk (lifted transitions expand to their intervals)."""
+    out = []
+    for step in walk:
+        if "age" in step:
+            out.append((step["age"], step["plant"]))
+        else:
+            out += [(a, step["plant"]) for a in range(step["eta"])]
+    return out
+
+
+# ------------------------------------------------------------------------------------------- the paper's network
+@pytest.mark.parametrize("objective", ["cost", "hinf"])
+def test_bounded_drops_reproduces_todays_bracket(objective):
+    kw = {"disturbance": E} if objective == "hinf" else {}
+    ref = design(MOTOR, 3, objective=objective, **kw)
+    res = network_performance.run(MOTOR, Network.bounded_drops(3), objective, **kw)
+    assert ref.outcome == res.outcome == "stabilized"
+    p, q = res.performance, ref.performance
+    assert p.verified and q.verified
+    assert p.upper == pytest.approx(q.upper, rel=1e-6)
+    assert p.lower == pytest.approx(q.lower, rel=1e-6)
+    assert p.lower <= p.upper
+
+
+def test_bounded_drops_x0_cost_reproduces_todays_bound():
+    x0 = np.array([1.0, -2.0])
+    ref = design(MOTOR, 2, objective="cost", x0=x0)
+    res = network_performance.run(MOTOR, Network.bounded_drops(2), "cost", x0=x0)
+    assert res.performance.upper == pytest.approx(ref.performance.upper, rel=1e-6)
+    assert res.performance.lower == pytest.approx(ref.performance.lower, rel=1e-6)
+
+
+def test_always_fresh_network_gives_the_riccati_cost():
+    """One mode, n_drop = 1: the only admissible run is always-fresh, so the optimal cost is the DARE's."""
+    F = np.array([[1.1, 0.2], [0.0, 0.9]])
+    G = np.array([[0.0], [1.0]])
+    Q, R = np.diag([2.0, 1.0]), np.array([[0.5]])
+    P = scipy.linalg.solve_discrete_are(F, G, Q, R)
+    res = network_performance.run(PlantFamily([F], [G]), Network.bounded_drops(1), "cost", weights=(Q, R))
+    assert res.outcome == "stabilized"
+    assert res.performance.upper == pytest.approx(np.trace(P), rel=1e-6)
+    assert res.performance.lower == pytest.approx(np.trace(P), rel=1e-6)
+    K = -np.linalg.solve(R + G.T @ P @ G, G.T @ P @ F)
+    assert np.allclose(res.gains[0], K, atol=1e-4)
+
+
+# ------------------------------------------------------------------------------------------- late packets, weakly-hard
+NETWORKS = [Network.delays(1, 3), Network.weakly_hard(1, 3, 3)]
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_cost_bound_covers_every_admissible_run_and_the_witness_attains_the_lower_bound(net):
+    x0 = np.array([1.0, -1.0])
+    res = design(MOTOR, network=net, objective="cost", x0=x0)
+    assert res.outcome == "stabilized" and res.network is not None
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    fresh = perf.form == "lifted"  # lifted: runs start with a fresh packet (docs/design.md §11.3)
+    Q, R = np.eye(2), np.eye(1)
+    worst, count, T = 0.0, 0, 7
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if (fresh and ages[0] != 0) or not net.admissible(ages):
+            continue
+        # the plant switches at fresh packets on the lifted form; on the augmented one (whose certificate lets it
+        # switch at every sample) at samples 0, 2, 4 (every sample would be 3^7 sequences per age sequence)
+        slots = [t for t in range(T) if ages[t] == 0] if fresh else [0, 2, 4]
+        for choice in itertools.product(range(MOTOR.n_modes), repeat=len(slots)):
+            plants, cur = [], 0
+            it = iter(choice)
+            for t in range(T):
+                if t in slots:
+                    cur = next(it)
+                plants.append(cur)
+            worst = max(worst, run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, plants, ages[0]))
+            count += 1
+    assert count > 100
+    assert worst <= perf.upper
+    # the witness: its walk repeated forever is admissible, and stepped sample by sample it costs `lower`
+    samples = walk_samples(perf.walk) * 400
+    ages = [a for a, _ in samples]
+    assert net.admissible(ages[:60])
+    value = run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, [p for _, p in samples], ages[0])
+    assert value == pytest.approx(perf.lower, rel=1e-6)
+    assert worst <= perf.upper and perf.lower <= perf.upper
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_hinf_bracket_on_a_network(net):
+    """The always-fresh run under a constant plant mode is admissible on both networks: its H-infinity norm (a
+    frequency sweep of ``(F_l + G_l K_1, E)`` with ``z = [x; u]``, computed here) is at most the certified gain."""
+    res = design(MOTOR, network=net, objective="hinf", disturbance=E)
+    assert res.outcome == "stabilized"
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper * (1 + 1e-9)
+    assert net.admissible([0] * 10)
+    K = res.gains
+    for l in range(MOTOR.n_modes):
+        A = MOTOR.F[l] + MOTOR.G[l] @ K[0]
+        gains = []
+        for s in np.linspace(0, np.pi, 400):
+            X = np.linalg.solve(np.exp(1j * s) * np.eye(2) - A, E)
+            gains.append(np.linalg.norm(np.vstack([X, K[0] @ X]), 2))
+        assert max(gains) <= perf.upper * (1 + 1e-9)
+        assert max(gains) <= perf.lower * (1 + 1e-6)
+
+
+def test_a_larger_network_covers_the_smaller_ones_runs():
+    """delays(2, 3) admits every run of delays(1, 3): the worst walk found on the smaller network for the larger
+    one's gains is an admissible run of the larger one, so its value is at most the larger one's certified bound."""
+    small, large = Network.delays(1, 3), Network.delays(2, 3)
+    b = design(MOTOR, network=large, objective="cost")
+    ch = network_performance.channels(MOTOR, small, "cost")
+    on_small = network_performance.bracket(ch, b.gains, "cost")
+    assert on_small.verified and on_small.lower <= on_small.upper
+    assert on_small.lower <= b.performance.upper
+    assert large.admissible([s["age"] for s in on_small.walk] * 20)
+    assert b.to_dict()["performance"]["form"] == "augmented"
+
+
+# ------------------------------------------------------------------------------------------- refusals
+@pytest.mark.parametrize("kwargs,field,words", [
+    ({"objective": "cost", "decay_rate": 0.9}, "decay_rate", "objective='stability' only"),
+    ({"objective": "hinf"}, "disturbance", "needs disturbance"),
+    ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "x0": [1.0, 0.0]}, "x0", "x = 0"),
+    ({"objective": "cost", "disturbance": [[1.0], [0.0]]}, "disturbance", "hinf"),
+    ({"objective": "nope"}, "objective", "objective must be"),
+    ({"weights": (np.eye(2), np.eye(1))}, "weights", "needs objective"),
+])
+def test_bad_objectives_on_a_network_are_refused(kwargs, field, words):
+    with pytest.raises(InvalidInput) as err:
+        design(MOTOR, network=Network.delays(1, 3), **kwargs)
+    assert err.value.field[0] == field and words in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------- input limits
+def run_inputs(F, G, K, x0, ages, plants):
+    """Inputs of a finite admissible run stepped sample by sample (state before sample 0 is x0)."""
+    hist = {t: x0 for t in range(-K.shape[0], 1)}
+    x, out = x0, []
+    for t, (d, l) in enumerate(zip(ages, plants)):
+        u = K[d] @ hist[t - d]
+        out.append(u)
+        x = F[l] @ x + G[l] @ u
+        hist[t + 1] = x
+    return np.array(out)
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_input_limits_hold_on_every_admissible_run_from_the_boundary(net):
+    """x0 scaled onto the boundary of the certified node sets: every admissible run up to 7 samples (every plant
+    mode sequence) keeps |u| <= u_max, stepped sample by sample."""
+    u_max = np.array([2.0])
+    res = design(MOTOR, network=net, u_max=u_max, x0=[1.0, -1.0])
+    assert res.outcome == "stabilized"
+    X = res.invariant_set
+    lifted = res.certificate.form == "lifted"
+    S = np.eye(2) if lifted else np.vstack([np.eye(2)] * net.n_drop)
+    x0 = np.array([1.0, -1.0])
+    assert max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X) <= 1.0
+    x0 = x0 / np.sqrt(max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X))  # on the boundary
+    peak, T = 0.0, 7
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if (lifted and ages[0] != 0) or not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
+            seq = [plants[0]] * 3 + [plants[1]] * (T - 3)
+            peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
+    assert peak <= u_max[0] * (1 + 1e-9)
+    assert peak > 0.05 * u_max[0]  # the runs do use the inputs
+
+
+@pytest.mark.parametrize("kwargs,words", [({"objective": "cost", "x0": [1.0, 0.0]}, "Kothare"),
+                                          ({"objective": "hinf", "disturbance": [[1.0], [0.0]]}, "disturbance"),
+                                          ({"decay_rate": "max"}, "give a rate")])
+def test_u_max_combinations_that_do_not_carry_over_are_refused(kwargs, words):
+    with pytest.raises(InvalidInput) as err:
+        design(MOTOR, network=Network.delays(1, 3), u_max=[2.0], **kwargs)
+    assert words in str(err.value)
