@@ -17,7 +17,7 @@ from __future__ import annotations
 import itertools
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cvxpy as cp
 import numpy as np
@@ -117,6 +117,8 @@ class Performance:
     def from_dict(cls, data: dict) -> "Performance":
         """The inverse of :meth:`to_dict` (the service's JSON ``performance``): the client's results hold
         the same typed bracket as the library's."""
+        if cls is Performance and data.get("start_nodes"):  # a network's bracket (docs/design.md §11.3)
+            return NetworkPerformance.from_dict(data)
         lower = data.get("lower")
         if lower is None and data.get("lower_infinite"):
             lower = float("inf")
@@ -132,6 +134,31 @@ class Performance:
     def __getitem__(self, key: str):
         """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
         return self.to_dict()[key]
+
+
+@dataclass
+class NetworkPerformance(Performance):
+    """A certified bracket on a network: ``certificate`` holds one P per node matrix (shape (V, k, k)).
+
+    ``walk`` lists the witness's transitions (``from``/``to`` automaton nodes, plant, age or interval length): its
+    repetition from its first node is an admissible run whose value is ``lower``.  ``form`` as in
+    :class:`solver.methods.network_lmi.NodeCertificate`; ``start_nodes``: the nodes the bound covers as starts.
+    """
+
+    walk: list = field(default_factory=list)
+    form: str = "lifted"
+    start_nodes: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        out.update({"walk": self.walk, "form": self.form, "start_nodes": [int(v) for v in self.start_nodes]})
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "NetworkPerformance":
+        base = Performance.from_dict({k: v for k, v in data.items() if k != "start_nodes"})
+        return cls(**{f: getattr(base, f) for f in Performance.__dataclass_fields__}, walk=list(data.get("walk") or []),
+                   form=data.get("form") or "lifted", start_nodes=[int(v) for v in data.get("start_nodes") or []])
 
 
 def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0: np.ndarray | None) -> Performance:

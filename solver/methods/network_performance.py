@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
-from ..brackets import Performance, _allowance, check_x0, hinf_norm_lower, period_system
+from ..brackets import NetworkPerformance, _allowance, check_x0, hinf_norm_lower, period_system
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -392,25 +392,6 @@ def _walk_labels(prob, walk) -> list:
         else:
             out.append((int(lab["plant"]), int(lab["age"])))
     return out
-
-
-@dataclass
-class NetworkPerformance(Performance):
-    """A certified bracket on a network: ``certificate`` holds one P per node matrix (shape (V, k, k)).
-
-    ``walk`` lists the witness's transitions (``from``/``to`` automaton nodes, plant, age or interval length): its
-    repetition from its first node is an admissible run whose value is ``lower``.  ``form`` as in
-    :class:`network_lmi.NodeCertificate`; ``start_nodes``: the nodes the bound covers as starts.
-    """
-
-    walk: list = field(default_factory=list)
-    form: str = "lifted"
-    start_nodes: list = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        out = super().to_dict()
-        out.update({"walk": self.walk, "form": self.form, "start_nodes": [int(v) for v in self.start_nodes]})
-        return out
 
 
 def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None) -> NetworkPerformance:

@@ -240,6 +240,14 @@ def test_cost_design_on_a_delay_network_matches_the_library(http):
     assert perf["lower"] == pytest.approx(direct.lower, rel=1e-6)
     nodes = Network.from_dict(DELAYS).nodes
     assert np.array(perf["certificate"]).shape == (nodes, 4, 4)  # one P per node on (x(t), x(t-1))
+    # the client's typed bracket (app.client reads the JSON with Performance.from_dict) keeps the network's fields
+    from app.client import _performance
+    from solver.brackets import NetworkPerformance
+
+    typed = _performance(perf)
+    assert isinstance(typed, NetworkPerformance) and typed.form == "augmented" and typed.walk == direct.walk
+    assert typed.start_nodes == direct.start_nodes and typed.certificate.shape == (nodes, 4, 4)
+    assert typed.to_dict() == perf or typed.upper == pytest.approx(direct.upper, rel=1e-6)
 
 
 @pytest.mark.parametrize("extra, pointer, words", [
