@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import NetworkPerformance, _allowance, check_x0, hinf_norm_lower, period_system
+from ..brackets import NetworkPerformance, _allowance, _sym, check_x0, hinf_norm_lower, period_system
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -43,10 +43,6 @@ MAX_WALK_LENGTH = 12
 MAX_OPEN = 20000
 #: Walks re-valued with the refined sweep (hinf).
 REFINED = 4
-
-
-def _sym(M):
-    return 0.5 * (M + np.swapaxes(M, -1, -2))
 
 
 # ------------------------------------------------------------------------------------------- the channels
@@ -423,6 +419,19 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None) -> Net
 
 
 # ------------------------------------------------------------------------------------------- the design SDP
+def _solve_clarabel(problem, time_limit: float | None, what: str) -> float:
+    """Solve ``problem`` on Clarabel; the elapsed wall seconds.  Raises SolverFailed naming ``what``."""
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    start = time.perf_counter()
+    try:
+        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **opts)
+    except cp.error.SolverError as err:
+        raise SolverFailed(f"Clarabel failed on the {what}: {err}", status="solver_error") from None
+    return time.perf_counter() - start
+
+
 def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
     """The design SDP (Clarabel): ``(W, Y, Z, value, status, seconds)``; ``W`` None without an answer."""
     prob = ch.prob
@@ -461,15 +470,7 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
                 s = (S @ x0).reshape(-1, 1)
                 cons.append(cp.bmat([[cp.reshape(g, (1, 1), order="C"), s.T], [s, W[v]]]) >> 0)
     problem = cp.Problem(cp.Minimize(g), cons)
-    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
-    start = time.perf_counter()
-    try:
-        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
-            warnings.simplefilter("ignore", UserWarning)
-            problem.solve(solver=cp.CLARABEL, **opts)
-    except cp.error.SolverError as err:
-        raise SolverFailed(f"Clarabel failed on the network {kind} SDP: {err}", status="solver_error") from None
-    elapsed = time.perf_counter() - start
+    elapsed = _solve_clarabel(problem, time_limit, f"network {kind} SDP")
     if W[0].value is None or Zb[0].value is None:
         return None, None, None, np.nan, str(problem.status), elapsed
     Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
@@ -727,15 +728,7 @@ def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: fl
             s = (history @ x0).reshape(-1, 1)
             cons.append(cp.bmat([[np.ones((1, 1)), s.T], [s, Wv]]) >> 0)
     problem = cp.Problem(cp.Maximize(tau), cons)
-    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
-    start = time.perf_counter()
-    try:
-        with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
-            warnings.simplefilter("ignore", UserWarning)
-            problem.solve(solver=cp.CLARABEL, **opts)
-    except cp.error.SolverError as err:
-        raise SolverFailed(f"Clarabel failed on the network input-limit SDP: {err}", status="solver_error") from None
-    elapsed = time.perf_counter() - start
+    elapsed = _solve_clarabel(problem, time_limit, "network input-limit SDP")
     if W[0].value is None or Zb[0].value is None or tau.value is None or not tau.value > 0:
         return None, None, None, str(problem.status), elapsed
     Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
