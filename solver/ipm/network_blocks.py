@@ -18,7 +18,9 @@ Variables: the slack's diagonal blocks ``Z_0..Z_{zb-1}`` (n x n, general; one te
 selector, with the transition's ``free_e E_b`` below it: the ``lmi`` design's ``[I/2; F]`` trick), the node
 matrices as one stacked symmetric variable ``W`` (V k x k; each block reads row block ``src`` top left and
 ``dst`` bottom right, the ``switched`` design's ``S_s``), and the gains as one stack ``Y`` (N m x n), each
-gain's coefficients scaled to unit size.  Equality: ``sum_b trace Z_b = zb n`` (``trace(Z + Z^T) = 2 n_Z``).
+gain's coefficients scaled to unit size.  Equality: ``sum_b trace Z_b = zb n`` (``trace(Z + Z^T) = 2 n_Z``), or
+with ``per_block`` one per slack block, ``trace Z_b = n`` (docs/design.md §11.1: the single one lets the augmented
+form reach ``t = 0`` with a zero block, so it never has a Farkas certificate).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
     return np.setdiff1d(np.arange(V), np.asarray(dst, dtype=int))
 
 
-def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None):
+def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None, per_block: bool = False):
     """The network LMI as a :class:`BlockLMI`, and the gains' scale.
 
     Parameters
@@ -58,6 +60,8 @@ def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, sca
         Diagonal blocks of the slack (each n x n).
     scale : ndarray, shape (E,), optional
         Multiplies transition e's data (the congruent decay-rate form ``lambda^(-length_e)``).
+    per_block : bool
+        One normalization per slack block (``trace Z_b = n``) instead of their sum.
 
     Returns
     -------
@@ -129,9 +133,11 @@ def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, sca
     C[:, k:, k:] = np.eye(k)
     C[:, k:, :k] = A0
     C[:, :k, k:] = np.swapaxes(A0, 1, 2)
-    a = np.zeros(sum(v.size for v in variables))
+    a = np.zeros((zb, sum(v.size for v in variables)))
     for b in range(zb):
-        a[b * n * n: (b + 1) * n * n: n + 1] = 1.0  # trace Z_b
+        a[b, b * n * n: (b + 1) * n * n: n + 1] = 1.0  # trace Z_b = n, one equality per slack block
+    if not per_block:
+        a = a.sum(axis=0)  # sum_b trace Z_b = zb n
     V0 = [eye_n.copy() for _ in range(zb)] + [np.tile(np.eye(k), (V, 1))]
     if len(variables) > zb + 1:
         V0.append(np.zeros((N * m, n)))
@@ -175,7 +181,8 @@ class NetworkIPMSolution(_SolveStatus):
 
 
 def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None,
-                  options: IPMOptions | None = None, start: WarmStart | None = None) -> NetworkIPMSolution:
+                  options: IPMOptions | None = None, start: WarmStart | None = None,
+                  per_block: bool = False) -> NetworkIPMSolution:
     """``max t`` of the network LMI (:func:`network_problem`) with the structured IPM.
 
     Parameters are those of :func:`network_problem`; ``start``: a warm start in the solver's coordinates
@@ -186,7 +193,7 @@ def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale
     NetworkIPMSolution
     """
     t0 = time.perf_counter()
-    problem, gscale = network_problem(free, coef, right, src, dst, n_nodes, zblocks, scale)
+    problem, gscale = network_problem(free, coef, right, src, dst, n_nodes, zblocks, scale, per_block)
     if start is not None:  # the start's Y is in the design's coordinates: scale it as this problem's gains
         Vs = list(start.V)
         if len(Vs) != len(problem.variables) or any(np.shape(v) != np.shape(v0) for v, v0 in zip(Vs, problem.V0)):
