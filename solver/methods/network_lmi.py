@@ -615,7 +615,7 @@ def solver_order(solver: str, fallback: bool = True) -> list:
 def run(family, network, *, decay_rate: float | None = None, plant_switching: str = "per_interval",
         time_limit: float | None = None, callback=None, max_iter: int = 50, use_ccl: bool = True,
         prob: NetworkProblem | None = None, recheck=None, solver: str = "AUTO", fallback: bool = True,
-        start=None, sign_only: bool = False) -> DesignResult:
+        start=None, sign_only: bool = False, per_block: bool = True) -> DesignResult:
     """One design on ``network`` at ``decay_rate`` (None: plain stability).
 
     The convex network LMI first, on the solvers of :func:`solver_order` (``"AUTO"``: the structured IPM, and
@@ -625,7 +625,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     ``max_iter`` iterations, Clarabel).  ``recheck(gains, rate) -> (ok, certificate or None)``: the independent
     network analysis that must also accept the gains (None: the float64 :func:`recheck_network` of the design's
     own node matrices is the only check).  ``start``, ``sign_only``: the IPM's warm start and early stop (the
-    rate search's probes).
+    rate search's probes).  ``per_block``: when the augmented form ends at ``t* <= 0`` without a proof, solve
+    it once more normalized per slack block (a Farkas certificate of that restriction; docs/design.md 11.1).
 
     Returns
     -------
@@ -703,7 +704,7 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
             break
         notes.append(f"{name}: t* = {sol.t:.3g} with neither a certificate passing the float64 re-check nor a Farkas "
                      f"proof, {order[i + 1]} instead")
-    if (cert is None and proof is None and sol is not None and prob.zblocks > 1 and not sol.t > 0
+    if (per_block and cert is None and proof is None and sol is not None and prob.zblocks > 1 and not sol.t > 0
             and (deadline is None or time.perf_counter() < deadline)):
         # the augmented form's t* >= 0 always (a zero slack block reaches t = 0, docs/design.md 11.1): the LMI with
         # one normalization per slack block, a restriction, can be proven infeasible (and its solutions are the

@@ -248,3 +248,15 @@ def test_network_margin_model_is_tangent_to_the_margin():
     slope_fd = (t_at(lam + h).t - t_at(lam - h).t) / (2 * h)
     assert abs(t0 - sol.t) < 1e-12
     assert abs(slope_model - slope_fd) <= 1e-3 * max(1.0, abs(slope_fd)), (slope_model, slope_fd)
+
+
+def test_design_on_a_delays_network_returns_the_per_block_farkas_certificate():
+    """design(network=delays) end to end: "not_certified" from the per-block LMI's multipliers (IPM), re-checked
+    independently."""
+    net = Network.delays(2, 3, min_delay=1)
+    res = design(TOO_UNSTABLE, network=net, solver="AUTO", max_iter=2)
+    assert res.outcome == "not_certified", res.message
+    assert res.solver == "IPM" and res.certificate.per_block and res.certificate.to_dict()["per_block"]
+    prob = network_lmi.build_problem(TOO_UNSTABLE, net)
+    assert network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks),
+                                            per_block=True).verified
