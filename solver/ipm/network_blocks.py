@@ -33,7 +33,7 @@ import numpy as np
 from .algorithm import IPMOptions, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 
-__all__ = ["NetworkIPMSolution", "network_problem", "solve_network"]
+__all__ = ["NetworkIPMSolution", "network_problem", "node_problem", "solve_network", "solve_node"]
 
 
 def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
@@ -238,3 +238,63 @@ def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale
 def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float = 0.5) -> WarmStart:
     """A :class:`WarmStart` from a neighbouring rate's solve (same network, other ``scale``)."""
     return replace(WarmStart(list(previous.V), previous.duals), shift=shift, blend=blend)
+
+
+# ------------------------------------------------------------------------------------ fixed gains: node SDP
+def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
+    """The node-dependent Lyapunov SDP of ``analyze(network=)`` (docs/design.md §11) as a :class:`BlockLMI`.
+
+    ``max t`` s.t. ``rho^2 P_v - A_v^T P_w A_v - t I >= 0`` for every edge ``v -> w`` of ``succ``,
+    ``P_v - t I >= 0`` for every state, ``sum_v trace P_v = V D`` (homogeneous: the normalization loses nothing).
+
+    Parameters
+    ----------
+    A_states : ndarray, shape (V, D, D)
+        The closed-loop map of every product-automaton state.
+    succ : list of list of int
+        Successors of every state.
+    rho : float
+        Rate per sample.
+
+    Returns
+    -------
+    BlockLMI
+        One variable ``P`` (V D, D), a stack of symmetric matrices; blocks: the edges in ``succ`` order, then
+        one ``P_v >= t I`` per state.
+    """
+    A_states = np.asarray(A_states, dtype=np.float64)
+    V, D = A_states.shape[0], A_states.shape[1]
+    src = np.array([v for v in range(V) for _ in succ[v]] + list(range(V)), dtype=int)
+    dst = np.array([w for v in range(V) for w in succ[v]] + list(range(V)), dtype=int)
+    E = len(src) - V
+    nb = len(src)
+    eye = np.eye(D)
+    c = np.concatenate([np.full(E, float(rho) ** 2), np.ones(V)])
+    L1 = c[:, None, None] * eye  # c_b P_src: sym(c_b P R) with R = I and coefficient 1/2
+    L2 = np.zeros((nb, D, D))
+    L2[:E] = np.swapaxes(A_states[src[:E]], 1, 2)  # - A_v^T P_w A_v (zero on the positivity blocks)
+    P = MatrixVariable("P", (V * D, D), D, [
+        (L1, np.broadcast_to(eye, (nb, D, D)), 0.5, src),
+        (L2, None, -1.0, dst)])
+    C = L1 - L2 @ np.swapaxes(L2, 1, 2)  # the blocks at P_v = I
+    a = np.zeros(V * D * D)
+    for v in range(V):
+        a[v * D * D: (v + 1) * D * D: D + 1] = 1.0
+    return BlockLMI(C=C, variables=[P], V0=[np.tile(eye, (V, 1))], equality=a)
+
+
+def node_memory(V: int, D: int, n_edges: int) -> int:
+    """Bytes the structured IPM needs for :func:`node_problem` (:func:`solver.compiled.ipm_memory`)."""
+    from ..compiled import ipm_memory
+
+    full = V * D * D + 1
+    return ipm_memory(full, V * D * (D + 1) // 2, n_edges + V, D, full)
+
+
+def solve_node(A_states, succ, rho: float = 1.0, options: IPMOptions | None = None):
+    """``(t, P)`` of :func:`node_problem` on the structured IPM, ``P`` of shape (V, D, D), and the IPM's status."""
+    problem = node_problem(A_states, succ, rho)
+    sol = solve_block_lmi(problem, options)
+    V, D = np.shape(A_states)[0], np.shape(A_states)[1]
+    P = sol.V[0].reshape(V, D, D)
+    return float(sol.t), 0.5 * (P + np.swapaxes(P, 1, 2)), sol.status
