@@ -508,7 +508,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
                               time_limit=left(), callback=callback, max_iter=max_iter,
                               use_ccl=use_ccl and fallback, prob=prob,
                               recheck=recheck, solver=solver, fallback=fallback, start=warm,
-                              sign_only=probe and SIGN_ONLY_PROBES)
+                              sign_only=probe and SIGN_ONLY_PROBES, per_block=not probe)
         sdp = getattr(res, "sdp", None)
         if rate is not None and sdp is not None and sdp.ipm is not None:
             solved.append((rate, sdp))

@@ -79,7 +79,8 @@ class Certificate(_Open):
       `residual_input`.
     * On a `network`: node-dependent quadratic certificates (`P`: one matrix per automaton node, `nodes`, or
       per (node, plant mode), `states`; `form` says on which state) and `farkas_network` (the network LMI has
-      no solution: outcome `not_certified`).
+      no solution: outcome `not_certified`; with `per_block` true, only solutions whose slack blocks have equal
+      traces are excluded).
     """
 
     kind: str = Field(description="`common_quadratic`, `switched` (stability proofs), `farkas` or "

@@ -88,8 +88,8 @@ class IPMSolution(_SolveStatus):
         The matrix variables at the returned iterate.
     X : ndarray, shape (nb, k, k)
         Block multipliers (PSD, ``sum_b trace X_b = 1`` up to the primal residual).
-    equality_multiplier : float
-        Multiplier ``nu`` of the equality ``<a, vec V> = beta``:
+    equality_multiplier : float or ndarray of shape (q,)
+        Multiplier ``nu`` of the equality ``<a, vec V> = beta`` (one per row when there are q):
         ``A_V^*(X) = nu a`` at the optimum (cvxpy/Clarabel's sign for ``== `` in a
         maximization, see :func:`solve_lmi`).
     status : {"optimal", "inaccurate", "max_iterations", "time_limit", "numerical_error"}
@@ -106,7 +106,7 @@ class IPMSolution(_SolveStatus):
     upper: float
     V: list
     X: np.ndarray
-    equality_multiplier: float
+    equality_multiplier: float | np.ndarray
 
 
 #: A grouped or objective solve whose best ``max(primal residual, gap)`` is below this and has not improved for
@@ -602,12 +602,15 @@ def solve_block_lmi(problem: BlockLMI, options: IPMOptions | None = None,
         V = [v0 + x[sl].reshape(var.shape) for var, sl, v0 in zip(problem.variables, problem.slices, problem.V0)]
         nu = 0.0
         if problem.equality is not None:
-            a = problem.equality
+            a = np.atleast_2d(problem.equality)
             eq_dir = problem.__dict__.get("_eq_dir")
             if eq_dir is not None:  # a . A_full^*(X) = <A_full(a), X>
-                nu = float(eq_dir.reshape(-1) @ core.X.reshape(-1)) / float(a @ a)
+                proj = eq_dir.reshape(len(a), -1) @ core.X.reshape(-1)
             else:
-                nu = float(a @ problem.adj_full(core.X)[:-1] / (a @ a))
+                proj = a @ problem.adj_full(core.X)[:-1]
+            # least squares: A_V^*(X) = a^T nu
+            nu = np.linalg.solve(a @ a.T, proj)
+            nu = float(nu[0]) if np.ndim(problem.equality) == 1 else nu
         return IPMSolution(t=float(x[-1]), upper=core.upper, V=V, X=core.X, equality_multiplier=nu,
                            status=core.status, iterations=core.iterations, primal_residual=core.primal_residual,
                            dual_residual=0.0, gap=core.gap, timings=core.timings)

@@ -121,8 +121,8 @@ class BlockLMI:
     variables : list of MatrixVariable
     V0 : list of ndarray
         A point satisfying the equality (the start; ``C`` is the blocks' value there).
-    equality : ndarray, shape (n_full,) or None
-        Coefficients ``a`` of the one linear equality on the row-major
+    equality : ndarray, shape (n_full - 1,) or (q, n_full - 1), or None
+        Coefficients ``a`` of one linear equality (or the rows of q independent ones) on the row-major
         concatenation of the variables (``beta`` is implied by ``V0``).
     """
 
@@ -197,14 +197,18 @@ class BlockLMI:
         T = sp.csr_matrix((vals, (rows, cols)), shape=(self.n_full, col))
         if self.equality is None:
             return T
-        a = T.T @ np.append(self.equality, 0.0)
-        piv = int(np.argmax(np.abs(a)))
-        # Eliminate the pivot parameter: y_piv = -(sum_{j != piv} a_j y_j) / a_piv (x0 already satisfies it).
-        keep = np.array([j for j in range(col) if j != piv])
-        E = sp.lil_matrix((col, col - 1))
-        E[keep, np.arange(col - 1)] = 1.0
-        E[piv, :] = -a[keep] / a[piv]
-        return (T @ E.tocsr()).tocsr()
+        # One equality at a time: the directions left after eliminating the earlier ones keep them satisfied.
+        for row in np.atleast_2d(self.equality):
+            a = T.T @ np.append(row, 0.0)
+            piv = int(np.argmax(np.abs(a)))
+            col = T.shape[1]
+            # Eliminate the pivot parameter: y_piv = -(sum_{j != piv} a_j y_j) / a_piv (x0 already satisfies it).
+            keep = np.array([j for j in range(col) if j != piv])
+            E = sp.lil_matrix((col, col - 1))
+            E[keep, np.arange(col - 1)] = 1.0
+            E[piv, :] = -a[keep] / a[piv]
+            T = (T @ E.tocsr()).tocsr()
+        return T
 
     # ----------------------------------------------------------------- the operator and its adjoint
     def full(self, y: np.ndarray) -> np.ndarray:
@@ -286,7 +290,8 @@ class BlockLMI:
                         P = Lt * R.transpose(1, 0, 2)[None, :, :, None, :]
                         acc += coef * (P + P.transpose(0, 1, 2, 4, 3))
             if self.equality is not None:  # the equality's direction, for its multiplier (solve_block_lmi)
-                self._eq_dir = (self.equality @ full[:-1].reshape(self.n_full - 1, -1)).reshape(nb, k, k)
+                self._eq_dir = (np.atleast_2d(self.equality) @ full[:-1].reshape(self.n_full - 1, -1)).reshape(
+                    -1, nb, k, k)
             return (T.T @ full.reshape(self.n_full, -1)).reshape(p, nb, k, k)
         out = np.zeros((p, nb, k, k))
         out -= T[-1][:, None, None, None] * np.eye(k)

@@ -18,7 +18,9 @@ Variables: the slack's diagonal blocks ``Z_0..Z_{zb-1}`` (n x n, general; one te
 selector, with the transition's ``free_e E_b`` below it: the ``lmi`` design's ``[I/2; F]`` trick), the node
 matrices as one stacked symmetric variable ``W`` (V k x k; each block reads row block ``src`` top left and
 ``dst`` bottom right, the ``switched`` design's ``S_s``), and the gains as one stack ``Y`` (N m x n), each
-gain's coefficients scaled to unit size.  Equality: ``sum_b trace Z_b = zb n`` (``trace(Z + Z^T) = 2 n_Z``).
+gain's coefficients scaled to unit size.  Equality: ``sum_b trace Z_b = zb n`` (``trace(Z + Z^T) = 2 n_Z``), or
+with ``per_block`` one per slack block, ``trace Z_b = n`` (docs/design.md §11.1: the single one lets the augmented
+form reach ``t = 0`` with a zero block, so it never has a Farkas certificate).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 from .algorithm import IPMOptions, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 
-__all__ = ["NetworkIPMSolution", "network_problem", "solve_network"]
+__all__ = ["NetworkIPMSolution", "network_problem", "node_problem", "solve_network", "solve_node"]
 
 
 def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
@@ -39,7 +41,7 @@ def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
     return np.setdiff1d(np.arange(V), np.asarray(dst, dtype=int))
 
 
-def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None):
+def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None, per_block: bool = False):
     """The network LMI as a :class:`BlockLMI`, and the gains' scale.
 
     Parameters
@@ -58,6 +60,8 @@ def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, sca
         Diagonal blocks of the slack (each n x n).
     scale : ndarray, shape (E,), optional
         Multiplies transition e's data (the congruent decay-rate form ``lambda^(-length_e)``).
+    per_block : bool
+        One normalization per slack block (``trace Z_b = n``) instead of their sum.
 
     Returns
     -------
@@ -129,9 +133,11 @@ def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, sca
     C[:, k:, k:] = np.eye(k)
     C[:, k:, :k] = A0
     C[:, :k, k:] = np.swapaxes(A0, 1, 2)
-    a = np.zeros(sum(v.size for v in variables))
+    a = np.zeros((zb, sum(v.size for v in variables)))
     for b in range(zb):
-        a[b * n * n: (b + 1) * n * n: n + 1] = 1.0  # trace Z_b
+        a[b, b * n * n: (b + 1) * n * n: n + 1] = 1.0  # trace Z_b = n, one equality per slack block
+    if not per_block:
+        a = a.sum(axis=0)  # sum_b trace Z_b = zb n
     V0 = [eye_n.copy() for _ in range(zb)] + [np.tile(np.eye(k), (V, 1))]
     if len(variables) > zb + 1:
         V0.append(np.zeros((N * m, n)))
@@ -175,7 +181,8 @@ class NetworkIPMSolution(_SolveStatus):
 
 
 def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale=None,
-                  options: IPMOptions | None = None, start: WarmStart | None = None) -> NetworkIPMSolution:
+                  options: IPMOptions | None = None, start: WarmStart | None = None,
+                  per_block: bool = False) -> NetworkIPMSolution:
     """``max t`` of the network LMI (:func:`network_problem`) with the structured IPM.
 
     Parameters are those of :func:`network_problem`; ``start``: a warm start in the solver's coordinates
@@ -186,7 +193,7 @@ def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale
     NetworkIPMSolution
     """
     t0 = time.perf_counter()
-    problem, gscale = network_problem(free, coef, right, src, dst, n_nodes, zblocks, scale)
+    problem, gscale = network_problem(free, coef, right, src, dst, n_nodes, zblocks, scale, per_block)
     if start is not None:  # the start's Y is in the design's coordinates: scale it as this problem's gains
         Vs = list(start.V)
         if len(Vs) != len(problem.variables) or any(np.shape(v) != np.shape(v0) for v, v0 in zip(Vs, problem.V0)):
@@ -231,3 +238,63 @@ def solve_network(free, coef, right, src, dst, n_nodes: int, zblocks: int, scale
 def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float = 0.5) -> WarmStart:
     """A :class:`WarmStart` from a neighbouring rate's solve (same network, other ``scale``)."""
     return replace(WarmStart(list(previous.V), previous.duals), shift=shift, blend=blend)
+
+
+# ------------------------------------------------------------------------------------ fixed gains: node SDP
+def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
+    """The node-dependent Lyapunov SDP of ``analyze(network=)`` (docs/design.md §11) as a :class:`BlockLMI`.
+
+    ``max t`` s.t. ``rho^2 P_v - A_v^T P_w A_v - t I >= 0`` for every edge ``v -> w`` of ``succ``,
+    ``P_v - t I >= 0`` for every state, ``sum_v trace P_v = V D`` (homogeneous: the normalization loses nothing).
+
+    Parameters
+    ----------
+    A_states : ndarray, shape (V, D, D)
+        The closed-loop map of every product-automaton state.
+    succ : list of list of int
+        Successors of every state.
+    rho : float
+        Rate per sample.
+
+    Returns
+    -------
+    BlockLMI
+        One variable ``P`` (V D, D), a stack of symmetric matrices; blocks: the edges in ``succ`` order, then
+        one ``P_v >= t I`` per state.
+    """
+    A_states = np.asarray(A_states, dtype=np.float64)
+    V, D = A_states.shape[0], A_states.shape[1]
+    src = np.array([v for v in range(V) for _ in succ[v]] + list(range(V)), dtype=int)
+    dst = np.array([w for v in range(V) for w in succ[v]] + list(range(V)), dtype=int)
+    E = len(src) - V
+    nb = len(src)
+    eye = np.eye(D)
+    c = np.concatenate([np.full(E, float(rho) ** 2), np.ones(V)])
+    L1 = c[:, None, None] * eye  # c_b P_src: sym(c_b P R) with R = I and coefficient 1/2
+    L2 = np.zeros((nb, D, D))
+    L2[:E] = np.swapaxes(A_states[src[:E]], 1, 2)  # - A_v^T P_w A_v (zero on the positivity blocks)
+    P = MatrixVariable("P", (V * D, D), D, [
+        (L1, np.broadcast_to(eye, (nb, D, D)), 0.5, src),
+        (L2, None, -1.0, dst)])
+    C = L1 - L2 @ np.swapaxes(L2, 1, 2)  # the blocks at P_v = I
+    a = np.zeros(V * D * D)
+    for v in range(V):
+        a[v * D * D: (v + 1) * D * D: D + 1] = 1.0
+    return BlockLMI(C=C, variables=[P], V0=[np.tile(eye, (V, 1))], equality=a)
+
+
+def node_memory(V: int, D: int, n_edges: int) -> int:
+    """Bytes the structured IPM needs for :func:`node_problem` (:func:`solver.compiled.ipm_memory`)."""
+    from ..compiled import ipm_memory
+
+    full = V * D * D + 1
+    return ipm_memory(full, V * D * (D + 1) // 2, n_edges + V, D, full)
+
+
+def solve_node(A_states, succ, rho: float = 1.0, options: IPMOptions | None = None):
+    """``(t, P)`` of :func:`node_problem` on the structured IPM, ``P`` of shape (V, D, D), and the IPM's status."""
+    problem = node_problem(A_states, succ, rho)
+    sol = solve_block_lmi(problem, options)
+    V, D = np.shape(A_states)[0], np.shape(A_states)[1]
+    P = sol.V[0].reshape(V, D, D)
+    return float(sol.t), 0.5 * (P + np.swapaxes(P, 1, 2)), sol.status

@@ -236,8 +236,11 @@ class NetworkSolution:
 
 
 def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None = None, solver: str = "CLARABEL",
-              start=None, sign_only: bool = False) -> NetworkSolution:
+              start=None, sign_only: bool = False, per_block: bool = False) -> NetworkSolution:
     """``max t`` of the network LMI (data of transition e multiplied by ``scale[e]``).
+
+    ``per_block``: normalize every slack block (``trace Z_b = n``) instead of the sum (docs/design.md 11.1: a
+    restriction of the LMI, which can be proven infeasible where the sum-normalized augmented form cannot).
 
     ``solver``: "IPM" (the structured interior-point solver, :func:`solver.ipm.network_blocks.solve_network`;
     ``start`` a :class:`solver.ipm.WarmStart` from a neighbouring rate, ``sign_only`` stops once the margin's
@@ -250,7 +253,7 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
     """
     name = str(solver).upper()
     if name == "IPM":
-        return _solve_ipm(prob, scale, time_limit, start, sign_only)
+        return _solve_ipm(prob, scale, time_limit, start, sign_only, per_block)
     n, m, N, k = prob.n, prob.m, prob.N, prob.k
     Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
     Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
@@ -259,7 +262,10 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
     Y = [cp.Variable((m, n)) for _ in range(N)]
     t = cp.Variable()
     eye_k = np.eye(k)
-    cons = [sum(cp.trace(z) for z in Zb) == prob.zblocks * n]
+    if per_block:  # one normalization per slack block (docs/design.md 11.1)
+        cons = [cp.trace(z) == n for z in Zb]
+    else:
+        cons = [sum(cp.trace(z) for z in Zb) == prob.zblocks * n]
     blocks = []
     for e in range(prob.n_blocks):
         AZ = (scale[e] * prob.free[e]) @ Z
@@ -307,13 +313,13 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
 
 
 def _solve_ipm(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None, start,
-               sign_only: bool) -> NetworkSolution:
+               sign_only: bool, per_block: bool = False) -> NetworkSolution:
     """The network LMI on the structured IPM (its blocks: :mod:`solver.ipm.network_blocks`)."""
     from ..ipm import IPMOptions
     from ..ipm.network_blocks import solve_network
 
     sol = solve_network(prob.free, prob.coef, prob.right, prob.src, prob.dst, len(prob.nodes), prob.zblocks,
-                        scale, IPMOptions(time_limit=time_limit, sign_only=sign_only), start)
+                        scale, IPMOptions(time_limit=time_limit, sign_only=sign_only), start, per_block)
     status = {"optimal": "optimal", "inaccurate": "optimal_inaccurate", "feasible": "optimal_inaccurate",
               "infeasible": "optimal_inaccurate"}.get(sol.status)
     if status is None:
@@ -386,11 +392,12 @@ class NetworkFarkasCertificate:
 
     For PSD multipliers ``M_e`` (transitions) and ``N_v`` (``W_v >= 0``), every ``(Z, W, Y)`` has
     ``sum <M_e, B_e> + sum <N_v, W_v> = <G, Z> + sum_v <C_v, W_v> + sum_j <E_j, Y_j>``.  If all blocks were
-    positive semidefinite then, with ``H = (Z + Z^T)/2`` (PSD, ``tr W_v <= 2 tr H``, ``tr B_e <= 4 tr H``),
-    ``0 <= -delta tr H + ||G_skew||_F ||Z||_F + ||E||_F ||Y||_F``: no solution has
+    positive semidefinite and the slack's diagonal blocks had equal traces (the normalization ``tr Z_b = n``,
+    up to scale), then, with ``H = (Z + Z^T)/2`` (PSD, ``tr W_v <= 2 tr H``, ``tr B_e <= 4 tr H``),
+    ``0 <= -delta tr H + ||G_skew||_F ||Z||_F + ||E||_F ||Y||_F``: no such solution has
     ``max(||Z||_F, ||Y||_F) < gain_bound tr H`` with ``gain_bound = delta / (||G_skew||_F + ||E||_F)``
-    (``delta = -lambda_max(G_sym) - 2 sum_v lambda_max(C_v)^+ - 4 sum_e mu_e - 2 sum_v nu_v``, ``mu, nu`` the
-    shifts that make the multipliers PSD; ``G`` restricted to the slack's diagonal blocks).
+    (``delta = -mean_b lambda_max(G_b,sym) - 2 sum_v lambda_max(C_v)^+ - 4 sum_e mu_e - 2 sum_v nu_v``,
+    ``mu, nu`` the shifts that make the multipliers PSD; ``G_b`` the diagonal blocks of ``G``, the slack's).
     """
 
     multipliers: list
@@ -406,10 +413,14 @@ class NetworkFarkasCertificate:
     margin: float = 0.0
     any_margin: bool = True
     scaled: bool = False
+    per_block: bool = False
 
     def statement(self) -> str:
         bound = ("of any size" if np.isinf(self.gain_bound)
                  else f"with ||Z||_F, ||Y||_F < {self.gain_bound:.3g} tr((Z + Z^T)/2)")
+        if self.per_block and self.form == "augmented":
+            bound += (" whose slack blocks Z_b have equal traces (a restriction of the LMI; the unrestricted one "
+                      "reaches t* = 0 and has no Farkas certificate)")
         rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
         return (f"not certified: the network LMI ({self.form} form: node-dependent quadratic Lyapunov functions "
                 f"with a common slack) has no solution {bound}{rate} (Farkas certificate re-checked in float64); "
@@ -420,12 +431,15 @@ class NetworkFarkasCertificate:
                 "delta": self.delta, "e_norm": self.e_norm, "skew_norm": self.skew_norm,
                 "gain_bound": None if np.isinf(self.gain_bound) else float(self.gain_bound),
                 "gain_bound_unbounded": bool(np.isinf(self.gain_bound)), "decay_rate": self.decay_rate,
-                "statement": self.statement(), "multipliers": [M.tolist() for M in self.multipliers]}
+                "per_block": self.per_block, "statement": self.statement(), "multipliers": [M.tolist() for M in self.multipliers]}
 
 
 def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndarray,
-                         rate: float | None = None) -> NetworkFarkasCertificate:
+                         rate: float | None = None, per_block: bool = False) -> NetworkFarkasCertificate:
     """Re-check Farkas multipliers of the network LMI on the problem's float64 data (solver-independent).
+
+    ``per_block``: multipliers of the LMI normalized per slack block; the certificate then excludes solutions
+    whose slack blocks have equal traces only (``lambda_max`` averaged over the blocks instead of maximized).
 
     ``multipliers``: one (2k, 2k) matrix per transition, then one (k, k) per Lyapunov matrix.  Rounding of the
     adjoint is bounded elementwise (``gamma`` terms) and the eigenvalue bounds are proven by
@@ -435,7 +449,7 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
     M = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[:E]]
     Nv = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[E:E + V]]
     prover = Prover(exact=False)
-    bad = NetworkFarkasCertificate(M + Nv, -np.inf, np.inf, 0.0, False, prob.form, rate)
+    bad = NetworkFarkasCertificate(M + Nv, -np.inf, np.inf, 0.0, False, prob.form, rate, per_block=per_block)
     if len(M) != E or len(Nv) != V or not all(np.all(np.isfinite(X)) for X in M + Nv):
         return bad
     Gfull = np.zeros((k, k))
@@ -463,13 +477,19 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
                 Ej[j] += 2 * cj.T @ M21[:, b * n:(b + 1) * n]
                 errE[j] += 2 * g * np.abs(cj).T @ np.abs(M21[:, b * n:(b + 1) * n])
     # the slack is block diagonal: only the diagonal blocks of G pair with it
-    lam_g, skew2 = -np.inf, 0.0
+    # per_block (every tr H_b the same c, tr H = zb c): sum_b <G_b, H_b> <= c sum_b lambda_max(G_b), i.e. the
+    # blocks' mean times tr H
+    lams, skew2 = [], 0.0
     for b in range(prob.zblocks):
         sl = slice(b * n, (b + 1) * n)
         Gb = 0.5 * (Gfull[sl, sl] + Gfull[sl, sl].T)
-        lam_g = max(lam_g, prover.max_upper(Gb, float(np.linalg.norm(errG[sl, sl]))))
+        lams.append(prover.max_upper(Gb, float(np.linalg.norm(errG[sl, sl]))))
         skew2 += (float(np.linalg.norm(0.5 * (Gfull[sl, sl] - Gfull[sl, sl].T))) + float(np.linalg.norm(errG[sl, sl]))) ** 2
     skew = np.sqrt(skew2) * (1 + 8 * U)
+    if per_block:
+        lam_g = (float(np.sum(lams)) + gamma(len(lams) + 2) * float(np.sum(np.abs(lams)))) / prob.zblocks
+    else:  # sum_b <G_b, H_b> <= max_b lambda_max(G_b) tr H
+        lam_g = max(lams)
     lam_c = sum(max(0.0, prover.max_upper(C[v], float(np.linalg.norm(errC[v])) + g * float(np.linalg.norm(C[v]))))
                 for v in range(V))
     # <N_v + nu_v I, W_v> >= 0 is already in C_v's bound only if N_v is PSD: nu_v tr W_v <= 2 nu_v tr H
@@ -477,11 +497,12 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
     delta = delta * (1 - 8 * U) if delta > 0 else delta * (1 + 8 * U)
     e_norm = (float(np.linalg.norm(Ej)) + float(np.linalg.norm(errE))) * (1 + 8 * U)
     if delta <= 0:
-        return NetworkFarkasCertificate(M + Nv, float(delta), e_norm, 0.0, False, prob.form, rate, skew_norm=skew)
+        return NetworkFarkasCertificate(M + Nv, float(delta), e_norm, 0.0, False, prob.form, rate, skew_norm=skew,
+                                        per_block=per_block)
     total = e_norm + skew
     bound = np.inf if total == 0 else delta / total * (1 - 8 * U)
     return NetworkFarkasCertificate(M + Nv, float(delta), e_norm, float(bound), True, prob.form, rate,
-                                    skew_norm=skew)
+                                    skew_norm=skew, per_block=per_block)
 
 
 # ------------------------------------------------------------------------------------------- fixed gains
@@ -594,7 +615,7 @@ def solver_order(solver: str, fallback: bool = True) -> list:
 def run(family, network, *, decay_rate: float | None = None, plant_switching: str = "per_interval",
         time_limit: float | None = None, callback=None, max_iter: int = 50, use_ccl: bool = True,
         prob: NetworkProblem | None = None, recheck=None, solver: str = "AUTO", fallback: bool = True,
-        start=None, sign_only: bool = False) -> DesignResult:
+        start=None, sign_only: bool = False, per_block: bool = True) -> DesignResult:
     """One design on ``network`` at ``decay_rate`` (None: plain stability).
 
     The convex network LMI first, on the solvers of :func:`solver_order` (``"AUTO"``: the structured IPM, and
@@ -604,7 +625,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     ``max_iter`` iterations, Clarabel).  ``recheck(gains, rate) -> (ok, certificate or None)``: the independent
     network analysis that must also accept the gains (None: the float64 :func:`recheck_network` of the design's
     own node matrices is the only check).  ``start``, ``sign_only``: the IPM's warm start and early stop (the
-    rate search's probes).
+    rate search's probes).  ``per_block``: when the augmented form ends at ``t* <= 0`` without a proof, solve
+    it once more normalized per slack block (a Farkas certificate of that restriction; docs/design.md 11.1).
 
     Returns
     -------
@@ -682,6 +704,32 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
             break
         notes.append(f"{name}: t* = {sol.t:.3g} with neither a certificate passing the float64 re-check nor a Farkas "
                      f"proof, {order[i + 1]} instead")
+    if (per_block and cert is None and proof is None and sol is not None and prob.zblocks > 1 and not sol.t > 0
+            and (deadline is None or time.perf_counter() < deadline)):
+        # the augmented form's t* >= 0 always (a zero slack block reaches t = 0, docs/design.md 11.1): the LMI with
+        # one normalization per slack block, a restriction, can be proven infeasible (and its solutions are the
+        # LMI's too)
+        try:
+            alt = solve_sdp(prob, scale, left(), sol.solver, per_block=True)
+        except SolverFailed as err:
+            alt = None
+            notes.append(f"per-block normalization: {sol.solver} failed ({err})")
+        solves += 1
+        if alt is not None:
+            solver_time += alt.solve_time
+            if np.isfinite(alt.t) and alt.t > 0:
+                agains = gains_from(prob, alt)
+                if np.all(np.isfinite(agains)):
+                    cert = accept(agains, recheck_network(prob, np.linalg.inv(alt.W), agains, decay_rate))
+                if cert is not None:
+                    sol, gains = alt, agains
+            elif alt.duals is not None:
+                proof = check_network_farkas(prob, alt.duals, scale, decay_rate, per_block=True)
+                proof = proof if proof.verified else None
+                if proof is not None:
+                    notes.append(f"t* = {sol.t:.3g} with the sum normalization; {alt.t:.3g} with one per slack "
+                                 "block")
+                    sol = alt
     via = "" if not notes else "; " + "; ".join(notes)
     where = (f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, "
              f"{prob.n_blocks} transitions")

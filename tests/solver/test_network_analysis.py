@@ -156,3 +156,30 @@ def test_network_argument_errors():
     with pytest.raises(InvalidInput) as err:
         analyze(fam, EQ23_GAINS, network=Network.delays(1, 3), weights=(np.eye(2), np.eye(1)))
     assert err.value.field == ("weights",)
+
+
+@pytest.mark.parametrize("rho", [1.0, 0.9])
+def test_node_sdp_on_the_ipm_against_clarabel(rho):
+    """The node-dependent SDP of analyze(network=) in the IPM's max-t form: its margin's sign agrees with Clarabel's
+    min-trace form (a second solver), and its P passes the float64 re-check exactly when the rate is above the
+    CJSR's quadratic bound; under "IPM" and "CLARABEL" the analysis gives the same verdict."""
+    from solver.network_analysis import NodeLMI, product_automaton, recheck_node_dependent
+    from solver.networks import loop_matrices
+    from solver.ipm.network_blocks import solve_node
+
+    fam = PlantFamily(**DELAY_FAMILY)
+    # the drop-only design is certified on bounded_drops(2); its delays(1, 2) age-1 cycle has radius 2.24
+    for net in (Network.bounded_drops(2), Network.delays(1, 2)):
+        prod = product_automaton(net, fam.n_modes, "per_interval")
+        A = loop_matrices(fam, DELAY_GAINS, net)[prod.modes, prod.ages]
+        t, P, status = solve_node(A, prod.succ, rho)
+        lmi = NodeLMI(A, prod)
+        P2 = lmi.solve(rho, "CLARABEL")
+        other = P2 is not None and recheck_node_dependent(P2, A, prod, rho).verified
+        assert status == "optimal"
+        assert (t > 1e-7) == other, (net.describe(), rho, t, other)
+        assert recheck_node_dependent(P, A, prod, rho).verified == (t > 1e-7)
+        if rho == 1.0:
+            verdicts = {s: analyze(fam, DELAY_GAINS, network=net, solver=s, bounds="none").stable
+                        for s in ("IPM", "CLARABEL", "AUTO")}
+            assert len(set(verdicts.values())) == 1, verdicts

@@ -102,6 +102,67 @@ def test_not_certified_carries_a_farkas_certificate_from_the_ipm_dual(net):
     assert len(Nv) == V and min(np.linalg.eigvalsh(X)[0] for X in M + Nv) > -1e-9 * max(np.trace(X) for X in M)
 
 
+@pytest.mark.parametrize("solver", ["IPM", "CLARABEL"])
+def test_delays_network_not_certified_by_the_per_block_normalization(solver):
+    """The augmented form with the sum normalization always reaches t = 0 (a zero slack block); normalized per
+    slack block it is proven infeasible, and the proof names the restriction (docs/design.md 11.1)."""
+    net = Network.delays(2, 3, min_delay=1)
+    prob = network_lmi.build_problem(TOO_UNSTABLE, net)
+    assert prob.form == "augmented" and prob.zblocks == 3
+    ones = np.ones(prob.n_blocks)
+    # the point that defeats the sum normalization: Z = blkdiag(0, 0, N I), W = 0, Y = 0, every block PSD
+    n, k = prob.n, prob.k
+    Z = np.zeros((k, k))
+    Z[-n:, -n:] = prob.zblocks * np.eye(n)
+    low = min(np.linalg.eigvalsh(np.block([[Z + Z.T, (prob.free[e] @ Z).T], [prob.free[e] @ Z, np.zeros((k, k))]]))[0]
+              for e in range(prob.n_blocks))
+    assert low >= -1e-12
+    plain = network_lmi.solve_sdp(prob, ones, solver=solver)
+    assert plain.t > -1e-6 and not network_lmi.check_network_farkas(prob, plain.duals, ones).verified
+    res = network_lmi.run(TOO_UNSTABLE, net, solver=solver, use_ccl=False)
+    assert res.outcome == "not_certified", res.message
+    cert = res.certificate
+    assert cert.verified and cert.per_block and cert.delta > 0 and "equal traces" in cert.statement()
+    again = network_lmi.check_network_farkas(prob, cert.multipliers, ones, per_block=True)
+    assert again.verified and abs(again.delta - cert.delta) <= 1e-12 * abs(cert.delta)
+    # the same multipliers prove nothing about the sum-normalized LMI (it has the point above), nor negated
+    assert not network_lmi.check_network_farkas(prob, cert.multipliers, ones).verified
+    assert not network_lmi.check_network_farkas(prob, [-M for M in cert.multipliers], ones, per_block=True).verified
+    # the restricted LMI's optimum is strictly negative on both solvers (a second solver as reference)
+    other = network_lmi.solve_sdp(prob, ones, solver="CLARABEL" if solver == "IPM" else "IPM", per_block=True)
+    assert other.t < 0 and abs(other.t - res.sdp.t) <= 1e-5 * max(1.0, abs(other.t))
+
+
+def test_per_block_normalization_is_a_restriction_and_feasible_designs_keep_the_sum():
+    """MOTOR on delays(1, 3) at decay rate 0.8: t* > 0 with the sum normalization (certified design), t* < 0 with
+    one per slack block -- the per-block LMI loses solutions, so the design solves the sum first."""
+    net = Network.delays(1, 3)
+    prob = network_lmi.build_problem(MOTOR, net)
+    scale = 0.8 ** (-prob.length.astype(float))
+    for solver in ("IPM", "CLARABEL"):
+        a = network_lmi.solve_sdp(prob, scale, solver=solver)
+        b = network_lmi.solve_sdp(prob, scale, solver=solver, per_block=True)
+        assert a.t > 1e-3 and b.t < -1e-3, (solver, a.t, b.t)
+    res = network_lmi.run(MOTOR, net, decay_rate=0.8, solver="IPM", use_ccl=False)
+    assert res.outcome == "stabilized" and res.timings["solves"] == 1
+    assert max_cycle_rate(MOTOR, res.gains, net, 6) < 0.8
+
+
+def test_ipm_model_eliminates_several_equalities():
+    """BlockLMI with q equalities: every direction of the reduced basis keeps all of them (exact zero)."""
+    net = Network.delays(2, 3)
+    prob = network_lmi.build_problem(_random_family(3, 3), net)
+    from solver.ipm.network_blocks import network_problem
+    lmi, _ = network_problem(prob.free, prob.coef, prob.right, prob.src, prob.dst, len(prob.nodes), prob.zblocks,
+                             per_block=True)
+    a = np.atleast_2d(lmi.equality)
+    assert a.shape[0] == 3
+    T = lmi.T.toarray()
+    assert np.abs(a @ T[:-1]).max() <= 1e-14 and np.linalg.matrix_rank(T) == T.shape[1]
+    one, _ = network_problem(prob.free, prob.coef, prob.right, prob.src, prob.dst, len(prob.nodes), prob.zblocks)
+    assert T.shape[1] == one.p - 2  # one parameter less per equality
+
+
 def test_design_reports_the_ipm_and_clarabel_as_asked():
     net = Network.weakly_hard(2, 5, 3)
     auto = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None)
@@ -187,3 +248,15 @@ def test_network_margin_model_is_tangent_to_the_margin():
     slope_fd = (t_at(lam + h).t - t_at(lam - h).t) / (2 * h)
     assert abs(t0 - sol.t) < 1e-12
     assert abs(slope_model - slope_fd) <= 1e-3 * max(1.0, abs(slope_fd)), (slope_model, slope_fd)
+
+
+def test_design_on_a_delays_network_returns_the_per_block_farkas_certificate():
+    """design(network=delays) end to end: "not_certified" from the per-block LMI's multipliers (IPM), re-checked
+    independently."""
+    net = Network.delays(2, 3, min_delay=1)
+    res = design(TOO_UNSTABLE, network=net, solver="AUTO", max_iter=2)
+    assert res.outcome == "not_certified", res.message
+    assert res.solver == "IPM" and res.certificate.per_block and res.certificate.to_dict()["per_block"]
+    prob = network_lmi.build_problem(TOO_UNSTABLE, net)
+    assert network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks),
+                                            per_block=True).verified
