@@ -271,3 +271,19 @@ def test_cost_with_input_limits_no_gains_can_meet_is_not_claimed(F, G, x0):
     assert design(plant, network=net, objective="cost", x0=x0).outcome == "stabilized"
     res = design(plant, network=net, objective="cost", x0=x0, u_max=u_max)
     assert res.outcome != "stabilized" and res.invariant_set is None
+
+
+def test_cost_with_input_limits_is_coordinate_free():
+    """The motor in coordinates x~ = T x, u~ = 10 u (weights and limit carried along, so the problem is the same)
+    gives the same bracket: the scaling layer's mapping back of gains and node ellipsoids (scaling="auto")."""
+    net = Network.weakly_hard(1, 3, 3)
+    x0 = np.array([1.0, -1.0])
+    base = design(MOTOR, network=net, objective="cost", x0=x0, u_max=[0.1])
+    T = np.diag([1.0, 100.0])
+    Ti = np.linalg.inv(T)
+    fam = PlantFamily(np.array([T @ f @ Ti for f in MOTOR.F]), np.array([T @ g / 10.0 for g in MOTOR.G]),
+                      sampling_period=0.1)
+    res = design(fam, network=net, objective="cost", x0=T @ x0, u_max=[1.0], weights=(Ti @ Ti, np.eye(1) / 100.0))
+    assert base.outcome == res.outcome == "stabilized" and res.invariant_set is not None
+    assert res.performance.upper == pytest.approx(base.performance.upper, rel=1e-4)
+    assert res.performance.lower == pytest.approx(base.performance.lower, rel=1e-4)
