@@ -201,8 +201,9 @@ def design(
         condition).  ``objective="cost"``/``"hinf"`` (weights, x0, disturbance, output) and ``u_max`` (with
         ``objective="stability"``, x0 and a rate optional) run :mod:`solver.methods.network_performance`
         (docs/design.md §11.3, on Clarabel): ``res.performance`` is a certified bracket over every admissible
-        run, ``res.invariant_set`` one ellipsoid per node; ``u_max`` with a cost or hinf objective and
-        ``decay_rate`` with a cost or hinf objective are refused.  Outcomes: "stabilized" (a node certificate
+        run, ``res.invariant_set`` one ellipsoid per node; ``u_max`` with a cost objective is the
+        Kothare form (one SDP: the cost bracket from x0 and inputs within u_max on every admissible run
+        from it); ``u_max`` with hinf and ``decay_rate`` with a cost or hinf objective are refused.  Outcomes: "stabilized" (a node certificate
         re-checked in float64),
         "infeasible" (an unstable mode no input reaches, or the network admits every bounded-drops run
         and the bounded-drops design is proven infeasible), "not_certified" (the convex condition proven
@@ -396,7 +397,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         "lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching, solver="CLARABEL",
         network=network).memory <= budget
     start = time.perf_counter()
-    if u_max is not None:  # docs/design.md §11.3
+    if u_max is not None and objective == "stability":  # docs/design.md §11.3
         with blas_threads(1):
             res = network_performance.run_limits(family, network, u_max, x0=x0,
                                                  decay_rate=None if decay_rate == "auto" else decay_rate,
@@ -407,7 +408,8 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     if objective != "stability":  # docs/design.md §11.3
         with blas_threads(1):
             res = network_performance.run(family, network, objective, weights=weights, x0=x0,
-                                          disturbance=disturbance, output=output, plant_switching=plant_switching,
+                                          disturbance=disturbance, output=output, u_max=u_max,
+                                          plant_switching=plant_switching,
                                           scaling=scaling, time_limit=time_limit, callback=callback)
         res.network = network.to_dict()
         if res.certificate is not None and res.certificate.form == "augmented" and family.n_modes > 1 and \

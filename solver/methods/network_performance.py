@@ -432,9 +432,17 @@ def _solve_clarabel(problem, time_limit: float | None, what: str) -> float:
     return time.perf_counter() - start
 
 
-def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
-    """The design SDP (Clarabel): ``(W, Y, Z, value, status, seconds)``; ``W`` None without an answer."""
+def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_max=None):
+    """The design SDP (Clarabel): ``(W, Y, Z, value, status, seconds)``; ``W`` None without an answer.
+
+    ``u_max`` (cost only): the Kothare form (docs/design.md §11.3): ``W_v = gamma P_v^-1``, the cost rows against
+    ``gamma I`` (the state rows a hair stricter, ``1 + STRICT``, so that the ellipsoids' invariance survives the
+    float64 re-check), ``[[1, (S x0)'], [S x0, W_v]] >= 0`` at the start nodes (``[[X_v, S'], [S, W_v]] >= 0``,
+    ``trace X_v <= 1`` without x0) and the input blocks of :func:`solve_limits` per node and gain; minimize gamma.
+    ``value`` is gamma, the cost bound of ``P_v = gamma W_v^-1``.
+    """
     prob = ch.prob
+    kothare = kind == "cost" and u_max is not None
     n, m, N, k = prob.n, prob.m, prob.N, prob.k
     Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
     Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
@@ -449,8 +457,11 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
         if kind == "cost":
             LZ = ch.cost[e].times_z(Z, Y, n, prob.zblocks)
             p = ch.cost[e].free.shape[0]
+            tail = g * np.eye(p) if kothare else np.eye(p)
+            if kothare:
+                AZ = (1 + STRICT) * AZ
             M = cp.bmat([[top, AZ.T, LZ.T], [AZ, W[prob.dst[e]], np.zeros((k, p))],
-                         [LZ, np.zeros((p, k)), np.eye(p)]])
+                         [LZ, np.zeros((p, k)), tail]])
         else:
             CZ = ch.output[e].times_z(Z, Y, n, prob.zblocks)
             B, D = ch.B[e], ch.D[e]
@@ -462,13 +473,17 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None):
         cons.append(0.5 * (M + M.T) >> 0)
     if kind == "cost":
         S = ch.history
+        level = 1.0 if kothare else g
         for v in ch.start:
             if x0 is None:
                 X = cp.Variable((n, n), symmetric=True)
-                cons += [cp.bmat([[X, S.T], [S, W[v]]]) >> 0, cp.trace(X) <= g]
+                cons += [cp.bmat([[X, S.T], [S, W[v]]]) >> 0, cp.trace(X) <= level]
             else:
                 s = (S @ x0).reshape(-1, 1)
-                cons.append(cp.bmat([[cp.reshape(g, (1, 1), order="C"), s.T], [s, W[v]]]) >> 0)
+                top = np.ones((1, 1)) if kothare else cp.reshape(g, (1, 1), order="C")
+                cons.append(cp.bmat([[top, s.T], [s, W[v]]]) >> 0)
+    if kothare:
+        cons += _input_blocks(prob, Z, W, Y, u_max)
     problem = cp.Problem(cp.Minimize(g), cons)
     elapsed = _solve_clarabel(problem, time_limit, f"network {kind} SDP")
     if W[0].value is None or Zb[0].value is None:
@@ -513,11 +528,6 @@ def check_request(network, objective: str, weights, x0, disturbance, output, u_m
         if objective == "hinf":
             raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
                                "disturbance energy)", ("u_max",))
-        if objective == "cost":
-            raise InvalidInput(f"u_max with objective='cost' is not available on {where}: the Kothare form "
-                               "(P = gamma W^-1) needs one level gamma shared by node-dependent W_v, not built yet "
-                               "(docs/design.md §11.3); use objective='stability' with u_max, or bounded_drops",
-                               ("u_max",))
         u_max = check_u_max(u_max, m)
     if objective == "stability":
         for name, value in (("weights", weights), ("disturbance", disturbance), ("output", output)) + (
@@ -539,7 +549,7 @@ def check_request(network, objective: str, weights, x0, disturbance, output, u_m
         raise InvalidInput("weights go with objective='cost'", ("weights",))
     if objective == "hinf" and x0 is not None:
         raise InvalidInput("x0 goes with objective='cost' (the l2 gain starts from x = 0)", ("x0",))
-    return check_x0(x0, n), None
+    return check_x0(x0, n), u_max
 
 
 def _scaled(family, objective, weights, disturbance, output, scaling: str):
@@ -568,23 +578,28 @@ def _scaled(family, objective, weights, disturbance, output, scaling: str):
 
 
 def run(family, network, objective: str, *, weights=None, x0=None, disturbance=None, output=None,
-        plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
+        u_max=None, plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
         callback=None) -> DesignResult:
     """A cost or l2-gain design on ``network`` with its certified bracket (docs/design.md §11.3).
 
     The SDP runs in balanced coordinates (``scaling="auto"``); the gains are mapped back and every reported figure
     is re-checked in the user's: the bracket (:func:`bracket`, the mapped node matrices as candidate, the fixed-gain
     SDP otherwise) and the stability certificate (:func:`network_lmi.recheck_network` of the bound's matrices, else
-    the fixed-gain node analysis).
+    the fixed-gain node analysis).  ``u_max`` (cost only): the Kothare form of :func:`solve`; the same node
+    matrices ``W_v^-1``, mapped back, are re-checked as invariant ellipsoids whose inputs meet the limits
+    (:func:`check_invariant_nodes`, x0's history inside) and land in ``res.invariant_set``.
 
     Returns
     -------
     DesignResult
         "stabilized" with a :class:`network_lmi.NodeCertificate` and ``performance`` (a :class:`NetworkPerformance`);
-        "not_converged" otherwise (the reason in ``message``).
+        "not_converged" otherwise (the reason in ``message``), also when the gains are certified but the input
+        limits are not proven (gains and bracket kept, ``invariant_set`` None).
     """
     start = time.perf_counter()
     x0 = None if x0 is None else np.asarray(x0, float)
+    u_max = None if u_max is None else np.asarray(u_max, float)
+    kothare = objective == "cost" and u_max is not None
     ch_user = channels(family, network, objective, weights, disturbance, output, plant_switching)
     scale, fam, w_s, d_s, o_s = _scaled(family, objective, weights, disturbance, output, scaling)
     ch = ch_user if scale is None else channels(fam, network, objective, w_s, d_s, o_s, plant_switching)
@@ -593,7 +608,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
                 mode_labels=prob.labels)
     try:
-        W, Y, Z, value, status, seconds = solve(ch, objective, x0 if scale is None else x0_s, time_limit)
+        W, Y, Z, value, status, seconds = solve(ch, objective, x0 if scale is None else x0_s, time_limit,
+                                                None if not kothare else u_max if scale is None
+                                                else u_max / scale.plain.input)
     except SolverFailed as err:
         W, status, seconds, value = None, str(err), 0.0, np.nan
     timings = {"total": 0.0, "solver": seconds, "setup": 0.0, "solves": 1, "cached": False}
@@ -605,7 +622,8 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     if W is not None:
         try:
             gains = gains_from(prob, Y, Z)
-            P0 = np.linalg.inv(W)
+            X = np.linalg.inv(W)  # the Kothare form's ellipsoids (P_v = gamma X_v); P_v = X_v otherwise
+            P0 = value * X if kothare else X
         except np.linalg.LinAlgError:
             gains = None
     if gains is None or not np.all(np.isfinite(gains)):
@@ -616,7 +634,11 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     if scale is not None:
         gains = scale.plain.gains_back(gains)
         P0 = scale.plain.quadratic_back(P0) * (scale.cost if objective == "cost" else scale.output**2)
+        X = scale.plain.quadratic_back(X)
     perf = bracket(ch_user, gains, objective, P0=P0, x0=x0)
+    inv, inv_reason = None, ""
+    if kothare:
+        inv, inv_reason = check_invariant_nodes(X, prob, gains, u_max, ch_user.history, x0)
     cert = None
     if perf.verified:
         cert = network_lmi.recheck_network(prob, perf.certificate, gains, source=f"network_{objective}")
@@ -630,11 +652,20 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                             solver_status=status, objective=objective, performance=perf, **base,
                             message=f"the network {objective} SDP gave gains but no node certificate passed the "
                                     f"float64 re-check on {where}; {perf.message}")
-    return DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
-                        solver_status=status, objective=objective, performance=perf,
-                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
-                        message=f"stabilized on {where}; node certificate re-checked (relative margin "
-                                f"{cert.margin:.3g}); {perf.message}")
+    if kothare and inv is None:  # as the single-network design: the limits unproven are not claimed
+        return DesignResult(outcome="not_converged", gains=gains, certificate=cert, history=[record],
+                            timings=timings, solver_status=status, objective=objective, performance=perf, **base,
+                            message=f"stabilizing gains found on {where} but the input limits are not proven: "
+                                    f"{inv_reason}; {perf.message}")
+    limits = ("; inputs within u_max from every state of the node ellipsoids (invariant along every admissible "
+              "run; re-checked)") if kothare else ""
+    res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
+                       solver_status=status, objective=objective, performance=perf,
+                       spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
+                       message=f"stabilized on {where}; node certificate re-checked (relative margin "
+                               f"{cert.margin:.3g}){limits}; {perf.message}")
+    res.invariant_set = inv
+    return res
 
 
 # ------------------------------------------------------------------------------------------- input limits
@@ -695,6 +726,23 @@ def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndar
     return Xc, ""
 
 
+def _input_blocks(prob, Z, W, Y, u_max: np.ndarray) -> list:
+    """``[[u_i^2, y], [y', Z + Z' - W_v]] >= 0`` for every node v, gain applied from it and input i (§11.3)."""
+    n, m = prob.n, prob.m
+    cons = []
+    for v, pairs in enumerate(gain_rows(prob)):
+        H = Z + Z.T - W[v]
+        for j, b in pairs:
+            for i in range(m):
+                row = Y[j][i:i + 1, :]
+                if prob.zblocks > 1:
+                    row = cp.hstack([row if col == b else np.zeros((1, n)) for col in range(prob.zblocks)])
+                # a hair inside the limit, so that x0 on the sets' boundary survives the re-check's rounding
+                M = cp.bmat([[np.array([[(u_max[i] * (1 - LIMIT_SLACK)) ** 2]]), row], [row.T, H]])
+                cons.append(0.5 * (M + M.T) >> 0)
+    return cons
+
+
 def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: float | None = None,
                  time_limit: float | None = None):
     """``max tau`` s.t. the invariance blocks, the input blocks ``[[u^2, y], [y', Z + Z' - W_v]] >= 0``,
@@ -712,15 +760,7 @@ def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: fl
         AZ = Rows(prob.free[e], prob.coef[e], prob.right[e]).times_z(Z, Y, n, prob.zblocks)
         M = cp.bmat([[Z + Z.T - W[prob.src[e]], c[e] * AZ.T], [c[e] * AZ, W[prob.dst[e]]]])
         cons.append(0.5 * (M + M.T) >> 0)
-    for v, pairs in enumerate(gain_rows(prob)):
-        H = Z + Z.T - W[v]
-        for j, b in pairs:
-            for i in range(m):
-                row = Y[j][i:i + 1, :]
-                if prob.zblocks > 1:
-                    row = cp.hstack([row if col == b else np.zeros((1, n)) for col in range(prob.zblocks)])
-                M = cp.bmat([[np.array([[(u_max[i] * (1 - LIMIT_SLACK)) ** 2]]), row], [row.T, H]])
-                cons.append(0.5 * (M + M.T) >> 0)
+    cons += _input_blocks(prob, Z, W, Y, u_max)
     radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
     for Wv in W:
         cons += [Wv << radius**2 * np.eye(k), Wv >> tau * np.eye(k)]

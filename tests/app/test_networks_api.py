@@ -251,7 +251,7 @@ def test_cost_design_on_a_delay_network_matches_the_library(http):
 
 
 @pytest.mark.parametrize("extra, pointer, words", [
-    ({"objective": "cost", "x0": [1.0, 0.0], "u_max": [1.0]}, "/u_max", "Kothare"),
+    ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "u_max": [1.0]}, "/u_max", "disturbance energy"),
     ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "x0": [1.0, 0.0]}, "/x0", "x = 0"),
 ])
 def test_network_performance_requests_that_do_not_carry_over_are_422s(http, extra, pointer, words):

@@ -202,10 +202,88 @@ def test_input_limits_hold_on_every_admissible_run_from_the_boundary(net):
     assert peak > 0.05 * u_max[0]  # the runs do use the inputs
 
 
-@pytest.mark.parametrize("kwargs,words", [({"objective": "cost", "x0": [1.0, 0.0]}, "Kothare"),
-                                          ({"objective": "hinf", "disturbance": [[1.0], [0.0]]}, "disturbance"),
+@pytest.mark.parametrize("kwargs,words", [({"objective": "hinf", "disturbance": [[1.0], [0.0]]}, "disturbance"),
                                           ({"decay_rate": "max"}, "give a rate")])
 def test_u_max_combinations_that_do_not_carry_over_are_refused(kwargs, words):
     with pytest.raises(InvalidInput) as err:
         design(MOTOR, network=Network.delays(1, 3), u_max=[2.0], **kwargs)
     assert words in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------- cost with input limits
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_cost_with_input_limits_bounds_every_admissible_run_and_meets_the_limits(net):
+    """One Kothare SDP (docs/design.md §11.3): every admissible run of 7 samples from x0 (plant modes switching
+    at samples 0 and 3), stepped sample by sample, keeps |u| <= u_max and costs at most the certified bound.
+    u_max = 0.1 is below the peak input of the unconstrained design's gains (about 0.19 from this x0)."""
+    x0, u_max = np.array([1.0, -1.0]), np.array([0.1])
+    free = design(MOTOR, network=net, objective="cost", x0=x0)
+    res = design(MOTOR, network=net, objective="cost", x0=x0, u_max=u_max)
+    assert res.outcome == "stabilized" and res.invariant_set is not None
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    lifted = perf.form == "lifted"
+    Q, R = np.eye(2), np.eye(1)
+    peak, peak_free, worst, count, T = 0.0, 0.0, 0.0, 0, 7
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if (lifted and ages[0] != 0) or not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
+            seq = [plants[0]] * 3 + [plants[1]] * (T - 3)
+            peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
+            peak_free = max(peak_free, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, free.gains, x0, ages,
+                                                                       seq)))))
+            worst = max(worst, run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, seq, ages[0]))
+            count += 1
+    assert count > 20
+    assert peak_free > u_max[0]  # the limit is active: the unconstrained gains exceed it
+    assert peak <= u_max[0] * (1 + 1e-9)
+    assert worst <= perf.upper
+    # x0's history lies in every node's certified set, the sets' inputs meet the limit (re-checked independently)
+    S = np.eye(2) if lifted else np.vstack([np.eye(2)] * net.n_drop)
+    assert max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in res.invariant_set) <= 1.0
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_cost_with_loose_input_limits_gives_the_unconstrained_bracket(net):
+    x0 = np.array([1.0, -1.0])
+    free = design(MOTOR, network=net, objective="cost", x0=x0).performance
+    res = design(MOTOR, network=net, objective="cost", x0=x0, u_max=[1e4])
+    assert res.outcome == "stabilized" and res.invariant_set is not None
+    assert res.performance.upper == pytest.approx(free.upper, rel=1e-4)
+    assert res.performance.lower == pytest.approx(free.lower, rel=1e-4)
+
+
+@pytest.mark.parametrize("F,G,x0", [([[[1.2]]], [[[1.0]]], [1.0]),
+                                     (np.asarray(EQ20_F)[:1] * 1.6, np.asarray(EQ20_G)[:1], [1.0, -1.0])],
+                         ids=["scalar", "motor_unstable"])
+def test_cost_with_input_limits_no_gains_can_meet_is_not_claimed(F, G, x0):
+    """An unstable mode (eigenvalue lam > 1, left eigenvector w) with |w'G| u_max < (lam - 1) |w'x0|: w'x grows
+    at every sample whatever the inputs, so no gains meet the limit from x0.  The plain cost design stabilizes."""
+    F, G, x0 = np.asarray(F, float), np.asarray(G, float), np.asarray(x0, float)
+    lam, vecs = np.linalg.eig(F[0].T)
+    i = int(np.argmax(np.abs(lam)))
+    w = np.real(vecs[:, i])
+    u_max = np.array([0.01])
+    assert lam[i].real > 1 and abs(w @ G[0] @ [1.0]) * u_max[0] < (lam[i].real - 1) * abs(w @ x0)
+    plant = PlantFamily(F, G, sampling_period=0.1)
+    net = Network.weakly_hard(1, 3, 3)
+    assert design(plant, network=net, objective="cost", x0=x0).outcome == "stabilized"
+    res = design(plant, network=net, objective="cost", x0=x0, u_max=u_max)
+    assert res.outcome != "stabilized" and res.invariant_set is None
+
+
+def test_cost_with_input_limits_is_coordinate_free():
+    """The motor in coordinates x~ = T x, u~ = 10 u (weights and limit carried along, so the problem is the same)
+    gives the same bracket: the scaling layer's mapping back of gains and node ellipsoids (scaling="auto")."""
+    net = Network.weakly_hard(1, 3, 3)
+    x0 = np.array([1.0, -1.0])
+    base = design(MOTOR, network=net, objective="cost", x0=x0, u_max=[0.1])
+    T = np.diag([1.0, 100.0])
+    Ti = np.linalg.inv(T)
+    fam = PlantFamily(np.array([T @ f @ Ti for f in MOTOR.F]), np.array([T @ g / 10.0 for g in MOTOR.G]),
+                      sampling_period=0.1)
+    res = design(fam, network=net, objective="cost", x0=T @ x0, u_max=[1.0], weights=(Ti @ Ti, np.eye(1) / 100.0))
+    assert base.outcome == res.outcome == "stabilized" and res.invariant_set is not None
+    assert res.performance.upper == pytest.approx(base.performance.upper, rel=1e-4)
+    assert res.performance.lower == pytest.approx(base.performance.lower, rel=1e-4)
