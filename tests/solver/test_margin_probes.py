@@ -74,6 +74,10 @@ def test_n_drop_and_grid_searches_record_failures_too(monkeypatch):
 def test_a_point_over_the_size_budget_ends_the_n_drop_search_without_a_crash():
     from solver.margins import OVER_BUDGET
 
-    res = max_n_drop(cartpole(), n_drop_max=5, max_memory=0.04 * 2**20)  # 0.04 MiB: n_drop = 1..3 fit, 4 does not
+    from solver.compiled import design_size
+
+    fits = design_size("lmi", 4, 1, 3, 3).memory  # the budget: n_drop = 1..3 fit, 4 does not
+    assert design_size("lmi", 4, 1, 3, 4).memory > fits
+    res = max_n_drop(cartpole(), n_drop_max=5, max_memory=fits)
     assert res.curve[-1]["outcome"] == OVER_BUDGET and "not tried" in res.curve[-1]["message"]
     assert res.margin == res.curve[-2]["n_drop"] and "proves nothing" in res.message

@@ -92,9 +92,14 @@ def test_the_performance_estimate_counts_the_lifted_blocks(objective, extra):
     inputs = N * m if "u_max" in extra else 0
     # the lifted blocks, the Z (or ball) block of side 2n, the x0 block n + 1, the input blocks n + 1
     assert size.lmi_size == sum(block_sides(lifted, objective)) + 2 * n + (n + 1) + inputs * (n + 1)
-    prob = performance_problem(lifted, objective, x0, u_max)
+    # the lifted form's blocks (the IPM's compact, merged groups are no larger: docs/design.md §8.3.1)
+    prob = performance_problem(lifted, objective, x0, u_max, compact=False, merge=False)
     lifted_groups = [g for g in prob.lmi.groups_spec if g.name.startswith(("cost_eta", "hinf_eta", "stability"))]
     assert sum(g.C.shape[0] * g.C.shape[1] for g in lifted_groups) == sum(block_sides(lifted, objective))
+    compact = performance_problem(lifted, objective, x0, u_max)
+    kinds = ("cost", "hinf", "stability")
+    assert sum(g.C.shape[0] * g.C.shape[1] for g in compact.lmi.groups_spec if g.name.startswith(kinds)) <= \
+        sum(block_sides(lifted, objective))
     assert sum(g.C.shape[0] for g in prob.lmi.groups_spec if g.name == "input") == inputs
     assert size.n_variables == 2 * (n * (n + 1) // 2) + N * m * n + 2
 
