@@ -217,9 +217,11 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     Parameters
     ----------
     lifted : solver.lifting.Lifted
-    objective : {"cost", "hinf", "stability"}
+    objective : {"cost", "hinf", "stability", "limits"}
         ``"stability"``: the plain input-limited design (``u_max`` required), maximize ``tau`` with
-        ``W >= tau I`` (the largest ball inside the invariant ellipsoid).
+        ``W >= tau I`` (the largest ball inside the invariant ellipsoid).  ``"limits"``: the stability, input
+        and x0 blocks alone (no ball, no radius, no scalar), whose phase 1 (``max t``) gives the input limits'
+        Farkas multipliers (:func:`solver.limit_proofs.limits_multipliers`).
     x0 : ndarray, shape (n,), or None
     u_max : ndarray, shape (m,), or None
     c : ndarray, shape (S,), optional
@@ -252,6 +254,9 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         scale = np.where(scale > 0, scale, 1.0)
     S = len(lifted.lifted)
     kothare = objective == "cost" and u_max is not None
+    limits = objective == "limits"
+    if limits:
+        objective = "stability"
     groups, group_modes, input_index = [], {}, []
     scalars = []
     if objective in ("cost", "hinf", "stability"):
@@ -306,7 +311,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     elif objective == "hinf":
         scalars = ["g"]
     else:
-        scalars = ["tau"]
+        scalars = [] if limits else ["tau"]
     if x0 is not None:
         level_var = objective == "cost" and not kothare
         D = {"gamma": _bordered(n, 1.0, np.zeros(n))} if level_var else {}
@@ -331,7 +336,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
             R = np.broadcast_to(np.eye(n, n + 1, 1), (nb, n, n + 1))
             groups.append(BlockGroup("input", C, {"W": [(np.broadcast_to(Lb1, (nb, n + 1, n)), None, 1.0)],
                                                   "Y": [(np.stack(rows), R, 1.0)]}))
-    if objective == "stability":
+    if objective == "stability" and not limits:
         if radius is not None:
             groups.append(BlockGroup("radius", float(radius)**2 * eye_n, {"W": [(eye_n, None, -1.0)]}))
         groups.append(BlockGroup("ball", np.zeros((1, n, n)), {"W": [(eye_n, None, 1.0)]}, {"tau": -eye_n}))
@@ -350,7 +355,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     elif objective == "hinf":
         obj = {"g": 1.0}
     else:
-        obj = {"tau": -1.0}
+        obj = {} if limits else {"tau": -1.0}
     return PerformanceProblem(lmi=lmi, objective=obj, gain_scale=scale, modes=group_modes, input_index=input_index)
 
 

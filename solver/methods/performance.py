@@ -523,9 +523,11 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
     if u_max is not None and x0 is not None:  # the limits themselves may be what no design meets
         from ..limit_proofs import prove_limits_infeasible
 
+        name = str(options.solver).upper()
         proof, why_not = prove_limits_infeasible(lifted.modes, u_max, x0, options.decay_rate, options.margin,
                                                  strict=STRICT if objective == "stability" else None,
-                                                 time_limit=clock.remaining(options.time_limit))
+                                                 time_limit=clock.remaining(options.time_limit),
+                                                 solver=name if name in ("AUTO", "IPM") else "CLARABEL")
         # the verdict needs the proof to reach every ellipsoid the plain design searches (W <= radius^2 I)
         reach = np.sqrt(lifted.modes.n_states) * MAX_RADIUS * max(1.0, float(np.linalg.norm(x0)))
         if proof is not None and proof.radius < reach:
