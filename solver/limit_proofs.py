@@ -52,12 +52,15 @@ class LimitMultipliers:
         ``Z_x`` of the x0 block (first row/column: the ``1`` corner).
     t : float
         The SDP's ``t*`` (``sum_b <C_b, Z_b>`` in exact arithmetic); informative only, the check recomputes it.
+    solver : str
+        Who made them (``"IPM"``, ``"CLARABEL"``; empty: given by the caller); informative only.
     """
 
     stability: np.ndarray
     inputs: np.ndarray
     x0: np.ndarray
     t: float = float("nan")
+    solver: str = ""
 
 
 @dataclass
@@ -327,7 +330,7 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
     if not np.isfinite(total) or total <= 0:
         return None
-    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(t.value))
+    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(t.value), "CLARABEL")
 
 
 def _ipm_multipliers(modes: ModeSet, u_max, x0, decay_rate, time_limit) -> tuple[LimitMultipliers | None, bool]:
@@ -365,7 +368,7 @@ def _ipm_multipliers(modes: ModeSet, u_max, x0, decay_rate, time_limit) -> tuple
     total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
     if not np.isfinite(total) or total <= 0:
         return None, False
-    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(sol.t_upper) / total), True
+    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(sol.t_upper) / total, "IPM"), True
 
 
 def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None = None, margin: float = 1e-6,

@@ -211,7 +211,7 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
                         limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
-                        compact: bool = True, merge: bool = True) -> PerformanceProblem:
+                        compact: bool = True, merge: bool = True, tie_weight: float | None = None) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -234,6 +234,10 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         ``u_max (1 - limit_slack)`` in the input blocks.
     trace_weight : ndarray, shape (n,), optional
         Minimize ``sum_i w_i Z_ii`` instead of ``trace Z`` (the user's trace in balanced coordinates).
+    tie_weight : float, optional
+        Cost from x0 without limits: the tie-break stage as one objective, minimize ``gamma + tie_weight trace Z``
+        (``sum_i w_i Z_ii`` with ``trace_weight``) with ``Z >= W^{-1}``; no ``cap`` block (its feasible set is a
+        slice too thin for phase 1 to centre in, docs/design.md §8.5).
     compact : bool
         Cost and output rows of each lifted block reduced to their triangular factor (docs/design.md §8.3.1:
         the same LMI, side ``3n + eta m`` instead of ``2n + eta (n + m)`` for the cost); False: the lifted
@@ -301,7 +305,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     Lb1 = np.zeros((1, n + 1, n))
     Lb1[0, 1:] = np.eye(n)
     eye_n = np.eye(n)[None]
-    use_Z = objective == "cost" and (x0 is None or cap is not None)
+    use_Z = objective == "cost" and (x0 is None or cap is not None or tie_weight is not None)
     if use_Z:
         C = np.zeros((1, 2 * n, 2 * n))
         C[0, :n, n:] = C[0, n:, :n] = np.eye(n)
@@ -352,6 +356,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     lmi = GroupedLMI(matrices, scalars, groups, V0)
     if objective == "cost":
         obj = {"Z": np.eye(n) if trace_weight is None else np.diag(trace_weight)} if use_Z else {"gamma": 1.0}
+        if tie_weight is not None:
+            obj = {"gamma": 1.0, "Z": float(tie_weight) * obj["Z"]}
     elif objective == "hinf":
         obj = {"g": 1.0}
     else:
