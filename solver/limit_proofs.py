@@ -13,8 +13,10 @@ multipliers, PSD with total trace 1, are a Farkas certificate: their adjoint van
 direction and ``sum_b <C_b, Z_b> = t* < 0`` (``C_b`` the constant parts ``u_j^2 e_1 e_1^T``, ``e_1 e_1^T``,
 ``[[0, x0^T], [x0, 0]]``).  :func:`check_limits_farkas` re-checks them from the plant data alone.
 
-The multipliers are a :class:`LimitMultipliers`, whatever produced them: today the dual values of the max-t SDP
-through cvxpy and Clarabel; a structured solver's phase-1 multipliers plug in through the same class.
+The multipliers are a :class:`LimitMultipliers`, whatever produced them: the structured IPM's phase-1
+multipliers of the same max-t SDP (:func:`limits_multipliers`, ``solver="IPM"``; the default under ``"AUTO"``) or
+the dual values of the max-t SDP through cvxpy and Clarabel (``solver="CLARABEL"``; ``"AUTO"``'s fallback when the
+IPM's do not pass the re-check).  The re-check never asks which solver made them.
 """
 
 from __future__ import annotations
@@ -50,12 +52,15 @@ class LimitMultipliers:
         ``Z_x`` of the x0 block (first row/column: the ``1`` corner).
     t : float
         The SDP's ``t*`` (``sum_b <C_b, Z_b>`` in exact arithmetic); informative only, the check recomputes it.
+    solver : str
+        Who made them (``"IPM"``, ``"CLARABEL"``; empty: given by the caller); informative only.
     """
 
     stability: np.ndarray
     inputs: np.ndarray
     x0: np.ndarray
     t: float = float("nan")
+    solver: str = ""
 
 
 @dataclass
@@ -276,12 +281,17 @@ def _radius(a: float, e: float, room: float) -> float:
 
 # ------------------------------------------------------------------------------------- the SDP
 def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = None,
-                       time_limit: float | None = None) -> LimitMultipliers | None:
-    """Dual multipliers of ``max t`` s.t. every block of the input-limited design ``- t I >= 0`` (Clarabel).
+                       time_limit: float | None = None, solver: str = "CLARABEL") -> LimitMultipliers | None:
+    """Dual multipliers of ``max t`` s.t. every block of the input-limited design ``- t I >= 0``.
 
     Returns None when the solver fails or ``t*`` is not negative (the limits may be met: no proof to give).
     The multipliers are normalized to total trace 1 (the dual of ``max t`` has it in exact arithmetic).
+
+    ``solver``: ``"IPM"``: the structured IPM's phase 1 (:func:`solver.ipm.performance_problem` with
+    ``objective="limits"``, the same blocks); ``"CLARABEL"``: cvxpy and Clarabel.
     """
+    if str(solver).upper() == "IPM":
+        return _ipm_multipliers(modes, u_max, x0, decay_rate, time_limit)[0]
     from .compiled import cp, schur_block
     from .errors import SolverFailed
     from .brackets import solve_sdp
@@ -320,12 +330,50 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
     if not np.isfinite(total) or total <= 0:
         return None
-    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(t.value))
+    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(t.value), "CLARABEL")
+
+
+def _ipm_multipliers(modes: ModeSet, u_max, x0, decay_rate, time_limit) -> tuple[LimitMultipliers | None, bool]:
+    """Phase-1 multipliers of the structured IPM on the max-t SDP (see :func:`limits_multipliers`).
+
+    Returns ``(multipliers, settled)``: ``settled`` is False when the IPM failed (another solver may try), True
+    when it converged (with ``t* >= 0`` the multipliers are None: the limits may be met, no proof exists).
+    """
+    from . import ipm
+    from .lifting import lift_modes
+
+    n, m, N = modes.n_states, modes.n_inputs, modes.n_drop
+    u = np.asarray(u_max, dtype=np.float64).reshape(m)
+    x = np.asarray(x0, dtype=np.float64).reshape(n)
+    lifted = lift_modes(modes, cost=False)
+    prob = ipm.performance_problem(lifted, "limits", x, u, c=_scale(modes, decay_rate))
+    try:
+        sol = ipm.solve_grouped(prob.lmi, None, ipm.IPMOptions(gap_tol=1e-10, feas_tol=1e-10, max_iter=150,
+                                                              time_limit=time_limit))
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+        return None, False
+    if sol.status not in ("optimal", "inaccurate", "infeasible", "stalled"):
+        return None, False
+    if not sol.t_upper < 0:
+        return None, True
+    X = sol.X
+    stab = np.asarray(X["stability"], dtype=np.float64)
+    order = np.concatenate([np.asarray(prob.modes[g], dtype=int) for g in prob.modes])
+    Zs = np.empty_like(stab)
+    Zs[order] = stab  # the group's blocks in the order of ``prob.modes`` (the plants')
+    Zi = np.zeros((N, m, n + 1, n + 1))
+    for b, (q, j) in enumerate(prob.input_index):
+        Zi[q, j] = X["input"][b]
+    Zx = np.asarray(X["x0"][0], dtype=np.float64)
+    total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
+    if not np.isfinite(total) or total <= 0:
+        return None, False
+    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(sol.t_upper) / total, "IPM"), True
 
 
 def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None = None, margin: float = 1e-6,
                             strict: float | None = None, multipliers: LimitMultipliers | None = None,
-                            time_limit: float | None = None):
+                            time_limit: float | None = None, solver: str = "AUTO"):
     """A re-checked proof that no input-limited design contains ``x0``, or ``(None, reason)``.
 
     Tried at ``decay_rate`` (None: the non-strict ``A_s' X A_s <= X``, every common quadratic Lyapunov
@@ -337,7 +385,10 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     Parameters
     ----------
     multipliers : LimitMultipliers, optional
-        From any solver, for ``decay_rate`` (default: :func:`limits_multipliers`, Clarabel).
+        From any solver, for ``decay_rate`` (default: :func:`limits_multipliers`).
+    solver : {"AUTO", "IPM", "CLARABEL"}
+        Who makes the multipliers: ``"AUTO"`` the structured IPM, and Clarabel only when the IPM's give no proof
+        at that rate; ``"IPM"``/``"CLARABEL"`` that one alone.
     """
     if x0 is None or u_max is None or modes.F is None:
         return None, "no x0 (a small enough ellipsoid always meets the limits)"
@@ -347,17 +398,25 @@ def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None 
     reason = "the input-limit feasibility SDP did not report t* < 0"
     marginal = None  # a proof for designs of margin >= ``margin`` only: kept unless a stricter rate proves more
     for rate in rates:
-        mult = multipliers if multipliers is not None else limits_multipliers(modes, u_max, x0, rate, time_limit)
-        if mult is None:
-            continue
-        cert = check_limits_farkas(modes, mult, u_max, x0, rate, 0.0)
-        if cert.verified:
-            return cert, ""
-        if margin > 0 and marginal is None:
-            cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
-            if cert.verified:
-                marginal = cert
+        name = str(solver).upper()
+        makers = [None] if multipliers is not None else ["IPM", "CLARABEL"] if name == "AUTO" else [name]
+        for maker in makers:
+            if maker == "IPM":
+                mult, settled = _ipm_multipliers(modes, u_max, x0, rate, time_limit)
+                if mult is None and settled:
+                    break  # the IPM converged to t* >= 0: nothing to prove, no second solver asked
+            else:
+                mult = multipliers if maker is None else limits_multipliers(modes, u_max, x0, rate, time_limit, maker)
+            if mult is None:
                 continue
-        reason = (f"the input-limit multipliers do not pass the Farkas re-check (constant {cert.constant:.3g}, "
-                  f"radius {cert.radius:.3g} <= |x0|)")
+            cert = check_limits_farkas(modes, mult, u_max, x0, rate, 0.0)
+            if cert.verified:
+                return cert, ""
+            if margin > 0 and marginal is None:
+                cert = check_limits_farkas(modes, mult, u_max, x0, rate, margin)
+                if cert.verified:
+                    marginal = cert
+                    break
+            reason = (f"the input-limit multipliers do not pass the Farkas re-check (constant {cert.constant:.3g}, "
+                      f"radius {cert.radius:.3g} <= |x0|)")
     return (marginal, "") if marginal is not None else (None, reason)

@@ -211,15 +211,17 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
                         limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
-                        compact: bool = True, merge: bool = True) -> PerformanceProblem:
+                        compact: bool = True, merge: bool = True, tie_weight: float | None = None) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
     ----------
     lifted : solver.lifting.Lifted
-    objective : {"cost", "hinf", "stability"}
+    objective : {"cost", "hinf", "stability", "limits"}
         ``"stability"``: the plain input-limited design (``u_max`` required), maximize ``tau`` with
-        ``W >= tau I`` (the largest ball inside the invariant ellipsoid).
+        ``W >= tau I`` (the largest ball inside the invariant ellipsoid).  ``"limits"``: the stability, input
+        and x0 blocks alone (no ball, no radius, no scalar), whose phase 1 (``max t``) gives the input limits'
+        Farkas multipliers (:func:`solver.limit_proofs.limits_multipliers`).
     x0 : ndarray, shape (n,), or None
     u_max : ndarray, shape (m,), or None
     c : ndarray, shape (S,), optional
@@ -232,6 +234,10 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         ``u_max (1 - limit_slack)`` in the input blocks.
     trace_weight : ndarray, shape (n,), optional
         Minimize ``sum_i w_i Z_ii`` instead of ``trace Z`` (the user's trace in balanced coordinates).
+    tie_weight : float, optional
+        Cost from x0 without limits: the tie-break stage as one objective, minimize ``gamma + tie_weight trace Z``
+        (``sum_i w_i Z_ii`` with ``trace_weight``) with ``Z >= W^{-1}``; no ``cap`` block (its feasible set is a
+        slice too thin for phase 1 to centre in, docs/design.md §8.5).
     compact : bool
         Cost and output rows of each lifted block reduced to their triangular factor (docs/design.md §8.3.1:
         the same LMI, side ``3n + eta m`` instead of ``2n + eta (n + m)`` for the cost); False: the lifted
@@ -252,6 +258,9 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         scale = np.where(scale > 0, scale, 1.0)
     S = len(lifted.lifted)
     kothare = objective == "cost" and u_max is not None
+    limits = objective == "limits"
+    if limits:
+        objective = "stability"
     groups, group_modes, input_index = [], {}, []
     scalars = []
     if objective in ("cost", "hinf", "stability"):
@@ -296,7 +305,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     Lb1 = np.zeros((1, n + 1, n))
     Lb1[0, 1:] = np.eye(n)
     eye_n = np.eye(n)[None]
-    use_Z = objective == "cost" and (x0 is None or cap is not None)
+    use_Z = objective == "cost" and (x0 is None or cap is not None or tie_weight is not None)
     if use_Z:
         C = np.zeros((1, 2 * n, 2 * n))
         C[0, :n, n:] = C[0, n:, :n] = np.eye(n)
@@ -306,7 +315,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     elif objective == "hinf":
         scalars = ["g"]
     else:
-        scalars = ["tau"]
+        scalars = [] if limits else ["tau"]
     if x0 is not None:
         level_var = objective == "cost" and not kothare
         D = {"gamma": _bordered(n, 1.0, np.zeros(n))} if level_var else {}
@@ -331,7 +340,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
             R = np.broadcast_to(np.eye(n, n + 1, 1), (nb, n, n + 1))
             groups.append(BlockGroup("input", C, {"W": [(np.broadcast_to(Lb1, (nb, n + 1, n)), None, 1.0)],
                                                   "Y": [(np.stack(rows), R, 1.0)]}))
-    if objective == "stability":
+    if objective == "stability" and not limits:
         if radius is not None:
             groups.append(BlockGroup("radius", float(radius)**2 * eye_n, {"W": [(eye_n, None, -1.0)]}))
         groups.append(BlockGroup("ball", np.zeros((1, n, n)), {"W": [(eye_n, None, 1.0)]}, {"tau": -eye_n}))
@@ -347,10 +356,12 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     lmi = GroupedLMI(matrices, scalars, groups, V0)
     if objective == "cost":
         obj = {"Z": np.eye(n) if trace_weight is None else np.diag(trace_weight)} if use_Z else {"gamma": 1.0}
+        if tie_weight is not None:
+            obj = {"gamma": 1.0, "Z": float(tie_weight) * obj["Z"]}
     elif objective == "hinf":
         obj = {"g": 1.0}
     else:
-        obj = {"tau": -1.0}
+        obj = {} if limits else {"tau": -1.0}
     return PerformanceProblem(lmi=lmi, objective=obj, gain_scale=scale, modes=group_modes, input_index=input_index)
 
 

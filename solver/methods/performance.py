@@ -43,6 +43,12 @@ STRICT = 1e-5
 OBJECTIVES = ("stability", "cost", "hinf")
 #: Relative slack on the optimal x0 cost allowed to the tie-break stage (min trace P among x0-optimal designs).
 TIE_BREAK = 1e-9
+#: The IPM tie-break's first weight relative to gamma_1 / trace P_1 (paper example and random 3-state families:
+#: gamma rises by 1e-10 to 1e-9 relative at 1e-4, near the cap of TIE_BREAK).
+TIE_WEIGHT = 1e-4
+#: Solves of the IPM tie-break at most, and the fraction of the cap's room that ends the search early.
+TIE_SOLVES = 3
+TIE_WINDOW = 0.2
 #: Relative slack on u_max inside the SDP (the re-check uses u_max itself).
 LIMIT_SLACK = 1e-6
 #: The IPM's gap and residual tolerances here: the LQR reproduction (gains to 1e-6) needs about 1e-10
@@ -150,8 +156,12 @@ def _ipm_status(status: str) -> str | None:
 
 
 def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver: str,
-          time_limit: float | None = None, cap: float | None = None, trace_weight: np.ndarray | None = None):
+          time_limit: float | None = None, cap: float | None = None, trace_weight: np.ndarray | None = None,
+          tie_weight: float | None = None):
     """Build and solve one design SDP: ``(info, W, Y, scalars)`` (``W``, ``Y`` None without an answer).
+
+    The tie-break stage (cost from x0): ``cap`` for cvxpy (``min trace Z`` s.t. ``gamma <= cap``), ``tie_weight``
+    for the IPM (``min gamma + tie_weight trace Z``, the same guarantee, see :func:`_propose`).
 
     ``solver``: ``"AUTO"``/``"IPM"``: the structured IPM (:func:`solver.ipm.solve_performance`), returning
     phase 2's last (strictly feasible) iterate when phase 2 did not converge (``info.status`` says so: the
@@ -165,20 +175,30 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
 
     name = str(solver).upper()
     start = time.perf_counter()
-    # The tie-break stage's feasible set is a slice of relative width TIE_BREAK along the optimal face: every
-    # point of it is that close to the boundary, phase 1 finds no centred start and phase 2 stalls (paper
-    # example: 114 iterations, no answer), so "AUTO" solves it with Clarabel; "IPM" tries (and may fail).
-    if name == "IPM" or (name == "AUTO" and cap is None):
+    # The tie-break stage's feasible set with the cap is a slice of relative width TIE_BREAK along the optimal
+    # face: every point of it is that close to the boundary, phase 1 finds no centred start and phase 2 stalls
+    # (paper example: 114 iterations, no answer); the IPM solves the penalized form instead (tie_weight).
+    if name in ("IPM", "AUTO"):
         modes = lifted.modes
         c = congruent_scale(modes, rate) * (1 + STRICT) if objective == "stability" else None
         radius = None
         if objective == "stability":
             radius = MAX_RADIUS * (1.0 if x0 is None else max(1.0, float(np.linalg.norm(x0))))
-        prob = ipm.performance_problem(lifted, objective, x0, u_max, c=c, cap=cap, radius=radius,
+        prob = ipm.performance_problem(lifted, objective, x0, u_max, c=c, radius=radius,
+                                       cap=None if tie_weight is not None else cap, tie_weight=tie_weight,
                                        limit_slack=LIMIT_SLACK, trace_weight=trace_weight)
         setup = time.perf_counter() - start
         sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=time_limit))
         status = _ipm_status(sol.status)
+        # the constants' size without the radius cap (radius^2 ~ 1e7 would hide t* = -0.9 of the paper motor)
+        scale = max([1.0] + [float(np.abs(C).max()) for g, C in zip(prob.lmi.groups_spec, prob.lmi.C)
+                             if g.name != "radius"])
+        if status is None and not np.isfinite(sol.value) and sol.raw.t_upper < -ipm.algorithm.INFEASIBLE_T * scale \
+                and sol.raw.primal_residual < 1e-6:
+            # phase 1 settled max t < 0 whatever its stop status (the free tau of the "ball" block runs off in
+            # phase 1 and ends it with numerical_error/max_iterations, paper motor with u_max = 0.01): no strictly
+            # feasible design; run() then looks for a re-checked proof, no second solver is needed
+            status = cp.INFEASIBLE
         info = SolveInfo(status=status or sol.status, solver="IPM", solve_time=sol.raw.timings["total"],
                          wall_time=time.perf_counter() - start,
                          objective=sol.value if status != cp.INFEASIBLE else sol.raw.t_upper,
@@ -303,18 +323,78 @@ def _propose(lifted: Lifted, objective: str, x0, u_max, rate, solver: str, clock
     clock.setup += info.setup
     clock.add(info)
     if Wv is not None and objective == "cost" and x0 is not None and u_max is None:
-        # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P
-        cap = float(extra["gamma"]) * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
-        try:
-            info2, W2, Y2, extra2 = solve(lifted, objective, x0, u_max, rate, solver, clock.remaining(time_limit),
-                                          cap=cap, trace_weight=trace_weight)
-        except SolverFailed:
-            info2 = W2 = None
-        if W2 is not None:
-            clock.setup += info2.setup
-            clock.add(info2)
-            Wv, Yv, extra, info = W2, Y2, extra2, info2
+        # the tie-break stage: among the x0-optimal designs (to TIE_BREAK relative) the one of least trace P.
+        # cvxpy: min trace Z s.t. gamma <= cap; the IPM: the same problem through its Lagrangian (_tie_break_ipm)
+        gamma1 = float(extra["gamma"])
+        cap = gamma1 * (1 + TIE_BREAK) + 1e-12 * max(1.0, float(x0 @ x0))
+        if str(solver).upper() in ("AUTO", "IPM"):
+            found = _tie_break_ipm(lifted, x0, rate, solver, clock, time_limit, trace_weight, Wv, gamma1, cap)
+        else:
+            try:
+                found = solve(lifted, objective, x0, u_max, rate, solver, clock.remaining(time_limit), cap=cap,
+                              trace_weight=trace_weight)
+            except SolverFailed:
+                found = None
+            if found is not None and found[1] is not None:
+                clock.setup += found[0].setup
+                clock.add(found[0])
+            else:
+                found = None
+        if found is not None:
+            info, Wv, Yv, extra = found
     return info, Wv, Yv, extra
+
+
+def _tie_break_ipm(lifted: Lifted, x0, rate, solver: str, clock: RunClock, time_limit, trace_weight, W1,
+                   gamma1: float, cap: float):
+    """The x0 tie-break stage on the IPM: ``(info, W, Y, scalars)`` of least trace P with ``gamma <= cap``, or None.
+
+    The capped problem's feasible set is too thin for phase 1 to centre in (see :func:`solve`), so the IPM
+    solves its Lagrangian ``min gamma + w trace Z`` (``Z >= W^{-1}``; the trace weighted by ``trace_weight``):
+    its optimum is the capped problem's optimum for the cap it meets, ``gamma(w)``, which grows with ``w``
+    (about as ``w^2``, measured).  Starting from ``w = TIE_WEIGHT gamma_1 / trace P_1`` the weight is moved by
+    a secant step in ``log w`` towards ``gamma(w) = cap`` (at most :data:`TIE_SOLVES` solves, stopped once
+    ``gamma(w)`` is within :data:`TIE_WINDOW` of the cap); the point kept is the one of least trace Z whose
+    attained ``gamma`` meets the cap (so the cap holds at the returned, strictly feasible point).  When the IPM
+    gives no iterate under ``"AUTO"``, :func:`solve` asks Clarabel the capped problem itself.
+    """
+    tw = np.ones(W1.shape[0]) if trace_weight is None else np.asarray(trace_weight, dtype=np.float64)
+    try:
+        tr1 = float(tw @ np.diag(np.linalg.inv(0.5 * (W1 + W1.T))))
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.isfinite(tr1) and tr1 > 0 and gamma1 > 0):
+        return None
+    target = cap - gamma1
+    w, best, tried = TIE_WEIGHT * gamma1 / tr1, None, []
+    for _ in range(TIE_SOLVES):
+        try:
+            found = solve(lifted, "cost", x0, None, rate, solver, clock.remaining(time_limit), cap=cap,
+                          trace_weight=trace_weight, tie_weight=w)
+        except SolverFailed:
+            break
+        info2, W2, _, extra2 = found
+        if W2 is None:
+            break
+        clock.setup += info2.setup
+        clock.add(info2)
+        if info2.solver != "IPM":  # Clarabel's capped problem (the IPM failed): the cap holds by construction
+            return found
+        rise = float(extra2["gamma"]) - gamma1
+        trace2 = float(tw @ np.diag(np.asarray(extra2["Z"])))
+        if rise <= target and (best is None or trace2 < best[0]):
+            best = (trace2, found)
+        if TIE_WINDOW * target <= rise <= target:
+            break
+        tried.append((w, max(rise, 1e-3 * target)))
+        if len(tried) >= 2 and tried[-1][1] != tried[-2][1] and tried[-1][0] != tried[-2][0]:
+            p = np.log(tried[-1][1] / tried[-2][1]) / np.log(tried[-1][0] / tried[-2][0])
+            p = min(max(p, 0.5), 4.0)
+        else:
+            p = 2.0
+        step = (0.6 * target / tried[-1][1]) ** (1.0 / p)
+        w = tried[-1][0] * min(max(step, 1e-3), 1e3)
+    return None if best is None else best[1]
 
 
 def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions, clock: RunClock, info,
@@ -523,9 +603,11 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
     if u_max is not None and x0 is not None:  # the limits themselves may be what no design meets
         from ..limit_proofs import prove_limits_infeasible
 
+        name = str(options.solver).upper()
         proof, why_not = prove_limits_infeasible(lifted.modes, u_max, x0, options.decay_rate, options.margin,
                                                  strict=STRICT if objective == "stability" else None,
-                                                 time_limit=clock.remaining(options.time_limit))
+                                                 time_limit=clock.remaining(options.time_limit),
+                                                 solver=name if name in ("AUTO", "IPM") else "CLARABEL")
         # the verdict needs the proof to reach every ellipsoid the plain design searches (W <= radius^2 I)
         reach = np.sqrt(lifted.modes.n_states) * MAX_RADIUS * max(1.0, float(np.linalg.norm(x0)))
         if proof is not None and proof.radius < reach:
@@ -537,7 +619,8 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
                 why += (f"; every design of this method meets decay rate {proof.decay_rate:.7g} (its stability "
                         f"blocks carry 1 + {STRICT:g})")
             res = finish(lifted.modes, "lmi", proof_outcome(proof), None, proof, None,
-                         clock, "CLARABEL", "" if info is None else info.status, f"{reason}; {why}",
+                         clock, proof.multipliers.solver or "CLARABEL", "" if info is None else info.status,
+                         f"{reason}; {why}",
                          [IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)], options)
             res.objective = objective
             return res

@@ -106,6 +106,54 @@ def test_one_mode_no_drop_is_lqr(plant):
     np.testing.assert_allclose(res.gains[0], K, rtol=1e-6, atol=1e-6 * np.abs(K).max())
 
 
+def _random_family(seed):
+    rng = np.random.default_rng(seed)
+    F = [rng.standard_normal((3, 3)) * 0.6 for _ in range(2)]
+    G = [rng.standard_normal((3, 1)) for _ in range(2)]
+    return PlantFamily(F=F, G=G), 2, rng.standard_normal(3)
+
+
+def _tie_break_point(fam, n_drop, x0, solver):
+    """The cost-from-x0 design's final (W, Y, gamma) through both stages, on unbalanced lifted data."""
+    from solver.methods import performance as perf
+    from solver.methods.common import RunClock
+
+    modes = ModeSet.from_family(fam, n_drop)
+    lifted, x0, _ = perf.prepare(modes, "lmi", "cost", None, x0, None, None, None, None)
+    clock = RunClock()
+    clock.cached = False
+    info, W, Y, extra = perf._propose(lifted, "cost", x0, None, None, solver, clock, None)
+    return info, W, float(extra["gamma"]), x0
+
+
+@pytest.mark.parametrize("case", ["paper", 0, 1])
+def test_ipm_tie_break_reaches_the_clarabel_bracket(case):
+    """Issue 29: the x0 tie-break (least trace P among the x0-optimal designs) runs on the IPM under "AUTO"
+    (its capped problem through the Lagrangian); Clarabel's capped problem is the second solver it is compared with."""
+    if case == "paper":
+        fam, n_drop, x0 = PlantFamily.paper_example(0.1), 3, np.array([-3.0, 2.0])
+    else:
+        fam, n_drop, x0 = _random_family(case)
+    auto = design(fam, n_drop, objective="cost", x0=x0)
+    ref = design(fam, n_drop, objective="cost", x0=x0, solver="CLARABEL")
+    assert auto.outcome == ref.outcome == "stabilized" and auto.solver == "IPM"
+    a, r = auto.performance, ref.performance
+    assert a.verified and r.verified and a.lower <= a.upper and r.lower <= r.upper
+    assert a.upper == pytest.approx(r.upper, rel=1e-6)
+    if case == "paper":
+        assert a.lower == pytest.approx(r.lower, rel=1e-6)
+    # the tie-break itself: both meet the cap of the x0 optimum and reach the same least trace P.  (On the random
+    # families a gain entry moves by ~1e-3 along the optimal face for a 1e-9 rise of x0' P x0, so the witnessed
+    # lower end of the bracket differs by up to ~1e-3 between the two solvers; the upper ends agree.)
+    ia, Wa, ga, xs = _tie_break_point(fam, n_drop, x0, "AUTO")
+    ir, Wr, gr, _ = _tie_break_point(fam, n_drop, x0, "CLARABEL")
+    assert ia.solver == "IPM" and ir.solver == "CLARABEL"
+    Pa, Pr = np.linalg.inv(Wa), np.linalg.inv(Wr)
+    best = min(ga, gr)
+    assert xs @ Pa @ xs <= best * (1 + 3e-9) and xs @ Pr @ xs <= best * (1 + 3e-8)
+    assert np.trace(Pa) == pytest.approx(np.trace(Pr), rel=2e-5)
+
+
 # ---------------------------------------------------------------------------------- H-infinity
 def hinf_norm(F, G, K, E, C, D, points=20001):
     """H-infinity norm of the closed loop by a dense frequency sweep refined by a bounded scalar search.

@@ -136,3 +136,41 @@ def test_a_proof_that_reaches_only_small_ellipsoids_is_not_a_verdict():
     res = design(fam, 2, u_max=[1e-8], x0=[10.0, 0.0], solver="CLARABEL")
     assert res.outcome == "not_converged"
     assert "reaches only part of the designs" in res.message and "at decay rate 0.99999" in res.message
+
+
+def test_ipm_multipliers_pass_the_independent_recheck():
+    """Issue 29: the limits' Farkas multipliers come from the IPM's phase 1 (an unstable plant, a tiny limit from
+    x0); they pass the float64 re-check and their t* matches a second solver's (Clarabel) on the same SDP."""
+    fam = PlantFamily(F=[np.array([[1.3, 0.2], [0.0, 0.8]])], G=[np.array([[1.0], [0.5]])])
+    modes, x0 = ModeSet.from_family(fam, 2), np.array([5.0, -4.0])
+    ipm = limits_multipliers(modes, [0.01], x0, solver="IPM")
+    ref = limits_multipliers(modes, [0.01], x0, solver="CLARABEL")
+    assert ipm.solver == "IPM" and ref.solver == "CLARABEL"
+    assert ipm.t == pytest.approx(ref.t, rel=1e-4) and ipm.t < 0
+    cert = check_limits_farkas(modes, ipm, [0.01], x0)
+    assert cert.verified and cert.any_margin and cert.constant < 0
+    # a limit the design meets: the IPM reports t* >= 0, no multipliers
+    assert limits_multipliers(modes, [50.0], x0, solver="IPM") is None
+    proof, _ = prove_limits_infeasible(modes, [0.01], x0, solver="IPM")
+    assert proof is not None and proof.multipliers.solver == "IPM"
+
+
+def test_auto_needs_no_clarabel_on_the_tie_break_and_limit_paths(motor, monkeypatch):
+    """Under solver="AUTO" the cost-from-x0 design (both stages) and the limits' Farkas proof run on the IPM alone:
+    with cvxpy's solve disabled the designs still succeed, and the certificates pass the re-check."""
+    import cvxpy
+
+    def no_cvxpy(self, *args, **kwargs):
+        raise AssertionError("a cvxpy solve ran under solver='AUTO'")
+
+    monkeypatch.setattr(cvxpy.Problem, "solve", no_cvxpy)
+    res = design(motor, 3, objective="cost", x0=X0)
+    assert res.outcome == "stabilized" and res.performance.verified and res.solver == "IPM"
+    res = design(motor, 3, decay_rate=0.5, u_max=[0.01], x0=X0)
+    assert res.outcome == "infeasible" and res.certificate.kind == "farkas_limits" and res.solver == "IPM"
+    assert check_limits_farkas(ModeSet.from_family(motor, 3), res.certificate.multipliers, [0.01], X0, 0.5).verified
+    fam = PlantFamily(F=[np.array([[1.3, 0.2], [0.0, 0.8]])], G=[np.array([[1.0], [0.5]])])
+    res = design(fam, 2, objective="cost", u_max=[0.01], x0=[5.0, -4.0])
+    assert res.outcome == "infeasible" and res.certificate.kind == "farkas_limits"
+    assert check_limits_farkas(ModeSet.from_family(fam, 2), res.certificate.multipliers, [0.01], [5.0, -4.0]).verified
+    assert design(motor, 3, u_max=[5.0], x0=X0).outcome == "stabilized"
