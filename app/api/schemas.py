@@ -217,6 +217,12 @@ class RateBracket(_Open):
                                                               "bisection certified (per sample).")
     slowdown: float | None = Field(None, description="`decay_rate: auto`: settling time asked for, as a multiple of "
                                                      "the fastest certified one's (1.5).")
+    open_loop_rate: float | None = Field(None, description="`decay_rate: auto` on a plant whose every mode is stable "
+                                                           "without control: its open-loop spectral radius per sample.")
+    open_loop_speedup: float | None = Field(None, description="`decay_rate: auto` on such a plant: the rate is no "
+                                                              "smaller than `open_loop_rate ** open_loop_speedup` "
+                                                              "(settling at most that many times faster than the "
+                                                              "plant's own, 10).")
 
 
 class Scaling(_Open):
