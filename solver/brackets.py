@@ -246,12 +246,13 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
                         f"(worst relative eigenvalue {worst:.3g})")
 
 
-def _brl(P, d, g):
-    """The bounded-real matrix ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I)``."""
+def _brl(P, d, g, P_next=None):
+    """The bounded-real matrix ``[A B; C D]' diag(P_next, I) [A B; C D] - diag(P, g I)`` (``P_next`` defaults to
+    P; a network's transition v -> w has ``P = P_v``, ``P_next = P_w``)."""
     AB = np.hstack([d["A"], d["B"]])
     CD = np.hstack([d["C"], d["D"]])
     n, k = d["A"].shape[0], d["B"].shape[1]
-    M = AB.T @ P @ AB + CD.T @ CD
+    M = AB.T @ (P if P_next is None else P_next) @ AB + CD.T @ CD
     M[:n, :n] -= P
     M[n:, n:] -= g * np.eye(k)
     return _sym(M), AB, CD

@@ -235,6 +235,18 @@ class NetworkSolution:
     ipm: object | None = None
 
 
+def cvx_variables(prob: NetworkProblem):
+    """cvxpy variables of the network LMI: the slack's diagonal blocks ``Zb`` and ``Z = blkdiag(Zb)``, one
+    ``W_v`` per node, the gains' ``Y_j``: ``(Zb, Z, W, Y)``."""
+    n, m, N, k = prob.n, prob.m, prob.N, prob.k
+    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
+    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
+        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
+    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
+    Y = [cp.Variable((m, n)) for _ in range(N)]
+    return Zb, Z, W, Y
+
+
 def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None = None, solver: str = "CLARABEL",
               start=None, sign_only: bool = False, per_block: bool = False) -> NetworkSolution:
     """``max t`` of the network LMI (data of transition e multiplied by ``scale[e]``).
@@ -255,11 +267,7 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
     if name == "IPM":
         return _solve_ipm(prob, scale, time_limit, start, sign_only, per_block)
     n, m, N, k = prob.n, prob.m, prob.N, prob.k
-    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
-    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
-        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
-    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
-    Y = [cp.Variable((m, n)) for _ in range(N)]
+    Zb, Z, W, Y = cvx_variables(prob)
     t = cp.Variable()
     eye_k = np.eye(k)
     if per_block:  # one normalization per slack block (docs/design.md 11.1)

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import NetworkPerformance, _allowance, _sym, check_x0, hinf_norm_lower, period_system
+from ..brackets import NetworkPerformance, _allowance, _brl, _sym, check_x0, hinf_norm_lower, period_system
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -192,16 +192,6 @@ def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     return bool(worst < -_allowance(P.shape[-1])), float(worst)
 
 
-def _brl(Pv, Pw, d, g):
-    AB = np.hstack([d["A"], d["B"]])
-    CD = np.hstack([d["C"], d["D"]])
-    k, p = d["A"].shape[0], d["B"].shape[1]
-    M = AB.T @ Pw @ AB + CD.T @ CD
-    M[:k, :k] -= Pv
-    M[k:, k:] -= g * np.eye(p)
-    return _sym(M), AB, CD
-
-
 def check_hinf_nodes(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     """Float64 re-check of ``P_v > 0`` and the node-dependent bounded-real inequality at ``gamma^2 = g``."""
     P = _sym(P)
@@ -209,7 +199,7 @@ def check_hinf_nodes(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, f
         return False, np.inf
     worst = -np.inf
     for d in data:
-        M, AB, CD = _brl(P[d["src"]], P[d["dst"]], d, g)
+        M, AB, CD = _brl(P[d["src"]], d, g, P[d["dst"]])
         size = (np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P[d["dst"]], 2) + np.linalg.norm(CD, 2) ** 2
                 + np.linalg.norm(P[d["src"]], 2) + g)
         worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
@@ -255,7 +245,7 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
         g = 0.0
         try:
             for d in data:
-                M, _, _ = _brl(P[d["src"]], P[d["dst"]], d, 0.0)
+                M, _, _ = _brl(P[d["src"]], d, 0.0, P[d["dst"]])
                 k = d["A"].shape[0]
                 N11, N12, N22 = M[:k, :k], M[:k, k:], M[k:, k:]
                 if np.linalg.eigvalsh(N11)[-1] >= 0:
@@ -443,12 +433,8 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_m
     """
     prob = ch.prob
     kothare = kind == "cost" and u_max is not None
-    n, m, N, k = prob.n, prob.m, prob.N, prob.k
-    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
-    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
-        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
-    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
-    Y = [cp.Variable((m, n)) for _ in range(N)]
+    n, m, k = prob.n, prob.m, prob.k
+    Zb, Z, W, Y = network_lmi.cvx_variables(prob)
     cons = []
     g = cp.Variable()
     for e in range(prob.n_blocks):
@@ -747,12 +733,8 @@ def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: fl
                  time_limit: float | None = None):
     """``max tau`` s.t. the invariance blocks, the input blocks ``[[u^2, y], [y', Z + Z' - W_v]] >= 0``,
     ``tau I <= W_v <= radius^2 I`` and x0's history inside every ``W_v`` ellipsoid: ``(W, Y, Z, status, s)``."""
-    n, m, N, k = prob.n, prob.m, prob.N, prob.k
-    Zb = [cp.Variable((n, n)) for _ in range(prob.zblocks)]
-    Z = Zb[0] if prob.zblocks == 1 else cp.bmat(
-        [[Zb[a] if a == b else np.zeros((n, n)) for b in range(prob.zblocks)] for a in range(prob.zblocks)])
-    W = [cp.Variable((k, k), symmetric=True) for _ in prob.nodes]
-    Y = [cp.Variable((m, n)) for _ in range(N)]
+    n, m, k = prob.n, prob.m, prob.k
+    Zb, Z, W, Y = network_lmi.cvx_variables(prob)
     tau = cp.Variable()
     c = (np.ones(prob.n_blocks) if rate is None else float(rate) ** (-prob.length.astype(float))) * (1 + STRICT)
     cons = []
