@@ -258,6 +258,23 @@ def _brl(P, d, g, P_next=None):
     return _sym(M), AB, CD
 
 
+def brl_level(pairs) -> float:
+    """The smallest ``g = gamma^2`` at which every bounded-real matrix of ``pairs`` (``(P, P_next, d)``, see
+    :func:`_brl`) is negative semidefinite given P (its Schur complement on the disturbance block).
+
+    Raises ``np.linalg.LinAlgError`` when a state block ``A' P_next A - P + C'C`` is not negative definite.
+    """
+    g = 0.0
+    for P, P_next, d in pairs:
+        M, _, _ = _brl(P, d, 0.0, P_next)
+        n = d["A"].shape[0]
+        N11, N12, N22 = M[:n, :n], M[:n, n:], M[n:, n:]
+        if np.linalg.eigvalsh(N11)[-1] >= 0:
+            raise np.linalg.LinAlgError
+        g = max(g, float(np.linalg.eigvalsh(_sym(N22 - N12.T @ np.linalg.solve(N11, N12)))[-1]))
+    return g
+
+
 def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     """Float64 re-check of ``P > 0`` and the bounded-real inequality at ``gamma^2 = g`` for all modes."""
     P = _sym(P)
@@ -283,15 +300,8 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
     reason = "the state block A'PA - P + C'C of the solver's P is not negative definite"
     for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
         P = c * P0
-        g = 0.0
         try:
-            for d in data:
-                M, _, _ = _brl(P, d, 0.0)
-                n = d["A"].shape[0]
-                N11, N12, N22 = M[:n, :n], M[:n, n:], M[n:, n:]
-                if np.linalg.eigvalsh(N11)[-1] >= 0:
-                    raise np.linalg.LinAlgError
-                g = max(g, float(np.linalg.eigvalsh(_sym(N22 - N12.T @ np.linalg.solve(N11, N12)))[-1]))
+            g = brl_level((P, None, d) for d in data)
         except np.linalg.LinAlgError:
             continue
         for bump in (1e-10, 1e-8, 1e-6):

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import NetworkPerformance, _allowance, _brl, _sym, check_x0, hinf_norm_lower, period_system
+from ..brackets import NetworkPerformance, _allowance, _brl, _sym, brl_level, check_x0, hinf_norm_lower, period_system
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -242,15 +242,8 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
     reason = "the state block of the bounded-real matrix is not negative definite"
     for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
         P = c * P0
-        g = 0.0
         try:
-            for d in data:
-                M, _, _ = _brl(P[d["src"]], d, 0.0, P[d["dst"]])
-                k = d["A"].shape[0]
-                N11, N12, N22 = M[:k, :k], M[:k, k:], M[k:, k:]
-                if np.linalg.eigvalsh(N11)[-1] >= 0:
-                    raise np.linalg.LinAlgError
-                g = max(g, float(np.linalg.eigvalsh(_sym(N22 - N12.T @ np.linalg.solve(N11, N12)))[-1]))
+            g = brl_level((P[d["src"]], P[d["dst"]], d) for d in data)
         except np.linalg.LinAlgError:
             continue
         for bump in (1e-10, 1e-8, 1e-6):
