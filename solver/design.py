@@ -252,11 +252,18 @@ def design(
         n_drop = _network_n_drop(network, n_drop)
         network = check_network(network)
         if not network.is_bounded_drops:
-            return _counted(_network_design(family, network, method, solver=solver, margin=margin, max_iter=max_iter,
-                                   time_limit=time_limit, callback=callback, ccl_start=ccl_start,
-                                   decay_rate=decay_rate, rate_tol=rate_tol, plant_switching=plant_switching,
-                                   scheme=scheme, scaling=scaling, objective=objective,
-                                   performance=(weights, x0, disturbance, output, u_max), max_memory=max_memory))
+            try:
+                return _counted(_network_design(
+                    family, network, method, solver=solver, margin=margin, max_iter=max_iter, time_limit=time_limit,
+                    callback=callback, ccl_start=ccl_start, decay_rate=decay_rate, rate_tol=rate_tol,
+                    plant_switching=plant_switching, scheme=scheme, scaling=scaling, objective=objective,
+                    performance=(weights, x0, disturbance, output, u_max), max_memory=max_memory))
+            except SolverFailed as err:  # a valid request gets a verdict, never the solver's exception
+                return DesignResult(outcome="not_converged", gains=None, certificate=None, method="network_lmi",
+                                    n_drop=network.n_drop, solver=str(solver).upper(),
+                                    solver_status=getattr(err, "status", "") or "", plant_switching=plant_switching,
+                                    message=f"the solver gave up and no verdict is proven: {err}",
+                                    network=network.to_dict())
     elif n_drop is None:
         raise InvalidInput("n_drop is required (or give a network)", ("n_drop",))
     if method not in METHODS:
@@ -386,8 +393,11 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     x0, u_max = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max,
                                                   decay_rate, family.n_states, family.n_inputs)
     check_solver(solver)
+    # the performance and input-limit designs on a network (docs/design.md §11.3) are one SDP on Clarabel: sized so
+    performance_design = objective != "stability" or u_max is not None
     size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
-                       solver=solver, network=network, decay_rate=decay_rate, rate_tol=rate_tol)
+                       solver="CLARABEL" if performance_design else solver, network=network,
+                       decay_rate=None if performance_design else decay_rate, rate_tol=rate_tol)
     size.check(max_memory, float("inf") if time_limit is not None else None)
     # "AUTO" falls back to Clarabel only where Clarabel's KKT system fits the memory budget too
     from .compiled import MAX_SOLVER_MEMORY

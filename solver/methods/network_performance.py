@@ -386,7 +386,7 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None) -> Net
             P, upper, why = certify(Pf, ch, data, kind, x0)
         reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
     lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper)
-    if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
+    if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None

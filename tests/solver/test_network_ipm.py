@@ -189,8 +189,8 @@ def test_auto_falls_back_to_clarabel_when_the_ipm_fails(monkeypatch):
     res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None)
     assert res.outcome == "stabilized" and res.solver == "CLARABEL" and res.solve_count == 2
     assert "IPM failed" in res.message
-    with pytest.raises(SolverFailed):
-        design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, solver="IPM")
+    alone = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=None, solver="IPM")  # no fallback: a verdict
+    assert alone.outcome == "not_converged" and "numerical_error" in alone.message
     monkeypatch.setattr(network_lmi, "_solve_ipm", real)
 
 
@@ -260,3 +260,18 @@ def test_design_on_a_delays_network_returns_the_per_block_farkas_certificate():
     prob = network_lmi.build_problem(TOO_UNSTABLE, net)
     assert network_lmi.check_network_farkas(prob, res.certificate.multipliers, np.ones(prob.n_blocks),
                                             per_block=True).verified
+
+
+def test_a_solver_failure_on_a_network_is_a_verdict_not_an_exception(monkeypatch):
+    """solver="IPM" has no fallback: its failure must come back as "not_converged", never as SolverFailed."""
+    from solver import Network, PlantFamily, design
+    from solver.errors import SolverFailed
+    from solver.methods import network_lmi
+
+    def failing(*args, **kwargs):
+        raise SolverFailed("IPM ended with status 'max_iterations'", status="max_iterations")
+
+    monkeypatch.setattr(network_lmi, "solve_sdp", failing)
+    res = design(PlantFamily.paper_example(0.1), network=Network.delays(1, 3), solver="IPM", decay_rate=None)
+    assert res.outcome == "not_converged" and res.gains is None and "max_iterations" in res.message
+    assert res.network == Network.delays(1, 3).to_dict()
