@@ -426,7 +426,7 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     effect is fresh) has one block of side 2n per reception-to-reception path and plant mode and one n x n
     matrix per reception node; the augmented form one block of side ``2 n N`` per edge and plant mode and one
     ``n N x n N`` matrix per node.  Its cone complementarity fallback has twice the node matrices.  ``solves``: a
-decay-rate bisection's count (:func:`request_solves`).
+    decay-rate bisection's count (:func:`request_solves`).
 
     Memory: with ``solver`` "AUTO" or "IPM", the structured IPM's (:func:`ipm_memory` of the network LMI's
     :mod:`solver.ipm.network_blocks` model: the node matrices are one stacked variable of ``V k^2`` entries

@@ -43,6 +43,11 @@ MAX_WALK_LENGTH = 12
 MAX_OPEN = 20000
 #: Walks re-valued with the refined sweep (hinf).
 REFINED = 4
+#: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
+STRICT = 1e-5
+LIMIT_SLACK = 1e-6
+#: Largest semi-axis of the node ellipsoids searched (times max(1, |x0|)): K = 0 may keep a stable plant anywhere.
+MAX_RADIUS = 1e3
 
 
 # ------------------------------------------------------------------------------------------- the channels
@@ -648,11 +653,6 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
 
 
 # ------------------------------------------------------------------------------------------- input limits
-#: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
-STRICT = 1e-5
-LIMIT_SLACK = 1e-6
-#: Largest semi-axis of the node ellipsoids searched (times max(1, |x0|)): K = 0 may keep a stable plant anywhere.
-MAX_RADIUS = 1e3
 
 
 def gain_rows(prob) -> list[list[tuple[int, int]]]:
