@@ -116,6 +116,12 @@ class Channels:
         return out
 
 
+def initial_history(prob) -> np.ndarray:
+    """``S`` with ``state(0) = S x0``: x0 itself (lifted form), or the history ``(x0, ..., x0)`` (augmented form:
+    the state before sample 0 is x0, simulate's convention); shape (k, n)."""
+    return np.eye(prob.n) if prob.form == "lifted" else np.vstack([np.eye(prob.n)] * prob.N)
+
+
 def channels(family, network, objective: str, weights=None, disturbance=None, output=None,
              plant_switching: str = "per_interval") -> Channels:
     """Build the network problem and the performance channels of ``objective`` ("cost" or "hinf")."""
@@ -141,7 +147,6 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
             out_rows = [Rows(lifted.lifted[s].output.free, lifted.lifted[s].output.coef, zero) for s in seq]
             Bs = [lifted.lifted[s].B for s in seq]
             Ds = [lifted.lifted[s].D for s in seq]
-        history = np.eye(n)
     else:
         ages = np.asarray(network.ages)
         plants = [int(lab["plant"]) for lab in prob.labels]
@@ -172,9 +177,8 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
                 out_rows.append(Rows(C[l] @ e0, coef, right))
                 Bs.append(np.vstack([E[l], np.zeros((k - n, E.shape[2]))]))
                 Ds.append(np.zeros((C.shape[1], E.shape[2])))
-        history = np.vstack([np.eye(n)] * N)  # the state before sample 0 is x0 (simulate's convention)
     start = np.arange(len(prob.nodes))
-    return Channels(prob, state, cost, out_rows, Bs, Ds, start, history, Q, R)
+    return Channels(prob, state, cost, out_rows, Bs, Ds, start, initial_history(prob), Q, R)
 
 
 def _source_node(prob, e: int) -> int:
@@ -766,7 +770,7 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
     u_max = np.asarray(u_max, float)
     x0 = None if x0 is None else np.asarray(x0, float)
     prob = network_lmi.build_problem(family, network, plant_switching)
-    history = np.eye(prob.n) if prob.form == "lifted" else np.vstack([np.eye(prob.n)] * prob.N)
+    history = initial_history(prob)
     scale = balance(family) if scaling == "auto" else None
     scale = None if scale is None or scale.is_identity else scale
     prob_s = prob if scale is None else network_lmi.build_problem(scale.family(family), network, plant_switching)
