@@ -264,8 +264,9 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
     return None, None, reason
 
 
-def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None):
-    """Node matrices for fixed gains (the smallest bound, a Clarabel SDP): a candidate for :func:`certify`."""
+def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: float | None = None):
+    """Node matrices for fixed gains (the smallest bound, a Clarabel SDP within ``time_limit`` s): a candidate
+    for :func:`certify`."""
     k, V = ch.prob.k, len(ch.prob.nodes)
     P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
     cons, S = [], ch.history
@@ -293,7 +294,8 @@ def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None):
     try:
         with warnings.catch_warnings():  # an inaccurate answer is a proposal like any other: re-checked
             warnings.simplefilter("ignore", UserWarning)
-            cp.Problem(cp.Minimize(obj), cons).solve(solver=cp.CLARABEL)
+            cp.Problem(cp.Minimize(obj), cons).solve(
+                solver=cp.CLARABEL, **({} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}))
     except cp.error.SolverError as err:
         return None, f"the fixed-gain SDP failed ({err})"
     if P[0].value is None:
@@ -382,15 +384,17 @@ def _walk_labels(prob, walk) -> list:
     return out
 
 
-def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None) -> NetworkPerformance:
-    """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower)."""
+def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
+            time_limit: float | None = None) -> NetworkPerformance:
+    """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower;
+    ``time_limit``: the fixed-gain SDP's, in seconds)."""
     data = ch.numeric(gains)
     P = upper = None
     reason = ""
     if P0 is not None:
         P, upper, reason = certify(P0, ch, data, kind, x0)
     if P is None:
-        Pf, why = fixed_gain(ch, data, kind, x0)
+        Pf, why = fixed_gain(ch, data, kind, x0, time_limit)
         if Pf is not None:
             P, upper, why = certify(Pf, ch, data, kind, x0)
         reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
@@ -422,6 +426,11 @@ def _solve_clarabel(problem, time_limit: float | None, what: str) -> float:
     except cp.error.SolverError as err:
         raise SolverFailed(f"Clarabel failed on the {what}: {err}", status="solver_error") from None
     return time.perf_counter() - start
+
+
+def _left(time_limit: float | None, start: float) -> float | None:
+    """What is left of ``time_limit`` (s) since ``start`` (perf_counter), for the next solve (at least 1 ms)."""
+    return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
 
 
 def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_max=None):
@@ -623,7 +632,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         gains = scale.plain.gains_back(gains)
         P0 = scale.plain.quadratic_back(P0) * (scale.cost if objective == "cost" else scale.output**2)
         X = scale.plain.quadratic_back(X)
-    perf = bracket(ch_user, gains, objective, P0=P0, x0=x0)
+    perf = bracket(ch_user, gains, objective, P0=P0, x0=x0, time_limit=_left(time_limit, start))
     inv, inv_reason = None, ""
     if kothare:
         inv, inv_reason = check_invariant_nodes(X, prob, gains, u_max, ch_user.history, x0)
@@ -632,7 +641,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         cert = network_lmi.recheck_network(prob, perf.certificate, gains, source=f"network_{objective}")
         cert = cert if cert.verified else None
     if cert is None:
-        cert = network_lmi.node_analysis(prob, gains, None, time_limit)
+        cert = network_lmi.node_analysis(prob, gains, None, _left(time_limit, start))
     timings["total"] = time.perf_counter() - start
     timings["setup"] = max(timings["total"] - seconds, 0.0)
     if cert is None:
@@ -806,7 +815,7 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
     cert = None
     if inv is not None:
         cert = network_lmi.recheck_network(prob, inv, gains, decay_rate, source="network_limits")
-        cert = cert if cert.verified else network_lmi.node_analysis(prob, gains, decay_rate, time_limit)
+        cert = cert if cert.verified else network_lmi.node_analysis(prob, gains, decay_rate, _left(time_limit, start))
     timings["total"] = time.perf_counter() - start
     timings["setup"] = max(timings["total"] - seconds, 0.0)
     if cert is None:
