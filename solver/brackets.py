@@ -276,17 +276,22 @@ def brl_level(pairs) -> float:
 
 
 def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
-    """Float64 re-check of ``P > 0`` and the bounded-real inequality at ``gamma^2 = g`` for all modes."""
+    """Float64 re-check of ``P > 0`` and the bounded-real inequality at ``gamma^2 = g`` for all modes.
+
+    ``P`` (n, n), or one matrix per network node (V, k, k): each ``d`` of ``data`` then names its transition's
+    ``src`` and ``dst`` nodes (docs/design.md §11.3)."""
     P = _sym(P)
-    if np.linalg.eigvalsh(P)[0] <= 0:
+    nodes = P if P.ndim == 3 else P[None]
+    if not np.all(np.isfinite(nodes)) or np.linalg.eigvalsh(nodes)[:, 0].min() <= 0:
         return False, np.inf
     worst = -np.inf
     for d in data:
-        M, AB, CD = _brl(P, d, g)
-        size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P, 2) + np.linalg.norm(CD, 2) ** 2 \
-            + np.linalg.norm(P, 2) + g
+        Pv, Pw = (nodes[d["src"]], nodes[d["dst"]]) if P.ndim == 3 else (P, P)
+        M, AB, CD = _brl(Pv, d, g, Pw)
+        size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(Pw, 2) + np.linalg.norm(CD, 2) ** 2 \
+            + np.linalg.norm(Pv, 2) + g
         worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
-    return bool(worst < -_allowance(P.shape[0] + max(d["B"].shape[1] for d in data))), float(worst)
+    return bool(worst < -_allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))), float(worst)
 
 
 def certify_hinf(P0: np.ndarray, data: list[dict]):

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import NetworkPerformance, _allowance, _brl, _sym, brl_level, check_x0, hinf_norm_lower, period_system
+from ..brackets import (NetworkPerformance, _allowance, _sym, brl_level, check_hinf, check_x0, hinf_norm_lower,
+                        period_system)
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -201,21 +202,6 @@ def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     return bool(worst < -_allowance(P.shape[-1])), float(worst)
 
 
-def check_hinf_nodes(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
-    """Float64 re-check of ``P_v > 0`` and the node-dependent bounded-real inequality at ``gamma^2 = g``."""
-    P = _sym(P)
-    if not np.all(np.isfinite(P)) or np.linalg.eigvalsh(P)[:, 0].min() <= 0:
-        return False, np.inf
-    worst = -np.inf
-    for d in data:
-        M, AB, CD = _brl(P[d["src"]], d, g, P[d["dst"]])
-        size = (np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(P[d["dst"]], 2) + np.linalg.norm(CD, 2) ** 2
-                + np.linalg.norm(P[d["src"]], 2) + g)
-        worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
-    p = max(d["B"].shape[1] for d in data)
-    return bool(worst < -_allowance(P.shape[-1] + p)), float(worst)
-
-
 def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None) -> float:
     """``max_v x0' S' P_v S x0`` (``trace S' P_v S`` without x0) over the start nodes."""
     S = ch.history
@@ -257,7 +243,7 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
             continue
         for bump in (1e-10, 1e-8, 1e-6):
             gb = max(g, 0.0) * (1 + bump) + bump * 1e-3 * float(np.max(np.linalg.norm(P, 2, axis=(1, 2)))) + 1e-300
-            ok, worst = check_hinf_nodes(P, gb, data)
+            ok, worst = check_hinf(P, gb, data)
             if ok:
                 return P, float(np.sqrt(gb)), ""
             reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
