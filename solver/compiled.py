@@ -187,8 +187,8 @@ def request_solves(method: str, decay_rate, rate_tol: float = 1e-3, objective: s
     return 1
 
 
-def _solve_seconds(blocks, p: int) -> tuple[float, int]:
-    """(seconds of one cold solve, blocks) for ``blocks`` = [(side k, variables touched v, count)] and p variables."""
+def _solve_seconds(blocks, p: int) -> float:
+    """Seconds of one cold solve for ``blocks`` = [(side k, variables touched v, count)] and p variables."""
     seconds, n_blocks = 0.0, 0
     for k, v, count in blocks:
         rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * k)
@@ -196,7 +196,7 @@ def _solve_seconds(blocks, p: int) -> tuple[float, int]:
         n_blocks += count
     seconds += float(p) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND
     seconds = ESTIMATE_ITERATIONS * (seconds + min(n_blocks, 10**300) * ESTIMATE_SECONDS_PER_BLOCK)
-    return float(min(seconds, 1e300)), n_blocks
+    return float(min(seconds, 1e300))
 
 
 @dataclass(frozen=True)
@@ -401,7 +401,7 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(
         CVXPY_MEMORY_FACTOR * structured + CVXPY_MEMORY_FIXED, conic)
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
-    seconds, _ = _solve_seconds(blocks, p)
+    seconds = _solve_seconds(blocks, p)
     total = _total(path, seconds, solves, S)
     channel_seconds = channel_memory = 0.0
     if channel_size:
@@ -457,7 +457,7 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
         n_full = zvars + v + N * m * n + 1
         memory = ipm_memory(n_full, zvars + V * sym + N * m * n, E + V, 2 * k, v) + 20 * E * k**4
     memory = float(min(memory, 10**300))
-    seconds, _ = _solve_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
+    seconds = _solve_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
     return DesignSize("network", E, 2 * k * E + k * V, p, memory, seconds,
                       nodes=int(network.nodes), state_size=k, path=path, solves=solves,
                       total_seconds=_total(path, seconds, solves, E))
