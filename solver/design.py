@@ -419,8 +419,9 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         with blas_threads(1):
             res = network_performance.run(family, network, objective, weights=weights, x0=x0,
                                           disturbance=disturbance, output=output, u_max=u_max,
-                                          plant_switching=plant_switching,
-                                          scaling=scaling, time_limit=time_limit, callback=callback)
+                                          plant_switching=plant_switching, scaling=scaling,
+                                          time_limit=time_limit, callback=callback, solver=solver,
+                                          fallback=fallback)
         res.network = network.to_dict()
         if res.certificate is not None and res.certificate.form == "augmented" and family.n_modes > 1 and \
                 plant_switching == "per_interval":

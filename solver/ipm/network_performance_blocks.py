@@ -143,8 +143,7 @@ def _transition_group(ch, kind: str, kothare: bool, gs: np.ndarray, strict: floa
 
 
 def network_performance_problem(ch, kind: str, x0: np.ndarray | None = None, u_max: np.ndarray | None = None,
-                                strict: float = 0.0, limit_slack: float = 0.0,
-                                radius: float | None = None) -> NetworkPerformanceProblem:
+                                strict: float = 0.0, limit_slack: float = 0.0) -> NetworkPerformanceProblem:
     """The SDP of :func:`solver.methods.network_performance.solve` as a :class:`GroupedLMI`.
 
     Parameters
@@ -242,10 +241,6 @@ def network_performance_problem(ch, kind: str, x0: np.ndarray | None = None, u_m
             terms["W"] = [(np.broadcast_to(Lw, (nb, k + 1, k)), None, -1.0,
                            np.array([v for v, *_ in input_index]))]
             groups.append(BlockGroup("input", C, terms))
-    if radius is not None:
-        Lw = np.broadcast_to(np.eye(k), (V, k, k))
-        groups.append(BlockGroup("radius", np.broadcast_to(float(radius) ** 2 * np.eye(k), (V, k, k)).copy(),
-                                 {"W": [(Lw, None, -1.0, np.arange(V))]}))
     matrices = [(f"Z{b}", (n, n), None) for b in range(zb)] + [("W", (V * k, k), k), ("Y", (N * m, n), None)]
     if use_X:
         matrices.append(("X", (ns * n, n), n))

@@ -477,6 +477,36 @@ def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_m
     return Wv, Yv, Zv, float(g.value), str(problem.status), elapsed
 
 
+#: The IPM's gap and feasibility tolerances on the network performance SDPs.
+IPM_TOL = 1e-10
+
+
+def solve_ipm(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_max=None):
+    """The design SDP of :func:`solve` on the structured IPM (:mod:`solver.ipm.network_performance_blocks`):
+    ``(W, Y, Z, value, status, seconds)``.
+
+    Phase 2's last iterate is strictly feasible whatever its status: a proposal for the re-checks.  On the
+    augmented form the infimum is not attained (the optimal ``P_v`` vanishes on the history blocks no future
+    input reads, ``W_v`` grows without bound there): phase 2 creeps towards it and stops at its iteration cap
+    (motor, delays(1, 3): 100 iterations, the bound within 1e-8 of the infimum, Clarabel's 3e-6 above it).  Raises
+    SolverFailed when there is none (phase 1 found no interior point: status "infeasible" when its
+    multipliers bound ``max t < 0``)."""
+    from ..ipm import IPMOptions
+    from ..ipm.network_performance_blocks import network_performance_problem, solve_network_performance
+
+    kothare = kind == "cost" and u_max is not None
+    begin = time.perf_counter()
+    problem = network_performance_problem(ch, kind, x0, u_max, strict=STRICT if kothare else 0.0,
+                                          limit_slack=LIMIT_SLACK if kothare else 0.0)
+    sol = solve_network_performance(problem, IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=time_limit))
+    elapsed = time.perf_counter() - begin
+    if not np.isfinite(sol.value):
+        raise SolverFailed(f"IPM ended with status {sol.status!r} on the network {kind} SDP after "
+                           f"{sol.raw.iterations} iterations (phase 1 t = {sol.raw.t:.3g}, bound "
+                           f"{sol.raw.t_upper:.3g})", status=sol.status)
+    return sol.W, sol.Y, sol.Z, sol.value, sol.status, elapsed
+
+
 def gains_from(prob, Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
     K = np.empty_like(Y)
     for j in range(prob.N):
@@ -562,7 +592,7 @@ def _scaled(family, objective, weights, disturbance, output, scaling: str):
 
 def run(family, network, objective: str, *, weights=None, x0=None, disturbance=None, output=None,
         u_max=None, plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
-        callback=None) -> DesignResult:
+        callback=None, solver: str = "AUTO", fallback: bool = True) -> DesignResult:
     """A cost or l2-gain design on ``network`` with its certified bracket (docs/design.md §11.3).
 
     The SDP runs in balanced coordinates (``scaling="auto"``); the gains are mapped back and every reported figure
@@ -572,10 +602,15 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     matrices ``W_v^-1``, mapped back, are re-checked as invariant ellipsoids whose inputs meet the limits
     (:func:`check_invariant_nodes`, x0's history inside) and land in ``res.invariant_set``.
 
+    ``solver``: "AUTO" (the structured IPM, :func:`solve_ipm`; Clarabel as well when the IPM's answer does not
+    pass the re-checks and ``fallback``, the better re-checked answer kept), "IPM" or "CLARABEL" alone.
+
     Returns
     -------
     DesignResult
         "stabilized" with a :class:`network_lmi.NodeCertificate` and ``performance`` (a :class:`NetworkPerformance`);
+        "not_certified" with a :class:`network_lmi.NetworkFarkasCertificate` when the network LMI that every
+        solution of the performance SDP contains (its blocks' leading ``2k x 2k`` parts) is proven infeasible;
         "not_converged" otherwise (the reason in ``message``), also when the gains are certified but the input
         limits are not proven (gains and bracket kept, ``invariant_set`` None).
     """
@@ -587,33 +622,96 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     scale, fam, w_s, d_s, o_s = _scaled(family, objective, weights, disturbance, output, scaling)
     ch = ch_user if scale is None else channels(fam, network, objective, w_s, d_s, o_s, plant_switching)
     prob = ch_user.prob
-    x0_s = None if x0 is None or scale is None else x0 / scale.plain.state
-    base = dict(method="network_lmi", n_drop=prob.N, solver="CLARABEL", plant_switching=plant_switching,
+    x0_s = x0 if x0 is None or scale is None else x0 / scale.plain.state
+    u_s = None if not kothare else u_max if scale is None else u_max / scale.plain.input
+    order = network_lmi.solver_order(solver, fallback)
+    base = dict(method="network_lmi", n_drop=prob.N, solver=order[0], plant_switching=plant_switching,
                 mode_labels=prob.labels)
-    try:
-        W, Y, Z, value, status, seconds = solve(ch, objective, x0 if scale is None else x0_s, time_limit,
-                                                None if not kothare else u_max if scale is None
-                                                else u_max / scale.plain.input)
-    except SolverFailed as err:
-        W, status, seconds, value = None, str(err), 0.0, np.nan
-    timings = {"total": 0.0, "solver": seconds, "setup": 0.0, "solves": 1, "cached": False}
-    record = IterationRecord(0, value, None, False, None, seconds, time.perf_counter() - start)
-    if callback is not None:
-        callback(record)
     where = f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, {prob.n_blocks} transitions"
-    gains = None
-    if W is not None:
+    timings = {"total": 0.0, "solver": 0.0, "setup": 0.0, "solves": 0, "cached": False}
+    best, history, failures, status = None, [], [], ""
+    for name in order:
+        if best is not None and best["good"]:
+            break
+        if history and time_limit is not None and time.perf_counter() - start >= time_limit:
+            failures.append(f"time limit reached ({time_limit:g} s) before {name}")
+            break
         try:
-            gains = gains_from(prob, Y, Z)
-            X = np.linalg.inv(W)  # the Kothare form's ellipsoids (P_v = gamma X_v); P_v = X_v otherwise
-            P0 = value * X if kothare else X
-        except np.linalg.LinAlgError:
-            gains = None
-    if gains is None or not np.all(np.isfinite(gains)):
-        timings["total"] = time.perf_counter() - start
-        return DesignResult(outcome="not_converged", gains=None, certificate=None, history=[record], timings=timings,
+            W, Y, Z, value, status, seconds = (solve_ipm if name == "IPM" else solve)(
+                ch, objective, x0_s, _left(time_limit, start), u_s)
+        except SolverFailed as err:
+            W, status, seconds, value = None, str(err.status or err), 0.0, np.nan
+            failures.append(f"{name}: {err}")
+        timings["solver"] += seconds
+        timings["solves"] += 1
+        record = IterationRecord(len(history), value, None, False, None, seconds, time.perf_counter() - start)
+        history.append(record)
+        if callback is not None:
+            callback(record)
+        if W is None:
+            if name != "IPM" or not failures:
+                failures.append(f"{name}: the network {objective} SDP gave no node matrices ({status})")
+            continue
+        cand = _candidate(ch_user, prob, scale, objective, kothare, W, Y, Z, value, x0, u_max, time_limit, start)
+        if cand is None:
+            failures.append(f"{name}: its node matrices or slack are singular ({status})")
+            continue
+        cand.update(solver=name, status=status)
+        record.theorem1 = cand["cert"] is not None
+        record.certificate_margin = None if cand["cert"] is None else cand["cert"].margin
+        if best is None or _rank(cand) > _rank(best):
+            best = cand
+        if not cand["good"]:
+            failures.append(f"{name}: {_shortfall(cand, objective)}")
+    timings["total"] = time.perf_counter() - start
+    timings["setup"] = max(timings["total"] - timings["solver"], 0.0)
+    via = "" if not failures or (best is not None and best["good"]) else " (" + "; ".join(failures) + ")"
+    if best is None or best["cert"] is None:
+        proof = _refutation(family, network, plant_switching, solver, fallback, time_limit, start)
+        if proof is not None:
+            return DesignResult(outcome="not_certified", gains=None, certificate=proof, history=history,
+                                timings=timings, solver_status=status, objective=objective, **base,
+                                message=f"{proof.statement()}; every solution of the network {objective} SDP "
+                                        f"would solve it (its blocks' leading parts), so no {objective} bound of "
+                                        f"this form exists on {where}{via}")
+    if best is None:
+        return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history, timings=timings,
                             solver_status=status, objective=objective, **base,
-                            message=f"the network {objective} SDP gave no gains ({status}) on {where}")
+                            message=f"the network {objective} SDP gave no gains on {where}{via}")
+    base["solver"] = best["solver"]
+    gains, perf, cert, inv = best["gains"], best["perf"], best["cert"], best["inv"]
+    if cert is None:
+        return DesignResult(outcome="not_converged", gains=gains, certificate=None, history=history, timings=timings,
+                            solver_status=best["status"], objective=objective, performance=perf, **base,
+                            message=f"the network {objective} SDP gave gains but no node certificate passed the "
+                                    f"float64 re-check on {where}; {perf.message}{via}")
+    if kothare and inv is None:  # as the single-network design: the limits unproven are not claimed
+        return DesignResult(outcome="not_converged", gains=gains, certificate=cert, history=history,
+                            timings=timings, solver_status=best["status"], objective=objective, performance=perf,
+                            **base, message=f"stabilizing gains found on {where} but the input limits are not "
+                                            f"proven: {best['inv_reason']}; {perf.message}{via}")
+    limits = ("; inputs within u_max from every state of the node ellipsoids (invariant along every admissible "
+              "run; re-checked)") if kothare else ""
+    res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history, timings=timings,
+                       solver_status=best["status"], objective=objective, performance=perf,
+                       spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
+                       message=f"stabilized on {where} ({best['solver']}); node certificate re-checked (relative "
+                               f"margin {cert.margin:.3g}){limits}; {perf.message}{via}")
+    res.invariant_set = inv
+    return res
+
+
+def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W, Y, Z, value, x0, u_max,
+               time_limit, start) -> dict | None:
+    """One solver's answer mapped back and re-checked: gains, bracket, node certificate, invariant sets."""
+    try:
+        gains = gains_from(prob, Y, Z)
+        X = np.linalg.inv(W)  # the Kothare form's ellipsoids (P_v = gamma X_v); P_v = X_v otherwise
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(gains)) or not np.all(np.isfinite(X)):
+        return None
+    P0 = value * X if kothare else X
     if scale is not None:
         gains = scale.plain.gains_back(gains)
         P0 = scale.plain.quadratic_back(P0) * (scale.cost if objective == "cost" else scale.output**2)
@@ -628,27 +726,37 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         cert = cert if cert.verified else None
     if cert is None:
         cert = network_lmi.node_analysis(prob, gains, None, _left(time_limit, start))
-    timings["total"] = time.perf_counter() - start
-    timings["setup"] = max(timings["total"] - seconds, 0.0)
-    if cert is None:
-        return DesignResult(outcome="not_converged", gains=gains, certificate=None, history=[record], timings=timings,
-                            solver_status=status, objective=objective, performance=perf, **base,
-                            message=f"the network {objective} SDP gave gains but no node certificate passed the "
-                                    f"float64 re-check on {where}; {perf.message}")
-    if kothare and inv is None:  # as the single-network design: the limits unproven are not claimed
-        return DesignResult(outcome="not_converged", gains=gains, certificate=cert, history=[record],
-                            timings=timings, solver_status=status, objective=objective, performance=perf, **base,
-                            message=f"stabilizing gains found on {where} but the input limits are not proven: "
-                                    f"{inv_reason}; {perf.message}")
-    limits = ("; inputs within u_max from every state of the node ellipsoids (invariant along every admissible "
-              "run; re-checked)") if kothare else ""
-    res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=[record], timings=timings,
-                       solver_status=status, objective=objective, performance=perf,
-                       spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
-                       message=f"stabilized on {where}; node certificate re-checked (relative margin "
-                               f"{cert.margin:.3g}){limits}; {perf.message}")
-    res.invariant_set = inv
-    return res
+    good = cert is not None and perf.verified and (not kothare or inv is not None)
+    return dict(gains=gains, perf=perf, cert=cert, inv=inv, inv_reason=inv_reason, good=good)
+
+
+def _rank(c: dict) -> tuple:
+    """Order of candidates: re-checked first, then stabilizing, a certified bound, limits proven, the lower bound."""
+    upper = c["perf"].upper if c["perf"].verified else np.inf
+    return (c["good"], c["cert"] is not None, c["perf"].verified, c["inv"] is not None, -upper)
+
+
+def _shortfall(c: dict, objective: str) -> str:
+    """What a candidate's re-checks did not prove."""
+    if c["cert"] is None:
+        return "gains without a node certificate passing the float64 re-check"
+    if not c["perf"].verified:
+        return f"no certified {objective} bound ({c['perf'].message})"
+    return f"input limits not proven ({c['inv_reason']})"
+
+
+def _refutation(family, network, plant_switching: str, solver: str, fallback: bool, time_limit, start):
+    """A re-checked Farkas certificate of the network LMI (section 11.1) or None.
+
+    Every solution of a performance SDP of this module is one of the network LMI at ``t = 0`` (each transition
+    block's leading ``2k x 2k`` principal part is that LMI's block; ``W_v >= 0`` follows from it): refuting the
+    LMI refutes every bound of that form."""
+    left = _left(time_limit, start)
+    if left is not None and left <= 1e-3:
+        return None
+    res = network_lmi.run(family, network, plant_switching=plant_switching, time_limit=left, use_ccl=False,
+                          solver=solver, fallback=fallback)
+    return res.certificate if res.outcome == "not_certified" else None
 
 
 # ------------------------------------------------------------------------------------------- input limits
