@@ -666,14 +666,37 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     timings["total"] = time.perf_counter() - start
     timings["setup"] = max(timings["total"] - timings["solver"], 0.0)
     via = "" if not failures or (best is not None and best["good"]) else " (" + "; ".join(failures) + ")"
-    if best is None or best["cert"] is None:
-        proof = _refutation(family, network, plant_switching, solver, fallback, time_limit, start)
-        if proof is not None:
-            return DesignResult(outcome="not_certified", gains=None, certificate=proof, history=history,
-                                timings=timings, solver_status=status, objective=objective, **base,
-                                message=f"{proof.statement()}; every solution of the network {objective} SDP "
-                                        f"would solve it (its blocks' leading parts), so no {objective} bound of "
-                                        f"this form exists on {where}{via}")
+    if best is None or best["cert"] is None or (kothare and best["inv"] is None):
+        # the convex SDP certified nothing: the stability design (its CCL iteration on the exact node
+        # conditions included) decides, its gains bracketed with their own fixed-gain node matrices
+        plain = _stability_design(family, network, u_max if kothare else None, x0, plant_switching, scaling,
+                                  solver, fallback, time_limit, start)
+        timings["solver"] += plain.timings.get("solver", 0.0)
+        timings["solves"] += plain.timings.get("solves", 0)
+        timings["total"] = time.perf_counter() - start
+        timings["setup"] = max(timings["total"] - timings["solver"], 0.0)
+        history += plain.history
+        why = "; ".join(failures) if failures else "no certified answer"
+        if plain.outcome == "stabilized":
+            perf = bracket(ch_user, plain.gains, objective, x0=x0, time_limit=_left(time_limit, start))
+            base.update(method=plain.method, solver=plain.solver)
+            res = DesignResult(outcome="stabilized", gains=plain.gains, certificate=plain.certificate,
+                               history=history, timings=timings, solver_status=plain.solver_status,
+                               objective=objective, performance=perf, spectral_radii=plain.spectral_radii, **base,
+                               message=f"the network {objective} SDP certified nothing ({why}); the "
+                                       f"{'input-limited ' if kothare else ''}stability design's gains instead, "
+                                       f"bracketed with their fixed-gain node matrices (not optimized for the "
+                                       f"{objective}): {plain.message}; {perf.message}")
+            res.invariant_set = plain.invariant_set if kothare else None
+            return res
+        if plain.outcome == "not_certified":
+            return DesignResult(outcome="not_certified", gains=None, certificate=plain.certificate, history=history,
+                                timings=timings, solver_status=plain.solver_status, objective=objective, **base,
+                                message=f"{plain.certificate.statement()}; every solution of the network "
+                                        f"{objective} SDP solves that LMI (its blocks' leading 2k x 2k parts), so "
+                                        f"no {objective} bound of this form exists on {where}, and cone "
+                                        f"complementarity on the exact node conditions found no gains ({why})")
+        via = f" ({why}; the {'input-limited ' if kothare else ''}stability design: {plain.message})"
     if best is None:
         return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history, timings=timings,
                             solver_status=status, objective=objective, **base,
@@ -745,18 +768,18 @@ def _shortfall(c: dict, objective: str) -> str:
     return f"input limits not proven ({c['inv_reason']})"
 
 
-def _refutation(family, network, plant_switching: str, solver: str, fallback: bool, time_limit, start):
-    """A re-checked Farkas certificate of the network LMI (section 11.1) or None.
-
-    Every solution of a performance SDP of this module is one of the network LMI at ``t = 0`` (each transition
-    block's leading ``2k x 2k`` principal part is that LMI's block; ``W_v >= 0`` follows from it): refuting the
-    LMI refutes every bound of that form."""
+def _stability_design(family, network, u_max, x0, plant_switching: str, scaling: str, solver: str, fallback: bool,
+                      time_limit, start) -> DesignResult:
+    """The stability design on ``network`` (:func:`network_lmi.run`, cone complementarity included), or the
+    input-limited one (:func:`run_limits`) with ``u_max``: the fallback of :func:`run` when its SDP certifies
+    nothing.  Its "not_certified" is a re-checked Farkas certificate of the network LMI (section 11.1), which every
+    solution of the performance SDPs solves at ``t = 0`` (each transition block's leading ``2k x 2k`` part)."""
     left = _left(time_limit, start)
-    if left is not None and left <= 1e-3:
-        return None
-    res = network_lmi.run(family, network, plant_switching=plant_switching, time_limit=left, use_ccl=False,
-                          solver=solver, fallback=fallback)
-    return res.certificate if res.outcome == "not_certified" else None
+    if u_max is not None:
+        return run_limits(family, network, u_max, x0=x0, plant_switching=plant_switching, scaling=scaling,
+                          time_limit=left)
+    return network_lmi.run(family, network, plant_switching=plant_switching, time_limit=left, solver=solver,
+                           fallback=fallback)
 
 
 # ------------------------------------------------------------------------------------------- input limits
