@@ -423,7 +423,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                                           time_limit=time_limit, callback=callback, solver=solver,
                                           fallback=fallback)
         res.network = network.to_dict()
-        if res.certificate is not None and res.certificate.form == "augmented" and family.n_modes > 1 and \
+        if getattr(res.certificate, "form", None) == "augmented" and family.n_modes > 1 and \
                 plant_switching == "per_interval":
             res.message += ("; the augmented certificate lets the plant mode switch at every sample (it covers "
                             "per_interval)")

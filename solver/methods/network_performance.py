@@ -28,6 +28,7 @@ import scipy.linalg
 
 from ..brackets import (NetworkPerformance, _allowance, _sym, brl_level, check_hinf, check_x0, hinf_norm_lower,
                         period_system)
+from ..certificates import uncontrollable_mode
 from ..compiled import cp
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
@@ -609,6 +610,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     -------
     DesignResult
         "stabilized" with a :class:`network_lmi.NodeCertificate` and ``performance`` (a :class:`NetworkPerformance`);
+        "infeasible" with an unstable mode no input reaches (:func:`solver.certificates.uncontrollable_mode`);
         "not_certified" with a :class:`network_lmi.NetworkFarkasCertificate` when the network LMI that every
         solution of the performance SDP contains (its blocks' leading ``2k x 2k`` parts) is proven infeasible;
         "not_converged" otherwise (the reason in ``message``), also when the gains are certified but the input
@@ -629,6 +631,12 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                 mode_labels=prob.labels)
     where = f"{network.describe()}; {prob.form} form, {len(prob.nodes)} node matrices, {prob.n_blocks} transitions"
     timings = {"total": 0.0, "solver": 0.0, "setup": 0.0, "solves": 0, "cached": False}
+    unc = uncontrollable_mode(np.asarray(family.F, float), np.asarray(family.G, float), 1.0)
+    if unc is not None:  # an unstable mode no input reaches: no gains at all, on any network
+        timings["total"] = time.perf_counter() - start
+        return DesignResult(outcome="infeasible", gains=None, certificate=unc, timings=timings, objective=objective,
+                            **base, message=f"{unc.statement()}: no gains stabilize the loop on {where}, so no "
+                                            f"{objective} bound exists")
     best, history, failures, status = None, [], [], ""
     for name in order:
         if best is not None and best["good"]:
