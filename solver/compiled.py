@@ -358,6 +358,10 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     """
     path = design_path(method, objective, decay_rate, u_max, network)
     solves = request_solves(method, decay_rate, rate_tol, objective, u_max)
+    if path == "network" and (objective in ("cost", "hinf") or (u_max is not None and u_max is not False)):
+        return network_performance_size(network, n_states, n_inputs, n_plants, plant_switching, solver,
+                                        objective=objective, u_max=u_max, n_disturbances=n_disturbances,
+                                        n_outputs=n_outputs)
     if path == "network":
         return network_design_size(network, n_states, n_inputs, n_plants, plant_switching, solver,
                                    path=path, solves=solves)
@@ -461,6 +465,76 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     return DesignSize("network", E, 2 * k * E + k * V, p, memory, seconds,
                       nodes=int(network.nodes), state_size=k, path=path, solves=solves,
                       total_seconds=_total(path, seconds, solves, E))
+
+
+def network_performance_size(network, n_states: int, n_inputs: int, n_plants: int,
+                             plant_switching: str = "per_interval", solver: str = "AUTO", *,
+                             objective: str = "cost", u_max=None, n_disturbances: int = 1,
+                             n_outputs: int | None = None) -> DesignSize:
+    """Size of a network performance or input-limited design (docs/design.md §11.3), from the automaton alone.
+
+    The model of :mod:`solver.ipm.network_performance_blocks` (the cvxpy form Clarabel solves has the same
+    cones): one transition block of side ``2k + p_w + p`` per transition and plant mode (``p`` the cost or output
+    rows after the triangular factor, at most ``k + N m`` (+ ``p_w``) columns), one start block per node (side
+    ``n + k`` with its 1 x 1 trace block, the larger of the cost's two forms; ``k + 1`` for x0), and the input
+    blocks of side ``k + 1`` (per node, gain applied from it and input).  ``objective="stability"`` with
+    ``u_max``: the input-limited design (invariance blocks of side 2k, the input blocks, ``W_v`` between two
+    bounds), which runs on Clarabel.  Memory: the structured IPM's (as :func:`ipm_memory`, the node matrices the
+    largest variable) with ``solver`` "AUTO"/"IPM", Clarabel's (its dense scaling per cone, the cvxpy copies of
+    the Schur pieces) otherwise.
+    """
+    from .methods.network_lmi import fresh_age, lifted_edges
+
+    n, m, r, N = int(n_states), int(n_inputs), int(n_plants), int(network.n_drop)
+    pw1 = int(n_disturbances)
+    pz1 = n + m if n_outputs is None else int(n_outputs)
+    if fresh_age(network):
+        edges = lifted_edges(network)
+        V = len({v for v, _, _ in edges} | {w for _, w, _ in edges})
+        counts = [(eta, r if plant_switching == "per_interval" else r**eta) for _, _, eta in edges]
+        k, zb, gains_per_node = n, 1, N
+    else:
+        V, k, zb, gains_per_node = int(network.nodes), n * N, N, 1
+        counts = [(1, len(network.edges) * r)]
+    E = sum(c for _, c in counts)
+    kothare = u_max is not None and u_max is not False
+    limits_only = objective not in ("cost", "hinf")
+    eta_max = max(eta for eta, _ in counts)
+    if limits_only:
+        pw, p, side = 0, 0, 2 * k
+    elif objective == "cost":
+        pw = 0
+        p = max(min(eta * (n + m), k + N * m) for eta, _ in counts)
+    else:
+        pw = eta_max * pw1 if k == n else pw1
+        p = max(min(eta * pz1, k + N * m + eta * pw1) for eta, _ in counts)
+    side = 2 * k + pw + p
+    sym_k, sym_n = k * (k + 1) // 2, n * (n + 1) // 2
+    gain_vars = N * m * n
+    p_vars = zb * n * n + V * sym_k + gain_vars + 1
+    blocks = [(side, zb * n * n + 2 * sym_k + gain_vars + 1, E)]
+    if objective == "cost":
+        p_vars += V * sym_n
+        blocks += [(n + k, sym_k + sym_n + 1, V), (1, sym_n + 1, V)]
+    if kothare:
+        blocks.append((k + 1, sym_k + zb * n * n + gain_vars, V * gains_per_node * m))
+    if limits_only:
+        blocks += [(k, sym_k + 1, 2 * V)]
+    lmi = sum(sd * c for sd, _, c in blocks)
+    pieces = sum(c * v**2 for _, v, c in blocks)
+    iterates = sum(c * sd * sd for sd, _, c in blocks)
+    conic = 8 * sum(c * (sd * (sd + 1) // 2) ** 2 for sd, _, c in blocks)  # clarabel_kkt_bytes, per count
+    clarabel = max(CVXPY_MEMORY_FACTOR * 8 * (pieces + p_vars**2) + CVXPY_MEMORY_FIXED, conic)
+    if str(solver).upper() in ("AUTO", "IPM") and not limits_only:
+        v = V * k * k
+        n_full = zb * n * n + v + gain_vars + (V * n * n if objective == "cost" else 0) + 2
+        memory = ipm_memory(n_full, p_vars, 1, 0, v) + 10 * 30 * iterates + 5 * E * side**2 * k**2
+    else:
+        memory = clarabel
+    memory = float(min(memory, 10**300))
+    seconds = _solve_seconds(blocks, p_vars)
+    return DesignSize("network", E, lmi, p_vars, memory, seconds, nodes=int(network.nodes), state_size=k,
+                      path="network", solves=1, total_seconds=_total("network", seconds, 1, E))
 
 
 def check_solver(solver: str) -> str:

@@ -393,19 +393,24 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     x0, u_max = network_performance.check_request(network, objective, weights, x0, disturbance, output, u_max,
                                                   decay_rate, family.n_states, family.n_inputs)
     check_solver(solver)
-    # the performance and input-limit designs on a network (docs/design.md §11.3) are one SDP on Clarabel: sized so
+    # the performance designs on a network (docs/design.md §11.3) are one SDP on the IPM (Clarabel under "AUTO" as
+    # the fallback), the input-limited stability design one on Clarabel: each sized as the path it runs
     performance_design = objective != "stability" or u_max is not None
-    size = design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
-                       solver="CLARABEL" if performance_design else solver, network=network,
-                       decay_rate=None if performance_design else decay_rate, rate_tol=rate_tol)
+    pw, pz = performance_dims(disturbance, output)
+    limits_only = objective == "stability" and u_max is not None
+
+    def size_of(name):
+        return design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
+                           solver=name, network=network, objective=objective, u_max=u_max, n_disturbances=pw,
+                           n_outputs=pz, decay_rate=None if performance_design else decay_rate, rate_tol=rate_tol)
+
+    size = size_of("CLARABEL" if limits_only else solver)
     size.check(max_memory, float("inf") if time_limit is not None else None)
     # "AUTO" falls back to Clarabel only where Clarabel's KKT system fits the memory budget too
     from .compiled import MAX_SOLVER_MEMORY
 
     budget = MAX_SOLVER_MEMORY if max_memory is None else max_memory
-    fallback = str(solver).upper() != "AUTO" or not budget or design_size(
-        "lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching, solver="CLARABEL",
-        network=network).memory <= budget
+    fallback = str(solver).upper() != "AUTO" or not budget or size_of("CLARABEL").memory <= budget
     start = time.perf_counter()
     if u_max is not None and objective == "stability":  # docs/design.md §11.3
         with blas_threads(1):

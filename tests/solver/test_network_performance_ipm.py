@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from solver import Network, PlantFamily, design
+from solver import InvalidInput, Network, PlantFamily, design
 from solver.ipm.network_performance_blocks import network_performance_problem, solve_network_performance
 from solver.ipm import IPMOptions
 from solver.methods import network_performance as npf
@@ -107,3 +107,34 @@ def test_uncontrollable_unstable_mode_is_infeasible():
     fam = PlantFamily([[[0.5, 0.0], [0.0, 1.2]]], [[[1.0], [0.0]]], sampling_period=0.1)
     res = design(fam, network=Network.delays(1, 3), objective="cost")
     assert res.outcome == "infeasible" and res.gains is None
+
+
+# ------------------------------------------------------------------------------------------- the size guard
+@pytest.mark.parametrize("net", [Network.delays(1, 3), Network.weakly_hard(2, 4, 3)], ids=lambda n: n.describe())
+@pytest.mark.parametrize("kind,u_max", [("cost", None), ("hinf", None), ("cost", np.array([0.1]))],
+                         ids=["cost", "hinf", "kothare"])
+def test_size_estimate_counts_the_ipm_model(net, kind, u_max):
+    """design_size of a network performance request against the model the IPM solves, built here: the same LMI
+    size (sum of block sides) and variables (the model's reduced coordinates less t); the lifted form's input
+    blocks are bounded by one per node, gain and input."""
+    from solver.compiled import design_size
+
+    ch = npf.channels(MOTOR, net, kind, disturbance=E if kind == "hinf" else None)
+    model = network_performance_problem(ch, kind, None, u_max).lmi
+    size = design_size("lmi", 2, 1, MOTOR.n_modes, net.n_drop, network=net, objective=kind, u_max=u_max)
+    lmi = sum(C.shape[0] * C.shape[1] for C in model.C)
+    assert size.n_variables == model.p - 1
+    if u_max is not None and ch.prob.form == "lifted":
+        assert lmi <= size.lmi_size < lmi + 3 * 4 * 3
+    else:
+        assert size.lmi_size == lmi
+
+
+def test_size_guard_refuses_a_network_performance_design_up_front():
+    from solver.compiled import design_size
+
+    net = Network.delays(1, 3)
+    size = design_size("lmi", 2, 1, MOTOR.n_modes, net.n_drop, network=net, objective="cost")
+    with pytest.raises(InvalidInput) as err:
+        design(MOTOR, network=net, objective="cost", max_memory=size.memory / 2)
+    assert "network design" in str(err.value) and f"LMI size {size.lmi_size}" in str(err.value)
