@@ -200,7 +200,8 @@ def design(
         None, a number, "max" or "auto" (the model search of solver/rate_search.py on the convex
         condition).  ``objective="cost"``/``"hinf"`` (weights, x0, disturbance, output) and ``u_max`` (with
         ``objective="stability"``, x0 and a rate optional) run :mod:`solver.methods.network_performance`
-        (docs/design.md §11.3, on Clarabel): ``res.performance`` is a certified bracket over every admissible
+        (docs/design.md §11.3; cost and hinf on the structured IPM under "AUTO"/"IPM", Clarabel as the fallback;
+        the input-limited stability design on Clarabel): ``res.performance`` is a certified bracket over every admissible
         run, ``res.invariant_set`` one ellipsoid per node; ``u_max`` with a cost objective is the
         Kothare form (one SDP: the cost bracket from x0 and inputs within u_max on every admissible run
         from it); ``u_max`` with hinf and ``decay_rate`` with a cost or hinf objective are refused.  Outcomes: "stabilized" (a node certificate

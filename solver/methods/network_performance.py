@@ -15,6 +15,11 @@ augmented one.  The bound is ``max_v x0' S' P_v S x0`` (``trace S' P_v S``) over
 ``S`` the initial history (``x0``, or ``x0`` repeated on the augmented state).  Every figure is re-checked in
 float64 (:func:`certify`) and the lower bound is the exact value of the worst admissible closed walk searched
 (:func:`lower_bound`), both independent of the solver.
+
+The design SDP runs on the structured IPM (:func:`solve_ipm`, the model of
+:mod:`solver.ipm.network_performance_blocks`) or on Clarabel through cvxpy (:func:`solve`); when neither certifies,
+the stability design's gains are bracketed instead, or its Farkas refutation of the network LMI is the verdict
+(docs/design.md §11.3, "When the convex SDP certifies nothing").
 """
 
 from __future__ import annotations
@@ -489,7 +494,7 @@ def solve_ipm(ch: Channels, kind: str, x0=None, time_limit: float | None = None,
     Phase 2's last iterate is strictly feasible whatever its status: a proposal for the re-checks.  On the
     augmented form the infimum is not attained (the optimal ``P_v`` vanishes on the history blocks no future
     input reads, ``W_v`` grows without bound there): phase 2 creeps towards it and stops at its iteration cap
-    (motor, delays(1, 3): 100 iterations, the bound within 1e-8 of the infimum, Clarabel's 3e-6 above it).  Raises
+    (motor, delays(1, 3): 100 iterations, 3e-9 above the infimum, Clarabel 3e-6 above it).  Raises
     SolverFailed when there is none (phase 1 found no interior point: status "infeasible" when its
     multipliers bound ``max t < 0``)."""
     from ..ipm import IPMOptions
