@@ -298,19 +298,23 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
     """Smallest ``gamma`` that ``c P0`` (c near 1) certifies, re-checked by :func:`check_hinf`.
 
     For fixed P the smallest ``g = gamma^2`` is ``max_s lambda_max(N22 - N21 N11^{-1} N12)`` of the
-    bounded-real matrix at g = 0 (needs ``N11 < 0``).  Returns ``(P or None, gamma or None, reason)``.
+    bounded-real matrix at g = 0 (needs ``N11 < 0``).  ``P0`` one matrix, or one per network node (V, k, k),
+    each ``data`` entry then naming its ``src`` and ``dst`` node.  Returns ``(P or None, gamma or None, reason)``.
     """
-    P0 = _sym(P0)
+    P0 = _sym(np.asarray(P0, dtype=np.float64))
+    if not np.all(np.isfinite(P0)):
+        return None, None, "the solver's matrices are not finite"
+    nodes = P0.ndim == 3
     best = (None, None)
     reason = "the state block A'PA - P + C'C of the solver's P is not negative definite"
     for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
         P = c * P0
         try:
-            g = brl_level((P, None, d) for d in data)
+            g = brl_level(((P[d["src"]], P[d["dst"]], d) if nodes else (P, None, d)) for d in data)
         except np.linalg.LinAlgError:
             continue
         for bump in (1e-10, 1e-8, 1e-6):
-            gb = max(g, 0.0) * (1 + bump) + bump * np.linalg.norm(P, 2) * 1e-3 + 1e-300
+            gb = max(g, 0.0) * (1 + bump) + bump * float(np.max(np.linalg.norm(P, 2, axis=(-2, -1)))) * 1e-3 + 1e-300
             ok, worst = check_hinf(P, gb, data)
             if ok:
                 if best[1] is None or np.sqrt(gb) < best[1]:

@@ -147,6 +147,17 @@ class PerformanceScaling:
     def u_max(self, u_max):
         return None if u_max is None else u_max / self.plain.input
 
+    def weights(self, Q, R):
+        """``(Q~, R~) = (T' Q T / cost, U' R U / cost)``: the stage cost's weights in scaled coordinates."""
+        t, u = self.plain.state, self.plain.input
+        return Q * t[:, None] * t[None, :] / self.cost, R * u[:, None] * u[None, :] / self.cost
+
+    def channel(self, E, C, D):
+        """``(E~, C~, D~) = (T^-1 E disturbance, C T / output, D U / output)``, one per plant mode (r, ., .)."""
+        t, u = self.plain.state, self.plain.input
+        return (E / t[None, :, None] * self.disturbance, C * t[None, None, :] / self.output,
+                D * u[None, None, :] / self.output)
+
     def modes(self, modes):
         """The :class:`solver.network.ModeSet` in scaled coordinates (every entry scaled exactly)."""
         from dataclasses import replace as _replace
@@ -184,8 +195,7 @@ class PerformanceScaling:
                         output=rows(lm.output, None, sz), B=None if lm.B is None else lm.B / t[:, None] * sw,
                         D=None if lm.D is None else lm.D * (sw / sz))
                for lm in lifted.lifted]
-        Q = None if lifted.Q is None else lifted.Q * t[:, None] * t[None, :] / self.cost
-        R = None if lifted.R is None else lifted.R * u[:, None] * u[None, :] / self.cost
+        Q, R = (None, None) if lifted.Q is None else self.weights(lifted.Q, lifted.R)
         return Lifted(modes=self.modes(lifted.modes), lifted=out, Q=Q, R=R)
 
     def quadratic_back(self, P, kind: str | None = None):

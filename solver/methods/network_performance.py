@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import (NetworkPerformance, _allowance, _sym, brl_level, check_hinf, check_x0, hinf_norm_lower,
+from ..brackets import (NetworkPerformance, _allowance, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         period_system)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp
@@ -240,20 +240,7 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
             if ok:
                 return P, bound_of(P, ch, x0), ""
         return None, None, f"no multiple of the solver's node matrices passes the re-check (worst {worst:.3g})"
-    reason = "the state block of the bounded-real matrix is not negative definite"
-    for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
-        P = c * P0
-        try:
-            g = brl_level((P[d["src"]], P[d["dst"]], d) for d in data)
-        except np.linalg.LinAlgError:
-            continue
-        for bump in (1e-10, 1e-8, 1e-6):
-            gb = max(g, 0.0) * (1 + bump) + bump * 1e-3 * float(np.max(np.linalg.norm(P, 2, axis=(1, 2)))) + 1e-300
-            ok, worst = check_hinf(P, gb, data)
-            if ok:
-                return P, float(np.sqrt(gb)), ""
-            reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
-    return None, None, reason
+    return certify_hinf(P0, data)
 
 
 def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: float | None = None):
@@ -585,15 +572,11 @@ def _scaled(family, objective, weights, disturbance, output, scaling: str):
     scale = performance_balance(family, lifted)
     if scale.is_identity:
         return None, family, weights, disturbance, output
-    t, u = scale.plain.state, scale.plain.input
     fam = scale.plain.family(family)
     if objective == "cost":
-        Q, R = check_weights(weights, family.n_states, family.n_inputs)
-        return scale, fam, (Q * t[:, None] * t[None, :] / scale.cost, R * u[:, None] * u[None, :] / scale.cost), \
-            None, None
-    E, C, D = check_channel(disturbance, output, family.n_modes, family.n_states, family.n_inputs)
-    sw, sz = scale.disturbance, scale.output
-    return scale, fam, None, E / t[None, :, None] * sw, (C * t[None, None, :] / sz, D * u[None, None, :] / sz)
+        return scale, fam, scale.weights(*check_weights(weights, family.n_states, family.n_inputs)), None, None
+    E, C, D = scale.channel(*check_channel(disturbance, output, family.n_modes, family.n_states, family.n_inputs))
+    return scale, fam, None, E, (C, D)
 
 
 def run(family, network, objective: str, *, weights=None, x0=None, disturbance=None, output=None,
@@ -629,8 +612,8 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     scale, fam, w_s, d_s, o_s = _scaled(family, objective, weights, disturbance, output, scaling)
     ch = ch_user if scale is None else channels(fam, network, objective, w_s, d_s, o_s, plant_switching)
     prob = ch_user.prob
-    x0_s = x0 if x0 is None or scale is None else x0 / scale.plain.state
-    u_s = None if not kothare else u_max if scale is None else u_max / scale.plain.input
+    x0_s = x0 if scale is None else scale.x0(x0)
+    u_s = None if not kothare else u_max if scale is None else scale.u_max(u_max)
     order = network_lmi.solver_order(solver, fallback)
     base = dict(method="network_lmi", n_drop=prob.N, solver=order[0], plant_switching=plant_switching,
                 mode_labels=prob.labels)
@@ -750,8 +733,8 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
     P0 = value * X if kothare else X
     if scale is not None:
         gains = scale.plain.gains_back(gains)
-        P0 = scale.plain.quadratic_back(P0) * (scale.cost if objective == "cost" else scale.output**2)
-        X = scale.plain.quadratic_back(X)
+        P0 = scale.quadratic_back(P0, objective)
+        X = scale.quadratic_back(X)
     perf = bracket(ch_user, gains, objective, P0=P0, x0=x0, time_limit=_left(time_limit, start))
     inv, inv_reason = None, ""
     if kothare:
