@@ -635,9 +635,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         try:
             W, Y, Z, value, status, seconds = (solve_ipm if name == "IPM" else solve)(
                 ch, objective, x0_s, _left(time_limit, start), u_s)
+            why = f"the network {objective} SDP gave no node matrices ({status})"
         except SolverFailed as err:
-            W, status, seconds, value = None, str(err.status or err), 0.0, np.nan
-            failures.append(f"{name}: {err}")
+            W, status, seconds, value, why = None, str(err.status or err), 0.0, np.nan, str(err)
         timings["solver"] += seconds
         timings["solves"] += 1
         record = IterationRecord(len(history), value, None, False, None, seconds, time.perf_counter() - start)
@@ -645,8 +645,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         if callback is not None:
             callback(record)
         if W is None:
-            if name != "IPM" or not failures:
-                failures.append(f"{name}: the network {objective} SDP gave no node matrices ({status})")
+            failures.append(f"{name}: {why}")
             continue
         cand = _candidate(ch_user, prob, scale, objective, kothare, W, Y, Z, value, x0, u_max, time_limit, start)
         if cand is None:
