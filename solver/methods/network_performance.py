@@ -614,7 +614,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
     prob = ch_user.prob
     x0_s = x0 if scale is None else scale.x0(x0)
     u_s = None if not kothare else u_max if scale is None else scale.u_max(u_max)
-    # the cvxpy form runs on Clarabel whatever conic solver is named (SCS has no tolerances that the re-checks pass)
+    # the cvxpy form (:func:`solve`) runs on Clarabel whatever other conic solver is named
     order = list(dict.fromkeys(n if n == "IPM" else "CLARABEL" for n in network_lmi.solver_order(solver, fallback)))
     base = dict(method="network_lmi", n_drop=prob.N, solver=order[0], plant_switching=plant_switching,
                 mode_labels=prob.labels)
