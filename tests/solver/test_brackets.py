@@ -150,7 +150,9 @@ def test_ipm_tie_break_reaches_the_clarabel_bracket(case):
     assert ia.solver == "IPM" and ir.solver == "CLARABEL"
     Pa, Pr = np.linalg.inv(Wa), np.linalg.inv(Wr)
     best = min(ga, gr)
-    assert xs @ Pa @ xs <= best * (1 + 3e-9) and xs @ Pr @ xs <= best * (1 + 3e-8)
+    # Clarabel meets the cap on W to its feasibility tolerance (1e-8); through inv(W) that is up to ~6e-8 relative on
+    # x0' P x0 here, and where in that range it lands depends on the machine's BLAS kernels
+    assert xs @ Pa @ xs <= best * (1 + 3e-9) and xs @ Pr @ xs <= best * (1 + 2e-7)
     assert np.trace(Pa) == pytest.approx(np.trace(Pr), rel=2e-5)
 
 
