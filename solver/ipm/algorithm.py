@@ -310,7 +310,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     S = [c + d for c, d in zip(C, op(y))]
     E = E_prev = None  # the dual residual S - C - A(y) of an infeasible start (None: S = C + A(y))
     if slack_start is not None:
-        E = [np.eye(c.shape[1]) * slack_start - s for c, s in zip(C, S)]
+        E = [np.eye(c.shape[1]) * s0 - s for c, s, s0 in zip(C, S, np.broadcast_to(slack_start, (ng,)))]
         S = [s + e for s, e in zip(S, E)]
     # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
     if isinstance(x_start, list):  # given multipliers (phase 2: centred on the start's S)
@@ -737,7 +737,7 @@ def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: flo
     two = problem.at(np.zeros(problem.p), objective)
     op, adj, schur = two.ops(o.dense)
     offset = _offset(two, objective)
-    s0 = SLACK_START * max(1.0, max(float(np.abs(c).max()) for c in two.C))
+    s0 = np.array([SLACK_START * max(1.0, float(np.abs(c).max())) for c in two.C])
     core = _ipm_core(two.C, two.b, op, adj, schur, o, t_start, feasible_start=True,
                      x_start=_x_start(adj, two.b, two.C, 1.0), offset=offset, slack_start=s0)
     return two, core, offset
