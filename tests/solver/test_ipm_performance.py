@@ -80,16 +80,20 @@ CASES = [("cost", {}), ("cost", {"x0": True}), ("cost", {"x0": True, "u_max": [2
          ("stability", {"u_max": [2.0]})]
 
 
+def _cases(objective: str, kw: dict):
+    """``(name, modes, x0, u_max, lifted)`` of each family of :func:`_families` for one entry of CASES."""
+    for name, fam, N in _families():
+        modes = ModeSet.from_family(fam, N)
+        x0 = np.linspace(1.0, -1.0, modes.n_states) if kw.get("x0") else None
+        u_max = np.array(kw["u_max"]) if "u_max" in kw else None
+        dist = np.stack(fam.G) if objective == "hinf" else None
+        yield name, modes, x0, u_max, lift_modes(modes, None, dist, None, cost=objective == "cost")
+
+
 @pytest.mark.parametrize("objective,kw", CASES, ids=["trace", "x0", "x0-umax", "hinf", "umax"])
 def test_ipm_and_clarabel_agree_on_the_performance_sdps(objective, kw):
     answered = 0
-    for name, fam, N in _families():
-        modes = ModeSet.from_family(fam, N)
-        n = modes.n_states
-        x0 = np.linspace(1.0, -1.0, n) if kw.get("x0") else None
-        u_max = np.array(kw["u_max"]) if "u_max" in kw else None
-        dist = np.stack(fam.G) if objective == "hinf" else None
-        lifted = lift_modes(modes, None, dist, None, cost=objective == "cost")
+    for name, modes, x0, u_max, lifted in _cases(objective, kw):
         out = {}
         for solver in ("IPM", "CLARABEL"):
             info, W, Y, scalars = perf.solve(lifted, objective, x0, u_max, None, solver)
@@ -235,13 +239,7 @@ def test_one_phase_reaches_the_two_phase_optimum(objective, kw):
     """docs/design.md §8.3.2: the infeasible-start solve ends at a strictly feasible point with the optimum of the
     two phases (phase 1's max t, then the objective from its point), 1e-6 relative."""
     one_phase = 0
-    for name, fam, N in _families():
-        modes = ModeSet.from_family(fam, N)
-        n = modes.n_states
-        x0 = np.linspace(1.0, -1.0, n) if kw.get("x0") else None
-        u_max = np.array(kw["u_max"]) if "u_max" in kw else None
-        lifted = lift_modes(modes, None, np.stack(fam.G) if objective == "hinf" else None, None,
-                            cost=objective == "cost")
+    for name, modes, x0, u_max, lifted in _cases(objective, kw):
         c = perf.congruent_scale(modes, None) * (1 + perf.STRICT) if objective == "stability" else None
         radius = perf.MAX_RADIUS if objective == "stability" else None
         pp = ipm.performance_problem(lifted, objective, x0, u_max, c=c, radius=radius)
