@@ -112,7 +112,8 @@ class IPMSolution(_SolveStatus):
 #: A grouped or objective solve whose best ``max(primal residual, gap)`` is below this and has not improved for
 #: 8 iterations stops (a plain max-t solve: below 1e-6).
 STALL_SCORE = 1e-4
-#: ... and an objective solve whose best gap is below STALL_GAP stops after STALL_FAST iterations in which the score did not halve.
+#: ... and an objective solve whose best gap is below STALL_GAP stops after STALL_FAST iterations in which the score
+#: did not halve (docs/design.md §8.3.2).
 STALL_GAP = 1e-6
 STALL_FAST = 3
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
@@ -383,7 +384,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 break
         if score < 0.5 * prog[0]:
             prog = (score, it)
-        if E is None and offset is not None and best[5] <= STALL_GAP and best[0] < STALL_SCORE and it - prog[1] >= STALL_FAST:
+        if E is None and offset is not None and best[5] <= STALL_GAP and best[0] < STALL_SCORE \
+                and it - prog[1] >= STALL_FAST:
             # converged (gap) and the score no longer halving: the rounding floor (n = 12, n_drop = 10 cost SDP: the
             # primal residual from 5e-6 up to 4e-4 in one step at mu ~ 4e-9, and no better iterate in 8 more)
             status = "stalled"
@@ -725,9 +727,9 @@ def _x_start(adj, b, C, factor: float = X_START_FACTOR) -> list:
 INFEASIBLE_T = 1e-6
 
 
-#: The one-phase solve's start (docs/design.md §8.3.2): slacks ``S_g = SLACK_START max(1, max |C|) I``, multipliers
-#: at the least-squares fit of ``A^*(xi I) = -b`` (measured on the n = 8-20 cost and hinf SDPs of ``bench speed``:
-#: 10 gave the fewest iterations of 1-1000 with multipliers 1-100 times the fit).
+#: The one-phase solve's start (docs/design.md §8.3.2): slacks ``S_g = SLACK_START max(1, max |C_g|) I``, multipliers
+#: at the least-squares fit of ``A^*(xi I) = -b`` (n = 12 cost and hinf SDPs of ``bench speed``: slacks 1-1000 times,
+#: multipliers 0.1-10 times the fit or 10-10^4 absolute gave no fewer iterations on both).
 SLACK_START = 10.0
 
 
