@@ -679,17 +679,19 @@ class GroupedSolution(_SolveStatus):
     lower : float
         ``value - gap``: a lower bound on the optimum up to the primal residual (``nan`` without phase 2).
     t : float
-        Phase 1's attained ``t`` (every block ``>= t I`` at its point).
+        Phase 1's attained ``t`` (every block ``>= t I`` at its point); ``nan`` when the one-phase solve answered.
     t_upper : float
-        Phase 1's ``sum_g <C_g, X_g>``: an upper bound on ``max t`` up to its primal residual.
+        Phase 1's ``sum_g <C_g, X_g>``: an upper bound on ``max t`` up to its primal residual (``nan`` likewise).
     X : dict
         Group name -> multipliers, shape (nb_g, k_g, k_g), PSD, in the blocks' order.  After phase 2:
         the objective's multipliers.  When infeasible: phase 1's, normalized ``sum_g sum_b trace X_b = 1``,
         with ``sum_g A_g^*(X_g) = 0`` on every variable direction up to ``primal_residual`` and
         ``sum_g <C_g, X_g> = t_upper < 0`` (``C_g``: the groups' constant parts, ``problem.C``).
     phase1_iterations : int
+        0 when the one-phase solve answered.
     iterations, primal_residual, dual_residual, gap, timings
-        As in :class:`IPMSolution` (of the last phase; ``iterations`` counts both phases).
+        As in :class:`IPMSolution` (of the last phase; ``iterations`` counts every phase run, a one-phase attempt
+        that gave no answer included).
     """
 
     V: dict
