@@ -112,6 +112,10 @@ class IPMSolution(_SolveStatus):
 #: A grouped or objective solve whose best ``max(primal residual, gap)`` is below this and has not improved for
 #: 8 iterations stops (a plain max-t solve: below 1e-6).
 STALL_SCORE = 1e-4
+#: ... and an objective solve whose best gap is below STALL_GAP stops after STALL_FAST iterations in which the score
+#: did not halve (docs/design.md §8.3.2).
+STALL_GAP = 1e-6
+STALL_FAST = 3
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
 REFINE_STEPS = 4
 #: ... until the direction's error in ``adj(dX) = r_p`` is below this fraction of ``|r_p|``.
@@ -246,11 +250,12 @@ class _Core:
     gap: float
     upper: float
     timings: dict
+    interior: bool = True  # False: an infeasible start (``slack_start``) that never reached C + A(y) > 0
 
 
 def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_start: bool = False,
               x_start: float | None = None, offset: float | None = None, phase1: bool = False,
-              y_start: np.ndarray | None = None) -> _Core:
+              y_start: np.ndarray | None = None, slack_start: float | None = None) -> _Core:
     """Mehrotra predictor-corrector with the HKM direction for ``max b^T y, S_g = C_g + A_g(y) >= 0``.
 
     ``C`` is a list of block arrays (one per group, shape (nb_g, k_g, k_g)); ``op(y)`` returns the list of
@@ -267,13 +272,21 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
     ``y_start``: a warm start (the max-t form only): ``S = C + A(y_start)`` must be positive definite
     (:func:`warm_start` makes one from a neighbouring problem's solution); ``x_start`` then is a list of
     multipliers.
+
+    ``slack_start``: the infeasible start of a general objective (docs/design.md §8.3.2): ``y = 0`` whatever
+    the blocks there, ``S_g = slack_start I`` and the dual residual ``E = S - C - A(y)`` carried along, each
+    Newton step aiming at ``S + dS = C + A(y + dy)`` (``dS = A(dy) - E``), so a dual step of length alpha
+    leaves ``(1 - alpha) E``.  ``E`` is dropped (``S = C + A(y)``, the feasible iteration from then on) at
+    the first iterate where ``C + A(y)`` itself is positive definite; until then no iterate is a candidate
+    answer (the status then is ``"no_interior"`` when the iteration ends).
     """
     with np.errstate(invalid="ignore"):  # a failed Cholesky factor is NaNs (checked), not a warning
-        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1, y_start)
+        return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1, y_start,
+                         slack_start)
 
 
 def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=None, phase1=False,
-              y_start=None) -> _Core:
+              y_start=None, slack_start=None) -> _Core:
     fixed_dead = len(C) > 1 or offset is not None
     dead0 = None
     tim = {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
@@ -296,6 +309,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     elif not feasible_start:
         y[-1] = min(float(_eigvalsh(c)[:, 0].min()) for c in C) - max(1.0, max(float(np.abs(c).max()) for c in C))
     S = [c + d for c, d in zip(C, op(y))]
+    E = E_prev = None  # the dual residual S - C - A(y) of an infeasible start (None: S = C + A(y))
+    if slack_start is not None:
+        E = [np.eye(c.shape[1]) * s0 - s for c, s, s0 in zip(C, S, np.broadcast_to(slack_start, (ng,)))]
+        S = [s + e for s, e in zip(S, E)]
     # x_start: the multipliers' start X = x_start I (default 1/N, the max-t form's sum tr X = 1).
     if isinstance(x_start, list):  # given multipliers (phase 2: centred on the start's S)
         X = x_start
@@ -306,6 +323,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     floor, off = (1.0, 0.0) if offset is None else (1e-300, offset)
     status = "max_iterations"
     best = None
+    prog = (math.inf, 0)  # the last iterate whose score halved the previous such one's
     it = 0
     ap = ad = 0.0
     rp = gap = math.inf  # reported as such when the start itself cannot be factored
@@ -315,12 +333,15 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         LL = [_cholesky(z) for z in Z]
         if ng == 1 and np.isnan(LL[0][:, -1, -1]).any() or ng > 1 and any(np.isnan(ll[:, -1, -1]).any() for ll in LL):
             # Rounding made the new S (recomputed from y) or X singular: shorten the last step.
-            if best is None or ad < 1e-12:
+            if y_prev is None or ad < 1e-12:
                 status = "numerical_error"
                 break
             ad *= 0.5
             y = y_prev + ad * dy
             S = [c + d for c, d in zip(C, op(y))]
+            if E_prev is not None:
+                E = [(1.0 - ad) * e for e in E_prev]
+                S = [s + e for s, e in zip(S, E)]
             X = [xp + ad * d for xp, d in zip(X_prev, dX)] if ap > ad else X
             continue
         Li, G = [], []
@@ -344,10 +365,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         rp = math.sqrt(float(r_p @ r_p)) / normb
         denom = floor + abs(off - pobj) + abs(off - dobj)
         gap = max(abs(pobj - dobj), XS) / denom
-        score = max(rp, gap)
+        score = max(rp, gap) if E is None else math.inf  # an infeasible iterate is no answer
         if best is None or score < best[0]:
             best = (score, it, y, X, rp, gap, pobj)
-        if rp < o.feas_tol and gap < o.gap_tol:
+        if rp < o.feas_tol and gap < o.gap_tol and E is None:
             status = "optimal"
             break
         if phase1 and dobj > 0.0 and rp < 1e-3 and dobj >= 0.5 * pobj:
@@ -361,7 +382,15 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             if pobj < 0.0 and rp < o.feas_tol and dobj >= 2.0 * pobj:
                 best, status = (score, it, y, X, rp, gap, pobj), "infeasible"
                 break
-        if it - best[1] >= 8 and best[0] < (STALL_SCORE if fixed_dead else 1e-6):
+        if score < 0.5 * prog[0]:
+            prog = (score, it)
+        if E is None and offset is not None and best[5] <= STALL_GAP and best[0] < STALL_SCORE \
+                and it - prog[1] >= STALL_FAST:
+            # converged (gap) and the score no longer halving: the rounding floor (n = 12, n_drop = 10 cost SDP: the
+            # primal residual from 5e-6 up to 4e-4 in one step at mu ~ 4e-9, and no better iterate in 8 more)
+            status = "stalled"
+            break
+        if E is None and it - best[1] >= 8 and best[0] < (STALL_SCORE if fixed_dead else 1e-6):
             # no progress for 8 iterations near the optimum: rounding floor reached (the best iterate is returned;
             # at n = 12, n_drop = 10 the cost SDP's primal residual creeps up after ~40 iterations for 60 more)
             status = "stalled"
@@ -415,6 +444,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             ne_prev, best_dir = math.inf, None
             for refine in range(REFINE_STEPS + 1):
                 dS = op(dy)
+                if E is not None:  # aim at S + dS = C + A(y + dy)
+                    dS = [ds - e for ds, e in zip(dS, E)]
                 dX = []
                 for x, ds, g, rc in zip(X, dS, G, RcG):
                     W = rc - x @ ds @ g
@@ -445,7 +476,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             return ap_, ad_
 
         # Predictor (affine scaling), R_c = -X S: the right-hand side adj(R_c G) - r_p is b.
-        hb = np.where(dead, 0.0, b) if anydead else b
+        XEG = None if E is None else [x @ e @ g for x, e, g in zip(X, E, G)]
+        hb = b if E is None else b + adj([0.5 * (w + w.transpose(0, 2, 1)) for w in XEG])
+        hb = np.where(dead, 0.0, hb) if anydead else hb
         dy, dS, dX = direction(hb, [-x for x in X])
         t3 = perf()
         ap, ad = step_lengths(dX, dS, 1.0, 0.1)
@@ -460,7 +493,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
         RcG = [sigma * mu * g - x - dx @ ds @ g for g, x, dx, ds in zip(G, X, dX, dS)]
-        h = adj(RcG) - r_p
+        h = adj(RcG if E is None else [r + 0.5 * (w + w.transpose(0, 2, 1)) for r, w in zip(RcG, XEG)]) - r_p
         if anydead:
             h[dead] = 0.0
         dy, dS, dX = direction(h, RcG)
@@ -472,9 +505,20 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         X = [x + ap * d for x, d in zip(X, dX)]
         y = y + ad * dy
         S = [c + d for c, d in zip(C, op(y))]
+        E_prev = E
+        if E is not None:
+            if any(np.isnan(_cholesky(s)[:, -1, -1]).any() for s in S):
+                E = [(1.0 - ad) * e for e in E]
+                S = [s + e for s, e in zip(S, E)]
+            else:  # C + A(y) > 0: feasible from here on
+                E = None
         if not math.isfinite(float(y.sum()) + sum(float(x.sum()) for x in X)):
             status = "numerical_error"
             break
+    interior = E is None and not (best is not None and best[0] == math.inf)
+    if not interior:  # an infeasible start that never reached C + A(y) > 0: no answer
+        status = "no_interior" if status in ("max_iterations", "numerical_error") else status
+        best = None
     if status not in ("optimal", "feasible", "infeasible") and best is not None:
         _, _, y, X, rp, gap, pobj = best
         if status in ("max_iterations", "numerical_error", "stalled") and max(rp, gap) < 1e-6:
@@ -483,7 +527,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
     tim["total"] = perf() - t_start
     tim["other"] = tim["total"] - tim["assembly"] - tim["factorization"] - tim["line_search"]
     return _Core(y=y, X=X, status=status, iterations=it, primal_residual=float(rp), gap=float(gap),
-                 upper=sum(float(np.vdot(c, x)) for c, x in zip(C, X)), timings=tim)
+                 upper=sum(float(np.vdot(c, x)) for c, x in zip(C, X)), timings=tim, interior=interior)
 
 
 @dataclass
@@ -635,17 +679,19 @@ class GroupedSolution(_SolveStatus):
     lower : float
         ``value - gap``: a lower bound on the optimum up to the primal residual (``nan`` without phase 2).
     t : float
-        Phase 1's attained ``t`` (every block ``>= t I`` at its point).
+        Phase 1's attained ``t`` (every block ``>= t I`` at its point); ``nan`` when the one-phase solve answered.
     t_upper : float
-        Phase 1's ``sum_g <C_g, X_g>``: an upper bound on ``max t`` up to its primal residual.
+        Phase 1's ``sum_g <C_g, X_g>``: an upper bound on ``max t`` up to its primal residual (``nan`` likewise).
     X : dict
         Group name -> multipliers, shape (nb_g, k_g, k_g), PSD, in the blocks' order.  After phase 2:
         the objective's multipliers.  When infeasible: phase 1's, normalized ``sum_g sum_b trace X_b = 1``,
         with ``sum_g A_g^*(X_g) = 0`` on every variable direction up to ``primal_residual`` and
         ``sum_g <C_g, X_g> = t_upper < 0`` (``C_g``: the groups' constant parts, ``problem.C``).
     phase1_iterations : int
+        0 when the one-phase solve answered.
     iterations, primal_residual, dual_residual, gap, timings
-        As in :class:`IPMSolution` (of the last phase; ``iterations`` counts both phases).
+        As in :class:`IPMSolution` (of the last phase; ``iterations`` counts every phase run, a one-phase attempt
+        that gave no answer included).
     """
 
     V: dict
@@ -665,8 +711,8 @@ class GroupedSolution(_SolveStatus):
 X_START_FACTOR = 1000.0
 
 
-def _x_start(adj, b, C) -> list:
-    """Phase 2's multipliers ``X_g = xi I``: ``xi`` is :data:`X_START_FACTOR` times the least-squares
+def _x_start(adj, b, C, factor: float = X_START_FACTOR) -> list:
+    """Phase 2's multipliers ``X_g = xi I``: ``xi`` is ``factor`` times the least-squares
     fit of ``A^*(xi I) = -b`` (a general objective fixes the multipliers' scale), or ``|b| / |A^*(I)|``.
     """
     g = adj([np.broadcast_to(np.eye(c.shape[1]), c.shape) for c in C])  # A^*(I)
@@ -674,7 +720,7 @@ def _x_start(adj, b, C) -> list:
     xs = 1.0 / sum(c.shape[0] * c.shape[1] for c in C)
     if gg > 0:
         xs = max(xs, -float(b @ g) / gg, float(np.linalg.norm(b)) / np.sqrt(gg))
-    return [np.broadcast_to(np.eye(c.shape[1]) * (X_START_FACTOR * xs), c.shape).copy() for c in C]
+    return [np.broadcast_to(np.eye(c.shape[1]) * (factor * xs), c.shape).copy() for c in C]
 
 
 #: Phase 1 calls a problem infeasible only when ``max t`` is below ``-INFEASIBLE_T`` times the constants' size:
@@ -683,9 +729,33 @@ def _x_start(adj, b, C) -> list:
 INFEASIBLE_T = 1e-6
 
 
+#: The one-phase solve's start (docs/design.md §8.3.2): slacks ``S_g = SLACK_START max(1, max |C_g|) I``, multipliers
+#: at the least-squares fit of ``A^*(xi I) = -b`` (n = 12 cost and hinf SDPs of ``bench speed``: slacks 1-1000 times,
+#: multipliers 0.1-10 times the fit or 10-10^4 absolute gave no fewer iterations on both).
+SLACK_START = 10.0
+
+
+def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: float):
+    """``min <c, V>`` from ``V = V0`` by the infeasible start (:func:`_ipm_core`'s ``slack_start``): the problem in the
+    objective form, its ``(core, offset)``."""
+    two = problem.at(np.zeros(problem.p), objective)
+    op, adj, schur = two.ops(o.dense)
+    offset = _offset(two, objective)
+    s0 = np.array([SLACK_START * max(1.0, float(np.abs(c).max())) for c in two.C])
+    core = _ipm_core(two.C, two.b, op, adj, schur, o, t_start, feasible_start=True,
+                     x_start=_x_start(adj, two.b, two.C, 1.0), offset=offset, slack_start=s0)
+    return two, core, offset
+
+
 def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
-                  options: IPMOptions | None = None) -> GroupedSolution:
-    """Solve a :class:`GroupedLMI` in two phases (docs/design.md, §7 "Objectives").
+                  options: IPMOptions | None = None, one_phase: bool = True) -> GroupedSolution:
+    """Solve a :class:`GroupedLMI` in one phase, else in two (docs/design.md, §7 "Objectives", §8.3.2).
+
+    With an objective, first in one phase: ``min <c, V>`` from the infeasible start (every slack ``s I``, the
+    dual residual carried along and dropped at the first point where every block is positive definite).  When
+    it ends at a strictly feasible point with status ``"optimal"``, ``"inaccurate"``, ``"stalled"`` or
+    ``"time_limit"``, that is the answer (``t`` and ``t_upper`` ``nan``, ``phase1_iterations`` 0); otherwise
+    (no such point, or ``"max_iterations"`` / ``"numerical_error"``) the two phases below run.
 
     Phase 1: ``max t`` s.t. every block ``- t I >= 0`` from ``problem`` (built without an objective),
     stopped at the first iterate with ``t > 0`` and ``t >= upper / 2`` (strictly feasible, away from the
@@ -700,6 +770,8 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     objective : dict, optional
         Without it only phase 1 runs, to its optimum.
     options : IPMOptions, optional
+    one_phase : bool
+        False: the two phases only (the reference the tests compare the one-phase answer with).
 
     Returns
     -------
@@ -710,15 +782,24 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     names = [g.name for g in problem.groups_spec]
     with blas_threads(o.threads), heap_reuse(large):
         t_start = time.perf_counter()
+        done, timings = 0, {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
+        if objective and one_phase:
+            two, core2, offset = _one_phase(problem, objective, o, t_start)
+            _add_timings(timings, core2.timings)
+            if core2.interior and core2.status in ("optimal", "inaccurate", "stalled", "time_limit"):
+                out = _objective_answer(two, core2, offset, names, 0)
+                out.update(t=float("nan"), t_upper=float("nan"))
+                return _grouped_solution(problem, out, timings, t_start)
+            done = core2.iterations  # no answer: the two phases (the attempt's iterations and time count)
         op, adj, schur = problem.ops(o.dense)
         core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, phase1=objective is not None)
         t = float(problem.full(core.y)[-1])
         it1 = core.iterations
-        timings = dict(core.timings)
+        _add_timings(timings, core.timings)
         V1 = problem.variables_at(core.y)
         out = dict(V=dict(zip(problem.names, V1)), value=float("nan"), lower=float("nan"), t=t,
                    t_upper=core.upper, X=dict(zip(names, core.X)), phase1_iterations=it1, status=core.status,
-                   iterations=it1, primal_residual=core.primal_residual, dual_residual=0.0, gap=core.gap)
+                   iterations=done + it1, primal_residual=core.primal_residual, dual_residual=0.0, gap=core.gap)
         scale = max(1.0, max(float(np.abs(c).max()) for c in problem.C))
         if core.status in ("optimal", "inaccurate", "stalled") and core.upper < -INFEASIBLE_T * scale \
                 and core.primal_residual < 1e-6:
@@ -726,21 +807,40 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
         elif objective is not None and t > 0:
             two = problem.at(core.y, objective)
             op2, adj2, schur2 = two.ops(o.dense)
-            c_full = np.concatenate([np.broadcast_to(np.asarray(objective.get(nm, 0.0), dtype=np.float64),
-                                                     sh).ravel() for nm, sh in zip(two.names, two.shapes)])
-            offset = float(c_full @ np.concatenate([v.ravel() for v in two.V0]))
+            offset = _offset(two, objective)
             xst = _x_start(adj2, two.b, two.C)
             core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
                               x_start=xst, offset=offset)
-            V2 = two.variables_at(core2.y)
-            value = offset - float(two.b @ core2.y)
-            for key in ("assembly", "factorization", "line_search"):
-                timings[key] += core2.timings[key]
-            out.update(V=dict(zip(two.names, V2)), value=value, lower=offset - core2.upper,
-                       X=dict(zip(names, core2.X)), status=core2.status, iterations=it1 + core2.iterations,
-                       primal_residual=core2.primal_residual, gap=core2.gap)
+            _add_timings(timings, core2.timings)
+            out.update(_objective_answer(two, core2, offset, names, it1, done + it1))
         elif objective is not None:
             out["status"] = "no_interior"  # phase 1 found no t > 0 and no certificate either
+    return _grouped_solution(problem, out, timings, t_start)
+
+
+def _offset(two: GroupedLMI, objective: dict) -> float:
+    """``<c, V0>``: the objective form's value is ``offset - b^T y``."""
+    c_full = np.concatenate([np.broadcast_to(np.asarray(objective.get(nm, 0.0), dtype=np.float64), sh).ravel()
+                             for nm, sh in zip(two.names, two.shapes)])
+    return float(c_full @ np.concatenate([v.ravel() for v in two.V0]))
+
+
+def _add_timings(total: dict, part: dict) -> None:
+    for key in ("assembly", "factorization", "line_search"):
+        total[key] += part[key]
+
+
+def _objective_answer(two: GroupedLMI, core: _Core, offset: float, names: list, it1: int,
+                      before: int | None = None) -> dict:
+    """The :class:`GroupedSolution` fields of an objective solve (``it1``: phase-1 iterations before it,
+    ``before``: all iterations before it)."""
+    return dict(V=dict(zip(two.names, two.variables_at(core.y))), value=offset - float(two.b @ core.y),
+                lower=offset - core.upper, X=dict(zip(names, core.X)), status=core.status, phase1_iterations=it1,
+                iterations=(it1 if before is None else before) + core.iterations, dual_residual=0.0,
+                primal_residual=core.primal_residual, gap=core.gap)
+
+
+def _grouped_solution(problem: GroupedLMI, out: dict, timings: dict, t_start: float) -> GroupedSolution:
     timings["total"] = time.perf_counter() - t_start
     timings["other"] = timings["total"] - timings["assembly"] - timings["factorization"] - timings["line_search"]
     out["V"] = {k: (float(v[0, 0]) if k in problem.scalar_names else v) for k, v in out["V"].items()}

@@ -58,6 +58,10 @@ class PerformanceProblem:
         Group name -> the loop-mode indices of its blocks (``cost_eta*``, ``hinf_eta*``, ``stability``).
     input_index : list of (q, j)
         The ``input`` group's blocks: gain ``K_{q+1}``, input j.
+    one_phase : bool
+        Solve in one phase first (docs/design.md §8.3.2): the cost and hinf SDPs.  The input-limited one (max tau)
+        keeps the two phases: from the infeasible start its free tau runs off (``b'y`` to -1e13 in the first 48
+        iterations at n = 12) and at n = 20 it ends at the iteration cap, after which the two phases ran as well.
     """
 
     lmi: GroupedLMI
@@ -65,6 +69,7 @@ class PerformanceProblem:
     gain_scale: np.ndarray
     modes: dict = field(default_factory=dict)
     input_index: list = field(default_factory=list)
+    one_phase: bool = True
 
 
 def _scheme(rows, gain_map, scale) -> np.ndarray:
@@ -362,7 +367,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         obj = {"g": 1.0}
     else:
         obj = {} if limits else {"tau": -1.0}
-    return PerformanceProblem(lmi=lmi, objective=obj, gain_scale=scale, modes=group_modes, input_index=input_index)
+    return PerformanceProblem(lmi=lmi, objective=obj, gain_scale=scale, modes=group_modes, input_index=input_index,
+                              one_phase=objective in ("cost", "hinf"))
 
 
 @dataclass
@@ -395,8 +401,9 @@ class PerformanceSolution:
 
 
 def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = None) -> PerformanceSolution:
-    """Solve a :class:`PerformanceProblem` (phase 1, then the objective) and map the answer back."""
-    sol = solve_grouped(problem.lmi, problem.objective, options)
+    """Solve a :class:`PerformanceProblem` (in one phase, else phase 1 and then the objective) and map the answer
+    back."""
+    sol = solve_grouped(problem.lmi, problem.objective, options, one_phase=problem.one_phase)
     W = sol.V["W"]
     W = 0.5 * (W + W.T)
     J = len(problem.gain_scale)
