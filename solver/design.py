@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver, design_size, request_solves
+from .compiled import check_solver, design_size, request_solves, resolve_solver
 from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
@@ -1122,20 +1122,6 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
         return res
 
-    lo, lo_proven, lo_proof, lo_margin = 0.0, True, "infeasible", None
-    if upper is not None and upper.outcome == "stabilized" and upper.decay_rate is not None:
-        best, hi = upper, float(upper.decay_rate)
-        best.method = method
-        search.extend({**entry, "decay_rate": entry["decay_rate"], "method": upper.method}
-                      for entry in upper.rate_search)
-        # lo stays 0: another method's infeasible rates say nothing about this one
-    else:
-        best = attempt(1.0)
-        hi = 1.0
-        if best is None or best.outcome != "stabilized":
-            if best is not None:
-                best.rate_search = search
-            return best if best is not None else _time_out(modes, method, options, search)
     def done(lo, hi):
         if not settling:
             return hi - lo <= tol * hi
@@ -1156,6 +1142,32 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 
     tol_width = float(np.log1p(tol) if settling else -np.log1p(-tol))  # done(lo, hi) <=> measure gap <= this
 
+    lo, lo_proven, lo_proof, lo_margin = 0.0, True, "infeasible", None
+    path = None
+    if strategy == "path":
+        if method == "lmi" and upper is None and resolve_solver(options.solver, "lmi", modes.n_modes) == "IPM":
+            path = _path_bracket(modes, options, settling, tol_width, done)
+        strategy = "model"  # without a closed bracket from the path: today's search (never worse)
+    if path is not None:
+        best, hi, lo, lo_proof, lo_margin = path["best"], path["hi"], path["lo"], path["lo_proof"], path["lo_margin"]
+        lo_proven = lo_proof == "infeasible"
+        search.extend(path["search"])
+        for key in totals:
+            totals[key] += path["totals"][key]
+        solved.append((hi, best.sdp))
+    elif upper is not None and upper.outcome == "stabilized" and upper.decay_rate is not None:
+        best, hi = upper, float(upper.decay_rate)
+        best.method = method
+        search.extend({**entry, "decay_rate": entry["decay_rate"], "method": upper.method}
+                      for entry in upper.rate_search)
+        # lo stays 0: another method's infeasible rates say nothing about this one
+    else:
+        best = attempt(1.0)
+        hi = 1.0
+        if best is None or best.outcome != "stabilized":
+            if best is not None:
+                best.rate_search = search
+            return best if best is not None else _time_out(modes, method, options, search)
     t_hi = getattr(getattr(best, "sdp", None), "t", None)
     t_lo, previous, from_above, anchor, stalls, model_lo = None, None, True, hi - lo, 0, None
     while not done(lo, hi) and hi > MIN_RATE and not timed_out:
@@ -1214,6 +1226,52 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         best.message = (f"time limit reached ({shown:g} s) during the decay-rate bisection; best iterate: "
                         + best.message)
     return best
+
+
+def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_width: float, done) -> dict | None:
+    """The bracket of the rate-following path (solver/rate_search.py, docs/design.md §3.2.2), re-checked, or None.
+
+    The path's primal iterate is re-checked at its certified rate (:func:`solver.methods.common.run_one_shot`
+    on that iterate: the float64 re-check of every design) and its multipliers at the rate they refute (the
+    Farkas re-check of every design); None unless both hold and ``done(lo, hi)``: the caller then runs
+    today's search.
+    """
+    from .compiled import DesignSdpSolution, SolveInfo
+    from .methods.common import run_one_shot
+    from .rate_search import path_search, path_steps_solves
+
+    path, hi = path_search(modes, settling, tol_width, done, options.time_limit)
+    if hi is None or path.duals is None or not done(path.lo, hi):
+        return None
+    coef, active = modes.scheme_coef()
+    M = modes.free @ path.W
+    if coef.size:
+        M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], path.Y)
+    c = hi ** (-modes.eta.astype(float))
+    blocks = np.block([[np.broadcast_to(path.W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
+                       [c[:, None, None] * M, np.broadcast_to(path.W, M.shape)]])
+    t_hi = float(np.linalg.eigvalsh(blocks)[:, 0].min())
+    t_lo = next((r[3] for r in reversed(path.rates) if r[1] == path.lo), -1.0)
+
+    def info(t):
+        return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
+                         iterations=path.iterations)
+
+    sol_hi = DesignSdpSolution(t=t_hi, W=path.W, Y=path.Y, S=None, duals=path.X_hi, info=info(t_hi))
+    sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
+    plain = replace(options, sign_only=False, warm_start=None)
+    res_hi = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol_hi)
+    if res_hi.outcome != "stabilized":
+        return None
+    res_lo = run_one_shot(modes, "lmi", replace(plain, decay_rate=path.lo), lambda *a, **k: sol_lo)
+    if res_lo.outcome not in NEGATIVE:
+        return None
+    res_hi.sdp = sol_hi
+    lo_margin = res_lo.certificate.margin if res_lo.outcome == "marginal" else None
+    search = [{"decay_rate": r.decay_rate if r is res_hi else path.lo, "outcome": r.outcome, "step": "path",
+               "proof": None if r.certificate is None else r.certificate.kind} for r in (res_hi, res_lo)]
+    return {"best": res_hi, "hi": hi, "lo": path.lo, "lo_proof": res_lo.outcome, "lo_margin": lo_margin,
+            "search": search, "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
 
 
 def _time_out(modes, method, options, search) -> DesignResult:

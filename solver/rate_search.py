@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate"]
+__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search"]
 
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
 #: or above it by at most this fraction of ``end - lo``.
@@ -302,3 +302,69 @@ def _closing_low(hi: float, done) -> float:
     return b * (1.0 + 1e-9) if b * (1.0 + 1e-9) < hi else b
 
 
+
+
+#: The rate-following path (``RATE_SEARCH = "path"``, docs/design.md §3.2.2) moves to the rate its iterate
+#: certifies, less this fraction of the tolerance's width (in the tolerance's coordinate) ...
+PATH_BELOW = 0.5
+#: ... when that moves the rate by at least this fraction of the width (smaller moves cost a re-centring each).
+PATH_MIN_MOVE = 0.125
+#: The certified end is re-checked this fraction of the width above the iterate's own rate (room for rounding).
+PATH_ABOVE = 0.05
+#: One SDP-equivalent of the path (``res.solve_count``): this many Newton steps, about a plain design SDP's
+#: (measured: 11 on the paper's example, 13-24 on the n = 8..50 families of ``python -m bench speed``).
+PATH_STEPS_PER_SDP = 15
+
+
+def path_search(modes, settling: bool, tol_width: float, done, time_limit: float | None = None):
+    """The best rate's bracket from one rate-following interior-point path (:mod:`solver.ipm.rate_path`).
+
+    The path descends by the method of centers: from lambda = 1, after every Newton step the rate moves to
+    the one its primal iterate certifies (:func:`solver.ipm.rate_path.certified_rate`) less ``PATH_BELOW``
+    of the tolerance's width, until ``done(lo, hi)`` or until the multipliers at the rate reached refute it.
+
+    Parameters
+    ----------
+    modes : solver.network.ModeSet
+    settling : bool
+        The tolerance is on ``-ln(-ln lambda)`` (``decay_rate="auto"``), else on ``ln lambda``.
+    tol_width : float
+        The tolerance's width in that coordinate.
+    done : callable
+        ``done(lo, hi)``.
+    time_limit : float, optional
+
+    Returns
+    -------
+    tuple
+        ``(path, hi)``: the :class:`solver.ipm.rate_path.RatePathResult` and the rate at which its primal
+        iterate is to be re-checked (None when the path certified no rate below 1).
+    """
+    from .ipm.rate_path import follow_rate
+
+    def shift(lam, du):  # the rate du above lam in the tolerance's coordinate
+        if settling:
+            return math.exp(-math.exp(math.log(-math.log(lam)) - du))
+        return lam * math.exp(du)
+
+    def aim(lam, t, upper, rp, q, lo, hi):
+        if not hi < 1.0:
+            return None
+        target = min(lam, shift(hi, -PATH_BELOW * tol_width))
+        if target >= shift(lam, -PATH_MIN_MOVE * tol_width):
+            return None
+        return target
+
+    def closed(lo, hi):
+        return hi < 1.0 and done(lo, min(shift(hi, PATH_ABOVE * tol_width), 1.0))
+
+    coef, active = modes.scheme_coef()
+    path = follow_rate(modes.free, coef, active, modes.eta, closed, aim, time_limit=time_limit)
+    if not (path.hi < 1.0 and path.W is not None):
+        return path, None
+    return path, min(shift(path.hi, PATH_ABOVE * tol_width), 1.0)
+
+
+def path_steps_solves(path) -> int:
+    """``res.solve_count`` of a path: its Newton steps in SDP-equivalents (``PATH_STEPS_PER_SDP``), at least 1."""
+    return max(1, math.ceil(path.iterations / PATH_STEPS_PER_SDP))
