@@ -1146,7 +1146,10 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     path = None
     if strategy == "path":
         if method == "lmi" and upper is None and resolve_solver(options.solver, "lmi", modes.n_modes) == "IPM":
-            path = _path_bracket(modes, options, settling, tol_width, done)
+            try:
+                path = _path_bracket(modes, options, settling, tol_width, done)
+            except (SolverFailed, ValueError, ArithmeticError, np.linalg.LinAlgError):  # never worse than today
+                path = None
         strategy = "model"  # without a closed bracket from the path: today's search (never worse)
     if path is not None:
         best, hi, lo, lo_proof, lo_margin = path["best"], path["hi"], path["lo"], path["lo_proof"], path["lo_margin"]

@@ -344,7 +344,7 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
 
     def shift(lam, du):  # the rate du above lam in the tolerance's coordinate
         if settling:
-            return math.exp(-math.exp(math.log(-math.log(lam)) - du))
+            return math.exp(-math.exp(math.log(-math.log(min(lam, 1.0 - 1e-9))) - du))
         return lam * math.exp(du)
 
     def aim(lam, t, upper, rp, q, lo, hi):
