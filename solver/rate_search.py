@@ -307,6 +307,8 @@ def _closing_low(hi: float, done) -> float:
 #: The rate-following path (``RATE_SEARCH = "path"``, docs/design.md §3.2.2) moves to the rate its iterate
 #: certifies, less this fraction of the tolerance's width (in the tolerance's coordinate) ...
 PATH_BELOW = 0.5
+#: ... or to the Newton root of the margin's model (:func:`model_root`) where the iterate settled the margin's sign
+PATH_NEWTON = True
 #: ... when that moves the rate by at least this fraction of the width (smaller moves cost a re-centring each).
 PATH_MIN_MOVE = 0.125
 #: The certified end is re-checked this fraction of the width above the iterate's own rate (room for rounding).
@@ -347,10 +349,24 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
             return math.exp(-math.exp(math.log(-math.log(min(lam, 1.0 - 1e-9))) - du))
         return lam * math.exp(du)
 
-    def aim(lam, t, upper, rp, q, lo, hi):
+    def measure(lam):
+        return -math.log(-math.log(min(lam, 1.0 - 1e-9))) if settling else math.log(lam)
+
+    def aim(lam, t, upper, rp, q, lo, hi, W, M):
         if not hi < 1.0:
             return None
+        if lo >= lam:  # refuted here: up to the middle of the bracket (in the tolerance's coordinate)
+            return shift(hi, -0.5 * (measure(hi) - measure(lo)))
         target = min(lam, shift(hi, -PATH_BELOW * tol_width))
+        settled = t > 0.0 and rp < 1e-6 and t >= 0.5 * upper
+        if PATH_NEWTON and lam >= 1.0 and not settled:
+            return None  # the first move is Newton's, from lambda = 1 once its sign is settled (as the first probe)
+        if PATH_NEWTON and settled:
+            # the sign is settled here (the probes' rule): the Newton root of the margin's model, above the root
+            # where the margin is convex, from the iterate's own margin t (the lower of its bounds)
+            newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, 1e-4), lam)
+            if newton is not None:
+                target = min(target, max(newton, shift(lo, PATH_BELOW * tol_width) if lo > 0.0 else 0.0))
         if target >= shift(lam, -PATH_MIN_MOVE * tol_width):
             return None
         return target

@@ -201,11 +201,14 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             out.hi, out.W, out.Y, out.X_hi = cert, W, Y, Xb.copy()
         if upper < 0.0 and rp < feas_tol and t >= 2.0 * upper and lam > out.lo:
             out.lo, out.duals = lam, Xb.copy()
-        if done(out.lo, out.hi) or out.lo >= lam:  # closed, or refuted where the path stands (it only descends)
+        if done(out.lo, out.hi):
             return "stop"
+        if st.get("moved"):  # one change of rate per Newton step
+            st["moved"] = False
+            return None
         trX = float(np.trace(Xb, axis1=1, axis2=2).sum())
         q = 2.0 * c * np.einsum("bij,bij->b", Xb[:, n:, :n], M) / max(trX, 1e-300)
-        new = aim(lam, float(t), float(upper), float(rp), q, out.lo, out.hi)
+        new = aim(lam, float(t), float(upper), float(rp), q, out.lo, out.hi, W, M)
         if new is None or not np.isfinite(new) or new <= 0.0 or abs(math.log(new / lam)) < 1e-12:
             return None
         prob2, c2, op2, adj2, schur2 = fam.at(new)
@@ -220,13 +223,14 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         X2 = Xb.copy()
         X2[:, n:, :n] *= ratio
         X2[:, :n, n:] *= ratio
-        if np.any(ratio > 1.0):
-            try:
-                np.linalg.cholesky(X2)
-            except np.linalg.LinAlgError:
-                X2 = Xb.copy()
+        up = ratio[:, 0, 0] > 1.0
+        if up.any():  # a block that would lose definiteness keeps its multiplier (its residual changes instead)
+            bad = np.zeros(len(X2), dtype=bool)
+            bad[up] = _eigvalsh(X2[up])[:, 0] <= 1e-3 * _eigvalsh(Xb[up])[:, 0]
+            X2[bad] = Xb[bad]
         st["lam"], st["prob"], st["c"] = float(new), prob2, c2
         out.retargets += 1
+        st["moved"] = True
         C2, o2, a2, s2 = wrap(op2, adj2, schur2)
         return C2, o2, a2, s2, y2, [X2]
 
