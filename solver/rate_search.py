@@ -357,16 +357,18 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
             return None
         if lo >= lam:  # refuted here: up to the middle of the bracket (in the tolerance's coordinate)
             return shift(hi, -0.5 * (measure(hi) - measure(lo)))
-        target = min(lam, shift(hi, -PATH_BELOW * tol_width))
         settled = t > 0.0 and rp < 1e-6 and t >= 0.5 * upper
         if PATH_NEWTON and lam >= 1.0 and not settled:
             return None  # the first move is Newton's, from lambda = 1 once its sign is settled (as the first probe)
-        if PATH_NEWTON and settled:
+        target = min(lam, shift(hi, -PATH_BELOW * tol_width))
+        if PATH_NEWTON and lam >= 1.0:
             # the sign is settled here (the probes' rule): the Newton root of the margin's model, above the root
             # where the margin is convex, from the iterate's own margin t (the lower of its bounds)
             newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, 1e-4), lam)
             if newton is not None:
-                target = min(target, max(newton, shift(lo, PATH_BELOW * tol_width) if lo > 0.0 else 0.0))
+                target = min(target, newton)
+        if lo > 0.0:
+            target = max(target, shift(lo, 0.25 * tol_width))
         if target >= shift(lam, -PATH_MIN_MOVE * tol_width):
             return None
         return target
