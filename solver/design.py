@@ -1043,7 +1043,7 @@ MIN_RATE = 1e-4
 
 #: How the best-rate search picks its next rate: "model" (the margin's first-order model from the last
 #: solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or "bisection" (the midpoint).
-RATE_SEARCH = "model"
+RATE_SEARCH = "path"
 #: The model search's probes below lambda = 1 stop once the margin's sign is settled (the IPM's ``sign_only``):
 #: a certified probe keeps a design whose margin is at least half the SDP's optimum, a failed one a Farkas
 #: candidate re-checked as always.
@@ -1243,29 +1243,32 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     from .methods.common import run_one_shot
     from .rate_search import path_search, path_steps_solves
 
-    path, hi = path_search(modes, settling, tol_width, done, options.time_limit)
-    if hi is None or path.duals is None or not done(path.lo, hi):
+    path, his = path_search(modes, settling, tol_width, done, options.time_limit)
+    if not his or path.duals is None or not done(path.lo, his[-1]):
         return None
     coef, active = modes.scheme_coef()
     M = modes.free @ path.W
     if coef.size:
         M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], path.Y)
-    c = hi ** (-modes.eta.astype(float))
-    blocks = np.block([[np.broadcast_to(path.W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
-                       [c[:, None, None] * M, np.broadcast_to(path.W, M.shape)]])
-    t_hi = float(np.linalg.eigvalsh(blocks)[:, 0].min())
     t_lo = next((r[3] for r in reversed(path.rates) if r[1] == path.lo), -1.0)
 
     def info(t):
         return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
                          iterations=path.iterations)
 
-    sol_hi = DesignSdpSolution(t=t_hi, W=path.W, Y=path.Y, S=None, duals=path.X_hi, info=info(t_hi))
-    sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
     plain = replace(options, sign_only=False, warm_start=None)
-    res_hi = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol_hi)
-    if res_hi.outcome != "stabilized":
+    for hi in his:  # the iterate's margin at hi: the blocks' smallest eigenvalue
+        c = hi ** (-modes.eta.astype(float))
+        blocks = np.block([[np.broadcast_to(path.W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
+                           [c[:, None, None] * M, np.broadcast_to(path.W, M.shape)]])
+        t_hi = float(np.linalg.eigvalsh(blocks)[:, 0].min())
+        sol_hi = DesignSdpSolution(t=t_hi, W=path.W, Y=path.Y, S=None, duals=path.X_hi, info=info(t_hi))
+        res_hi = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol_hi)
+        if res_hi.outcome == "stabilized":
+            break
+    else:
         return None
+    sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
     res_lo = run_one_shot(modes, "lmi", replace(plain, decay_rate=path.lo), lambda *a, **k: sol_lo)
     if res_lo.outcome not in NEGATIVE:
         return None

@@ -311,11 +311,12 @@ PATH_BELOW = 0.5
 PATH_NEWTON = True
 #: ... when that moves the rate by at least this fraction of the width (smaller moves cost a re-centring each).
 PATH_MIN_MOVE = 0.125
-#: The certified end is re-checked this fraction of the width above the iterate's own rate (room for rounding).
-PATH_ABOVE = 0.05
+#: The certified end is re-checked these fractions of the width above the iterate's own rate, the first that
+#: passes (room for rounding: at 0.05 the paper's example's re-check failed, its margin 6e-8).
+PATH_ABOVE = (0.05, 0.15, 0.3)
 #: One SDP-equivalent of the path (``res.solve_count``): this many Newton steps, about a plain design SDP's
-#: (measured: 11 on the paper's example, 13-24 on the n = 8..50 families of ``python -m bench speed``).
-PATH_STEPS_PER_SDP = 15
+#: (the median of a plain design SDP's iterations, measured: paper 10, n = 8 22, 20 45, 30 20, 50 24).
+PATH_STEPS_PER_SDP = 22
 
 
 def path_search(modes, settling: bool, tol_width: float, done, time_limit: float | None = None):
@@ -339,8 +340,9 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
     Returns
     -------
     tuple
-        ``(path, hi)``: the :class:`solver.ipm.rate_path.RatePathResult` and the rate at which its primal
-        iterate is to be re-checked (None when the path certified no rate below 1).
+        ``(path, his)``: the :class:`solver.ipm.rate_path.RatePathResult` and the rates, increasing, at which its
+        primal iterate is to be re-checked (the first that passes is the certified end; empty when the path
+        certified no rate below 1).
     """
     from .ipm.rate_path import follow_rate
 
@@ -374,13 +376,13 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
         return target
 
     def closed(lo, hi):
-        return hi < 1.0 and done(lo, min(shift(hi, PATH_ABOVE * tol_width), 1.0))
+        return hi < 1.0 and done(lo, min(shift(hi, PATH_ABOVE[-1] * tol_width), 1.0))
 
     coef, active = modes.scheme_coef()
     path = follow_rate(modes.free, coef, active, modes.eta, closed, aim, time_limit=time_limit)
     if not (path.hi < 1.0 and path.W is not None):
-        return path, None
-    return path, min(shift(path.hi, PATH_ABOVE * tol_width), 1.0)
+        return path, []
+    return path, [min(shift(path.hi, a * tol_width), 1.0) for a in PATH_ABOVE]
 
 
 def path_steps_solves(path) -> int:
