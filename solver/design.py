@@ -1276,6 +1276,7 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     lo_margin = res_lo.certificate.margin if res_lo.outcome == "marginal" else None
     search = [{"decay_rate": r.decay_rate if r is res_hi else path.lo, "outcome": r.outcome, "step": "path",
                "proof": None if r.certificate is None else r.certificate.kind} for r in (res_hi, res_lo)]
+    search[0].update(iterations=path.iterations, solves=path_steps_solves(path))  # the path's Newton steps
     return {"best": res_hi, "hi": hi, "lo": path.lo, "lo_proof": res_lo.outcome, "lo_margin": lo_margin,
             "search": search, "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
 
