@@ -1041,8 +1041,10 @@ FAILED_STEP = object()
 MIN_RATE = 1e-4
 
 
-#: How the best-rate search picks its next rate: "model" (the margin's first-order model from the last
-#: solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or "bisection" (the midpoint).
+#: How the best-rate search runs: "path" (one interior-point path that follows the rate, docs/design.md §3.2.2;
+#: ``lmi`` on the IPM, "model" otherwise and as its fallback), "model" (probes at the root of the margin's
+#: first-order model from the last solve's multipliers, solver/rate_search.py, safeguarded by the bracket) or
+#: "bisection" (the midpoint).
 RATE_SEARCH = "path"
 #: The model search's probes below lambda = 1 stop once the margin's sign is settled (the IPM's ``sign_only``):
 #: a certified probe keeps a design whose margin is at least half the SDP's optimum, a failed one a Farkas
@@ -1062,7 +1064,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
                    settling: bool = False, strategy: str | None = None, keep_probes: bool = False) -> DesignResult:
     """Search lambda in (0, 1] for the smallest certified rate, relative tolerance ``tol``, on the congruent SDP.
 
-    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "model" tries the
+    ``strategy`` (default :data:`RATE_SEARCH` for ``lmi``, "bisection" for ``switched``): "path" closes the
+    bracket on one rate-following interior-point path (docs/design.md 3.2.2) and falls back to "model"; "model" tries the
     root of the margin's first-order model (solver/rate_search.py, docs/design.md 3.2.1) inside the bracket,
     "bisection" the midpoint; both keep the same bracket and acceptance rules, so both return a certified rate
     within ``tol`` of the smallest certifiable one (when the lower end is proven).
@@ -1079,7 +1082,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     start = time.perf_counter()
     # the model and the probes' early stop are the lmi SDP's (switched keeps the bisection)
     strategy = (RATE_SEARCH if method == "lmi" else "bisection") if strategy is None else strategy
-    probe_sign = strategy == "model" and SIGN_ONLY_PROBES
+    probe_sign = strategy in ("model", "path") and SIGN_ONLY_PROBES
     totals = {"setup": 0.0, "solver": 0.0, "solves": 0}
     search: list = []
     runner = METHODS[method].run
@@ -1153,7 +1156,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         strategy = "model"  # without a closed bracket from the path: today's search (never worse)
     if path is not None:
         best, hi, lo, lo_proof, lo_margin = path["best"], path["hi"], path["lo"], path["lo_proof"], path["lo_margin"]
-        lo_proven = lo_proof == "infeasible"
+        lo_proven = lo_proof == "infeasible" or lo == 0.0
         search.extend(path["search"])
         for key in totals:
             totals[key] += path["totals"][key]
@@ -1270,15 +1273,16 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
         return None
     sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
     res_lo = run_one_shot(modes, "lmi", replace(plain, decay_rate=path.lo), lambda *a, **k: sol_lo)
-    if res_lo.outcome not in NEGATIVE:
-        return None
     res_hi.sdp = sol_hi
+    refuted = res_lo.outcome in NEGATIVE
     lo_margin = res_lo.certificate.margin if res_lo.outcome == "marginal" else None
     search = [{"decay_rate": r.decay_rate if r is res_hi else path.lo, "outcome": r.outcome, "step": "path",
                "proof": None if r.certificate is None else r.certificate.kind} for r in (res_hi, res_lo)]
     search[0].update(iterations=path.iterations, solves=path_steps_solves(path))  # the path's Newton steps
-    return {"best": res_hi, "hi": hi, "lo": path.lo, "lo_proof": res_lo.outcome, "lo_margin": lo_margin,
-            "search": search, "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
+    # a lower end whose multipliers fail the re-check proves nothing: the probes go on from the certified end
+    return {"best": res_hi, "hi": hi, "lo": path.lo if refuted else 0.0, "lo_proof": res_lo.outcome if refuted
+            else None, "lo_margin": lo_margin, "search": search if refuted else search[:1],
+            "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
 
 
 def _time_out(modes, method, options, search) -> DesignResult:

@@ -15,6 +15,9 @@ the root, inside the bisection's bracket ``[lo, hi]`` (``hi``: a certified rate,
 design); a candidate outside the bracket, or steps that do not halve it, hand over to the bisection's midpoint.
 Which rates are accepted (float64 re-check) and which lower ends are proven (Farkas) is the bisection's rule
 unchanged; only the order in which rates are tried differs, hence the same certified rate to the tolerance.
+
+:func:`path_search` (docs/design.md §3.2.2) replaces the probes by one interior-point path that follows the rate
+(:mod:`solver.ipm.rate_path`): where its iterate moves the rate next; the probes stay its fallback.
 """
 
 from __future__ import annotations
