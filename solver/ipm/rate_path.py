@@ -163,9 +163,11 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
     done : callable
         ``done(lo, hi) -> bool``: the bracket is closed.
     aim : callable
-        ``aim(lam, t, upper, rp, q, lo, hi) -> float or None``: the next rate (None: keep ``lam``), from the
-        iterate's margin ``t``, dual bound ``upper``, primal residual ``rp`` and the per-block slopes
-        ``q_b = <X_b, Off_b> / sum tr X`` (:func:`solver.rate_search.margin_model`'s ``q``).
+        ``aim(lam, t, upper, rp, q, lo, hi, W, M) -> float or None``: the next rate (None: keep ``lam``), from
+        the iterate's margin ``t``, dual bound ``upper``, primal residual ``rp``, the per-block slopes
+        ``q_b = <X_b, Off_b> / sum tr X`` (:func:`solver.rate_search.margin_model`'s ``q``), the bracket so far
+        and the iterate's ``W`` (n, n) and ``M`` (S, n, n) (as in :func:`certified_rate`).  Called at most once
+        per Newton step.
     lam0 : float
         The first rate.
     time_limit : float, optional
