@@ -15,6 +15,9 @@ the root, inside the bisection's bracket ``[lo, hi]`` (``hi``: a certified rate,
 design); a candidate outside the bracket, or steps that do not halve it, hand over to the bisection's midpoint.
 Which rates are accepted (float64 re-check) and which lower ends are proven (Farkas) is the bisection's rule
 unchanged; only the order in which rates are tried differs, hence the same certified rate to the tolerance.
+
+:func:`path_search` (docs/design.md §3.2.2) replaces the probes by one interior-point path that follows the rate
+(:mod:`solver.ipm.rate_path`): where its iterate moves the rate next; the probes stay its fallback.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import math
 
 import numpy as np
 
-__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate"]
+__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search"]
 
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
 #: or above it by at most this fraction of ``end - lo``.
@@ -302,3 +305,89 @@ def _closing_low(hi: float, done) -> float:
     return b * (1.0 + 1e-9) if b * (1.0 + 1e-9) < hi else b
 
 
+
+
+#: The rate-following path (``RATE_SEARCH = "path"``, docs/design.md §3.2.2) moves to the rate its iterate
+#: certifies, less this fraction of the tolerance's width (in the tolerance's coordinate) ...
+PATH_BELOW = 0.5
+#: ... or to the Newton root of the margin's model (:func:`model_root`) where the iterate settled the margin's sign
+PATH_NEWTON = True
+#: ... when that moves the rate by at least this fraction of the width (smaller moves cost a re-centring each).
+PATH_MIN_MOVE = 0.125
+#: The certified end is re-checked these fractions of the width above the iterate's own rate, the first that
+#: passes (room for rounding: at 0.05 the paper's example's re-check failed, its margin 6e-8).
+PATH_ABOVE = (0.05, 0.15, 0.3)
+#: One SDP-equivalent of the path (``res.solve_count``): this many Newton steps, about a plain design SDP's
+#: (the median of a plain design SDP's iterations, measured: paper 10, n = 8 22, 20 45, 30 20, 50 24).
+PATH_STEPS_PER_SDP = 22
+
+
+def path_search(modes, settling: bool, tol_width: float, done, time_limit: float | None = None):
+    """The best rate's bracket from one rate-following interior-point path (:mod:`solver.ipm.rate_path`).
+
+    The path descends by the method of centers: from lambda = 1, after every Newton step the rate moves to
+    the one its primal iterate certifies (:func:`solver.ipm.rate_path.certified_rate`) less ``PATH_BELOW``
+    of the tolerance's width, until ``done(lo, hi)`` or until the multipliers at the rate reached refute it.
+
+    Parameters
+    ----------
+    modes : solver.network.ModeSet
+    settling : bool
+        The tolerance is on ``-ln(-ln lambda)`` (``decay_rate="auto"``), else on ``ln lambda``.
+    tol_width : float
+        The tolerance's width in that coordinate.
+    done : callable
+        ``done(lo, hi)``.
+    time_limit : float, optional
+
+    Returns
+    -------
+    tuple
+        ``(path, his)``: the :class:`solver.ipm.rate_path.RatePathResult` and the rates, increasing, at which its
+        primal iterate is to be re-checked (the first that passes is the certified end; empty when the path
+        certified no rate below 1).
+    """
+    from .ipm.rate_path import follow_rate
+
+    def shift(lam, du):  # the rate du above lam in the tolerance's coordinate
+        if settling:
+            return math.exp(-math.exp(math.log(-math.log(min(lam, 1.0 - 1e-9))) - du))
+        return lam * math.exp(du)
+
+    def measure(lam):
+        return -math.log(-math.log(min(lam, 1.0 - 1e-9))) if settling else math.log(lam)
+
+    def aim(lam, t, upper, rp, q, lo, hi, W, M):
+        if not hi < 1.0:
+            return None
+        if lo >= lam:  # refuted here: up to the middle of the bracket (in the tolerance's coordinate)
+            return shift(hi, -0.5 * (measure(hi) - measure(lo)))
+        settled = t > 0.0 and rp < 1e-6 and t >= 0.5 * upper
+        if PATH_NEWTON and lam >= 1.0 and not settled:
+            return None  # the first move is Newton's, from lambda = 1 once its sign is settled (as the first probe)
+        target = min(lam, shift(hi, -PATH_BELOW * tol_width))
+        if PATH_NEWTON and lam >= 1.0:
+            # the sign is settled here (the probes' rule): the Newton root of the margin's model, above the root
+            # where the margin is convex, from the iterate's own margin t (the lower of its bounds)
+            newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, 1e-4), lam)
+            if newton is not None:
+                target = min(target, newton)
+        if lo > 0.0:
+            target = max(target, shift(lo, 0.25 * tol_width))
+        if target >= shift(lam, -PATH_MIN_MOVE * tol_width):
+            return None
+        return target
+
+    def closed(lo, hi):
+        return hi < 1.0 and done(lo, min(shift(hi, PATH_ABOVE[-1] * tol_width), 1.0))
+
+    coef, active = modes.scheme_coef()
+    path = follow_rate(modes.free, coef, active, modes.eta, closed, aim, time_limit=time_limit)
+    if not (path.hi < 1.0 and path.W is not None):
+        return path, []
+    return path, [min(shift(path.hi, a * tol_width), 1.0) for a in PATH_ABOVE]
+
+
+def path_steps_solves(path) -> int:
+    """``res.solve_count`` of a path: its Newton steps in SDP-equivalents (``PATH_STEPS_PER_SDP``), at least 1."""
+    return max(1, math.ceil(path.iterations / PATH_STEPS_PER_SDP))

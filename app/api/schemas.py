@@ -184,6 +184,10 @@ class RatePoint(_Open):
     method: str | None = Field(None, description="The method of that step when it differs from the result's.")
     message: str | None = Field(None, description="`outcome: solver_failed`: the solver's words (such a step "
                                                   "certifies nothing and proves nothing).")
+    step: str | None = Field(None, description="How the rate was chosen (`path`: an end of the rate-following "
+                                               "interior-point path; `newton`, `below`, `close`, `bisect`, ...: a probe).")
+    iterations: int | None = Field(None, description="`step: path`: the path's Newton steps.")
+    solves: int | None = Field(None, description="`step: path`: those steps in SDP-equivalents (in `solve_count`).")
 
 
 class Settling(_Open):

@@ -60,6 +60,11 @@ class IPMOptions:
     dense: bool | None = None
     threads: int | None = 1
     sign_only: bool = False
+    #: The max-t form's data may change between iterations (the rate-following path, docs/design.md §3.2.2):
+    #: ``retarget(y, X, S, upper, t, primal_residual)`` is called at every iterate before the stopping rules
+    #: and returns None (go on), ``"stop"`` (status ``"stopped"``, this iterate returned) or new data
+    #: ``(C, op, adj, schur, y, X)`` (the next iteration starts from them; ``C + op(y)`` positive definite).
+    retarget: object | None = None
 
 
 @dataclass(kw_only=True)
@@ -368,6 +373,17 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         score = max(rp, gap) if E is None else math.inf  # an infeasible iterate is no answer
         if best is None or score < best[0]:
             best = (score, it, y, X, rp, gap, pobj)
+        if o.retarget is not None:
+            new = o.retarget(y, X, S, pobj, dobj, rp)
+            if isinstance(new, str):
+                best, status = (score, it, y, X, rp, gap, pobj), "stopped"
+                break
+            if new is not None:  # another problem of the same shape: its residuals and steps from the next iterate
+                C, op, adj, schur, y, X = new
+                Cf = [c.reshape(-1) for c in C]
+                S = [c + d for c, d in zip(C, op(y))]
+                best = None
+                continue
         if rp < o.feas_tol and gap < o.gap_tol and E is None:
             status = "optimal"
             break

@@ -81,6 +81,7 @@ def test_a_bisection_step_the_solver_fails_is_no_proof_and_no_crash(monkeypatch)
         return real(modes, options)
 
     monkeypatch.setattr(lmi, "run", flaky)
+    monkeypatch.setattr(design_module, "RATE_SEARCH", "model")  # the probes' search (the path runs no lmi.run)
     res = design(cartpole(), n_drop=3, decay_rate="max")
     assert res.outcome == "stabilized" and res.decay_rate >= 0.99 and res.certificate.verified
     failed = [step for step in res.rate_search if step["outcome"] == "solver_failed"]
@@ -105,6 +106,7 @@ def test_the_default_bisection_ends_when_only_rate_one_certifies(monkeypatch):
         return real(modes, options)
 
     monkeypatch.setattr(lmi, "run", only_one)
+    monkeypatch.setattr(importlib.import_module("solver.design"), "RATE_SEARCH", "model")  # every probe by lmi.run
     res = design(PlantFamily.paper_example(0.1), n_drop=3)
     assert res.outcome == "stabilized" and res.decay_rate == 1.0 and res.settling is None
     assert 5 < len(res.rate_search) < 40 and res.rate_bracket["lower"] > 1 - 2e-9

@@ -113,7 +113,11 @@ def test_solve_count_counts_every_sdp(monkeypatch):
     for rate in ("max", "auto", 0.6):
         calls.clear()
         res = design(fam, 3, decay_rate=rate)
-        assert res.solve_count == len(calls)  # with a rate no fixed-gain LMI runs: the design SDPs only
+        # with a rate no fixed-gain LMI runs: the design SDPs only, and the rate-following path's Newton steps in
+        # SDP-equivalents (docs/design.md §3.2.2)
+        path = sum(e.get("solves", 0) for e in res.rate_search or [])
+        assert path == 0 or rate != 0.6
+        assert res.solve_count == len(calls) + path
         assert res.to_dict()["solve_count"] == res.solve_count
     calls.clear()
     res = design(fam, 3, decay_rate=None)

@@ -1,0 +1,251 @@
+"""One interior-point path that follows the decay rate (docs/design.md §3.2.2, "The rate-following path").
+
+The ``lmi`` design SDP in the congruent form (:func:`solver.ipm.problems.lmi_problem`) has data
+``c_s free_s``, ``c_s coef_s`` with ``c_s = lambda^(-eta_s)``: one problem per rate, all of one shape and one
+basis, so an iterate ``(y, X)`` of one rate is an iterate of every other.  :func:`follow_rate` runs the
+interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda between its iterations (the
+``retarget`` hook of :class:`solver.ipm.algorithm.IPMOptions`), towards the rate its caller's ``aim`` names:
+
+* the **primal** iterate ``(W, Y)`` certifies, in closed form, every rate from
+  ``lambda_V = max_s sigma_max(W^(-1/2) M_s W^(-1/2))^(1/eta_s)`` up (``M_s = free_s W + coef_s Y``: the block
+  ``[[W, c M^T], [c M, W]]`` is positive semidefinite iff ``c sigma_max <= 1``); the smallest seen is the
+  bracket's upper end;
+* the **dual** iterate at lambda is a Farkas candidate for lambda once ``<C, X> < 0`` with the primal residual
+  below ``feas_tol`` (the sign rule of :attr:`IPMOptions.sign_only`); the largest such lambda is the lower end.
+
+At a change of rate the slacks keep their distance to the boundary (``t`` moves by the change of the blocks'
+smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (when that keeps
+them positive definite), which leaves ``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual
+bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
+design's own float64 re-check and Farkas re-check (solver/rate_search.py); this module only finds candidates.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .algorithm import IPMOptions, _eigvalsh, _ipm_core
+from .blas import blas_threads, heap_reuse
+from .problems import _check_data, _gain_L, _gain_scale, lmi_problem
+from .schur import dense_ops
+
+__all__ = ["RatePathResult", "follow_rate", "certified_rate"]
+
+
+@dataclass
+class RatePathResult:
+    """What :func:`follow_rate` found (candidates: the caller re-checks both ends).
+
+    Attributes
+    ----------
+    status : str
+        ``"stopped"`` (``done(lo, hi)`` held) or the interior-point status where the path ended otherwise.
+    lo : float
+        The largest rate whose multipliers passed the sign rule (0: none).
+    hi : float
+        The smallest rate certified by a primal iterate, :func:`certified_rate` (inf: none).
+    W, Y : ndarray or None
+        The primal iterate of ``hi`` in the design's coordinates: ``W`` (n, n), ``Y`` (J, m, n).
+    X_hi : ndarray or None, shape (S, 2n, 2n)
+        The multipliers of that iterate (a warm start for a nearby rate).
+    duals : ndarray or None, shape (S, 2n, 2n)
+        The multipliers of ``lo`` (at rate ``lo``, ``sum_b tr = 1``).
+    iterations : int
+        Newton steps (each one Schur complement, as an iteration of a plain solve).
+    retargets : int
+        Changes of rate.
+    rates : list of tuple
+        ``(iteration, lambda, t, upper, primal residual)`` at each iterate.
+    seconds : float
+    """
+
+    status: str
+    lo: float = 0.0
+    hi: float = math.inf
+    W: np.ndarray | None = None
+    Y: np.ndarray | None = None
+    X_hi: np.ndarray | None = None
+    duals: np.ndarray | None = None
+    iterations: int = 0
+    retargets: int = 0
+    rates: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def certified_rate(W: np.ndarray, M: np.ndarray, eta: np.ndarray) -> float:
+    """``max_s sigma_max(L^-1 M_s L^-T)^(1/eta_s)`` (``W = L L^T``): the smallest rate ``(W, Y)`` certifies.
+
+    Parameters
+    ----------
+    W : ndarray, shape (n, n)
+    M : ndarray, shape (S, n, n)
+        ``M_s = free_s W + coef_s Y`` without the rate's scale.
+    eta : ndarray, shape (S,)
+        Interval lengths.
+
+    Returns
+    -------
+    float
+        inf when ``W`` is not positive definite.
+    """
+    try:
+        L = np.linalg.cholesky(0.5 * (W + W.T))
+    except np.linalg.LinAlgError:
+        return math.inf
+    Li = np.linalg.inv(L)
+    K = Li @ M @ Li.T
+    sig2 = _eigvalsh(K @ np.swapaxes(K, 1, 2))[:, -1]
+    if not np.all(np.isfinite(sig2)):
+        return math.inf
+    return float(np.max(np.maximum(sig2, 0.0) ** (0.5 / eta)))
+
+
+class _RateFamily:
+    """The ``lmi`` SDP at any rate: ``C``, ``op``, ``adj``, ``schur`` for ``c_s = lambda^(-eta_s)``."""
+
+    def __init__(self, free, coef, active, eta, dense: bool | None):
+        self.free, coef, self.active = _check_data(free, coef, active)
+        self.coef, self.gscale = _gain_scale(coef)
+        self.eta = np.asarray(eta, dtype=np.float64)
+        self.GL = _gain_L(self.coef, self.active)  # (S, n, J m)
+        self.plan = None
+        base = lmi_problem(self.free, self.coef, self.active)
+        self.base = base
+        self.dense = dense if dense is not None else (base.p * base.nb * base.k**2 <= 60000)
+        if self.dense:  # the operator is affine in c per block: A(c) = A0 + c_b A1
+            A1 = base.dense_operator()
+            A0 = lmi_problem(0.0 * self.free, 0.0 * self.coef, self.active).dense_operator()
+            self.A0, self.A1 = A0, A1 - A0
+
+    def at(self, lam: float):
+        c = float(lam) ** (-self.eta)
+        prob = lmi_problem(self.free * c[:, None, None], self.coef * c[:, None, None, None], self.active)
+        if self.dense:
+            op, adj, schur = dense_ops(self.A0 + c[None, :, None, None] * self.A1)
+        else:
+            if self.plan is not None:
+                prob._schur_plan = self.plan
+            op, adj = prob.op, prob.adj
+
+            def schur(X, G, prob=prob):
+                M = prob.schur(X, G, upper=True)
+                self.plan = prob.__dict__.get("_schur_plan")
+                return M
+        return prob, c, op, adj, schur
+
+    def variables(self, prob, y):
+        """``W`` and the scaled ``Y`` stack (J m, n) at ``y``."""
+        x = prob.full(y)
+        n = self.free.shape[1]
+        W = prob.V0[0] + x[prob.slices[0]].reshape(n, n)
+        Y = x[prob.slices[1]].reshape(-1, n) if len(prob.slices) > 1 else np.zeros((0, n))
+        return 0.5 * (W + W.T), Y
+
+    def M(self, W, Y):
+        return self.free @ W + (self.GL @ Y if Y.size else 0.0)
+
+
+def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limit: float | None = None,
+                max_iter: int = 200, feas_tol: float = 1e-8, dense: bool | None = None) -> RatePathResult:
+    """Follow the rate along one interior-point path until ``done(lo, hi)`` (module docstring).
+
+    Parameters
+    ----------
+    free : array_like, shape (S, n, n)
+    coef : array_like, shape (S, J, n, m)
+    active : array_like of bool, shape (S, J), or None
+    eta : array_like, shape (S,)
+        Interval lengths: the block of mode s is scaled by ``lambda^(-eta_s)``.
+    done : callable
+        ``done(lo, hi) -> bool``: the bracket is closed.
+    aim : callable
+        ``aim(lam, t, upper, rp, q, lo, hi, W, M) -> float or None``: the next rate (None: keep ``lam``), from
+        the iterate's margin ``t``, dual bound ``upper``, primal residual ``rp``, the per-block slopes
+        ``q_b = <X_b, Off_b> / sum tr X`` (:func:`solver.rate_search.margin_model`'s ``q``), the bracket so far
+        and the iterate's ``W`` (n, n) and ``M`` (S, n, n) (as in :func:`certified_rate`).  Called at most once
+        per Newton step.
+    lam0 : float
+        The first rate.
+    time_limit : float, optional
+    max_iter : int
+    feas_tol : float
+        The sign rule's primal residual.
+    dense : bool, optional
+        The interior-point method's dense-operator choice (default: by size).
+
+    Returns
+    -------
+    RatePathResult
+    """
+    start = time.perf_counter()
+    fam = _RateFamily(free, coef, active, eta, dense)
+    n = fam.free.shape[1]
+    out = RatePathResult(status="max_iterations")
+    st = {"lam": float(lam0), "it": 0}
+    st["prob"], st["c"], op, adj, schur = fam.at(lam0)
+
+    def wrap(op, adj, schur):
+        return [st["prob"].C], (lambda y: [op(y)]), (lambda U: adj(U[0])), (lambda X, G: schur(X[0], G[0]))
+
+    def retarget(y, X, S, upper, t, rp):
+        st["it"] += 1
+        lam, prob, c = st["lam"], st["prob"], st["c"]
+        Xb = X[0]
+        W, Y = fam.variables(prob, y)
+        M = fam.M(W, Y)
+        out.rates.append((st["it"], lam, float(t), float(upper), float(rp)))
+        cert = certified_rate(W, M, fam.eta)
+        if cert < out.hi:
+            out.hi, out.W, out.Y, out.X_hi = cert, W, Y, Xb.copy()
+        if upper < 0.0 and rp < feas_tol and t >= 2.0 * upper and lam > out.lo:
+            out.lo, out.duals = lam, Xb.copy()
+        if done(out.lo, out.hi):
+            return "stop"
+        if st.get("moved"):  # one change of rate per Newton step
+            st["moved"] = False
+            return None
+        trX = float(np.trace(Xb, axis1=1, axis2=2).sum())
+        q = 2.0 * c * np.einsum("bij,bij->b", Xb[:, n:, :n], M) / max(trX, 1e-300)
+        new = aim(lam, float(t), float(upper), float(rp), q, out.lo, out.hi, W, M)
+        if new is None or not np.isfinite(new) or new <= 0.0 or abs(math.log(new / lam)) < 1e-12:
+            return None
+        prob2, c2, op2, adj2, schur2 = fam.at(new)
+        # the slacks keep their smallest eigenvalue (t moves with the blocks'), the multipliers' off-diagonal
+        # blocks scale by c / c' (A^*(X) and <C, X> unchanged) when that keeps them positive definite
+        y2 = np.array(y, dtype=np.float64)
+        lmin_old = float(_eigvalsh(S[0])[:, 0].min())
+        y2[-1] = 0.0
+        B2 = prob2.C + op2(y2)
+        y2[-1] = float(_eigvalsh(B2)[:, 0].min()) - lmin_old
+        ratio = (c / c2)[:, None, None]
+        X2 = Xb.copy()
+        X2[:, n:, :n] *= ratio
+        X2[:, :n, n:] *= ratio
+        up = ratio[:, 0, 0] > 1.0
+        if up.any():  # a block that would lose definiteness keeps its multiplier (its residual changes instead)
+            bad = np.zeros(len(X2), dtype=bool)
+            bad[up] = _eigvalsh(X2[up])[:, 0] <= 1e-3 * _eigvalsh(Xb[up])[:, 0]
+            X2[bad] = Xb[bad]
+        st["lam"], st["prob"], st["c"] = float(new), prob2, c2
+        out.retargets += 1
+        st["moved"] = True
+        C2, o2, a2, s2 = wrap(op2, adj2, schur2)
+        return C2, o2, a2, s2, y2, [X2]
+
+    o = IPMOptions(max_iter=max_iter, time_limit=time_limit, retarget=retarget, gap_tol=0.0, feas_tol=0.0)
+    prob = st["prob"]
+    large = prob.n_full**2 > 2**20
+    with blas_threads(o.threads), heap_reuse(large):
+        C, op1, adj1, schur1 = wrap(op, adj, schur)
+        core = _ipm_core(C, prob.b, op1, adj1, schur1, o, start)
+    out.status = core.status
+    out.iterations = max(st["it"] - out.retargets - 1, 0)  # a change of rate re-enters the loop without a step
+    if out.Y is not None:
+        J, m = fam.coef.shape[1], fam.coef.shape[3]
+        out.Y = out.Y.reshape(J, m, n) / fam.gscale[:, None, None] if J * m else np.zeros((0, 0, n))
+    out.seconds = time.perf_counter() - start
+    return out
