@@ -99,10 +99,13 @@ class NetworkLimitCertificate:
     def statement(self) -> str:
         size = "of any size" if np.isinf(self.bound) else f"with ||Z||_F < {self.bound:.3g}"
         rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
+        as_solved = "" if not (self.strict or self.slack) else (
+            f"; as the design states it: invariance blocks {1 + self.strict:.6g} times stricter, limits "
+            f"{1 - self.slack:.6g} u_max")
         return (f"not certified: the input-limited network SDP ({self.form} form: node ellipsoids "
                 f"x' W_v^-1 x <= 1 invariant along every admissible run{rate} through a common slack Z, "
-                f"|u_i| <= u_max_i on them, x0's history in every one) has no solution {size} (every solution has "
-                f"||Z||_F >= {self.floor:.3g}; Farkas certificate re-checked in float64); this excludes that "
+                f"|u_i| <= u_max_i on them, x0's history in every one{as_solved}) has no solution {size} (every "
+                f"solution has ||Z||_F >= {self.floor:.3g}; Farkas certificate re-checked in float64); this excludes that "
                 "sufficient condition with these limits, not every gain")
 
     def to_dict(self) -> dict:
