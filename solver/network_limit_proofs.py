@@ -151,6 +151,8 @@ def check_network_limits(prob, multipliers: NetworkLimitMultipliers, u_max, x0, 
     the right side is ``(a^+ sqrt(k) + sigma) r^2 + e k^(1/4) r + c'``, negative for ``r`` below the root when
     ``c' < 0``: no solution has ``||Z||_F < bound``.
     """
+    from .methods.network_lmi import slack_pairing, transition_adjoint
+
     k, n, m, N, E, V = prob.k, prob.n, prob.m, prob.N, prob.n_blocks, len(prob.nodes)
     idx = input_index(prob)
     u = np.asarray(u_max, float).reshape(m) * (1 - slack)
@@ -175,24 +177,7 @@ def check_network_limits(prob, multipliers: NetworkLimitMultipliers, u_max, x0, 
     Mx = 0.5 * (Mx + np.swapaxes(Mx, 1, 2))
     prover = Prover(exact=False)
     g = gamma(2 * k + 2 * E + 2 * len(idx) + V + 8)
-    G, errG = np.zeros((k, k)), np.zeros((k, k))
-    C, errC = np.zeros((V, k, k)), np.zeros((V, k, k))
-    Ej, errE = np.zeros((N, m, n)), np.zeros((N, m, n))
-    for e in range(E):  # <M_e, B_e>
-        M11, M21, M22 = Mb[e, :k, :k], Mb[e, k:, :k], Mb[e, k:, k:]
-        A0 = c_e[e] * prob.free[e]
-        G += 2 * M11 + 2 * A0.T @ M21
-        errG += g * (2 * np.abs(M11) + 2 * np.abs(A0).T @ np.abs(M21))
-        C[prob.src[e]] -= M11
-        C[prob.dst[e]] += M22
-        errC[prob.src[e]] += g * np.abs(M11)
-        errC[prob.dst[e]] += g * np.abs(M22)
-        for j in range(N):
-            b = prob.right[e, j]
-            if b >= 0:
-                cj = c_e[e] * prob.coef[e, j]
-                Ej[j] += 2 * cj.T @ M21[:, b * n:(b + 1) * n]
-                errE[j] += 2 * g * np.abs(cj).T @ np.abs(M21[:, b * n:(b + 1) * n])
+    G, errG, C, errC, Ej, errE = transition_adjoint(prob, Mb, c_e, g)  # sum_e <M_e, B_e>
     const_terms = []
     for q, (v, j, b, i) in enumerate(idx):  # <J_q, I_q> = a u_i^2 + 2 z.y + <J22, Z + Z' - W_v>
         J22 = Mi[q, 1:, 1:]
@@ -214,13 +199,7 @@ def check_network_limits(prob, multipliers: NetworkLimitMultipliers, u_max, x0, 
     mu_i = np.maximum(0.0, -prover.min_lower_many(Mi)) if len(idx) else np.zeros(0)
     mu_x = np.maximum(0.0, -prover.min_lower_many(Mx))
     # the slack is block diagonal: only G's diagonal blocks pair with it
-    lams, skew2 = [], 0.0
-    for b in range(prob.zblocks):
-        sl = slice(b * n, (b + 1) * n)
-        Gb = 0.5 * (G[sl, sl] + G[sl, sl].T)
-        lams.append(prover.max_upper(Gb, float(np.linalg.norm(errG[sl, sl]))))
-        skew2 += (float(np.linalg.norm(0.5 * (G[sl, sl] - G[sl, sl].T))) + float(np.linalg.norm(errG[sl, sl]))) ** 2
-    sigma = np.sqrt(skew2) * (1 + 8 * U)
+    lams, sigma = slack_pairing(prob, G, errG, prover)
     lam_c = sum(max(0.0, prover.max_upper(0.5 * (C[v] + C[v].T), float(np.linalg.norm(errC[v]))
                                           + g * float(np.linalg.norm(C[v])))) for v in range(V))
     slope = (max(lams) + 2 * lam_c + 4 * float(np.sum(mu_b)) + 2 * float(np.sum(mu_i)) + 2 * float(np.sum(mu_x)))

@@ -685,20 +685,18 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                                        f"{objective}): {plain.message}; {perf.message}")
             res.invariant_set = plain.invariant_set if kothare else None
             return res
-        if plain.outcome == "not_certified" and plain.certificate.kind == "farkas_network_limits":
-            return DesignResult(outcome="not_certified", gains=None, certificate=plain.certificate, history=history,
-                                timings=timings, solver_status=plain.solver_status, objective=objective, **base,
-                                message=f"{plain.certificate.statement()}; every solution of the network "
-                                        f"{objective} SDP with these limits solves that SDP (its blocks' leading "
-                                        f"2k x 2k parts are the invariance blocks; the same input and x0 blocks), "
-                                        f"so no {objective} bound of this form exists on {where} ({why})")
         if plain.outcome == "not_certified":
+            if plain.certificate.kind == "farkas_network_limits":
+                what = (f"with these limits solves that SDP (its blocks' leading 2k x 2k parts are the invariance "
+                        f"blocks; the same input and x0 blocks), so no {objective} bound of this form exists on "
+                        f"{where}")
+            else:
+                what = (f"solves that LMI (its blocks' leading 2k x 2k parts), so no {objective} bound of this form "
+                        f"exists on {where}, and cone complementarity on the exact node conditions found no gains")
             return DesignResult(outcome="not_certified", gains=None, certificate=plain.certificate, history=history,
                                 timings=timings, solver_status=plain.solver_status, objective=objective, **base,
                                 message=f"{plain.certificate.statement()}; every solution of the network "
-                                        f"{objective} SDP solves that LMI (its blocks' leading 2k x 2k parts), so "
-                                        f"no {objective} bound of this form exists on {where}, and cone "
-                                        f"complementarity on the exact node conditions found no gains ({why})")
+                                        f"{objective} SDP {what} ({why})")
         via = f" ({why}; the {'input-limited ' if kothare else ''}stability design: {plain.message})"
     if best is None:
         return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history, timings=timings,
