@@ -88,7 +88,8 @@ def assert_refuted(res, family, net, opts):
 
 @pytest.mark.parametrize("net_name", sorted(NETS))
 def test_limits_no_design_meets_are_not_certified_with_a_rechecked_certificate(net_name):
-    """Tiny u_max, large x0, the motor at decay rate 0.5 (the Kothare cost: the next tests)."""
+    """Tiny u_max, large x0, the motor at decay rate 0.5 (the Kothare cost: the last test).  On delays(1, 3) the
+    convex augmented form fails at this rate without limits too (valid certificate, not a limits-only case)."""
     family, opts = CASES["motor_rate"]
     net = NETS[net_name]
     assert_refuted(design(family, network=net, u_max=U_TINY, x0=X0, **opts), family, net, opts)
