@@ -418,7 +418,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
             res = network_performance.run_limits(family, network, u_max, x0=x0,
                                                  decay_rate=None if decay_rate == "auto" else decay_rate,
                                                  plant_switching=plant_switching, scaling=scaling,
-                                                 time_limit=time_limit, callback=callback)
+                                                 time_limit=time_limit, callback=callback, solver=solver)
         res.network = network.to_dict()
         return res
     if objective != "stability":  # docs/design.md §11.3

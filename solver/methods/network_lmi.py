@@ -442,37 +442,18 @@ class NetworkFarkasCertificate:
                 "per_block": self.per_block, "statement": self.statement(), "multipliers": [M.tolist() for M in self.multipliers]}
 
 
-def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndarray,
-                         rate: float | None = None, per_block: bool = False) -> NetworkFarkasCertificate:
-    """Re-check Farkas multipliers of the network LMI on the problem's float64 data (solver-independent).
-
-    ``per_block``: multipliers of the LMI normalized per slack block; the certificate then excludes solutions
-    whose slack blocks have equal traces only (``lambda_max`` averaged over the blocks instead of maximized).
-
-    ``multipliers``: one (2k, 2k) matrix per transition, then one (k, k) per Lyapunov matrix.  Rounding of the
-    adjoint is bounded elementwise (``gamma`` terms) and the eigenvalue bounds are proven by
-    :class:`solver.certificates.Prover`.
-    """
-    k, n, E, V = prob.k, prob.n, prob.n_blocks, len(prob.nodes)
-    M = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[:E]]
-    Nv = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[E:E + V]]
-    prover = Prover(exact=False)
-    bad = NetworkFarkasCertificate(M + Nv, -np.inf, np.inf, 0.0, False, prob.form, rate, per_block=per_block)
-    if len(M) != E or len(Nv) != V or not all(np.all(np.isfinite(X)) for X in M + Nv):
-        return bad
-    Gfull = np.zeros((k, k))
-    errG = np.zeros((k, k))
-    C = [X.copy() for X in Nv]
-    errC = [np.zeros((k, k)) for _ in range(V)]
-    Ej = np.zeros((prob.N, prob.m, n))
-    errE = np.zeros((prob.N, prob.m, n))
-    mu = np.maximum(0.0, -prover.min_lower_many(np.stack(M))) if E else np.zeros(0)
-    nu = np.maximum(0.0, -prover.min_lower_many(np.stack(Nv))) if V else np.zeros(0)
-    g = gamma(2 * k + 2 * E + 8)
-    for e in range(E):
+def transition_adjoint(prob: NetworkProblem, M, scale: np.ndarray, g: float):
+    """The adjoint of the transition blocks ``B_e`` (section 11.1) at multipliers ``M_e`` (E, 2k, 2k), with
+    elementwise rounding bounds (``g`` times the terms' sizes): ``sum_e <M_e, B_e> = <G, Z> + sum_v <C_v, W_v>
+    + sum_j <E_j, Y_j>``.  Returns ``(G, errG, C, errC, E, errE)``, shapes (k, k), (V, k, k), (N, m, n)."""
+    k, n, V = prob.k, prob.n, len(prob.nodes)
+    G, errG = np.zeros((k, k)), np.zeros((k, k))
+    C, errC = np.zeros((V, k, k)), np.zeros((V, k, k))
+    Ej, errE = np.zeros((prob.N, prob.m, n)), np.zeros((prob.N, prob.m, n))
+    for e in range(prob.n_blocks):
         M11, M21, M22 = M[e][:k, :k], M[e][k:, :k], M[e][k:, k:]
         A0 = scale[e] * prob.free[e]
-        Gfull += 2 * M11 + 2 * A0.T @ M21
+        G += 2 * M11 + 2 * A0.T @ M21
         errG += g * (2 * np.abs(M11) + 2 * np.abs(A0).T @ np.abs(M21))
         C[prob.src[e]] -= M11
         C[prob.dst[e]] += M22
@@ -484,16 +465,48 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
                 cj = scale[e] * prob.coef[e, j]
                 Ej[j] += 2 * cj.T @ M21[:, b * n:(b + 1) * n]
                 errE[j] += 2 * g * np.abs(cj).T @ np.abs(M21[:, b * n:(b + 1) * n])
-    # the slack is block diagonal: only the diagonal blocks of G pair with it
-    # per_block (every tr H_b the same c, tr H = zb c): sum_b <G_b, H_b> <= c sum_b lambda_max(G_b), i.e. the
-    # blocks' mean times tr H
+    return G, errG, C, errC, Ej, errE
+
+
+def slack_pairing(prob: NetworkProblem, G: np.ndarray, errG: np.ndarray, prover) -> tuple[list, float]:
+    """How ``<G, Z>`` meets the block-diagonal slack: proven ``lambda_max`` of each diagonal block's symmetric part
+    (pairing with ``H_b``) and a bound of the skew parts' Frobenius norm (pairing with ``Z``)."""
+    n = prob.n
     lams, skew2 = [], 0.0
     for b in range(prob.zblocks):
         sl = slice(b * n, (b + 1) * n)
-        Gb = 0.5 * (Gfull[sl, sl] + Gfull[sl, sl].T)
-        lams.append(prover.max_upper(Gb, float(np.linalg.norm(errG[sl, sl]))))
-        skew2 += (float(np.linalg.norm(0.5 * (Gfull[sl, sl] - Gfull[sl, sl].T))) + float(np.linalg.norm(errG[sl, sl]))) ** 2
-    skew = np.sqrt(skew2) * (1 + 8 * U)
+        lams.append(prover.max_upper(0.5 * (G[sl, sl] + G[sl, sl].T), float(np.linalg.norm(errG[sl, sl]))))
+        skew2 += (float(np.linalg.norm(0.5 * (G[sl, sl] - G[sl, sl].T))) + float(np.linalg.norm(errG[sl, sl]))) ** 2
+    return lams, float(np.sqrt(skew2) * (1 + 8 * U))
+
+
+def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndarray,
+                         rate: float | None = None, per_block: bool = False) -> NetworkFarkasCertificate:
+    """Re-check Farkas multipliers of the network LMI on the problem's float64 data (solver-independent).
+
+    ``per_block``: multipliers of the LMI normalized per slack block; the certificate then excludes solutions
+    whose slack blocks have equal traces only (``lambda_max`` averaged over the blocks instead of maximized).
+
+    ``multipliers``: one (2k, 2k) matrix per transition, then one (k, k) per Lyapunov matrix.  Rounding of the
+    adjoint is bounded elementwise (``gamma`` terms) and the eigenvalue bounds are proven by
+    :class:`solver.certificates.Prover`.
+    """
+    k, E, V = prob.k, prob.n_blocks, len(prob.nodes)
+    M = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[:E]]
+    Nv = [0.5 * (np.asarray(X, float) + np.asarray(X, float).T) for X in multipliers[E:E + V]]
+    prover = Prover(exact=False)
+    bad = NetworkFarkasCertificate(M + Nv, -np.inf, np.inf, 0.0, False, prob.form, rate, per_block=per_block)
+    if len(M) != E or len(Nv) != V or not all(np.all(np.isfinite(X)) for X in M + Nv):
+        return bad
+    mu = np.maximum(0.0, -prover.min_lower_many(np.stack(M))) if E else np.zeros(0)
+    nu = np.maximum(0.0, -prover.min_lower_many(np.stack(Nv))) if V else np.zeros(0)
+    g = gamma(2 * k + 2 * E + 8)
+    Gfull, errG, C, errC, Ej, errE = transition_adjoint(prob, M, scale, g)
+    C = [C[v] + Nv[v] for v in range(V)]
+    # the slack is block diagonal: only the diagonal blocks of G pair with it
+    # per_block (every tr H_b the same c, tr H = zb c): sum_b <G_b, H_b> <= c sum_b lambda_max(G_b), i.e. the
+    # blocks' mean times tr H
+    lams, skew = slack_pairing(prob, Gfull, errG, prover)
     if per_block:
         lam_g = (float(np.sum(lams)) + gamma(len(lams) + 2) * float(np.sum(np.abs(lams)))) / prob.zblocks
     else:  # sum_b <G_b, H_b> <= max_b lambda_max(G_b) tr H

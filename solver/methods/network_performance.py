@@ -686,12 +686,17 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
             res.invariant_set = plain.invariant_set if kothare else None
             return res
         if plain.outcome == "not_certified":
+            if plain.certificate.kind == "farkas_network_limits":
+                what = (f"with these limits solves that SDP (its blocks' leading 2k x 2k parts are the invariance "
+                        f"blocks; the same input and x0 blocks), so no {objective} bound of this form exists on "
+                        f"{where}")
+            else:
+                what = (f"solves that LMI (its blocks' leading 2k x 2k parts), so no {objective} bound of this form "
+                        f"exists on {where}, and cone complementarity on the exact node conditions found no gains")
             return DesignResult(outcome="not_certified", gains=None, certificate=plain.certificate, history=history,
                                 timings=timings, solver_status=plain.solver_status, objective=objective, **base,
                                 message=f"{plain.certificate.statement()}; every solution of the network "
-                                        f"{objective} SDP solves that LMI (its blocks' leading 2k x 2k parts), so "
-                                        f"no {objective} bound of this form exists on {where}, and cone "
-                                        f"complementarity on the exact node conditions found no gains ({why})")
+                                        f"{objective} SDP {what} ({why})")
         via = f" ({why}; the {'input-limited ' if kothare else ''}stability design: {plain.message})"
     if best is None:
         return DesignResult(outcome="not_converged", gains=None, certificate=None, history=history, timings=timings,
@@ -773,7 +778,7 @@ def _stability_design(family, network, u_max, x0, plant_switching: str, scaling:
     left = _left(time_limit, start)
     if u_max is not None:
         return run_limits(family, network, u_max, x0=x0, plant_switching=plant_switching, scaling=scaling,
-                          time_limit=left)
+                          time_limit=left, solver=solver)
     return network_lmi.run(family, network, plant_switching=plant_switching, time_limit=left, solver=solver,
                            fallback=fallback)
 
@@ -879,12 +884,15 @@ def solve_limits(prob, history: np.ndarray, u_max: np.ndarray, x0=None, rate: fl
 
 def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = None,
                plant_switching: str = "per_interval", scaling: str = "auto", time_limit: float | None = None,
-               callback=None) -> DesignResult:
+               callback=None, solver: str = "AUTO") -> DesignResult:
     """A design on ``network`` whose inputs meet ``u_max`` from node-dependent invariant ellipsoids (§11.3).
 
     Solved in balanced coordinates (:func:`solver.scaling.balance`, the plain part of the scaling layer); the
     gains and the node ellipsoids are mapped back and re-checked in the user's (:func:`check_invariant_nodes`,
-    :func:`network_lmi.recheck_network`).  ``res.invariant_set`` holds the node matrices (V, k, k).
+    :func:`network_lmi.recheck_network`).  ``res.invariant_set`` holds the node matrices (V, k, k).  When
+    nothing is certified and ``x0`` is given, a Farkas certificate of the SDP (its multipliers from ``solver``,
+    "AUTO": the IPM, then Clarabel; re-checked on the user's problem by
+    :func:`solver.network_limit_proofs.check_network_limits`) makes the outcome "not_certified".
     """
     from ..scaling import balance
 
@@ -933,6 +941,24 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
     timings["setup"] = max(timings["total"] - seconds, 0.0)
     if cert is None:
         why = reason if inv is None else "no node certificate passed the float64 re-check"
+        proof, proof_why = None, "no x0 (a small enough ellipsoid always meets the limits)"
+        if x0 is not None:
+            from ..network_limit_proofs import prove_network_limits
+
+            proof_start = time.perf_counter()
+            proof, proof_why = prove_network_limits(family, network, u_max, x0, decay_rate, STRICT, LIMIT_SLACK,
+                                                    plant_switching, solver, _left(time_limit, start))
+            timings["solves"] += 1
+            timings["total"] = time.perf_counter() - start
+            timings["setup"] = max(timings["total"] - seconds - (time.perf_counter() - proof_start), 0.0)
+            timings["solver"] = seconds + time.perf_counter() - proof_start
+        if proof is not None:
+            return DesignResult(outcome="not_certified", gains=None, certificate=proof, history=[record],
+                                timings=timings, solver_status=status, objective="stability",
+                                decay_rate=decay_rate, **{**base, "solver": proof.multipliers.solver},
+                                message=f"{proof.statement()}, on {where} (multipliers from "
+                                        f"{proof.multipliers.solver}; the design's SDP: {why})")
+        why += f"; no Farkas certificate of the limits: {proof_why}"
         return DesignResult(outcome="not_converged", gains=None, certificate=None, history=[record], timings=timings,
                             solver_status=status, objective="stability", decay_rate=decay_rate, **base,
                             message=f"no input-limited design certified on {where}{rate_txt}: {why}")

@@ -259,7 +259,8 @@ def test_cost_with_loose_input_limits_gives_the_unconstrained_bracket(net):
                          ids=["scalar", "motor_unstable"])
 def test_cost_with_input_limits_no_gains_can_meet_is_not_claimed(F, G, x0):
     """An unstable mode (eigenvalue lam > 1, left eigenvector w) with |w'G| u_max < (lam - 1) |w'x0|: w'x grows
-    at every sample whatever the inputs, so no gains meet the limit from x0.  The plain cost design stabilizes."""
+    at every sample whatever the inputs, so no gains meet the limit from x0.  The plain cost design stabilizes;
+    with the limit the SDP is refuted by its Farkas certificate ("not_certified", never "stabilized")."""
     F, G, x0 = np.asarray(F, float), np.asarray(G, float), np.asarray(x0, float)
     lam, vecs = np.linalg.eig(F[0].T)
     i = int(np.argmax(np.abs(lam)))
@@ -270,7 +271,8 @@ def test_cost_with_input_limits_no_gains_can_meet_is_not_claimed(F, G, x0):
     net = Network.weakly_hard(1, 3, 3)
     assert design(plant, network=net, objective="cost", x0=x0).outcome == "stabilized"
     res = design(plant, network=net, objective="cost", x0=x0, u_max=u_max)
-    assert res.outcome != "stabilized" and res.invariant_set is None
+    assert res.outcome == "not_certified" and res.invariant_set is None and res.gains is None
+    assert res.certificate.kind == "farkas_network_limits" and res.certificate.verified
 
 
 def test_cost_with_input_limits_is_coordinate_free():
