@@ -32,6 +32,7 @@ import numpy as np
 
 from .algorithm import IPMOptions, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
+from .sparse_schur import NodeStructure
 
 __all__ = ["NetworkIPMSolution", "network_problem", "node_problem", "solve_network", "solve_node"]
 
@@ -241,7 +242,11 @@ def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float =
 
 
 # ------------------------------------------------------------------------------------ fixed gains: node SDP
-def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
+#: Reduced variables ``V D (D + 1) / 2`` from which :func:`node_problem` takes the block-sparse Schur complement.
+SPARSE_NODE_FROM = 1000
+
+
+def node_problem(A_states, succ, rho: float = 1.0, schur: str = "auto") -> BlockLMI:
     """The node-dependent Lyapunov SDP of ``analyze(network=)`` (docs/design.md §11) as a :class:`BlockLMI`.
 
     ``max t`` s.t. ``rho^2 P_v - A_v^T P_w A_v - t I >= 0`` for every edge ``v -> w`` of ``succ``,
@@ -255,6 +260,9 @@ def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
         Successors of every state.
     rho : float
         Rate per sample.
+    schur : {"auto", "sparse", "dense"}
+        The Schur complement: block-sparse in the nodes (:mod:`solver.ipm.sparse_schur`), dense
+        (:func:`solver.ipm.schur.assemble`), or the sparse one from :data:`SPARSE_NODE_FROM` reduced variables.
 
     Returns
     -------
@@ -262,6 +270,8 @@ def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
         One variable ``P`` (V D, D), a stack of symmetric matrices; blocks: the edges in ``succ`` order, then
         one ``P_v >= t I`` per state.
     """
+    if schur not in ("auto", "sparse", "dense"):
+        raise ValueError(f"schur must be 'auto', 'sparse' or 'dense', got {schur!r}")
     A_states = np.asarray(A_states, dtype=np.float64)
     V, D = A_states.shape[0], A_states.shape[1]
     src = np.array([v for v in range(V) for _ in succ[v]] + list(range(V)), dtype=int)
@@ -280,7 +290,10 @@ def node_problem(A_states, succ, rho: float = 1.0) -> BlockLMI:
     a = np.zeros(V * D * D)
     for v in range(V):
         a[v * D * D: (v + 1) * D * D: D + 1] = 1.0
-    return BlockLMI(C=C, variables=[P], V0=[np.tile(eye, (V, 1))], equality=a)
+    problem = BlockLMI(C=C, variables=[P], V0=[np.tile(eye, (V, 1))], equality=a)
+    if schur == "sparse" or (schur == "auto" and V * D * (D + 1) // 2 >= SPARSE_NODE_FROM):
+        problem.schur_structure = NodeStructure(problem)
+    return problem
 
 
 def node_memory(V: int, D: int, n_edges: int) -> int:
@@ -291,9 +304,9 @@ def node_memory(V: int, D: int, n_edges: int) -> int:
     return ipm_memory(full, V * D * (D + 1) // 2, n_edges + V, D, full)
 
 
-def solve_node(A_states, succ, rho: float = 1.0, options: IPMOptions | None = None):
+def solve_node(A_states, succ, rho: float = 1.0, options: IPMOptions | None = None, schur: str = "auto"):
     """``(t, P)`` of :func:`node_problem` on the structured IPM, ``P`` of shape (V, D, D), and the IPM's status."""
-    problem = node_problem(A_states, succ, rho)
+    problem = node_problem(A_states, succ, rho, schur)
     sol = solve_block_lmi(problem, options)
     V, D = np.shape(A_states)[0], np.shape(A_states)[1]
     P = sol.V[0].reshape(V, D, D)
