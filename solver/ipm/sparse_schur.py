@@ -29,7 +29,7 @@ import scipy.linalg.lapack
 from scipy.linalg.blas import dsyrk as _syrk
 from scipy.linalg.blas import dtrsm as _trsm
 
-from .schur import _plan, pair_groups, pieces
+from .schur import _plan, _products
 
 __all__ = ["NodeStructure", "SparseSchur", "minimum_degree", "node_factor_blocks"]
 
@@ -122,36 +122,84 @@ class NodeStructure:
     def factor_blocks(self) -> int:
         return self.V + sum(len(b) for b in self.below)
 
-    def project(self, K: np.ndarray) -> np.ndarray:
-        """Full-coordinate blocks ``K`` (g, D^2, D^2) onto the symmetric coordinates: ``T0b^T K T0b``, (g, q, q)."""
-        D, i1, j1 = self.D, self.i1, self.j1
-        K5 = K.reshape(-1, D, D, D, D)
-        S = K5 + K5.transpose(0, 2, 1, 3, 4)
-        S += S.transpose(0, 1, 2, 4, 3)
-        red = S[:, i1, j1][:, :, i1, j1]
-        red[:, self.diag] *= 0.5
-        red[:, :, self.diag] *= 0.5
-        return red
+    def _entries(self, problem):
+        """The static bucketing of every (block, product pair) into the stored node block it adds to (built once).
+
+        Every term is a list of products ``c L V R`` (:func:`solver.ipm.schur._products`; ``V`` the node matrix it
+        selects); for a symmetric coordinate ``E`` and products ``u``, ``v`` of the terms of nodes ``x``, ``y`` of
+        block b, ``tr(c_u L_u E R_u X_b c_v L_v E' R_v G_b) = c_u c_v tr(E P E' Q)`` with ``P = R_u X_b L_v``,
+        ``Q = R_v G_b L_u``: an entry of the node block ``(x, y)``, or with ``P``, ``Q`` swapped of ``(y, x)``
+        (``tr(E P E' Q) = tr(E' Q E P)``).  Two different terms of one block add ``K + K^T``: both orientations.
+        """
+        var_terms = problem.sel_terms[0]
+        prods = _products(var_terms)
+        sels = [np.asarray(t[3], dtype=int) for t in var_terms]
+        nb = problem.nb
+        pairs, src, swap, key = [], [], [], []
+        for ta in range(len(prods)):
+            for tb in range(ta, len(prods)):
+                for u in prods[ta]:
+                    for v in prods[tb]:
+                        pid = len(pairs)
+                        pairs.append((u, v))
+                        x, y = self.pos[sels[ta]], self.pos[sels[tb]]
+                        b = np.arange(nb)
+                        hi, lo = np.maximum(x, y), np.minimum(x, y)
+                        k = lo * self.V + hi
+                        src.append(pid * nb + b), key.append(k), swap.append(x < y)
+                        if ta != tb:  # the pair's transpose: its (y, x) entry, the same stored block when x == y
+                            same = x == y
+                            src.append(pid * nb + b[same]), key.append(k[same]), swap.append(np.ones(same.sum(), bool))
+        src, swap, key = np.concatenate(src), np.concatenate(swap), np.concatenate(key)
+        order = np.argsort(key, kind="stable")
+        src, swap, key = src[order], swap[order], key[order]
+        bounds = np.flatnonzero(np.diff(key)) + 1
+        starts = np.concatenate([[0], bounds])
+        ends = np.concatenate([bounds, [len(key)]])
+        blocks = [(int(key[s]) // self.V, int(key[s]) % self.V, int(s), int(e)) for s, e in zip(starts, ends)]
+        D = self.D
+        i1, j1 = self.i1, self.j1
+        I, J = i1[:, None], j1[:, None]
+        K, L = i1[None, :], j1[None, :]
+
+        def flat(a, b, c, d):  # Y4[a, b, c, d] in the flat Y
+            return ((a * D + b) * D + c) * D + d
+
+        gather = [flat(J, K, L, I), flat(J, L, K, I), flat(I, K, L, J), flat(I, L, K, J)]
+        return pairs, src, swap, blocks, gather
 
     def assemble(self, problem, X: np.ndarray, G: np.ndarray) -> "SparseSchur":
-        """The Schur complement at multipliers ``X`` and inverse slacks ``G`` (nb, k, k) as a :class:`SparseSchur`."""
-        cols = [np.zeros(((1 + len(b)) * self.q, self.q)) for b in self.below]
-        var = problem.variables[0]
-        terms = problem.sel_terms[0]
-        nb, k, D = problem.nb, problem.k, self.D
-        chunk = max(1, int(CHUNK_BYTES // (8 * 4 * D**4 + 1)))
-        for b0 in range(0, nb, chunk):
-            b1 = min(nb, b0 + chunk)
-            Xc, Gc = X[b0:b1], G[b0:b1]
-            pcs = [pieces(*(_rows(f, b0, b1) for f in term[:2]), term[2], Xc, Gc,
-                          np.asarray(term[3])[b0:b1]) for term in terms]
-            for ta in range(len(pcs)):
-                for tb in range(ta, len(pcs)):
-                    ru, rv, K = pair_groups(pcs[ta], pcs[tb], var.shape, var.shape, b1 - b0)
-                    red = self.project(K)
-                    for u, v, R in zip(ru, rv, red):
-                        # two terms: M gets K + K^T, whose (v, u) block is R^T, the same stored block
-                        self._add(cols, int(u), int(v), R + R.T if ta != tb and u == v else R)
+        """The Schur complement at multipliers ``X`` and inverse slacks ``G`` (nb, k, k) as a :class:`SparseSchur`.
+
+        Per stored node block, its entries' ``sum c P (x) Q`` is one GEMM of the stacked ``vec P``, ``vec Q``
+        (``Y[(b, c), (d, a)] = sum P[b, c] Q[d, a]``), projected onto the symmetric coordinates by four gathers:
+        ``M[(ij), (kl)] = Y[j,k,l,i] + Y[j,l,k,i] + Y[i,k,l,j] + Y[i,l,k,j]``, halved on diagonal coordinates.
+        """
+        got = problem.__dict__.get("_sparse_entries")
+        if got is None:
+            got = problem._sparse_entries = self._entries(problem)
+        pairs, src, swap, blocks, gather = got
+        D, q = self.D, self.q
+        P = np.empty((len(pairs), problem.nb, D, D))
+        Q = np.empty_like(P)
+        for i, (u, v) in enumerate(pairs):
+            Lu, Ru, _, cu = u
+            Lv, Rv, _, cv = v
+            P[i] = (cu * cv) * (Ru @ X @ Lv)
+            Q[i] = Rv @ G @ Lu
+        P, Q = P.reshape(-1, D * D), Q.reshape(-1, D * D)
+        Pf, Qf = P[src], Q[src]
+        Pf[swap], Qf[swap] = Q[src[swap]], P[src[swap]]
+        cols = [np.zeros(((1 + len(b)) * q, q)) for b in self.below]
+        for lo, hi, s, e in blocks:
+            Y = (Pf[s:e].T @ Qf[s:e]).reshape(-1)
+            red = Y[gather[0]]
+            for g in gather[1:]:
+                red += Y[g]
+            red[self.diag] *= 0.5
+            red[:, self.diag] *= 0.5
+            a = 0 if lo == hi else self.index[lo][hi]
+            cols[lo][a * q:(a + 1) * q] += red
         border = None
         if self.with_t:
             plan = _plan(problem)
@@ -159,22 +207,6 @@ class NodeStructure:
             col[-1] = np.einsum("bij,bji->", X, G)
             border = plan.T0t @ col
         return SparseSchur(self, cols, border, lambda: self.assemble(problem, X, G))
-
-    def _add(self, cols, u, v, R):
-        """Add ``R`` to the node block ``(u, v)`` (stored once, in the factor's lower triangle)."""
-        pu, pv = int(self.pos[u]), int(self.pos[v])
-        q = self.q
-        if pu < pv:
-            pu, pv, R = pv, pu, R.T
-        a = 0 if pu == pv else self.index[pv][pu]
-        cols[pv][a * q:(a + 1) * q] += R
-
-
-def _rows(f, b0, b1):
-    """Blocks ``b0:b1`` of a term's factor (a selector shared by every block stays as it is)."""
-    if isinstance(f, np.ndarray) and f.shape[0] > 1:
-        return f[b0:b1]
-    return f
 
 
 class SparseSchur:
