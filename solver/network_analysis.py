@@ -147,20 +147,14 @@ def recheck_node_dependent(P: np.ndarray, A_states: np.ndarray, product: Product
                               float(margin), ok, source, None if rho == 1.0 else float(rho), worst_edge)
 
 
-#: Largest node SDP (reduced variables ``V D (D + 1) / 2``) solved on the structured IPM under ``solver="AUTO"``:
-#: its Schur complement is dense, while Clarabel's KKT system keeps the automaton's sparsity, so the IPM wins on
-#: small automata only (measured: 0.06 s against 0.28 s at V = 9, D = 6; 4.3 s against 1.3 s at V = 64, D = 8).
-#: Used for the verdict's solve at rate 1 (what design()'s re-check runs); the rate bisection stays on Clarabel.
-IPM_NODE_MAX_VARIABLES = 1000
-
-
 class NodeLMI:
     """``P_v >= I``, ``A_v^T P_w A_v - rho^2 P_v <= -I`` for every edge, minimize ``sum_v trace P_v``.
 
     The conditions are homogeneous in P, so the normalization loses nothing; ``rho^2`` is a
-    cvxpy parameter, so a bisection on the rate re-solves without rebuilding.  Under ``solver="AUTO"`` a
-    small SDP runs first on the structured IPM in its max-t form (:func:`solver.ipm.network_blocks.node_problem`,
-    the same conditions), and on Clarabel when the IPM's P fails the float64 re-check short of a converged
+    cvxpy parameter, so a bisection on the rate re-solves without rebuilding.  Under ``solver="AUTO"`` the
+    SDP runs first on the structured IPM in its max-t form (:func:`solver.ipm.network_blocks.node_problem`, the same
+    conditions; block-sparse Schur complement, docs/design.md §11.4) when its memory fits the budget
+    (:meth:`ipm_fits`), and on Clarabel when the IPM's P fails the float64 re-check short of a converged
     ``t* <= 0``.
     """
 
@@ -185,6 +179,13 @@ class NodeLMI:
                 cons.append(0.5 * (E + E.T) << -eye)
         self.problem = cp.Problem(cp.Minimize(sum(cp.trace(P) for P in self.P)), cons)
 
+    def ipm_fits(self) -> bool:
+        """Whether the structured IPM's memory (:func:`solver.ipm.network_blocks.node_memory`) fits the budget."""
+        from .compiled import MAX_SOLVER_MEMORY
+        from .ipm.network_blocks import node_memory
+
+        return node_memory(self.product.succ, self.A_states.shape[1]) <= MAX_SOLVER_MEMORY
+
     def _ipm(self, rho: float, only: bool):
         """The IPM's P when it decides (passes the re-check, or converged to ``t* <= 0``: None), else False."""
         from .ipm.network_blocks import solve_node
@@ -205,8 +206,7 @@ class NodeLMI:
         from .compiled import cp
 
         name = str(solver).upper()
-        V, D = self.A_states.shape[0], self.A_states.shape[1]
-        if name == "IPM" or (name == "AUTO" and V * D * (D + 1) // 2 <= IPM_NODE_MAX_VARIABLES):
+        if name == "IPM" or (name == "AUTO" and self.ipm_fits()):
             P = self._ipm(rho, name == "IPM")
             if P is not False:
                 return P

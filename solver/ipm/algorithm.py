@@ -395,6 +395,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             status = "time_limit"
             break
         t0 = perf()
+        M = solve = None  # the last iteration's Schur matrix and factor go before the next one is built
         M = schur(X, G)
         t1 = perf()
         tim["assembly"] += t1 - t0
