@@ -147,6 +147,24 @@ def recheck_node_dependent(P: np.ndarray, A_states: np.ndarray, product: Product
                               float(margin), ok, source, None if rho == 1.0 else float(rho), worst_edge)
 
 
+def node_sdp_memory(succ, D: int, solver: str = "AUTO") -> int:
+    """Bytes of the node SDP on the solver ``solver`` runs it on (docs/design.md §11.4).
+
+    The structured IPM's :func:`solver.ipm.network_blocks.node_memory` under ``"IPM"``, and under ``"AUTO"`` when it fits
+    :data:`solver.compiled.MAX_SOLVER_MEMORY`; otherwise Clarabel's KKT system, one dense ``(D(D+1)/2)^2`` scaling
+    per PSD cone of side D (one per edge and per state).
+    """
+    from .compiled import MAX_SOLVER_MEMORY, clarabel_kkt_bytes
+    from .ipm.network_blocks import node_memory
+
+    name = str(solver).upper()
+    if name in ("IPM", "AUTO"):
+        need = node_memory(succ, D)
+        if name == "IPM" or need <= MAX_SOLVER_MEMORY:
+            return need
+    return clarabel_kkt_bytes([int(D)] * (sum(len(out) for out in succ) + len(succ)))
+
+
 class NodeLMI:
     """``P_v >= I``, ``A_v^T P_w A_v - rho^2 P_v <= -I`` for every edge, minimize ``sum_v trace P_v``.
 
@@ -184,7 +202,9 @@ class NodeLMI:
         from .compiled import MAX_SOLVER_MEMORY
         from .ipm.network_blocks import node_memory
 
-        return node_memory(self.product.succ, self.A_states.shape[1]) <= MAX_SOLVER_MEMORY
+        if self.__dict__.get("_fits") is None:
+            self._fits = node_memory(self.product.succ, self.A_states.shape[1]) <= MAX_SOLVER_MEMORY
+        return self._fits
 
     def _ipm(self, rho: float, only: bool):
         """The IPM's P when it decides (passes the re-check, or converged to ``t* <= 0``: None), else False."""
@@ -317,6 +337,14 @@ def analyze_network(family, K: np.ndarray, net: Network, *, plant_switching: str
             f"{product.size} automaton states (network nodes x plant modes) of size {D} make a Lyapunov SDP "
             f"of {product.size * D} rows, above the limit of {MAX_LMI_ROWS}: use a smaller network or n_drop",
             ("network",))
+    need = node_sdp_memory(product.succ, D, solver)
+    from .compiled import MAX_SOLVER_MEMORY
+
+    if need > MAX_SOLVER_MEMORY:
+        raise InvalidInput(
+            f"{product.size} automaton states of size {D} make a Lyapunov SDP that would need about "
+            f"{need / 2**30:.1f} GiB of solver memory (limit {MAX_SOLVER_MEMORY / 2**30:.1f} GiB): use a smaller "
+            "network or n_drop", ("network",))
     A_states = A[product.modes, product.ages]  # (V, D, D)
     with np.errstate(over="ignore", invalid="ignore"):
         norm = float(np.max(np.sum(np.abs(A_states), axis=-1)))
