@@ -131,13 +131,14 @@ def solver_table(cases, time_limit) -> None:
 
 
 def _one_analysis(args):
-    """In a forked child: ``analyze(network=)`` of given gains on one solver (CPU s, peak RSS growth in MB)."""
+    """In a fresh process: ``analyze(network=)`` of given gains on one solver (CPU s, the process's peak RSS in MB,
+    imports included)."""
     import resource
 
     from solver import analyze
 
     fam, net, gains, solver, bounds = args
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    base = 0
     c0 = time.process_time()
     try:
         rep = analyze(fam, gains, network=net, solver=solver, bounds=bounds)
@@ -150,17 +151,18 @@ def _one_analysis(args):
 
 
 def _forked(fn, args):
+    """``fn(args)`` in a fresh spawned process (a forked pool worker deadlocked on a lock the parent held)."""
     import multiprocessing as mp
 
-    with mp.get_context("fork").Pool(1) as pool:
+    with mp.get_context("spawn").Pool(1) as pool:
         return pool.apply(fn, (args,))
 
 
 def analysis_table(cases, time_limit, clarabel_bounds_up_to: int = 2000) -> None:
     """``--analysis``: per case, the design (``solver="AUTO"``) and the analysis of its gains on the IPM and Clarabel.
 
-    Node SDP: ``analyze(..., bounds="none")`` (the verdict's solve at rate 1 and the cycle search), CPU s and peak RSS
-    growth, ``solver="IPM"`` / ``"CLARABEL"``; full: with the CJSR bisection (``"AUTO"`` / ``"CLARABEL"``; Clarabel's
+    Node SDP: ``analyze(..., bounds="none")`` (the verdict's solve at rate 1 and the cycle search), CPU s and the
+    process's peak RSS, ``solver="IPM"`` / ``"CLARABEL"``; full: with the CJSR bisection (``"AUTO"`` / ``"CLARABEL"``; Clarabel's
     only up to ``clarabel_bounds_up_to`` node-SDP rows, states x D, beyond which it takes many minutes).
     """
     from solver import design
