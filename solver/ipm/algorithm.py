@@ -413,16 +413,12 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 dead = d <= 1e-14 * dmax
             if fixed_dead:
                 dead0 = dead if anydead else np.zeros(d.shape, dtype=bool)
-        if not isinstance(M, np.ndarray):  # a structured Schur complement (solver.ipm.sparse_schur) factors itself
-            solve = M.factor(dead if anydead else None)
-            if solve is None:
-                status = "numerical_error"
-                break
-        else:
-            solve = _dense_factor(M, d, dead if anydead else None)
-            if solve is None:
-                status = "numerical_error"
-                break
+        # a structured Schur complement (solver.ipm.sparse_schur) factors itself
+        pins = dead if anydead else None
+        solve = _dense_factor(M, d, pins) if isinstance(M, np.ndarray) else M.factor(pins)
+        if solve is None:
+            status = "numerical_error"
+            break
         tim["factorization"] += perf() - t1
 
         def direction(h, RcG):

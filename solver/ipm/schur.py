@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.blas import dsyr2k as _syr2k
 
-__all__ = ["assemble", "dense_ops", "pair", "pair_groups", "pieces"]
+__all__ = ["assemble", "dense_ops", "pair", "pieces"]
 
 
 def _onehot(index: np.ndarray, n: int) -> sp.csr_matrix:
@@ -31,24 +31,6 @@ def pieces(L, R, coef, X, G, *sel):
 
 def pair(a, b, shape_a, shape_b, nb):
     """Sum over blocks of ``tr(A_E X A_E' G)`` for one term of each variable, shape (r c, r2 c2).
-
-    The full-coordinate matrix of :func:`pair_groups`' blocks (zero where no block reads the pair of row blocks).
-    """
-    rows, cols, K = pair_groups(a, b, shape_a, shape_b, nb)
-    if a[8] is None and b[8] is None:
-        return K[0]
-    r, c, r2, c2 = a[0].shape[2], shape_a[1], b[0].shape[2], shape_b[1]
-    na, nb2 = shape_a[0] // r, shape_b[0] // r2
-    full = np.zeros((na, nb2, r * c, r2 * c2))
-    full[rows, cols] = K
-    return full.transpose(0, 2, 1, 3).reshape(na * r * c, nb2 * r2 * c2)
-
-
-def pair_groups(a, b, shape_a, shape_b, nb):
-    """:func:`pair` per pair of row blocks some block reads: ``(rows, cols, K)``, ``K`` of shape (g, r c, r2 c2).
-
-    ``K[g]`` is the sum over the blocks that read row block ``rows[g]`` of the first variable (term ``a``) and
-    ``cols[g]`` of the second (term ``b``); without selections one group ``(0, 0)``.
 
     Layouts: ``[P]_ac [Q]_bd`` is ``kron``; ``[P]_ad [Q]_bc`` a ``kron`` with a
     commutation.  A sym-kind term is ``c L E L^T`` (E symmetric): one product
@@ -85,8 +67,8 @@ def pair_groups(a, b, shape_a, shape_b, nb):
             0, 1, 3, 2, 4)
     elif R2 is None:
         # Only the projected (symmetric-basis) matrix matters, where block (i, j) is block (j, i)^T.
-        rows, cols, K = pair_groups(b, a, shape_b, shape_a, nb)
-        return cols, rows, np.ascontiguousarray(np.swapaxes(K, 1, 2))
+        K = pair(b, a, shape_b, shape_a, nb)
+        return K.reshape(shape_b[0] * c2, shape_a[0] * c).T * 1.0
     else:
         # (L^T G L')_ac (R X R'^T)_bd + (L^T X L')_ac (R G R'^T)_bd
         def mm2(P1, P2, Q1, Q2):  # without selections: stacked along the blocks, one GEMM of twice the depth
@@ -103,8 +85,10 @@ def pair_groups(a, b, shape_a, shape_b, nb):
         K = K + K2.reshape(-1, r, c2, c, r2).transpose(0, 1, 3, 4, 2)
     K = (cf * cf2) * K.reshape(-1, r * c, r2 * c2)
     if sel is None and sel2 is None:
-        return np.zeros(1, dtype=np.intp), np.zeros(1, dtype=np.intp), K
-    return groups // nb2, groups % nb2, K
+        return K[0]
+    full = np.zeros((na, nb2, r * c, r2 * c2))
+    full[groups // nb2, groups % nb2] = K
+    return full.transpose(0, 2, 1, 3).reshape(na * r * c, nb2 * r2 * c2)
 
 def _coords(var):
     """The reduced coordinates of one variable: ``(A1, B1, A2, B2)`` (entries ``V[A, B]``), as ``_basis`` orders them.
