@@ -12,7 +12,11 @@ certified (``network_lmi`` convex, ``network_ccl`` cone complementarity), wall a
 of the analysis, and the load average.  Bounded drops is timed both ways: ``design(fam, n_drop)`` and
 ``design(fam, network=Network.bounded_drops(n_drop))`` (the same code path; the ratio is the overhead).
 
-    python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only] [--solvers]
+``--analysis``: the analysis of the designed gains on the IPM (block-sparse Schur complement) beside Clarabel
+(:func:`analysis_table`), over bounded_drops(3), delays(1, 3), delays(2, 3), weakly_hard(2, 5, 3), (3, 8, 4), (4, 10, 5)
+and n = 2, 4, 8.
+
+    python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only] [--solvers] [--analysis]
 """
 
 from __future__ import annotations
@@ -126,6 +130,71 @@ def solver_table(cases, time_limit) -> None:
               flush=True)
 
 
+def _one_analysis(args):
+    """In a fresh process: ``analyze(network=)`` of given gains on one solver (CPU s, the process's peak RSS in MB,
+    imports included)."""
+    import resource
+
+    from solver import analyze
+
+    fam, net, gains, solver, bounds = args
+    base = 0
+    c0 = time.process_time()
+    try:
+        rep = analyze(fam, gains, network=net, solver=solver, bounds=bounds)
+        out = {"stable": rep.stable, "upper": rep.jsr_upper_bound}
+    except Exception as err:  # noqa: BLE001 - a benchmark row, not a verdict
+        out = {"stable": f"error: {str(err)[:30]}", "upper": None}
+    out["cpu"] = time.process_time() - c0
+    out["mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024
+    return out
+
+
+def _forked(fn, args):
+    """``fn(args)`` in a fresh spawned process (a forked pool worker deadlocked on a lock the parent held)."""
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(1) as pool:
+        return pool.apply(fn, (args,))
+
+
+def analysis_table(cases, time_limit, clarabel_bounds_up_to: int = 2000) -> None:
+    """``--analysis``: per case, the design (``solver="AUTO"``) and the analysis of its gains on the IPM and Clarabel.
+
+    Node SDP: ``analyze(..., bounds="none")`` (the verdict's solve at rate 1 and the cycle search), CPU s and the
+    process's peak RSS, ``solver="IPM"`` / ``"CLARABEL"``; full: with the CJSR bisection (``"AUTO"`` / ``"CLARABEL"``; Clarabel's
+    only up to ``clarabel_bounds_up_to`` node-SDP rows, states x D, beyond which it takes many minutes).
+    """
+    from solver import design
+    from solver.network_analysis import product_automaton
+
+    print("| family | network | states x D | design CPU s (AUTO) | node SDP CPU s IPM / Clarabel | "
+          "node SDP peak MB IPM / Clarabel | full analysis CPU s AUTO / Clarabel | CJSR upper AUTO / Clarabel | "
+          "verdict | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, fam, net in cases:
+        D = fam.n_states * net.n_drop
+        V = product_automaton(net, fam.n_modes, "per_interval").size
+        c0 = time.process_time()
+        res = design(fam, network=net, decay_rate=None, time_limit=time_limit)
+        design_cpu = time.process_time() - c0
+        head = f"| {name} | {net.describe()} | {V} x {D} | {design_cpu:.2f} ({res.outcome}) |"
+        if res.gains is None:
+            print(head + " - | - | - | - | - | " + _load() + " |", flush=True)
+            continue
+        a = _forked(_one_analysis, (fam, net, res.gains, "IPM", "none"))
+        b = _forked(_one_analysis, (fam, net, res.gains, "CLARABEL", "none"))
+        fa = _forked(_one_analysis, (fam, net, res.gains, "AUTO", "quadratic"))
+        fb = (_forked(_one_analysis, (fam, net, res.gains, "CLARABEL", "quadratic")) if V * D <= clarabel_bounds_up_to
+              else {"cpu": float("nan"), "upper": None})
+
+        def up(x):
+            return "-" if x["upper"] is None else f"{x['upper']:.4f}"
+
+        print(head + f" {a['cpu']:.2f} / {b['cpu']:.2f} | {a['mb']:.0f} / {b['mb']:.0f} | {fa['cpu']:.2f} / "
+              f"{fb['cpu']:.2f} | {up(fa)} / {up(fb)} | {a['stable']} / {b['stable']} | {_load()} |", flush=True)
+
+
 def bounded_drops_overhead(repeats: int = 15) -> list[str]:
     """Best and median wall time of today's design and of the same through ``network=bounded_drops``.
 
@@ -159,6 +228,8 @@ def main(argv=None) -> int:
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--overhead-only", action="store_true")
     ap.add_argument("--solvers", action="store_true", help="the IPM beside Clarabel (the network LMI and design())")
+    ap.add_argument("--analysis", action="store_true",
+                    help="analyze(network=) on the IPM beside Clarabel, against states and n (docs/performance.md)")
     ap.add_argument("--largest", action="store_true",
                     help="also weakly_hard(4, 10, 5) at n = 2 (256 nodes) and delays(3, 5) at n = 4 (~15 min)")
     args = ap.parse_args(argv)
@@ -178,6 +249,15 @@ def main(argv=None) -> int:
     if args.largest:
         cases += [("random n=2", _family(2, 2), Network.weakly_hard(4, 10, 5)),
                   ("random n=4", _family(4, 4), Network.delays(3, 5))]
+    if args.analysis:
+        cases = []
+        for n in (2, 4) if args.quick else (2, 4, 8):
+            fam = _family(n, n)
+            nets = [Network.bounded_drops(3), Network.delays(1, 3), Network.delays(2, 3), Network.weakly_hard(2, 5, 3),
+                    Network.weakly_hard(3, 8, 4)] + ([Network.weakly_hard(4, 10, 5)] if n < 8 else [])
+            cases += [(f"random n={n}", fam, net) for net in nets]
+        analysis_table(cases, args.time_limit)
+        return 0
     if args.solvers:
         solver_table(cases, args.time_limit)
         return 0

@@ -437,7 +437,8 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     whose selection-path Schur pieces are full-coordinate blocks, plus ``2 nb k^4`` per-block products; measured
     traced peaks 10-290 MiB were 0.85-1.2 of this); otherwise the larger of the Schur pieces and a general conic
     solver's dense ``(k(k+1)/2)^2`` scaling per PSD cone of side k (Clarabel runs it, and the cone
-    complementarity fallback: under "AUTO" both run only when that estimate fits the budget too).
+    complementarity fallback: under "AUTO" both run only when that estimate fits the budget too), or the analysis
+    re-check's node SDP when larger (:func:`solver.network_analysis.node_sdp_memory`, docs/design.md §11.4).
     """
     from .methods.network_lmi import fresh_age, lifted_edges
 
@@ -460,6 +461,11 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
         v = V * k * k
         n_full = zvars + v + N * m * n + 1
         memory = ipm_memory(n_full, zvars + V * sym + N * m * n, E + V, 2 * k, v) + 20 * E * k**4
+    from .network_analysis import MAX_LMI_ROWS, node_sdp_memory, product_automaton
+
+    product = product_automaton(network, r, plant_switching)
+    if product.size * n * N <= MAX_LMI_ROWS:  # the analysis re-check's node SDP (above it analyze refuses, skipped)
+        memory = max(memory, node_sdp_memory(product.succ, n * N))
     memory = float(min(memory, 10**300))
     seconds = _solve_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
     return DesignSize("network", E, 2 * k * E + k * V, p, memory, seconds,

@@ -147,20 +147,32 @@ def recheck_node_dependent(P: np.ndarray, A_states: np.ndarray, product: Product
                               float(margin), ok, source, None if rho == 1.0 else float(rho), worst_edge)
 
 
-#: Largest node SDP (reduced variables ``V D (D + 1) / 2``) solved on the structured IPM under ``solver="AUTO"``:
-#: its Schur complement is dense, while Clarabel's KKT system keeps the automaton's sparsity, so the IPM wins on
-#: small automata only (measured: 0.06 s against 0.28 s at V = 9, D = 6; 4.3 s against 1.3 s at V = 64, D = 8).
-#: Used for the verdict's solve at rate 1 (what design()'s re-check runs); the rate bisection stays on Clarabel.
-IPM_NODE_MAX_VARIABLES = 1000
+def node_sdp_memory(succ, D: int, solver: str = "AUTO") -> int:
+    """Bytes of the node SDP on the solver ``solver`` runs it on (docs/design.md §11.4).
+
+    The structured IPM's :func:`solver.ipm.network_blocks.node_memory` under ``"IPM"``, and under ``"AUTO"`` when it fits
+    :data:`solver.compiled.MAX_SOLVER_MEMORY`; otherwise Clarabel's KKT system, one dense ``(D(D+1)/2)^2`` scaling
+    per PSD cone of side D (one per edge and per state).
+    """
+    from .compiled import MAX_SOLVER_MEMORY, clarabel_kkt_bytes
+    from .ipm.network_blocks import node_memory
+
+    name = str(solver).upper()
+    if name in ("IPM", "AUTO"):
+        need = node_memory(succ, D)
+        if name == "IPM" or need <= MAX_SOLVER_MEMORY:
+            return need
+    return clarabel_kkt_bytes([int(D)] * (sum(len(out) for out in succ) + len(succ)))
 
 
 class NodeLMI:
     """``P_v >= I``, ``A_v^T P_w A_v - rho^2 P_v <= -I`` for every edge, minimize ``sum_v trace P_v``.
 
     The conditions are homogeneous in P, so the normalization loses nothing; ``rho^2`` is a
-    cvxpy parameter, so a bisection on the rate re-solves without rebuilding.  Under ``solver="AUTO"`` a
-    small SDP runs first on the structured IPM in its max-t form (:func:`solver.ipm.network_blocks.node_problem`,
-    the same conditions), and on Clarabel when the IPM's P fails the float64 re-check short of a converged
+    cvxpy parameter, so a bisection on the rate re-solves without rebuilding.  Under ``solver="AUTO"`` the
+    SDP runs first on the structured IPM in its max-t form (:func:`solver.ipm.network_blocks.node_problem`, the same
+    conditions; block-sparse Schur complement, docs/design.md §11.4) when its memory fits the budget
+    (:meth:`ipm_fits`), and on Clarabel when the IPM's P fails the float64 re-check short of a converged
     ``t* <= 0``.
     """
 
@@ -185,6 +197,15 @@ class NodeLMI:
                 cons.append(0.5 * (E + E.T) << -eye)
         self.problem = cp.Problem(cp.Minimize(sum(cp.trace(P) for P in self.P)), cons)
 
+    def ipm_fits(self) -> bool:
+        """Whether the structured IPM's memory (:func:`solver.ipm.network_blocks.node_memory`) fits the budget."""
+        from .compiled import MAX_SOLVER_MEMORY
+        from .ipm.network_blocks import node_memory
+
+        if self.__dict__.get("_fits") is None:
+            self._fits = node_memory(self.product.succ, self.A_states.shape[1]) <= MAX_SOLVER_MEMORY
+        return self._fits
+
     def _ipm(self, rho: float, only: bool):
         """The IPM's P when it decides (passes the re-check, or converged to ``t* <= 0``: None), else False."""
         from .ipm.network_blocks import solve_node
@@ -205,8 +226,7 @@ class NodeLMI:
         from .compiled import cp
 
         name = str(solver).upper()
-        V, D = self.A_states.shape[0], self.A_states.shape[1]
-        if name == "IPM" or (name == "AUTO" and V * D * (D + 1) // 2 <= IPM_NODE_MAX_VARIABLES):
+        if name == "IPM" or (name == "AUTO" and self.ipm_fits()):
             P = self._ipm(rho, name == "IPM")
             if P is not False:
                 return P
@@ -317,6 +337,14 @@ def analyze_network(family, K: np.ndarray, net: Network, *, plant_switching: str
             f"{product.size} automaton states (network nodes x plant modes) of size {D} make a Lyapunov SDP "
             f"of {product.size * D} rows, above the limit of {MAX_LMI_ROWS}: use a smaller network or n_drop",
             ("network",))
+    need = node_sdp_memory(product.succ, D, solver)
+    from .compiled import MAX_SOLVER_MEMORY
+
+    if need > MAX_SOLVER_MEMORY:
+        raise InvalidInput(
+            f"{product.size} automaton states of size {D} make a Lyapunov SDP that would need about "
+            f"{need / 2**30:.1f} GiB of solver memory (limit {MAX_SOLVER_MEMORY / 2**30:.1f} GiB): use a smaller "
+            "network or n_drop", ("network",))
     A_states = A[product.modes, product.ages]  # (V, D, D)
     with np.errstate(over="ignore", invalid="ignore"):
         norm = float(np.max(np.sum(np.abs(A_states), axis=-1)))
@@ -374,10 +402,13 @@ def analyze_network(family, K: np.ndarray, net: Network, *, plant_switching: str
     if bounds != "none":
         try:
             lmi = lmi or NodeLMI(A_states, product)
-            # the bisection's probes below the CJSR are infeasible SDPs, where the IPM spends more iterations (and
-            # falls back to Clarabel short of convergence): under "AUTO" they run on Clarabel (measured)
-            upper, rate_cert = certified_cjsr_upper(lmi, A_states, product, estimate, rate_tol,
-                                                    "CLARABEL" if str(solver).upper() == "AUTO" else solver,
+            # under "AUTO" the probes run on the IPM alone when it fits: a probe it does not certify is not certified
+            # (a Clarabel fallback there doubled the cost of the infeasible probes below the CJSR, where the IPM
+            # stops "inaccurate" at t ~ 0); n = 4, weakly_hard(3, 8, 4), 64 states: 26 s against 136 s on Clarabel
+            # (CPU), and its bound 0.6407 against 0.6548
+            name = str(solver).upper()
+            probes = ("IPM" if lmi.ipm_fits() else "CLARABEL") if name == "AUTO" else solver
+            upper, rate_cert = certified_cjsr_upper(lmi, A_states, product, estimate, rate_tol, probes,
                                                     known_stable=certificate is not None)
         except SolverFailed:
             upper, rate_cert = None, None

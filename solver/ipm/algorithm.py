@@ -243,6 +243,29 @@ def _steps_chol(Z: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
     return lo[0], lo[1]
 
 
+def _dense_factor(M: np.ndarray, d: np.ndarray, dead):
+    """A solver ``h -> dy`` of ``M dy = h`` (upper triangle of M read; ``dead`` pinned to ``dy = 0``), or None."""
+    if dead is not None:
+        # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
+        # instead of regularizing all of M, which stalls the residuals.
+        M = M.copy()
+        M[dead, :] = 0.0
+        M[:, dead] = 0.0
+        M[dead, dead] = 1.0
+    # M's upper triangle (all a structured assembly fills) is the lower one of M.T, F-ordered: no copy to
+    # Fortran order beyond the one that keeps M for a retry.
+    fac, info = _potrf(M.T, lower=1, clean=0, overwrite_a=0)
+    for reg in (1e-12, 1e-10, 1e-8):
+        # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
+        # a growing diagonal shift still gives a descent direction (the residuals decide).
+        if info == 0:
+            break
+        fac, info = _potrf((M + np.diag(d * reg + 1e-300)).T, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        return None
+    return lambda h: _potrs(fac, h, lower=1)[0]
+
+
 @dataclass
 class _Core:
     """What the iteration returns, in the solver's coordinates (``X``: one array per group)."""
@@ -417,6 +440,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             status = "time_limit"
             break
         t0 = perf()
+        M = solve = None  # the last iteration's Schur matrix and factor go before the next one is built
         M = schur(X, G)
         t1 = perf()
         tim["assembly"] += t1 - t0
@@ -434,29 +458,16 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 dead = d <= 1e-14 * dmax
             if fixed_dead:
                 dead0 = dead if anydead else np.zeros(d.shape, dtype=bool)
-        if anydead:
-            # Directions no block sees (a zero input matrix, an inactive gain): pin them (dy_i = 0)
-            # instead of regularizing all of M, which stalls the residuals.
-            M = M.copy()
-            M[dead, :] = 0.0
-            M[:, dead] = 0.0
-            M[dead, dead] = 1.0
-        # M's upper triangle (all a structured assembly fills) is the lower one of M.T, F-ordered: no copy to
-        # Fortran order beyond the one that keeps M for a retry.
-        fac, info = _potrf(M.T, lower=1, clean=0, overwrite_a=0)
-        for reg in (1e-12, 1e-10, 1e-8):
-            # Near the optimum of a degenerate problem (repeated modes) M can be singular to rounding:
-            # a growing diagonal shift still gives a descent direction (the residuals decide).
-            if info == 0:
-                break
-            fac, info = _potrf((M + np.diag(d * reg + 1e-300)).T, lower=1, clean=0, overwrite_a=1)
-        if info != 0:
+        # a structured Schur complement (solver.ipm.sparse_schur) factors itself
+        pins = dead if anydead else None
+        solve = _dense_factor(M, d, pins) if isinstance(M, np.ndarray) else M.factor(pins)
+        if solve is None:
             status = "numerical_error"
             break
         tim["factorization"] += perf() - t1
 
         def direction(h, RcG):
-            dy = _potrs(fac, h, lower=1)[0]
+            dy = solve(h)
             ne_prev, best_dir = math.inf, None
             for refine in range(REFINE_STEPS + 1):
                 dS = op(dy)
@@ -480,7 +491,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                         dy, dS, dX = best_dir
                     break
                 ne_prev, best_dir = ne, (dy, dS, dX)
-                dy = dy + _potrs(fac, e, lower=1)[0]
+                dy = dy + solve(e)
             return dy, dS, dX
 
         def step_lengths(dX, dS, cap_, rtol):

@@ -134,6 +134,10 @@ class BlockLMI:
     #: variables): the problem is ``min <c, vec V>`` s.t. ``C_b + sum terms_b(V) >= 0`` -- no ``t``,
     #: and ``V0`` must be strictly feasible (``C`` positive definite), since the start is ``y = 0``.
     objective: np.ndarray | None = None
+    #: ``None``: the dense Schur complement (:func:`solver.ipm.schur.assemble`).  Otherwise an object whose
+    #: ``assemble(problem, X, G)`` returns a structured Schur complement with ``diagonal()`` and ``factor(dead)``
+    #: (:class:`solver.ipm.sparse_schur.NodeStructure`: block-sparse in the node matrices of a network).
+    schur_structure: object | None = None
 
     def __post_init__(self):
         self.nb, self.k = self.C.shape[0], self.C.shape[1]
@@ -262,10 +266,13 @@ class BlockLMI:
 
     # ----------------------------------------------------------------- Schur complement (HKM)
     def schur(self, X: np.ndarray, G: np.ndarray, upper: bool = False) -> np.ndarray:
-        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p) (:func:`solver.ipm.schur.assemble`).
+        """``M_ij = sum_b tr(A_i X_b A_j G_b)`` in the reduced coordinates, shape (p, p) (:func:`solver.ipm.schur.assemble`),
+        or the structured form of :attr:`schur_structure`.
 
         ``upper``: only the upper triangle is filled (what the interior-point iteration factors).
         """
+        if self.schur_structure is not None:
+            return self.schur_structure.assemble(self, X, G)
         return assemble(self, X, G, upper=upper)
 
     def dense_operator(self) -> np.ndarray:
