@@ -775,7 +775,8 @@ def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: flo
 
 
 def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
-                  options: IPMOptions | None = None, one_phase: bool = True) -> GroupedSolution:
+                  options: IPMOptions | None = None, one_phase: bool = True,
+                  y_start: np.ndarray | None = None) -> GroupedSolution:
     """Solve a :class:`GroupedLMI` in one phase, else in two (docs/design.md, §7 "Objectives", §8.3.2).
 
     With an objective, first in one phase: ``min <c, V>`` from the infeasible start (every slack ``s I``, the
@@ -799,6 +800,9 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     options : IPMOptions, optional
     one_phase : bool
         False: the two phases only (the reference the tests compare the one-phase answer with).
+    y_start : ndarray, optional
+        A strictly feasible point in ``problem``'s coordinates (``t`` = 0): only the objective runs, from there
+        (phase 2's start and multipliers), and ``phase1_iterations`` is 0.
 
     Returns
     -------
@@ -810,6 +814,16 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     with blas_threads(o.threads), heap_reuse(large):
         t_start = time.perf_counter()
         done, timings = 0, {"assembly": 0.0, "factorization": 0.0, "line_search": 0.0}
+        if objective and y_start is not None:
+            two = problem.at(np.asarray(y_start, dtype=np.float64), objective)
+            op2, adj2, schur2 = two.ops(o.dense)
+            offset = _offset(two, objective)
+            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
+                              x_start=_x_start(adj2, two.b, two.C), offset=offset)
+            _add_timings(timings, core2.timings)
+            out = _objective_answer(two, core2, offset, names, 0)
+            out.update(t=float("nan"), t_upper=float("nan"))
+            return _grouped_solution(problem, out, timings, t_start)
         if objective and one_phase:
             two, core2, offset = _one_phase(problem, objective, o, t_start)
             _add_timings(timings, core2.timings)

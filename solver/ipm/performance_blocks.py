@@ -216,7 +216,8 @@ def _bordered(n: int, corner: float, border: np.ndarray) -> np.ndarray:
 def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np.ndarray | None,
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
                         limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
-                        compact: bool = True, merge: bool = True, tie_weight: float | None = None) -> PerformanceProblem:
+                        compact: bool = True, merge: bool = True, tie_weight: float | None = None,
+                        metric: np.ndarray | None = None) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -235,6 +236,10 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         Cost from x0 without limits: the tie-break stage (``gamma <= cap``, minimize ``trace Z``).
     radius : float, optional
         ``W <= radius^2 I`` (``objective="stability"``).
+    metric : ndarray, shape (n, n), optional
+        ``objective="stability"``: ``W >= tau N`` and ``W <= radius^2 N`` with this positive definite ``N``
+        instead of ``I`` (the same SDP in state coordinates ``x = T z``, ``N = (T' T)^{-1}``; see
+        :func:`solver.methods.performance.similar`).
     limit_slack : float
         ``u_max (1 - limit_slack)`` in the input blocks.
     trace_weight : ndarray, shape (n,), optional
@@ -310,6 +315,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     Lb1 = np.zeros((1, n + 1, n))
     Lb1[0, 1:] = np.eye(n)
     eye_n = np.eye(n)[None]
+    metric_n = eye_n if metric is None else np.asarray(metric, dtype=np.float64)[None]
     use_Z = objective == "cost" and (x0 is None or cap is not None or tie_weight is not None)
     if use_Z:
         C = np.zeros((1, 2 * n, 2 * n))
@@ -347,8 +353,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
                                                   "Y": [(np.stack(rows), R, 1.0)]}))
     if objective == "stability" and not limits:
         if radius is not None:
-            groups.append(BlockGroup("radius", float(radius)**2 * eye_n, {"W": [(eye_n, None, -1.0)]}))
-        groups.append(BlockGroup("ball", np.zeros((1, n, n)), {"W": [(eye_n, None, 1.0)]}, {"tau": -eye_n}))
+            groups.append(BlockGroup("radius", float(radius)**2 * metric_n, {"W": [(eye_n, None, -1.0)]}))
+        groups.append(BlockGroup("ball", np.zeros((1, n, n)), {"W": [(eye_n, None, 1.0)]}, {"tau": -metric_n}))
     matrices = [("W", (n, n), n)]
     if JM:
         matrices.append(("Y", (JM, n), None))
@@ -400,10 +406,11 @@ class PerformanceSolution:
     problem: PerformanceProblem
 
 
-def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = None) -> PerformanceSolution:
-    """Solve a :class:`PerformanceProblem` (in one phase, else phase 1 and then the objective) and map the answer
-    back."""
-    sol = solve_grouped(problem.lmi, problem.objective, options, one_phase=problem.one_phase)
+def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = None,
+                      y_start: np.ndarray | None = None) -> PerformanceSolution:
+    """Solve a :class:`PerformanceProblem` (in one phase, else phase 1 and then the objective; only the objective
+    from ``y_start``, a strictly feasible point, when given) and map the answer back."""
+    sol = solve_grouped(problem.lmi, problem.objective, options, one_phase=problem.one_phase, y_start=y_start)
     W = sol.V["W"]
     W = 0.5 * (W + W.T)
     J = len(problem.gain_scale)

@@ -56,6 +56,12 @@ LIMIT_SLACK = 1e-6
 IPM_TOL = 1e-11
 #: Largest semi-axis of the invariant ellipsoid the plain input-limited design looks for (times max(1, |x0|)).
 MAX_RADIUS = 1e3
+#: The max-tau SDP's first stage stops at this relative gap and primal residual (docs/design.md §8.3.3): it only
+#: gives the ellipsoid's shape (n = 8, x0: 1e-1 66 + 53 iterations, 1e-3 74 + 51, 1e-2 69 + 58; 0.5 ended with
+#: tau < 0 at n = 12); the second starts from its point with tau backed off to RECENTRE_BACK of its value.
+RECENTRE_GAP = 1e-1
+RECENTRE_FEAS = 1e-6
+RECENTRE_BACK = 0.9
 
 
 def _blkdiag(*blocks):
@@ -188,7 +194,11 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
                                        cap=None if tie_weight is not None else cap, tie_weight=tie_weight,
                                        limit_slack=LIMIT_SLACK, trace_weight=trace_weight)
         setup = time.perf_counter() - start
-        sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=time_limit))
+        if radius is not None:
+            sol = _solve_recentred(prob, lifted, x0, u_max, c, radius, time_limit, start)
+        else:
+            sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL,
+                                                             time_limit=time_limit))
         status = _ipm_status(sol.status)
         # the constants' size without the radius cap (radius^2 ~ 1e7 would hide t* = -0.9 of the paper motor)
         scale = max([1.0] + [float(np.abs(C).max()) for g, C in zip(prob.lmi.groups_spec, prob.lmi.C)
@@ -228,6 +238,59 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
         return info, None, None, {}
     scalars = {k: float(v.value) for k, v in extra.items() if k in ("gamma", "g") and v.value is not None}
     return info, Wv.value, [np.array(y.value, dtype=float) for y in Yv], scalars
+
+
+def similar(lifted: Lifted, T: np.ndarray) -> Lifted:
+    """The stability rows of ``lifted`` in state coordinates ``x = T z`` (``T`` invertible): ``A_s`` becomes
+    ``T^-1 A_s T`` with the gains ``K_q T`` (``free -> T^-1 free T``, ``coef_q -> T^-1 coef_q``); cost and output
+    rows are dropped (the input-limited design's max-tau SDP does not use them)."""
+    from ..lifting import AffineRows, LiftedMode
+
+    Ti = np.linalg.inv(T)
+    out = [LiftedMode(eta=lm.eta, plants=lm.plants,
+                      state=AffineRows(Ti @ lm.state.free @ T, np.einsum("ik,qkm->qim", Ti, lm.state.coef)),
+                      cost=None, output=None, B=None, D=None) for lm in lifted.lifted]
+    return Lifted(modes=lifted.modes, lifted=out)
+
+
+def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_limit, start):
+    """The input-limited design's max-tau SDP in two stages (docs/design.md §8.3.3): to ``RECENTRE_GAP`` as
+    built; then the same SDP in the coordinates ``x = W_1^{1/2} z`` of the ellipsoid ``W_1`` found (there
+    ``W_1 = I``, and ``tau`` in units of ``lambda_min(W_1)``), from the first answer's point, to ``IPM_TOL``.
+    The second answer is kept when its tau is at least the first's."""
+    from .. import ipm
+
+    sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=RECENTRE_GAP, feas_tol=RECENTRE_FEAS,
+                                                     time_limit=time_limit))
+    if not np.isfinite(sol.value) or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
+        return sol
+    lam, U = np.linalg.eigh(sol.W)
+    if not lam[0] > 0:
+        return sol
+    T, Ti = (U * np.sqrt(lam)) @ U.T, (U / np.sqrt(lam)) @ U.T
+    prob2 = ipm.performance_problem(similar(lifted, T), "stability", None if x0 is None else Ti @ x0, u_max, c=c,
+                                    radius=radius / np.sqrt(lam[0]), limit_slack=LIMIT_SLACK,
+                                    metric=lam[0] * (Ti @ Ti))
+    # the first answer in the new coordinates (W = I, Y_j W_1^{-1/2}, tau = RECENTRE_BACK lambda_min(W_1): the first
+    # answer's own tau may lag far behind, -5e11 at n = 12 with x0), as the problem's coordinates
+    # (x = T y: least squares, exact up to rounding since x is in T's range)
+    Ys = [y @ Ti * g for y, g in zip(sol.Y, prob2.gain_scale)]
+    x = np.concatenate([np.eye(len(lam)).ravel()] + [y.ravel() for y in Ys]
+                       + [[RECENTRE_BACK, 0.0]])
+    y0 = np.linalg.lstsq(prob2.lmi.T.toarray(), x, rcond=None)[0]
+    left = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left),
+                                 y_start=y0)
+    if not np.isfinite(sol2.value) or sol2.value * lam[0] > sol.value:
+        return sol
+    sol2.W = T @ sol2.W @ T
+    sol2.W = 0.5 * (sol2.W + sol2.W.T)
+    sol2.Y = [y @ T for y in sol2.Y]
+    sol2.scalars["tau"] *= lam[0]
+    sol2.value *= lam[0]
+    sol2.raw.iterations += sol.raw.iterations
+    sol2.raw.timings = {k: v + sol.raw.timings.get(k, 0.0) for k, v in sol2.raw.timings.items()}
+    return sol2
 
 
 def prepare(modes, method: str, objective: str, weights, x0, disturbance, output, u_max, decay_rate,

@@ -253,3 +253,45 @@ def test_one_phase_reaches_the_two_phase_optimum(objective, kw):
         assert np.linalg.eigvalsh(a.V["W"])[0] > 0
         one_phase += a.phase1_iterations == 0
     assert one_phase >= 2
+
+
+def test_similar_rows_are_the_similarity_of_the_closed_loops():
+    """``similar(lifted, T)``'s interval maps with gains ``K T`` are ``T^-1 A_s(K) T``, from the plain products."""
+    rng = np.random.default_rng(5)
+    fam = PlantFamily.paper_example(0.1)
+    modes = ModeSet.from_family(fam, 3)
+    lifted = lift_modes(modes, None, None, None, cost=False)
+    T = rng.standard_normal((2, 2)) + 2 * np.eye(2)
+    K = rng.standard_normal((modes.n_drop, modes.n_inputs, 2))
+    moved = perf.similar(lifted, T)
+    for lm, lm2 in zip(lifted.lifted, moved.lifted):
+        np.testing.assert_allclose(lm2.state.value(K @ T), np.linalg.solve(T, lm.state.value(K) @ T),
+                                   rtol=1e-12, atol=1e-12)
+
+
+def test_max_tau_sdp_converges_in_two_stages():
+    """docs/design.md §8.3.3: the input-limited max-tau SDP of an 8-state, 50-mode family (one stage: iteration cap at
+    gap 5e-4) ends converged; its W and gains meet the design's inequalities (checked on the plain closed loops) and
+    its tau is at least the one-stage attained tau."""
+    from bench.design_speed import family
+
+    fam, N = family(8)
+    modes = ModeSet.from_family(fam, N)
+    lifted = lift_modes(modes, None, None, None, cost=False)
+    x0, u_max = np.ones(8), np.ones(2)
+    info, W, Y, sc = perf.solve(lifted, "stability", x0, u_max, None, "IPM")
+    assert info.status in ("optimal", "optimal_inaccurate") and sc["ipm"].raw.gap < 1e-6, info.status
+    c = perf.congruent_scale(modes, None) * (1 + perf.STRICT)
+    theta = [y @ np.linalg.inv(W) for y in Y]
+    K = np.einsum("qj,jmn->qmn", modes.gain_map, np.array(theta))
+    for s, lm in enumerate(lifted.lifted):
+        A = c[s] * lm.state.value(K)
+        assert np.linalg.eigvalsh(W - A @ W @ A.T)[0] > -1e-9 * np.linalg.norm(W)
+    assert np.all(np.einsum("qmn,nk,qmk->qm", K, W, K) <= 1.0 + 1e-9)
+    assert x0 @ np.linalg.solve(W, x0) <= 1.0 + 1e-9
+    tau = np.linalg.eigvalsh(W)[0]
+    pp = ipm.performance_problem(lifted, "stability", x0, u_max, c=c, radius=perf.MAX_RADIUS * np.sqrt(8),
+                                 limit_slack=perf.LIMIT_SLACK)
+    one = ipm.solve_performance(pp, ipm.IPMOptions(gap_tol=perf.IPM_TOL, feas_tol=perf.IPM_TOL))
+    assert one.status not in ("optimal", "inaccurate")  # the case the second stage is for
+    assert tau >= np.linalg.eigvalsh(one.W)[0] * (1 - 1e-9)
