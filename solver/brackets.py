@@ -581,6 +581,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         while max_length < MAX_PATTERN_LENGTH and total + len(data) ** (max_length + 1) <= max_count:
             max_length += 1
             total += len(data) ** max_length
+    clock = time.process_time()
     pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
     arrays = periodic.mode_arrays(data)
     approx = np.full(len(pats), np.nan)  # nan: skipped (unstable hinf, unstable cost-free, or pruned)
@@ -604,7 +605,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         else:
             good = ~bad
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-    note, skipped, lead, bound = "", 0, 0, None
+    note, skipped, lead, bound, grown_count = "", 0, 0, None, 0
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
             first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
@@ -638,13 +639,22 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         skipped = int(np.sum(unstable))
         _sweep_pruned(systems, approx)
         best, witness = -np.inf, None
-        top = _top(approx, REFINED)
-        if top:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
-            fine = [hinf_norm_lower(period_system(data, pats[i])) for i in top]
+        cands = [(float(approx[i]), pats[i]) for i in _top(approx, REFINED)]
+        if deep and cands and len(data) > 1:
+            grown, count = grow_patterns(data, [(float(approx[i]), pats[i]) for i in _top(approx, GROW_BEAM)],
+                                         max(len(p) for p in pats), stop=stop,
+                                         seconds=max(GROW_TIME * (time.process_time() - clock), 0.05))
+            grown_count = count
+            if grown:
+                cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
+        if cands:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
+            fine = [hinf_norm_lower(period_system(data, p)) for _, p in cands]
             win = int(np.argmax(fine))
-            best, witness = fine[win], pats[top[win]]
+            best, witness = fine[win], cands[win][1]
+            if len(witness) > max(len(q) for q in pats):
+                note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
-        return LowerBound(None, [], len(pats), f"no stable periodic pattern ({skipped} unstable)")
+        return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
     labels = []
     for s in witness:
         lm = lifted.lifted[s]
@@ -652,7 +662,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         labels.append((plant, lm.eta))
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
-    return LowerBound(best, labels, len(pats), note, lead, bound)
+    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound)
 
 
 def _tails(data: list[dict], seqs: list) -> list:
@@ -917,6 +927,70 @@ def _top(values: np.ndarray, count: int) -> list[int]:
     """Positions of the ``count`` largest non-NaN values, largest first (earliest position on ties)."""
     order = [int(i) for i in np.argsort(-np.nan_to_num(values, nan=-np.inf), kind="stable") if not np.isnan(values[i])]
     return order[:count]
+
+
+#: The H-infinity pattern growth (docs/design.md §8.4): patterns kept per length ...
+GROW_BEAM = 12
+#: ... the longest period grown ...
+GROW_LENGTH = 32
+#: ... and the pattern intervals valued in all (a pattern of k intervals costs a sweep of a k-interval lifted system).
+GROW_BUDGET = 1500
+#: ... or this many times the CPU time of the exhaustive search (at least 0.05 s).
+GROW_TIME = 1.0
+
+
+def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.inf, beam: int = GROW_BEAM,
+                  max_length: int = GROW_LENGTH, budget: int = GROW_BUDGET,
+                  seconds: float = np.inf) -> tuple[list, int]:
+    """Longer periodic patterns for the H-infinity lower bound, grown from the best ones: ``(value, pattern)``
+    pairs (coarse sweep values) and the number of patterns valued.
+
+    Every pattern of the beam (initially ``seeds``, the exhaustive search's best) is extended by every loop mode
+    (one per rotation class, repetitions of shorter patterns skipped); the extensions are valued by the stacked
+    coarse sweep, skipping those whose cheap upper bound cannot beat the best sweep (:func:`_sweep_pruned`), and
+    the ``beam`` best become the next beam, until the period reaches ``max_length``, a value reaches ``stop``,
+    ``budget`` pattern intervals have been valued or ``seconds`` of CPU time are spent (the caller gives the
+    time of the exhaustive search: the budget scales with the problem's lifted sizes).
+    """
+    start = time.process_time()
+    from . import periodic
+
+    arrays = periodic.mode_arrays(data)
+    beam_pats = [p for _, p in seeds]
+    found, seen, count, work = [], set(beam_pats), 0, 0
+    best = max((v for v, _ in seeds), default=-np.inf)
+    while beam_pats and work < budget and time.process_time() - start < seconds:
+        new = []
+        for p in beam_pats:
+            if len(p) >= max_length:
+                continue
+            for s in range(len(data)):
+                q = p + (s,)
+                k = len(q)
+                q = min(q[i:] + q[:i] for i in range(k))
+                if q in seen or any(k % d == 0 and q == q[:d] * (k // d) for d in range(1, k)):
+                    continue
+                seen.add(q)
+                new.append(q)
+        if not new:
+            break
+        values = np.full(len(new), np.nan)
+        systems = []
+        for pos, idx in periodic.group_by_length(new).values():
+            sys = periodic.period_stack(arrays, idx, "hinf")
+            good = periodic.spectral_radius(sys["Phi"]) < 1
+            systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+        _sweep_pruned(systems, values)
+        count += len(new)
+        work += sum(len(q) for q in new)
+        top = _top(values, beam)
+        found.extend((float(values[i]), new[i]) for i in top)
+        beam_pats = [new[i] for i in top]
+        if top and values[top[0]] > best:
+            best = float(values[top[0]])
+        if best >= stop:
+            break
+    return found, count
 
 
 def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
