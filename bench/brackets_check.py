@@ -17,6 +17,7 @@ quadratic certificate's own slack).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 
@@ -81,17 +82,31 @@ def table(rows: dict, out=print) -> None:
                 f"{np.max(gaps):.2e} | {np.mean([r[cpu] for r in items]):.3f} |")
 
 
-def run(count: int, first_seed: int = 0, out=print, budget=None) -> dict:
+def run(count: int, first_seed: int = 0, out=print, budget=None, save: str | None = None,
+        merge: list | None = None, hinf_every: int = 1) -> dict:
+    """Design and bracket ``count`` families (``save``: their rows as JSON); ``merge``: print the tables of
+    saved runs instead (several processes on disjoint seeds)."""
     from bench.ipm_check import draw_family
 
     rows = {obj: [] for obj in OBJECTIVES}
     kinds: dict = {}
     start = time.process_time()
-    for seed in range(first_seed, first_seed + count):
+    if merge:
+        for name in merge:
+            with open(name) as fh:
+                saved = json.load(fh)
+            for obj in OBJECTIVES:
+                rows[obj] += [tuple(r) for r in saved["rows"][obj]]
+            for kind, items in saved["kinds"].items():
+                kinds.setdefault(kind, []).extend(tuple(r) for r in items)
+        count = sum(json.load(open(name))["count"] for name in merge)
+    for seed in range(first_seed, first_seed + (0 if merge else count)):
         fam, N, desc = draw_family(seed, max_n=4, max_lmi_rows=48)
         rng = np.random.default_rng(20_000 + seed)
         for obj in OBJECTIVES:
             kw = request(obj, fam, rng)
+            if obj == "hinf" and seed % hinf_every:  # the exhaustive hinf search is the costly one
+                continue
             try:
                 got = brackets_of(fam, N, obj, kw, budget)
             except Exception as err:  # noqa: BLE001  (a design that raises is a bug to see)
@@ -100,6 +115,9 @@ def run(count: int, first_seed: int = 0, out=print, budget=None) -> dict:
             if got is not None:
                 rows[obj].append(got)
                 kinds.setdefault(desc.split()[0], []).append(got)
+    if save:
+        with open(save, "w") as fh:
+            json.dump({"count": count, "rows": rows, "kinds": kinds}, fh)
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     out(f"brackets: {count} seeded families (seeds {first_seed}..{first_seed + count - 1}, n 2..4, <= 48 LMI rows), "
         f"objectives {', '.join(OBJECTIVES)}; CPU {time.process_time() - start:.1f} s, load average {load}")
@@ -142,11 +160,16 @@ def main(argv=None) -> int:
     p.add_argument("--count", type=int, default=100)
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--budget", type=int, default=None, help="prefix-search nodes (default NODE_BUDGET)")
+    p.add_argument("--no-pendulum", action="store_true")
+    p.add_argument("--hinf-every", type=int, default=1, help="hinf on every k-th seed only")
+    p.add_argument("--save", default=None, help="write the rows as JSON (to --merge them later)")
+    p.add_argument("--merge", nargs="*", default=None, help="print the tables of saved runs")
     args = p.parse_args(argv)
     out = print
-    out("| case | upper | lower before (gap) | lower after (gap) | search bound | CPU before / after (s) |")
-    out("|---|---|---|---|---|---|")
-    pendulum(out)
-    out("")
-    run(args.count, args.first_seed, out, args.budget)
+    if not args.no_pendulum and not args.merge:
+        out("| case | upper | lower before (gap) | lower after (gap) | search bound | CPU before / after (s) |")
+        out("|---|---|---|---|---|---|")
+        pendulum(out)
+        out("")
+    run(args.count, args.first_seed, out, args.budget, args.save, args.merge, args.hinf_every)
     return 0
