@@ -859,6 +859,10 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
     PT = np.stack([_sym(Pt) for _, Pt in tails])
     P = _sym(P)
     n, S = A.shape[1], A.shape[0]
+    # above n = 8 the budget shrinks as n^-3 (the same CPU time), the beam to ~16 MB of moments per depth
+    scale = min(1.0, (8.0 / n) ** 3)
+    budget, steps = int(budget * scale), max(int(ROLLOUT_STEPS * scale), 1)
+    beam = int(min(beam, max(8, 2_000_000 // (S * n * n))))
     Sig, c = _sym(M)[None], np.zeros(1)
     best = floor
     candidates = []  # (approximate value, prefix, tail or None: the prefix ends in a cycle)
@@ -874,7 +878,7 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
         return tuple(reversed(out))
 
     for V in [P] + [PT[i] for i in range(min(3, len(tails)))]:  # from the root
-        cost, seqs, work = _rollouts(A, Sm, Sig, V, P, ROLLOUT_STEPS)
+        cost, seqs, work = _rollouts(A, Sm, Sig, V, P, steps)
         nodes += work
         candidates.append((float(cost[0]), tuple(int(v) for v in seqs[0]), None))
         best = max(best, float(cost[0]))
@@ -905,7 +909,7 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
         depth = len(history)
         if live.size and depth & (depth - 1) == 0:  # depths 1, 2, 4, 8, ...: continue the most promising greedily
             top = np.argsort(-up[live], kind="stable")[:ROLLOUTS]
-            cost, seqs, work = _rollouts(A, Sm, Sig[top], P, P, ROLLOUT_STEPS)
+            cost, seqs, work = _rollouts(A, Sm, Sig[top], P, P, steps)
             nodes += work
             for r, b in enumerate(top):
                 value = float(c[b] + cost[r])

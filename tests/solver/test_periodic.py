@@ -110,5 +110,5 @@ def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
         else:
             v = hinf_norm_lower(sys, refine=False)
         labels[seq] = v
-    assert count == len(pats)
+    assert count >= len(pats)  # hinf: the longer patterns grown from the best ones are counted too
     assert value >= max(labels.values()) * (1 - 1e-12)
