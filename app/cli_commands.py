@@ -144,8 +144,12 @@ def performance_summary(perf: dict | None, name: str) -> list[str]:
         return []
     upper = "none certified" if perf.get("upper") is None else f"{perf['upper']:.6g}"
     lower = "-" if perf.get("lower") is None else f"{perf['lower']:.6g}"
-    witness = " ".join(f"({p}, {e})" for p, e in perf.get("witness") or [])
-    return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst periodic pattern {witness})"]
+    pairs = [f"({p}, {e})" for p, e in perf.get("witness") or []]
+    lead = int(perf.get("lead") or 0)
+    if lead:  # a prefix run once, then the period repeated (docs/design.md §8.4)
+        witness = f"{' '.join(pairs[:lead])}, then the period {' '.join(pairs[lead:])}"
+        return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst pattern searched: {witness})"]
+    return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst periodic pattern {' '.join(pairs)})"]
 
 
 # ------------------------------------------------------------------------------------------- summary

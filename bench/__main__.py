@@ -12,7 +12,8 @@ structured interior-point solver with Clarabel and CVXOPT (``bench/ipm_bench.py`
 ``python -m bench performance`` prints the cost/H-infinity brackets on the paper's motor (``bench/performance_bench.py``);
 ``python -m bench performance --speed`` times each objective on the IPM, Clarabel and CVXOPT;
 ``python -m bench perf-check [--count N]`` cross-checks the performance designs on the IPM against Clarabel
-(``bench/perf_check.py``).
+(``bench/perf_check.py``); ``python -m bench brackets [--count N]`` prints how far the cost/H-infinity brackets
+close before/after the prefix search (``bench/brackets_check.py``).
 ``python -m bench speed [--quick] [--sizes paper,8,20]`` prints every design (plain, auto, max, cost, hinf, u_max)
 against one plain SDP, Clarabel and CVXOPT, with the solves and the time estimate's error (``bench/design_speed.py``);
 ``python -m bench speed --solvers [--quick] [--service]`` prints ``design()`` beside the IPM alone, Clarabel and CVXOPT
@@ -114,6 +115,10 @@ def main(argv=None) -> int:
     if argv and argv[0] == "perf-check":
         from . import perf_check
         return perf_check.main(argv[1:])
+    if argv and argv[0] == "brackets":
+        from . import brackets_check
+
+        return brackets_check.main(argv[1:])
     if argv and argv[0] == "ipm-check":
         from . import ipm_check
 

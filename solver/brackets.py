@@ -18,6 +18,7 @@ import itertools
 import time
 import warnings
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cvxpy as cp
 import numpy as np
@@ -45,6 +46,12 @@ MAX_PATTERNS = 4000
 MAX_PATTERNS_HINF = 500
 #: Frequencies of the coarse H-infinity sweep on [0, pi] (refined around the best ones).
 SWEEP = 97
+#: The prefix search (cost; docs/design.md §8.4, "Prefix search"): nodes kept per depth ...
+BEAM = 256
+#: ... nodes valued in all (each an ``n x n`` congruence: the CPU time scales as ``NODE_BUDGET n^3``) ...
+NODE_BUDGET = 60_000
+#: ... and periodic tails valued from every node (the best periodic patterns found).
+TAILS = 12
 
 
 def _sym(M):
@@ -78,6 +85,9 @@ class Performance:
     patterns : int
         Periodic patterns evaluated for the lower bound.
     message : str
+    lead : int
+        ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: the whole witness is the
+        period, repeated from the start; a prefix comes from the prefix search, docs/design.md §8.4).
     """
 
     kind: str
@@ -90,6 +100,7 @@ class Performance:
     x0: np.ndarray | None = None
     patterns: int = 0
     message: str = ""
+    lead: int = 0
 
     def __post_init__(self):
         if self.gap is None and self.upper is not None and self.lower is not None and self.upper > 0:
@@ -111,6 +122,7 @@ class Performance:
             "x0": None if self.x0 is None else self.x0.tolist(),
             "patterns": self.patterns,
             "message": self.message,
+            "lead": int(self.lead),
         }
 
     @classmethod
@@ -129,7 +141,7 @@ class Performance:
                    certificate=None if cert is None else np.array(cert, dtype=np.float64),
                    verified=bool(data.get("verified")), gap=data.get("gap"),
                    x0=None if x0 is None else np.array(x0, dtype=np.float64), patterns=int(data.get("patterns") or 0),
-                   message=data.get("message") or "")
+                   message=data.get("message") or "", lead=int(data.get("lead") or 0))
 
     def __getitem__(self, key: str):
         """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
@@ -183,7 +195,7 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
         message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
     return Performance(kind=perf.kind, upper=None if perf.upper is None else perf.upper * k,
                        lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
-                       verified=perf.verified, x0=x0, patterns=perf.patterns, message=message)
+                       verified=perf.verified, x0=x0, patterns=perf.patterns, message=message, lead=perf.lead)
 
 
 def check_x0(x0, n: int) -> np.ndarray | None:
@@ -529,10 +541,24 @@ def hinf_norm_lower(sys: dict, points: int = SWEEP, refine: bool = True) -> floa
 REFINED = 4
 
 
+class LowerBound(NamedTuple):
+    """The witnessed lower end of a bracket (:func:`lower_bound`)."""
+
+    value: float | None
+    witness: list
+    patterns: int
+    note: str
+    #: ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: periodic from the start).
+    lead: int = 0
+    #: The prefix search's diagnostic bound (:attr:`PrefixSearch.bound`), None when it did not run.
+    bound: float | None = None
+
+
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
                 data: list[dict] | None = None, max_length: int | None = None, max_count: int | None = None,
-                weight: np.ndarray | None = None, deep: bool = True, stop: float = np.inf):
-    """Worst periodic allowed pattern: ``(value, witness, patterns searched, note)``.
+                weight: np.ndarray | None = None, deep: bool = True, stop: float = np.inf,
+                certificate: np.ndarray | None = None, budget: int = NODE_BUDGET) -> LowerBound:
+    """Worst allowed pattern searched: a :class:`LowerBound` ``(value, witness, patterns searched, note, lead)``.
 
     cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per``: the exact cost of
     repeating the pattern from the period's start.  hinf: the H-infinity norm of the period's lifted LTI system
@@ -546,6 +572,8 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     two-run search of :func:`run_patterns` beyond ``max_length``, stopped at ``stop`` (the certified upper bound).
     ``max_length`` None: the longest length whose patterns (all of them, every shorter one too) fit in
     ``max_count``, at least ``PATTERN_LENGTH`` (two modes: length 11 within 4000 patterns).
+    ``certificate`` (cost, with ``deep``): the certified P; then :func:`prefix_search` (``budget`` nodes) looks
+    for a prefix followed by one of the ``TAILS`` best periodic patterns that costs more (``lead`` > 0).
     """
     from . import periodic
 
@@ -557,6 +585,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         while max_length < MAX_PATTERN_LENGTH and total + len(data) ** (max_length + 1) <= max_count:
             max_length += 1
             total += len(data) ** max_length
+    clock = time.process_time()
     pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
     arrays = periodic.mode_arrays(data)
     approx = np.full(len(pats), np.nan)  # nan: skipped (unstable hinf, unstable cost-free, or pruned)
@@ -580,7 +609,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         else:
             good = ~bad
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-    note, skipped = "", 0
+    note, skipped, lead, bound, grown_count = "", 0, 0, None, 0
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
             first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
@@ -594,22 +623,42 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 value = float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0)
                 if value > best:
                     best, witness = value, pats[i]
+            runs = None
             if deep:
-                value, seq = run_patterns(data, pats, approx, x0, weight, stop=stop)
+                value, runs = run_patterns(data, pats, approx, x0, weight, stop=stop)
                 if value is not None and value > best:
-                    best, witness = value, seq
+                    best, witness = value, runs
                     note = f"witness from the two-run search (runs up to {RUN_LENGTH})"
+            if deep and certificate is not None and best < stop:
+                tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []))
+                found = prefix_search(data, tails, certificate, _moment(data[0]["A"].shape[0], x0, weight),
+                                      floor=best, budget=budget)
+                if found is not None:
+                    bound = found.bound
+                    if found.value > best:
+                        best, witness, lead = found.value, found.prefix + found.tail, len(found.prefix)
+                        note = (f"witness from the prefix search ({found.nodes} prefixes valued): {lead} intervals "
+                                f"once, then a period of {len(found.tail)}")
     else:
         skipped = int(np.sum(unstable))
         _sweep_pruned(systems, approx)
         best, witness = -np.inf, None
-        top = _top(approx, REFINED)
-        if top:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
-            fine = [hinf_norm_lower(period_system(data, pats[i])) for i in top]
+        cands = [(float(approx[i]), pats[i]) for i in _top(approx, REFINED)]
+        if deep and cands and len(data) > 1:
+            grown, count = grow_patterns(data, [(float(approx[i]), pats[i]) for i in _top(approx, GROW_BEAM)],
+                                         max(len(p) for p in pats), stop=stop,
+                                         seconds=max(GROW_TIME * (time.process_time() - clock), 0.05))
+            grown_count = count
+            if grown:
+                cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
+        if cands:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
+            fine = [hinf_norm_lower(period_system(data, p)) for _, p in cands]
             win = int(np.argmax(fine))
-            best, witness = fine[win], pats[top[win]]
+            best, witness = fine[win], cands[win][1]
+            if len(witness) > max(len(q) for q in pats):
+                note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
-        return None, [], len(pats), f"no stable periodic pattern ({skipped} unstable)"
+        return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
     labels = []
     for s in witness:
         lm = lifted.lifted[s]
@@ -617,7 +666,21 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         labels.append((plant, lm.eta))
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
-    return best, labels, len(pats), note
+    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound)
+
+
+def _tails(data: list[dict], seqs: list) -> list:
+    """``(pattern, P_T)`` of the stable patterns among ``seqs`` (``P_T`` its periodic cost from its start)."""
+    out, seen = [], set()
+    for seq in seqs:
+        seq = tuple(seq)
+        if seq in seen:
+            continue
+        seen.add(seq)
+        sys = period_system(data, seq)
+        if np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
+            out.append((seq, scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])))
+    return out
 
 
 #: The deeper search (cost): two runs ``a^i b^j`` of modes from the best short patterns, ``i, j <= RUN_LENGTH`` ...
@@ -687,10 +750,255 @@ def run_patterns(data: list[dict], short: list, values: np.ndarray, x0: np.ndarr
     return float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0), arg
 
 
+@dataclass
+class PrefixSearch:
+    """What :func:`prefix_search` found.
+
+    Attributes
+    ----------
+    value : float
+        The exact cost of ``prefix`` followed by ``tail`` repeated forever (re-evaluated on its own).
+    prefix, tail : tuple of int
+        Loop-mode indices: the intervals applied once, then the period repeated.
+    bound : float
+        ``max`` over the prefixes not ruled out of ``c + <P, Sigma>`` (the certificate's bound on every
+        continuation; every prefix ruled out is at most ``value``): the worst case lies in ``[value, bound]`` up
+        to rounding.  A diagnostic (it bounds what a deeper search could still find), not a certified number.
+    nodes : int
+        Prefixes valued.
+    """
+
+    value: float
+    prefix: tuple
+    tail: tuple
+    bound: float
+    nodes: int
+
+
+def _moment(n: int, x0: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
+    """``M`` with the objective ``<P, M>``: ``x0 x0'`` (cost from x0), ``diag(weight)`` or I (mean cost)."""
+    if x0 is not None:
+        return np.outer(x0, x0)
+    return np.eye(n) if weight is None else np.diag(np.asarray(weight, dtype=float))
+
+
+def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
+    """``<P_prefix + Phi' P_tail Phi, M>``: the exact cost of ``prefix`` then ``tail`` repeated forever
+    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, ``solve_discrete_lyapunov``);
+    ``inf`` when the tail is unstable."""
+    n = data[0]["A"].shape[0]
+    T, Pp = np.eye(n), np.zeros((n, n))
+    for s in prefix:
+        Pp += T.T @ data[s]["S"] @ T
+        T = data[s]["A"] @ T
+    sys = period_system(data, tail)
+    if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
+        return np.inf
+    Pt = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+    return float(np.sum(_sym(Pp + T.T @ Pt @ T) * M))
+
+
+def _cycle(seq: tuple, max_period: int = 64) -> tuple[tuple, tuple]:
+    """``(prefix, period)`` with ``seq`` = ``prefix`` + the period repeated (its last copy possibly cut short),
+    the shortest period (up to ``max_period``) that repeats at least three times at the end, the prefix as short
+    as it then goes; ``(seq[:-1], seq[-1:])`` when none does."""
+    for p in range(1, min(max_period, len(seq) // 3) + 1):
+        if seq[-3 * p:] == seq[-p:] * 3:
+            i = len(seq) - 3 * p
+            while i > 0 and seq[i - 1] == seq[i - 1 + p]:
+                i -= 1
+            return seq[:i], seq[i:i + p]
+    return seq[:-1], seq[-1:]
+
+
+def _rollouts(A: np.ndarray, Sm: np.ndarray, Sig: np.ndarray, V: np.ndarray, P: np.ndarray, steps: int):
+    """Greedy continuations from the moments ``Sig`` (R, n, n): each step takes the mode with the largest
+    ``<S_s, Sigma> + <V, A_s Sigma A_s'>``, until ``<P, Sigma>`` (the certificate's bound on the rest) is below
+    ``1e-13`` of the cost so far, or after ``steps`` steps.  Returns ``(cost so far (R,), modes (R, k), work)``."""
+    At = np.swapaxes(A, 1, 2)
+    R, S = Sig.shape[0], A.shape[0]
+    cost, seqs, work = np.zeros(R), [], 0
+    live = np.ones(R, dtype=bool)
+    for _ in range(steps):
+        nxt = A[None] @ Sig[:, None] @ At[None]  # (R, S, n, n)
+        stage = np.einsum("sij,rji->rs", Sm, Sig)
+        s = np.argmax(stage + np.einsum("ij,rsji->rs", V, nxt), axis=1)
+        cost += np.where(live, stage[np.arange(R), s], 0.0)
+        Sig = nxt[np.arange(R), s]
+        seqs.append(s)
+        work += R * S
+        live &= np.einsum("ij,rji->r", P, Sig) > 1e-13 * cost
+        if not np.any(live):
+            break
+    return cost, np.array(seqs).T, work
+
+
+#: Greedy continuations (:func:`_rollouts`): at most this many steps each ...
+ROLLOUT_STEPS = 4000
+#: ... from this many of the most promising prefixes, at depths 1, 2, 4, 8, ...
+ROLLOUTS = 4
+
+
+def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, floor: float = -np.inf,
+                  beam: int = BEAM, budget: int = NODE_BUDGET) -> PrefixSearch | None:
+    """Branch and bound over admissible interval sequences: a prefix, then a periodic tail (cost).
+
+    A node is a prefix ``s_1 .. s_k`` with its cost so far ``c = sum_i <S_{s_i}, Sigma_{i-1}>`` and its moment
+    ``Sigma_k = Phi M Phi'`` (``Phi = A_{s_k} .. A_{s_1}``; ``M`` as :func:`_moment`).  Every continuation costs
+    at most ``c + <P, Sigma_k>`` (``P`` the certificate: ``A_s' P A_s - P + S_s <= 0`` for every mode), and the
+    tail ``T`` repeated forever costs exactly ``c + <P_T, Sigma_k>`` (``tails``: ``(pattern, P_T)`` pairs).
+    Depth by depth every node is extended by every mode; nodes whose bound does not exceed the best value found
+    (above ``floor``, the periodic search's) are dropped, of the rest the ``beam`` with the largest bounds are
+    kept, until none is left or ``budget`` nodes have been valued.  Greedy continuations (:func:`_rollouts`, the
+    certificate and the best tails as value functions) from the root and from the ``ROLLOUTS`` most promising
+    nodes at depths 1, 2, 4, 8, ... supply long sequences: each ends in a cycle (:func:`_cycle`) that becomes the
+    tail.  The best candidates are re-evaluated on their own (:func:`sequence_cost`).  None when nothing beats
+    ``floor``.
+    """
+    if not tails:
+        return None
+    A = np.stack([d["A"] for d in data])
+    Sm = np.stack([_sym(d["S"]) for d in data])
+    At = np.swapaxes(A, 1, 2)
+    PT = np.stack([_sym(Pt) for _, Pt in tails])
+    P = _sym(P)
+    n, S = A.shape[1], A.shape[0]
+    # above n = 8 the budget shrinks as n^-3 (the same CPU time), the beam to ~16 MB of moments per depth
+    scale = min(1.0, (8.0 / n) ** 3)
+    budget, steps = int(budget * scale), max(int(ROLLOUT_STEPS * scale), 1)
+    beam = int(min(beam, max(8, 2_000_000 // (S * n * n))))
+    Sig, c = _sym(M)[None], np.zeros(1)
+    best = floor
+    candidates = []  # (approximate value, prefix, tail or None: the prefix ends in a cycle)
+    history = []  # per depth: (parent position, mode) of the kept nodes
+    dropped, nodes = -np.inf, 0
+
+    def path(depth, b):
+        out = []
+        for d in range(depth - 1, -1, -1):
+            parents, modes = history[d]
+            out.append(int(modes[b]))
+            b = int(parents[b])
+        return tuple(reversed(out))
+
+    for V in [P] + [PT[i] for i in range(min(3, len(tails)))]:  # from the root
+        cost, seqs, work = _rollouts(A, Sm, Sig, V, P, steps)
+        nodes += work
+        candidates.append((float(cost[0]), tuple(int(v) for v in seqs[0]), None))
+        best = max(best, float(cost[0]))
+    bound = float(np.sum(P * M))
+    while Sig.shape[0] and nodes < budget:
+        B = Sig.shape[0]
+        c2 = c[:, None] + np.einsum("sij,bji->bs", Sm, Sig)  # (B, S)
+        Sig2 = A[None] @ Sig[:, None] @ At[None]  # (B, S, n, n)
+        Sig2 = 0.5 * (Sig2 + np.swapaxes(Sig2, -1, -2))
+        up = c2 + np.einsum("ij,bsji->bs", P, Sig2)
+        tail = c2[..., None] + np.einsum("tij,bsji->bst", PT, Sig2)
+        nodes += B * S
+        t_best = np.argmax(tail, axis=-1)
+        lo = np.take_along_axis(tail, t_best[..., None], axis=-1)[..., 0]
+        k = int(np.argmax(lo))
+        if lo.flat[k] > best:
+            b, s = divmod(k, S)
+            best = float(lo.flat[k])
+            candidates.append((best, path(len(history), b) + (s,), tails[int(t_best.flat[k])][0]))
+        up, c2, Sig2 = up.ravel(), c2.ravel(), Sig2.reshape(B * S, n, n)
+        live = np.flatnonzero(up > best + 1e-12 * abs(best))
+        if live.size > beam:
+            order = live[np.argsort(-up[live], kind="stable")]
+            live, rest = order[:beam], order[beam:]
+            dropped = max(dropped, float(up[rest[0]]))
+        history.append((live // S, live % S))
+        Sig, c = Sig2[live], c2[live]
+        depth = len(history)
+        if live.size and depth & (depth - 1) == 0:  # depths 1, 2, 4, 8, ...: continue the most promising greedily
+            top = np.argsort(-up[live], kind="stable")[:ROLLOUTS]
+            cost, seqs, work = _rollouts(A, Sm, Sig[top], P, P, steps)
+            nodes += work
+            for r, b in enumerate(top):
+                value = float(c[b] + cost[r])
+                if value > best:
+                    best = value
+                    candidates.append((value, path(depth, int(b)) + tuple(int(v) for v in seqs[r]), None))
+        bound = max(best, dropped, float(np.max(up[live])) if live.size else -np.inf)
+    found = None
+    for _, prefix, tail in sorted(candidates, key=lambda e: -e[0])[:4]:
+        if tail is None:
+            prefix, tail = _cycle(prefix)
+        value = sequence_cost(data, prefix, tail, M)
+        if np.isfinite(value) and value > floor and (found is None or value > found.value):
+            found = PrefixSearch(value=value, prefix=tuple(prefix), tail=tuple(tail), bound=bound, nodes=nodes)
+    return found
+
+
 def _top(values: np.ndarray, count: int) -> list[int]:
     """Positions of the ``count`` largest non-NaN values, largest first (earliest position on ties)."""
     order = [int(i) for i in np.argsort(-np.nan_to_num(values, nan=-np.inf), kind="stable") if not np.isnan(values[i])]
     return order[:count]
+
+
+#: The H-infinity pattern growth (docs/design.md §8.4): patterns kept per length ...
+GROW_BEAM = 12
+#: ... the longest period grown ...
+GROW_LENGTH = 32
+#: ... and the pattern intervals valued in all (a pattern of k intervals costs a sweep of a k-interval lifted system).
+GROW_BUDGET = 1500
+#: ... or this many times the CPU time of the exhaustive search (at least 0.05 s).
+GROW_TIME = 1.0
+
+
+def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.inf, beam: int = GROW_BEAM,
+                  max_length: int = GROW_LENGTH, budget: int = GROW_BUDGET,
+                  seconds: float = np.inf) -> tuple[list, int]:
+    """Longer periodic patterns for the H-infinity lower bound, grown from the best ones: ``(value, pattern)``
+    pairs (coarse sweep values) and the number of patterns valued.
+
+    Every pattern of the beam (initially ``seeds``, the exhaustive search's best) is extended by every loop mode
+    (one per rotation class, repetitions of shorter patterns skipped); the extensions are valued by the stacked
+    coarse sweep, skipping those whose cheap upper bound cannot beat the best sweep (:func:`_sweep_pruned`), and
+    the ``beam`` best become the next beam, until the period reaches ``max_length``, a value reaches ``stop``,
+    ``budget`` pattern intervals have been valued or ``seconds`` of CPU time are spent (the caller gives the
+    time of the exhaustive search: the budget scales with the problem's lifted sizes).
+    """
+    start = time.process_time()
+    from . import periodic
+
+    arrays = periodic.mode_arrays(data)
+    beam_pats = [p for _, p in seeds]
+    found, seen, count, work = [], set(beam_pats), 0, 0
+    best = max((v for v, _ in seeds), default=-np.inf)
+    while beam_pats and work < budget and time.process_time() - start < seconds:
+        new = []
+        for p in beam_pats:
+            if len(p) >= max_length:
+                continue
+            for s in range(len(data)):
+                q = p + (s,)
+                k = len(q)
+                q = min(q[i:] + q[:i] for i in range(k))
+                if q in seen or any(k % d == 0 and q == q[:d] * (k // d) for d in range(1, k)):
+                    continue
+                seen.add(q)
+                new.append(q)
+        if not new:
+            break
+        values = np.full(len(new), np.nan)
+        systems = []
+        for pos, idx in periodic.group_by_length(new).values():
+            sys = periodic.period_stack(arrays, idx, "hinf")
+            good = periodic.spectral_radius(sys["Phi"]) < 1
+            systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+        _sweep_pruned(systems, values)
+        count += len(new)
+        work += sum(len(q) for q in new)
+        top = _top(values, beam)
+        found.extend((float(values[i]), new[i]) for i in top)
+        beam_pats = [new[i] for i in top]
+        if top and values[top[0]] > best:
+            best = float(values[top[0]])
+        if best >= stop:
+            break
+    return found, count
 
 
 def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
@@ -740,8 +1048,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
         reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
-    lower, witness, count, note = lower_bound(lifted, gains, kind, x0, data=data, weight=weight,
-                                              stop=np.inf if upper is None else upper)
+    lower, witness, count, note, lead, _ = lower_bound(lifted, gains, kind, x0, data=data, weight=weight,
+                                                       stop=np.inf if upper is None else upper, certificate=P)
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
         P, upper, reason = None, None, f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
@@ -755,4 +1063,4 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     if note:
         message += f"; {note}"
     return Performance(kind=kind, upper=upper, lower=lower, witness=witness, certificate=P,
-                       verified=P is not None, x0=x0, patterns=count, message=message)
+                       verified=P is not None, x0=x0, patterns=count, message=message, lead=lead)

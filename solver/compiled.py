@@ -421,6 +421,24 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
                       channel_seconds=channel_seconds, channel_memory=channel_memory)
 
 
+def clarabel_fits(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop: int,
+                  plant_switching: str = "per_interval", scheme: str = "predictive", *,
+                  max_memory: float | None = None, **request) -> bool:
+    """Whether Clarabel (through cvxpy) fits the memory budget for this request: the one test behind every
+    ``solver="AUTO"`` fallback from the structured IPM to Clarabel.
+
+    The memory is :func:`design_size`'s with ``solver="CLARABEL"`` (cvxpy's copies, ``CVXPY_MEMORY_FACTOR``
+    times the structured pieces, or Clarabel's dense KKT blocks, whichever is larger); the budget is
+    ``max_memory`` (bytes; default :data:`MAX_SOLVER_MEMORY`, 0 or inf: no limit).  ``request``: the other
+    keywords of :func:`design_size` (``objective``, ``u_max``, ``network``, ...).
+    """
+    budget = MAX_SOLVER_MEMORY if max_memory is None else max_memory
+    if not budget:
+        return True
+    return design_size(method, n_states, n_inputs, n_plants, n_drop, plant_switching, scheme, solver="CLARABEL",
+                       **request).memory <= budget
+
+
 def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
                         plant_switching: str = "per_interval", solver: str = "AUTO", *, path: str = "network",
                         solves: int = 1) -> DesignSize:

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver, design_size, request_solves, resolve_solver
+from .compiled import check_solver, clarabel_fits, design_size, request_solves, resolve_solver
 from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
@@ -284,7 +284,7 @@ def design(
     try:
         res = _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback,
                       ccl_start, scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes,
-                      plant_switching, scheme)
+                      plant_switching, scheme, max_memory)
         if network is not None and res is not None:
             res.network = network.to_dict()
         if res is not None and res.outcome == "not_converged" and growth is not None and \
@@ -312,19 +312,19 @@ def design(
 
 def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_iter, time_limit, callback, ccl_start,
             scaling, solver, objective, weights, x0, disturbance, output, u_max, max_modes, plant_switching,
-            scheme) -> DesignResult:
+            scheme, max_memory=None) -> DesignResult:
     if objective == "stability" and u_max is not None and decay_rate == "auto" and method == "lmi" and \
             all(v is None for v in (weights, disturbance, output)):
         def plain_auto(left):
             return _design(family, modes, method, n_drop, "auto", rate_tol, margin, max_iter, left, None, ccl_start,
                            scaling, solver, "stability", None, None, None, None, None, max_modes, plant_switching,
-                           scheme)
+                           scheme, max_memory)
 
         return _counted(_limited_auto(family, modes, x0, u_max, solver, margin, max_iter, time_limit, callback,
-                                      scaling, plain_auto))
+                                      scaling, plain_auto, max_memory))
     if objective != "stability" or any(v is not None for v in (weights, x0, disturbance, output, u_max)):
         res = _performance_design(family, modes, method, objective, weights, x0, disturbance, output, u_max, solver,
-                                  margin, max_iter, time_limit, callback, decay_rate, scaling)
+                                  margin, max_iter, time_limit, callback, decay_rate, scaling, max_memory)
         if res.outcome == "stabilized" and res.decay_rate is not None and res.settling is None:
             res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                               family.sampling_period)
@@ -337,6 +337,7 @@ def _design(family, modes, method, n_drop, decay_rate, rate_tol, margin, max_ite
         callback=callback,
         ccl_start=ccl_start,
         decay_rate=None if decay_rate in (None, "max", "auto") else float(decay_rate),
+        max_memory=max_memory,
     )
     if decay_rate == "auto" and method not in RATE_METHODS:
         decay_rate = None
@@ -400,18 +401,13 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
     pw, pz = performance_dims(disturbance, output)
     limits_only = objective == "stability" and u_max is not None
 
-    def size_of(name):
-        return design_size("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching,
-                           solver=name, network=network, objective=objective, u_max=u_max, n_disturbances=pw,
-                           n_outputs=pz, decay_rate=None if performance_design else decay_rate, rate_tol=rate_tol)
-
-    size = size_of("CLARABEL" if limits_only else solver)
+    shape = ("lmi", family.n_states, family.n_inputs, family.n_modes, network.n_drop, plant_switching)
+    request = dict(network=network, objective=objective, u_max=u_max, n_disturbances=pw, n_outputs=pz,
+                   decay_rate=None if performance_design else decay_rate, rate_tol=rate_tol)
+    size = design_size(*shape, solver="CLARABEL" if limits_only else solver, **request)
     size.check(max_memory, float("inf") if time_limit is not None else None)
-    # "AUTO" falls back to Clarabel only where Clarabel's KKT system fits the memory budget too
-    from .compiled import MAX_SOLVER_MEMORY
-
-    budget = MAX_SOLVER_MEMORY if max_memory is None else max_memory
-    fallback = str(solver).upper() != "AUTO" or not budget or size_of("CLARABEL").memory <= budget
+    # "AUTO" falls back to Clarabel only where Clarabel fits the memory budget too
+    fallback = str(solver).upper() != "AUTO" or clarabel_fits(*shape, max_memory=max_memory, **request)
     start = time.perf_counter()
     if u_max is not None and objective == "stability":  # docs/design.md §11.3
         with blas_threads(1):
@@ -660,7 +656,7 @@ def unstable_growth(family: PlantFamily) -> UnstableGrowth | None:
 
 def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, weights, x0, disturbance, output,
                         u_max, solver, margin, max_iter, time_limit, callback, decay_rate,
-                        scaling: str = "auto") -> DesignResult:
+                        scaling: str = "auto", max_memory=None) -> DesignResult:
     """Cost, H-infinity and input-limited designs (:mod:`solver.methods.performance`), in balanced coordinates.
 
     The scaling layer (:func:`solver.scaling.performance_balance`): states, inputs and the cost's size
@@ -676,7 +672,7 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
     rate = None if decay_rate in (None, "auto") else float(decay_rate)  # "auto": prepare's note
     options = DesignOptions(solver=check_solver(solver), margin=float(margin), max_iter=int(max_iter),
                             time_limit=None if time_limit is None else float(time_limit), callback=callback,
-                            decay_rate=rate)
+                            decay_rate=rate, max_memory=max_memory)
     start = time.perf_counter()
     scale = performance_balance(family, lifted) if scaling == "auto" else None
     if scale is not None and scale.is_identity:
@@ -733,7 +729,7 @@ LIMITED_SLOWEST_LOG = 1e-7
 
 
 def _limited_auto(family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin, max_iter, time_limit, callback,
-                  scaling: str, plain_auto) -> DesignResult:
+                  scaling: str, plain_auto, max_memory=None) -> DesignResult:
     """The default design (``decay_rate="auto"``) with input limits: a certified rate, then the limits.
 
     Without a rate, the input-limited SDP (largest ball in the invariant ellipsoid) is free to return a loop
@@ -758,7 +754,7 @@ def _limited_auto(family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin
 
     def limited(rate):
         res = _performance_design(family, modes, "lmi", "stability", None, x0, None, None, u_max, solver, margin,
-                                  max_iter, left(), callback, rate, scaling)
+                                  max_iter, left(), callback, rate, scaling, max_memory)
         search.append({"decay_rate": rate, "outcome": res.outcome,
                        "proof": None if res.certificate is None else res.certificate.kind, "u_max": True})
         spent["solves"] += int(res.timings.get("solves", 0) or 0)

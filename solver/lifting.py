@@ -113,6 +113,14 @@ class Lifted:
     def has_disturbance(self) -> bool:
         return self.lifted[0].B is not None
 
+    def channel_sizes(self) -> dict:
+        """``n_disturbances`` (p_w) and ``n_outputs`` (p_z) of the disturbance channel, the keywords of
+        :func:`solver.compiled.design_size` (empty without a channel)."""
+        lm = self.lifted[0]
+        if lm.B is None:
+            return {}
+        return {"n_disturbances": lm.B.shape[1] // lm.eta, "n_outputs": lm.D.shape[0] // lm.eta}
+
     def numeric(self, gains: np.ndarray) -> list[dict]:
         """Per mode ``{"A", "L", "S", "B", "C", "D"}`` for given gains (missing channels are None)."""
         out = []

@@ -51,7 +51,8 @@ class LimitMultipliers:
     x0 : ndarray, shape (n + 1, n + 1)
         ``Z_x`` of the x0 block (first row/column: the ``1`` corner).
     t : float
-        The SDP's ``t*`` (``sum_b <C_b, Z_b>`` in exact arithmetic); informative only, the check recomputes it.
+        ``sum_b <C_b, Z_b>`` of these (normalized) multipliers, whichever solver made them: the SDP's ``t*`` in
+        exact arithmetic; informative only, the check recomputes it with its rounding bounds.
     solver : str
         Who made them (``"IPM"``, ``"CLARABEL"``; empty: given by the caller); informative only.
     """
@@ -327,10 +328,18 @@ def limits_multipliers(modes: ModeSet, u_max, x0, decay_rate: float | None = Non
     for (q, j), c in inp.items():
         Zi[q, j] = np.asarray(c.dual_value, dtype=float)
     Zx = np.asarray(x0c.dual_value, dtype=float)
+    return _normalized(Zs, Zi, Zx, u, x.reshape(n), "CLARABEL")
+
+
+def _normalized(Zs, Zi, Zx, u, x, solver: str) -> LimitMultipliers | None:
+    """The multipliers scaled to total trace 1, with ``t = sum_b <C_b, Z_b>`` of the scaled ones (the constant
+    parts ``u_j^2 e_1 e_1^T`` and ``[[1, x0^T], [x0, 0]]``): one normalization for every solver."""
     total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
     if not np.isfinite(total) or total <= 0:
         return None
-    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(t.value), "CLARABEL")
+    Zs, Zi, Zx = Zs / total, Zi / total, Zx / total
+    t = float(np.sum(Zi[:, :, 0, 0] * u[None, :] ** 2) + Zx[0, 0] + 2 * x @ Zx[1:, 0])
+    return LimitMultipliers(Zs, Zi, Zx, t, solver)
 
 
 def _ipm_multipliers(modes: ModeSet, u_max, x0, decay_rate, time_limit) -> tuple[LimitMultipliers | None, bool]:
@@ -365,10 +374,8 @@ def _ipm_multipliers(modes: ModeSet, u_max, x0, decay_rate, time_limit) -> tuple
     for b, (q, j) in enumerate(prob.input_index):
         Zi[q, j] = X["input"][b]
     Zx = np.asarray(X["x0"][0], dtype=np.float64)
-    total = float(np.trace(Zs, axis1=1, axis2=2).sum() + np.trace(Zi, axis1=2, axis2=3).sum() + np.trace(Zx))
-    if not np.isfinite(total) or total <= 0:
-        return None, False
-    return LimitMultipliers(Zs / total, Zi / total, Zx / total, float(sol.t_upper) / total, "IPM"), True
+    mult = _normalized(Zs, Zi, Zx, u, x, "IPM")
+    return mult, mult is not None
 
 
 def prove_limits_infeasible(modes: ModeSet, u_max, x0, decay_rate: float | None = None, margin: float = 1e-6,

@@ -84,18 +84,18 @@ def network_margin_model(prob, sdp, rate: float):
     ----------
     prob : solver.methods.network_lmi.NetworkProblem
     sdp : solver.methods.network_lmi.NetworkSolution
-        The solve at ``rate`` (its ``duals``: one multiplier per transition first).
+        The solve at ``rate`` (its ``multipliers``: one per transition first).
     rate : float
 
     Returns
     -------
     tuple or None
     """
-    duals = getattr(sdp, "duals", None)
-    if duals is None or sdp.Z is None or not np.isfinite(sdp.t) or len(duals) < prob.n_blocks:
+    multipliers = getattr(sdp, "multipliers", None)
+    if multipliers is None or sdp.Z is None or not np.isfinite(sdp.t) or len(multipliers) < prob.n_blocks:
         return None
     k, n, E = prob.k, prob.n, prob.n_blocks
-    M = np.stack([np.asarray(X, dtype=np.float64) for X in duals[:E]])
+    M = np.stack([np.asarray(X, dtype=np.float64) for X in multipliers[:E]])
     if M.shape[1:] != (2 * k, 2 * k) or not np.all(np.isfinite(M)):
         return None
     Z = np.zeros((k, k))

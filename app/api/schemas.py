@@ -256,6 +256,8 @@ class Performance(_Open):
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")
+    lead: int | None = Field(None, description="The witness's first `lead` intervals run once, then the rest repeats "
+                                               "forever (0: the whole witness is the period, from the start).")
     message: str | None = Field(None, description="The bracket in words.")
     walk: list[dict[str, int]] | None = Field(
         None, description="On a `network`: the witness's transitions (`from`, `to` automaton nodes, `plant`, and `age` "

@@ -31,6 +31,8 @@ class DesignOptions:
     sign_only: bool = False
     #: The rate search's warm start for the lmi SDP on the IPM (a :class:`solver.ipm.WarmStart`).
     warm_start: object | None = None
+    #: The memory budget (bytes) of the ``"AUTO"`` fallback to Clarabel (:func:`solver.compiled.clarabel_fits`).
+    max_memory: float | None = None
 
     def rho(self, modes: ModeSet) -> np.ndarray:
         """Decay factors ``lambda^(2 eta_s)`` per mode (ones without a rate)."""
@@ -242,40 +244,48 @@ def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sd
     The IPM's last iterate is strictly feasible for its own margin ``t`` whatever its status (max_iterations,
     numerical_error near the feasibility boundary): its gains may pass the float64 re-check, its multipliers
     the Farkas re-check.  Without a verdict from it, under ``solver="AUTO"`` Clarabel solves the same SDP (when
-    it fits in memory); otherwise "not_converged" naming both failures.
+    it fits the memory budget, :func:`solver.compiled.clarabel_fits`); otherwise "not_converged" naming both
+    failures.  The progress callback sees one record: the returned verdict's.
     """
-    from ..compiled import MAX_SOLVER_MEMORY, clarabel_kkt_bytes
+    from ..compiled import clarabel_fits
+
+    def report(res: DesignResult) -> DesignResult:
+        if options.callback is not None and res.history:
+            options.callback(res.history[-1])
+        return res
 
     failures = [str(err)]
     sol = getattr(err, "solution", None)
     if sol is not None and sol.W is not None and np.all(np.isfinite(sol.W)):
-        res = _verdict(modes, method, options, clock, sol, rate_txt)
+        res = _verdict(modes, method, options, clock, sol, rate_txt, report=False)
         if res.outcome != "not_converged":
             res.message += f" (from the last iterate after: {err})"
-            return res
+            return report(res)
         failures.append(f"its last iterate: {res.message}")
-    blocks = [2 * modes.n_states] * (modes.n_modes * (modes.n_modes if method == "switched" else 1))
     if str(options.solver).upper() == "AUTO" and resolve_solver("AUTO", method, modes.n_modes) != "CLARABEL" \
-            and clarabel_kkt_bytes(blocks) <= MAX_SOLVER_MEMORY:
+            and clarabel_fits(method, modes.n_states, modes.n_inputs, modes.n_plants, modes.n_drop,
+                              modes.plant_switching, modes.scheme, max_memory=options.max_memory):
         remaining = clock.remaining(options.time_limit)
         if remaining is None or remaining > 0:
             try:
                 sol = solve_sdp(modes, scale, "CLARABEL", remaining, clock)
-                res = _verdict(modes, method, options, clock, sol, rate_txt)
+                res = _verdict(modes, method, options, clock, sol, rate_txt, report=False)
                 if res.outcome != "not_converged":
                     res.message += f" (Clarabel, after: {err})"
-                    return res
+                    return report(res)
                 failures.append(f"Clarabel: {res.message}")
             except SolverFailed as err2:
                 failures.append(f"Clarabel: {err2}")
     record = IterationRecord(0, float("nan"), None, False, None, float("nan"), clock.elapsed)
-    return finish(modes, method, "not_converged", None, None, None, clock, options.solver, str(err.status or ""),
-                  f"the solver gave up{rate_txt} and no verdict is proven: " + "; ".join(failures), [record],
-                  options)
+    return report(finish(modes, method, "not_converged", None, None, None, clock, options.solver,
+                         str(err.status or ""), f"the solver gave up{rate_txt} and no verdict is proven: "
+                         + "; ".join(failures), [record], options))
 
 
-def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str) -> DesignResult:
-    """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution."""
+def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str,
+             report: bool = True) -> DesignResult:
+    """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution (``report``: its record
+    goes to the progress callback)."""
     rate = options.decay_rate
     clock.add(sol.info)
     info, t = sol.info, sol.t
@@ -307,7 +317,7 @@ def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunCloc
         res.sdp = sol  # the rate search's model (solver/rate_search.py) reads the multipliers; not exported
         return res
 
-    if options.callback is not None:
+    if report and options.callback is not None:
         options.callback(record)
     if cert is not None:
         return result("stabilized", f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "

@@ -218,7 +218,7 @@ def lmi_size(prob: NetworkProblem) -> tuple[list[int], int]:
 class NetworkSolution:
     """One solve of the network LMI: the variables, the multipliers (Farkas layout), how it ended.
 
-    ``duals``: one (2k, 2k) multiplier per transition, then one (k, k) per node matrix (None when the solver
+    ``multipliers``: one (2k, 2k) per transition, then one (k, k) per node matrix (None when the solver
     returned none); ``solver``: "IPM" or the cvxpy solver's name; ``ipm``: the IPM's own solution (its
     warm start for a neighbouring rate), None for Clarabel.
     """
@@ -227,7 +227,7 @@ class NetworkSolution:
     Z: np.ndarray  # (zblocks, n, n)
     W: np.ndarray  # (V, k, k)
     Y: np.ndarray  # (N, m, n)
-    duals: list | None
+    multipliers: list | None
     status: str
     solve_time: float
     solver: str = "CLARABEL"
@@ -311,12 +311,12 @@ def solve_sdp(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None 
         raise SolverFailed(f"{name} ended with status {status} on the network LMI", status=status)
     Zv = np.stack([z.value for z in Zb])
     Wv = np.stack([0.5 * (w.value + w.value.T) for w in W])
-    duals = [c.dual_value for c in blocks] + [c.dual_value for c in pos]
-    duals = None if any(d is None for d in duals) else [np.asarray(d, float) for d in duals]
+    multipliers = [c.dual_value for c in blocks] + [c.dual_value for c in pos]
+    multipliers = None if any(d is None for d in multipliers) else [np.asarray(d, float) for d in multipliers]
     # a gain no transition uses (e.g. K_3 when no interval is 3 samples long) stays zero
     Yv = np.stack([np.zeros((m, n)) if y.value is None else y.value for y in Y])
     stats = problem.solver_stats
-    return NetworkSolution(float(t.value), Zv, Wv, Yv, duals, status, elapsed, name,
+    return NetworkSolution(float(t.value), Zv, Wv, Yv, multipliers, status, elapsed, name,
                            None if stats is None else stats.num_iters)
 
 
@@ -334,8 +334,8 @@ def _solve_ipm(prob: NetworkProblem, scale: np.ndarray, time_limit: float | None
         raise SolverFailed(f"IPM ended with status {sol.status!r} on the network LMI after {sol.iterations} "
                            f"iterations (primal residual {sol.primal_residual:.1e}, gap {sol.gap:.1e})",
                            status=sol.status)
-    duals = sol.multipliers if all(np.all(np.isfinite(X)) for X in sol.multipliers) else None
-    return NetworkSolution(float(sol.t), sol.Z, sol.W, sol.Y, duals, status, sol.timings["total"], "IPM",
+    multipliers = sol.multipliers if all(np.all(np.isfinite(X)) for X in sol.multipliers) else None
+    return NetworkSolution(float(sol.t), sol.Z, sol.W, sol.Y, multipliers, status, sol.timings["total"], "IPM",
                            sol.iterations, sol)
 
 
@@ -709,8 +709,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
             gains = gains_from(prob, sol)
             if np.all(np.isfinite(gains)):
                 cert = accept(gains, recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate))
-        elif sol.duals is not None:
-            proof = check_network_farkas(prob, sol.duals, scale, decay_rate)
+        elif sol.multipliers is not None:
+            proof = check_network_farkas(prob, sol.multipliers, scale, decay_rate)
             proof = proof if proof.verified else None
         record = IterationRecord(0, sol.t, None, cert is not None, None if cert is None else cert.margin,
                                  sol.solve_time, time.perf_counter() - start_t)
@@ -744,8 +744,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
                     cert = accept(agains, recheck_network(prob, np.linalg.inv(alt.W), agains, decay_rate))
                 if cert is not None:
                     sol, gains = alt, agains
-            elif alt.duals is not None:
-                proof = check_network_farkas(prob, alt.duals, scale, decay_rate, per_block=True)
+            elif alt.multipliers is not None:
+                proof = check_network_farkas(prob, alt.multipliers, scale, decay_rate, per_block=True)
                 proof = proof if proof.verified else None
                 if proof is not None:
                     notes.append(f"t* = {sol.t:.3g} with the sum normalization; {alt.t:.3g} with one per slack "

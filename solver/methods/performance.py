@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from .. import compiled
-from ..compiled import SolveInfo, check_memory, clarabel_kkt_bytes, ipm_memory, schur_block
+from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
@@ -584,7 +584,10 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         candidates.append(_evaluate(lifted, objective, x0, u_max, options, clock, info, Wv, Yv, extra, trace_weight))
     if name == "AUTO" and not _good(candidates[-1] if candidates else None, u_max) and (
             info is None or info.solver == "IPM") and \
-            clarabel_kkt_bytes(block_sides(lifted, objective)) <= compiled.MAX_SOLVER_MEMORY and \
+            compiled.clarabel_fits("lmi", modes.n_states, modes.n_inputs, modes.n_plants, modes.n_drop,
+                                   modes.plant_switching, modes.scheme, max_memory=options.max_memory,
+                                   objective=objective, decay_rate=rate, u_max=u_max,
+                                   **lifted.channel_sizes()) and \
             (clock.remaining(options.time_limit) is None or clock.remaining(options.time_limit) > 0):
         try:
             info_c, Wc, Yc, extra_c = _propose(lifted, objective, x0, u_max, rate, "CLARABEL", clock,

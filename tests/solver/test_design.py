@@ -137,6 +137,50 @@ def test_ipm_failure_without_iterate_asks_clarabel_under_auto(monkeypatch):
     assert named.outcome == "not_converged" and "numerical_error" in named.message
 
 
+def test_auto_fallback_to_clarabel_respects_max_memory(monkeypatch):
+    """The "AUTO" fallback to Clarabel asks the one memory test (solver.compiled.clarabel_fits) with the user's
+    max_memory: a budget the IPM's estimate fits but Clarabel's (cvxpy's copies) does not keeps Clarabel out."""
+    from solver import ipm
+    from solver.compiled import clarabel_fits, design_size
+
+    def broken(*args, **kwargs):
+        raise SolverFailed("IPM ended with status 'numerical_error'", status="numerical_error")
+
+    monkeypatch.setattr(ipm, "design_solve", broken)
+    fam = PlantFamily.paper_example(0.1)
+    ipm_bytes = design_size("lmi", 2, 1, 1, 3).memory
+    clarabel_bytes = design_size("lmi", 2, 1, 1, 3, solver="CLARABEL").memory
+    budget = 100 * ipm_bytes
+    assert ipm_bytes < budget < clarabel_bytes
+    assert not clarabel_fits("lmi", 2, 1, 1, 3, max_memory=budget) and clarabel_fits("lmi", 2, 1, 1, 3)
+    res = design(fam, n_drop=3, method="lmi", decay_rate=None, max_memory=budget)
+    assert res.outcome == "not_converged" and "Clarabel" not in res.message
+    res = design(fam, n_drop=3, method="lmi", decay_rate=None, max_memory=2 * clarabel_bytes)
+    assert res.solver == "CLARABEL" and res.outcome == "stabilized"
+
+
+def test_failed_ipm_then_clarabel_reports_one_record(monkeypatch):
+    """_after_failure re-checks the IPM's last iterate and then Clarabel's answer: the callback sees one record,
+    the returned verdict's (it used to see the discarded iterate's as well)."""
+    from solver.ipm import problems
+
+    solve_lmi = problems.solve_lmi
+
+    def spoiled(*args, **kwargs):  # stops short with an iterate whose gains are far off: no verdict from it
+        sol = solve_lmi(*args, **kwargs)
+        sol.status = "max_iterations"
+        sol.Y = sol.Y * 1e3
+        return sol
+
+    monkeypatch.setattr(problems, "solve_lmi", spoiled)
+    fam = PlantFamily.paper_example(0.1)
+    seen = []
+    res = design(fam, n_drop=3, method="lmi", decay_rate=None, callback=seen.append)
+    assert res.solver == "CLARABEL" and "Clarabel, after" in res.message
+    assert_certified(fam, res)
+    assert len(seen) == 1 and seen[0] is res.history[-1]
+
+
 @pytest.mark.parametrize("rate", [None, 0.5, 0.3])
 def test_ipm_stopping_short_keeps_its_iterate_for_the_rechecks(monkeypatch, rate):
     # the IPM's max_iterations / numerical_error near the feasibility boundary (issue 29): its last iterate is

@@ -174,3 +174,21 @@ def test_auto_needs_no_clarabel_on_the_tie_break_and_limit_paths(motor, monkeypa
     assert res.outcome == "infeasible" and res.certificate.kind == "farkas_limits"
     assert check_limits_farkas(ModeSet.from_family(fam, 2), res.certificate.multipliers, [0.01], [5.0, -4.0]).verified
     assert design(motor, 3, u_max=[5.0], x0=X0).outcome == "stabilized"
+
+
+def test_both_solvers_report_t_in_the_same_normalization():
+    """LimitMultipliers.t is sum_b <C_b, Z_b> of the returned multipliers (total trace 1) on the IPM and on
+    Clarabel alike: recomputed here from the blocks' constant parts, written out by hand."""
+    fam = PlantFamily(F=[np.array([[1.3, 0.2], [0.0, 0.8]])], G=[np.array([[1.0], [0.5]])])
+    modes, x0 = ModeSet.from_family(fam, 2), np.array([5.0, -4.0])
+    for solver in ("IPM", "CLARABEL"):
+        mult = limits_multipliers(modes, [0.01], x0, solver=solver)
+        total = (np.trace(mult.stability, axis1=1, axis2=2).sum() + np.trace(mult.inputs, axis1=2, axis2=3).sum()
+                 + np.trace(mult.x0))
+        assert total == pytest.approx(1.0, abs=1e-12)
+        C_x0 = np.zeros((3, 3))
+        C_x0[0, 0], C_x0[0, 1:], C_x0[1:, 0] = 1.0, x0, x0
+        C_in = np.zeros((3, 3))
+        C_in[0, 0] = 0.01 ** 2
+        value = np.sum(C_x0 * mult.x0) + sum(np.sum(C_in * Z) for Z in mult.inputs.reshape(-1, 3, 3))
+        assert mult.t == pytest.approx(value, rel=1e-12, abs=1e-15) and mult.t < 0

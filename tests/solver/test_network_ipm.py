@@ -118,7 +118,7 @@ def test_delays_network_not_certified_by_the_per_block_normalization(solver):
               for e in range(prob.n_blocks))
     assert low >= -1e-12
     plain = network_lmi.solve_sdp(prob, ones, solver=solver)
-    assert plain.t > -1e-6 and not network_lmi.check_network_farkas(prob, plain.duals, ones).verified
+    assert plain.t > -1e-6 and not network_lmi.check_network_farkas(prob, plain.multipliers, ones).verified
     res = network_lmi.run(TOO_UNSTABLE, net, solver=solver, use_ccl=False)
     assert res.outcome == "not_certified", res.message
     cert = res.certificate

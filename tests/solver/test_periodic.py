@@ -96,7 +96,7 @@ def test_the_cheap_gain_bound_is_an_upper_bound(motor_data):
 def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
     cost, hinf, gains = motor_data
     lifted = cost if kind == "cost" else hinf
-    value, witness, count, _ = lower_bound(lifted, gains, kind)
+    value, witness, count, *_ = lower_bound(lifted, gains, kind)
     assert len(witness) >= 1
     data = lifted.numeric(gains)
     pats = patterns(len(data), 3, 4000 if kind == "cost" else 500, rotations=kind == "cost")
@@ -110,5 +110,5 @@ def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
         else:
             v = hinf_norm_lower(sys, refine=False)
         labels[seq] = v
-    assert count == len(pats)
+    assert count >= len(pats)  # hinf: the longer patterns grown from the best ones are counted too
     assert value >= max(labels.values()) * (1 - 1e-12)

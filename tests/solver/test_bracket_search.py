@@ -1,0 +1,130 @@
+"""The deeper lower-bound searches of the brackets (docs/design.md §8.4): prefix search (cost), pattern growth (hinf).
+
+References: the buffer simulated sample by sample (written here, not the library's lifting), brute force over every
+admissible prefix of a short horizon closed by the certificate, seeded random sequences (Monte Carlo), python-control's
+H-infinity norm of the witness's lifted period.
+"""
+
+import itertools
+
+import control
+import numpy as np
+import pytest
+
+from solver import PlantFamily, design
+from solver.brackets import _cycle, lower_bound, period_system, prefix_search
+from solver.lifting import lift_modes
+from solver.network import ModeSet
+
+F = [[[1.1, 0.3], [0.0, 0.95]], [[1.05, 0.2], [0.1, 1.0]]]
+G = [[[0.2], [1.0]], [[0.1], [0.8]]]
+X0 = np.array([0.3, 2.0])
+N = 3
+
+
+@pytest.fixture(scope="module")
+def fam():
+    return PlantFamily(F=F, G=G)
+
+
+@pytest.fixture(scope="module")
+def res(fam):
+    out = design(fam, N, objective="cost", x0=X0)
+    assert out.outcome == "stabilized" and out.performance.verified
+    return out
+
+
+def simulate(fam, gains, x0, seq):
+    """Cost sum x'x + u'u (Q = I, R = I) of the intervals ``seq`` ((plant, eta) each), the buffer sample by sample."""
+    x, cost = np.array(x0, dtype=float), 0.0
+    for plant, eta in seq:
+        xm = x.copy()
+        for t in range(eta):
+            u = gains[t] @ xm
+            cost += x @ x + u @ u
+            x = np.asarray(fam.F[plant]) @ x + np.asarray(fam.G[plant]) @ u
+    return cost, x
+
+
+def test_the_prefix_witness_is_a_real_sequence_with_the_reported_cost(fam, res):
+    """Here the prefix search wins (the witness runs a prefix once, then a period): simulating it reaches lower."""
+    perf = res.performance
+    assert perf.lead > 0 and "prefix search" in perf.message
+    lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
+    cost, x = simulate(fam, res.gains, X0, lead + period * (3000 // len(period)))
+    assert np.linalg.norm(x) < 1e-9
+    assert cost == pytest.approx(perf.lower, rel=1e-9)
+    assert perf.lower <= perf.upper
+    d = perf.to_dict()
+    assert d["lead"] == perf.lead and type(perf).from_dict(d).lead == perf.lead
+
+
+def test_no_admissible_prefix_closed_by_the_certificate_is_below_the_lower_bound(fam, res):
+    """Brute force over all 6^5 prefixes of 5 intervals: every sequence costs at most its prefix's cost plus
+    x' P x at the prefix's end, so the largest of these bounds the worst case, hence the witnessed lower end."""
+    perf = res.performance
+    P = perf.certificate
+    intervals = [(p, e) for p in range(2) for e in range(1, N + 1)]
+    worst = 0.0
+    for seq in itertools.product(intervals, repeat=5):
+        cost, x = simulate(fam, res.gains, X0, seq)
+        worst = max(worst, cost + x @ P @ x)
+    assert perf.lower <= worst * (1 + 1e-12)
+    assert worst <= perf.upper * (1 + 1e-12)
+
+
+def test_random_sequences_stay_below_the_upper_bound(fam, res):
+    rng = np.random.default_rng(5)
+    perf = res.performance
+    for _ in range(200):
+        seq = [(int(rng.integers(2)), int(rng.integers(1, N + 1))) for _ in range(300)]
+        cost, _ = simulate(fam, res.gains, X0, seq)
+        assert cost <= perf.upper
+
+
+def test_the_search_bound_lies_between_lower_and_upper(fam, res):
+    perf = res.performance
+    lifted = lift_modes(ModeSet.from_family(fam, N), (np.eye(2), np.eye(1)))
+    gains = np.asarray(res.gains, dtype=float)
+    found = lower_bound(lifted, gains, "cost", X0, certificate=perf.certificate)
+    assert found.bound is not None
+    assert found.value == pytest.approx(perf.lower, rel=1e-9)
+    assert found.value <= found.bound * (1 + 1e-12) and found.bound <= perf.upper * (1 + 1e-12)
+    # without tails the search has nothing to finish its prefixes with
+    assert prefix_search(lifted.numeric(gains), [], perf.certificate, np.outer(X0, X0)) is None
+
+
+def test_one_mode_n_drop_one_is_still_the_riccati_cost():
+    import scipy.linalg
+
+    F1 = np.array([[1.2, 0.4], [0.0, 0.7]])
+    G1 = np.array([[0.0], [1.0]])
+    P = scipy.linalg.solve_discrete_are(F1, G1, np.eye(2), np.eye(1))
+    res = design(PlantFamily(F=[F1], G=[G1]), 1, objective="cost")
+    perf = res.performance
+    assert perf.upper == pytest.approx(np.trace(P), rel=1e-6) and perf.lower == pytest.approx(np.trace(P), rel=1e-6)
+    assert perf.lead == 0 and perf.witness == [(0, 1)]
+
+
+def test_cycle_splits_a_sequence_into_prefix_and_period():
+    assert _cycle((3, 1, 0, 1, 0, 1, 0, 1)) == ((3,), (1, 0))
+    assert _cycle((2, 2, 2, 2)) == ((), (2,))
+    assert _cycle((0, 1, 2)) == ((0, 1), (2,))
+
+
+def test_hinf_grown_witness_value_is_its_periods_norm():
+    """The l2-gain lower end is the H-infinity norm of the witness's lifted period (python-control, to its
+    bisection's accuracy); the certificate bounds it."""
+    fam = PlantFamily(F=F, G=G)
+    res = design(fam, N, objective="hinf", disturbance=[np.eye(2)[:, :1]] * 2)
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    lifted = lift_modes(ModeSet.from_family(fam, N), None, [np.eye(2)[:, :1]] * 2)
+    data = lifted.numeric(np.asarray(res.gains, dtype=float))
+    index = {(lm.plants[0], lm.eta): s for s, lm in enumerate(lifted.lifted)}
+    sys = period_system(data, [index[w] for w in perf.witness])
+    # zero inputs padded to a square D (same norm): python-control's Hamiltonian test needs p = m here
+    pad = sys["D"].shape[0] - sys["D"].shape[1]
+    B, D = np.hstack([sys["B"], np.zeros((2, pad))]), np.hstack([sys["D"], np.zeros((sys["D"].shape[0], pad))])
+    norm = control.norm(control.ss(sys["Phi"], B, sys["C"], D, True), p="inf")
+    assert perf.lower == pytest.approx(norm, rel=1e-6)  # python-control's bisection stops at about 1e-7
