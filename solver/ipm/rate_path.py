@@ -14,9 +14,9 @@ interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda be
   below ``feas_tol`` (the sign rule of :attr:`IPMOptions.sign_only`); the largest such lambda is the lower end.
 
 At a change of rate the slacks keep their distance to the boundary (``t`` moves by the change of the blocks'
-smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (when that keeps
-them positive definite), which leaves ``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual
-bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
+smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (up in rate,
+combined with an earlier iterate's from above where that leaves the cone: :func:`_raise`), which leaves
+``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
 design's own float64 re-check and Farkas re-check (solver/rate_search.py); this module only finds candidates.
 """
 
