@@ -14,9 +14,9 @@ interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda be
   below ``feas_tol`` (the sign rule of :attr:`IPMOptions.sign_only`); the largest such lambda is the lower end.
 
 At a change of rate the slacks keep their distance to the boundary (``t`` moves by the change of the blocks'
-smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (when that keeps
-them positive definite), which leaves ``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual
-bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
+smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (up in rate,
+combined with an earlier iterate's from above where that leaves the cone: :func:`_raise`), which leaves
+``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
 design's own float64 re-check and Farkas re-check (solver/rate_search.py); this module only finds candidates.
 """
 
@@ -149,6 +149,58 @@ class _RateFamily:
         return self.free @ W + (self.GL @ Y if Y.size else 0.0)
 
 
+def _raise(X2, Xb, up, new, c2, above, n):
+    """The multipliers at a higher rate ``new`` (docs/design.md §3.2.2).
+
+    ``X2`` (the current multipliers ``Xb`` with their off-diagonal blocks scaled by ``c / c'``) keeps ``A^*(X)``
+    and ``<C, X>`` but can leave the cone where ``c / c' > 1`` (the blocks ``up``).  The multipliers of an earlier
+    iterate at a rate ``lambda_a >= new`` with primal residual below 1e-6, scaled the same way (``c_a / c' <= 1``:
+    they stay positive semidefinite), keep them too; the combination ``theta X2 + (1 - theta) X_a`` with the
+    largest ``theta`` in 1/2, 1/4, ... whose smallest eigenvalues keep ``1e-3 (1 - theta)`` of ``X_a``'s keeps both, and with them
+    the primal residual and the dual bound.  Without such an iterate a block that would lose definiteness keeps
+    its multiplier (its residual changes).
+
+    Parameters
+    ----------
+    X2, Xb : ndarray, shape (S, 2n, 2n)
+    up : ndarray of bool, shape (S,)
+        The blocks with ``c / c' > 1``.
+    new : float
+        The new rate.
+    c2 : ndarray, shape (S,)
+        Its scales ``new^(-eta_s)``.
+    above : list of tuple
+        ``(lambda_a, c_a, X_a)`` of earlier iterates.
+    n : int
+
+    Returns
+    -------
+    ndarray, shape (S, 2n, 2n)
+    """
+    floor = 1e-3 * _eigvalsh(Xb[up])[:, 0]
+    if bool((_eigvalsh(X2[up])[:, 0] > floor).all()):
+        return X2
+    cand = [a for a in above if a[0] >= new]
+    if cand:
+        lam_a, c_a, X_a = min(cand, key=lambda a: a[0])
+        Xa = X_a.copy()
+        ra = (c_a / c2)[:, None, None]
+        Xa[:, n:, :n] *= ra
+        Xa[:, :n, n:] *= ra
+        theta = 1.0
+        for _ in range(12):
+            theta *= 0.5
+            Z = theta * X2 + (1.0 - theta) * Xa
+            # the other blocks combine two positive semidefinite matrices
+            if bool((_eigvalsh(Z[up])[:, 0] > 1e-3 * (1.0 - theta) * _eigvalsh(Xa[up])[:, 0]).all()):
+                return Z
+        return Xa
+    bad = np.zeros(len(X2), dtype=bool)
+    bad[up] = _eigvalsh(X2[up])[:, 0] <= floor
+    X2[bad] = Xb[bad]
+    return X2
+
+
 def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limit: float | None = None,
                 max_iter: int = 200, feas_tol: float = 1e-8, dense: bool | None = None) -> RatePathResult:
     """Follow the rate along one interior-point path until ``done(lo, hi)`` (module docstring).
@@ -185,7 +237,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
     fam = _RateFamily(free, coef, active, eta, dense)
     n = fam.free.shape[1]
     out = RatePathResult(status="max_iterations")
-    st = {"lam": float(lam0), "it": 0}
+    st = {"lam": float(lam0), "it": 0, "above": []}
     st["prob"], st["c"], op, adj, schur = fam.at(lam0)
 
     def wrap(op, adj, schur):
@@ -226,10 +278,10 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         X2[:, n:, :n] *= ratio
         X2[:, :n, n:] *= ratio
         up = ratio[:, 0, 0] > 1.0
-        if up.any():  # a block that would lose definiteness keeps its multiplier (its residual changes instead)
-            bad = np.zeros(len(X2), dtype=bool)
-            bad[up] = _eigvalsh(X2[up])[:, 0] <= 1e-3 * _eigvalsh(Xb[up])[:, 0]
-            X2[bad] = Xb[bad]
+        if up.any():
+            X2 = _raise(X2, Xb, up, new, c2, st["above"], n)
+        if rp < 1e-6:
+            st["above"].append((lam, c, Xb.copy()))
         st["lam"], st["prob"], st["c"] = float(new), prob2, c2
         out.retargets += 1
         st["moved"] = True

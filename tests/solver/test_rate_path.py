@@ -79,3 +79,30 @@ def test_path_certifies_the_bisections_rate():
             assert abs(br_p["upper"] - br_b["upper"]) <= tol * max(br_p["upper"], br_b["upper"]), name
         assert res_p.certificate is not None and res_p.certificate.decay_rate == pytest.approx(br_p["upper"])
     assert by_path >= 10  # the path itself closed most brackets (not the fallback)
+
+
+def test_an_upward_change_of_rate_keeps_the_primal_residual():
+    # paper example: down from 1 to 0.3 (below its best rate 0.3374: refuted there), then up to 0.36; the
+    # multipliers at 0.36 combine the refuted ones with an earlier iterate's from above, so their primal residual
+    # (re-computed by the interior-point method on the new data) is the one they had before the move
+    from solver.ipm.rate_path import follow_rate
+
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    coef, active = modes.scheme_coef()
+    calls = {"n": 0}
+
+    def aim(lam, t, upper, rp, q, lo, hi, W, M):
+        calls["n"] += 1
+        if lam == 1.0 and calls["n"] >= 6:
+            return 0.3
+        if lam == 0.3 and lo >= 0.3:
+            return 0.36
+        return None
+
+    path = follow_rate(modes.free, coef, active, modes.eta, lambda lo, hi: False, aim, max_iter=60)
+    lams = [r[1] for r in path.rates]
+    assert 0.3 <= path.lo < 0.3374 and 0.36 in lams
+    k = lams.index(0.36)
+    rp_before, rp_after = path.rates[k - 1][4], path.rates[k][4]
+    assert rp_before < 1e-8 and rp_after < 1e-8
+    assert any(r[1] == 0.36 and r[2] > 0 for r in path.rates[k:])  # and the path goes on to certify 0.36
