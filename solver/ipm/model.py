@@ -277,10 +277,11 @@ class BlockLMI:
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
-        T = _BASIS_CACHE[self._key][2]
+        # the cache may have been cleared since this model was built (another model's entry filled it up)
+        T = _BASIS_CACHE.get(self._key, (None, None, None))[2]
         if T is None:
             T = self.T.toarray()
-            _BASIS_CACHE[self._key] = _BASIS_CACHE[self._key][:2] + (T,)
+            _BASIS_CACHE[self._key] = (self.T, np.asarray(self.T[-1, :].todense()).ravel(), T)
         p, k, nb = self.p, self.k, self.nb
         if not any(len(term) > 3 for var in self.variables for term in var.terms):
             # Each full coordinate's matrices (unit entry E_ab of a variable: sym(c L E_ab R) = c

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from solver import PlantFamily, design
-from solver.brackets import _cycle, lower_bound, period_system, prefix_search
+from solver.brackets import _cycle, _tails, lower_bound, period_system, prefix_search
 from solver.lifting import lift_modes
 from solver.network import ModeSet
 
@@ -46,10 +46,32 @@ def simulate(fam, gains, x0, seq):
     return cost, x
 
 
-def test_the_prefix_witness_is_a_real_sequence_with_the_reported_cost(fam, res):
-    """Here the prefix search wins (the witness runs a prefix once, then a period): simulating it reaches lower."""
+def _search(fam, res):
+    """The prefix search on the designed gains from below (``floor = -inf``: it reports its best sequence even
+    where the periodic search's witness is as good), its tails the stable one-mode patterns."""
+    lifted = lift_modes(ModeSet.from_family(fam, N), (np.eye(2), np.eye(1)))
+    data = lifted.numeric(np.asarray(res.gains, dtype=float))
+    tails = _tails(data, [(s,) for s in range(len(data))])
+    found = prefix_search(data, tails, res.performance.certificate, np.outer(X0, X0))
+    label = [(lm.plants[0], lm.eta) for lm in lifted.lifted]
+    return found, [label[s] for s in found.prefix], [label[s] for s in found.tail]
+
+
+def test_the_prefix_search_witness_is_a_real_sequence_with_its_cost(fam, res):
+    """A prefix run once, then a period repeated: simulated sample by sample it costs what the search reports,
+    and no more than the certified upper end."""
+    found, lead, period = _search(fam, res)
+    assert found.prefix, "the best sequence from x0 starts with a transient here"
+    cost, x = simulate(fam, res.gains, X0, lead + period * (3000 // len(period)))
+    assert np.linalg.norm(x) < 1e-9
+    assert cost == pytest.approx(found.value, rel=1e-9)
+    assert found.value <= res.performance.upper * (1 + 1e-12)
+
+
+def test_the_reported_witness_is_a_real_sequence_with_the_reported_cost(fam, res):
+    """The bracket's witness (``lead`` intervals once, then a period; ``lead`` is 0 when a periodic pattern
+    wins): simulating it reaches the lower end."""
     perf = res.performance
-    assert perf.lead > 0 and "prefix search" in perf.message
     lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
     cost, x = simulate(fam, res.gains, X0, lead + period * (3000 // len(period)))
     assert np.linalg.norm(x) < 1e-9
@@ -86,10 +108,12 @@ def test_the_search_bound_lies_between_lower_and_upper(fam, res):
     perf = res.performance
     lifted = lift_modes(ModeSet.from_family(fam, N), (np.eye(2), np.eye(1)))
     gains = np.asarray(res.gains, dtype=float)
-    found = lower_bound(lifted, gains, "cost", X0, certificate=perf.certificate)
+    again = lower_bound(lifted, gains, "cost", X0, certificate=perf.certificate)
+    assert again.value == pytest.approx(perf.lower, rel=1e-9)
+    found, _, _ = _search(fam, res)
     assert found.bound is not None
-    assert found.value == pytest.approx(perf.lower, rel=1e-9)
-    assert found.value <= found.bound * (1 + 1e-12) and found.bound <= perf.upper * (1 + 1e-12)
+    assert found.value <= found.bound * (1 + 1e-12) and perf.lower <= found.bound * (1 + 1e-12)
+    assert found.bound <= perf.upper * (1 + 1e-12)
     # without tails the search has nothing to finish its prefixes with
     assert prefix_search(lifted.numeric(gains), [], perf.certificate, np.outer(X0, X0)) is None
 
