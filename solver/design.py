@@ -17,7 +17,7 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .rate_search import margin_model, model_root, network_margin_model, next_rate
+from .rate_search import MIN_RATE, margin_model, model_root, network_margin_model, next_rate, rate_measure
 from .result import DesignResult, certified_settling, metric_condition
 from .brackets import bracket_back
 from .scaling import Scaling, balance, performance_balance
@@ -1041,8 +1041,6 @@ FINAL_WARM = True
 #: What a bisection step whose solver failed returns (no certificate, no proof).
 FAILED_STEP = object()
 
-#: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
-MIN_RATE = 1e-4
 
 
 #: How the best-rate search runs: "path" (one interior-point path that follows the rate, docs/design.md §3.2.2;
@@ -1147,9 +1145,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         return 0.5 * (lo + hi)
 
     def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or ln lambda
-        if not settling:
-            return float(np.log(lam)) if lam > 0.0 else -np.inf
-        return -np.log(-np.log(min(max(lam, MIN_RATE), 1 - 1e-9)))
+        return rate_measure(lam, settling)
 
     tol_width = float(np.log1p(tol) if settling else -np.log1p(-tol))  # done(lo, hi) <=> measure gap <= this
 
@@ -1245,23 +1241,24 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_width: float, done) -> dict | None:
     """The bracket of the rate-following path (solver/rate_search.py, docs/design.md §3.2.2), re-checked, or None.
 
-    The path's primal iterate is re-checked at its certified rate (:func:`solver.methods.common.run_one_shot`
-    on that iterate: the float64 re-check of every design) and its multipliers at the rate they refute (the
-    Farkas re-check of every design); None unless both hold and ``done(lo, hi)``: the caller then runs
-    today's search.
+    The path's primal iterate is re-checked at its certified rates, the smallest first
+    (:func:`solver.methods.common.run_one_shot` on that iterate: the float64 re-check of every design), and its
+    multipliers at the rate they refute (the Farkas re-check of every design).  The first certified rate that
+    passes is the upper end, whether or not the path closed its bracket (it may have stopped at its time share,
+    its step cap or a stall); the lower end is the refuted rate when its re-check passes, else 0: the probes go on
+    from there while ``not done(lo, hi)``.  None when no certified rate passes: the caller runs today's search.
     """
     from .compiled import DesignSdpSolution, SolveInfo
     from .methods.common import run_one_shot
     from .rate_search import path_search, path_steps_solves
 
     path, his = path_search(modes, settling, tol_width, done, options.time_limit)
-    if not his or path.duals is None or not done(path.lo, his[-1]):
+    if not his:
         return None
     coef, active = modes.scheme_coef()
     M = modes.free @ path.W
     if coef.size:
         M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], path.Y)
-    t_lo = next((r[3] for r in reversed(path.rates) if r[1] == path.lo), -1.0)
 
     def info(t):
         return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
@@ -1279,18 +1276,24 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
             break
     else:
         return None
+    res_hi.sdp = sol_hi
+    search = [{"decay_rate": hi, "outcome": res_hi.outcome, "step": "path",
+               "proof": None if res_hi.certificate is None else res_hi.certificate.kind,
+               "iterations": path.iterations, "solves": path_steps_solves(path)}]  # the path's Newton steps
+    out = {"best": res_hi, "hi": hi, "lo": 0.0, "lo_proof": None, "lo_margin": None, "search": search,
+           "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
+    if path.duals is None or not 0.0 < path.lo < hi:
+        return out
+    t_lo = next((r[3] for r in reversed(path.rates) if r[1] == path.lo), -1.0)
     sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
     res_lo = run_one_shot(modes, "lmi", replace(plain, decay_rate=path.lo), lambda *a, **k: sol_lo)
-    res_hi.sdp = sol_hi
-    refuted = res_lo.outcome in NEGATIVE
-    lo_margin = res_lo.certificate.margin if res_lo.outcome == "marginal" else None
-    search = [{"decay_rate": r.decay_rate if r is res_hi else path.lo, "outcome": r.outcome, "step": "path",
-               "proof": None if r.certificate is None else r.certificate.kind} for r in (res_hi, res_lo)]
-    search[0].update(iterations=path.iterations, solves=path_steps_solves(path))  # the path's Newton steps
     # a lower end whose multipliers fail the re-check proves nothing: the probes go on from the certified end
-    return {"best": res_hi, "hi": hi, "lo": path.lo if refuted else 0.0, "lo_proof": res_lo.outcome if refuted
-            else None, "lo_margin": lo_margin, "search": search if refuted else search[:1],
-            "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
+    if res_lo.outcome in NEGATIVE:
+        search.append({"decay_rate": path.lo, "outcome": res_lo.outcome, "step": "path",
+                       "proof": None if res_lo.certificate is None else res_lo.certificate.kind})
+        out.update(lo=path.lo, lo_proof=res_lo.outcome,
+                   lo_margin=res_lo.certificate.margin if res_lo.outcome == "marginal" else None)
+    return out
 
 
 def _time_out(modes, method, options, search) -> DesignResult:

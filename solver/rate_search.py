@@ -26,7 +26,40 @@ import math
 
 import numpy as np
 
-__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search"]
+__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search", "rate_measure",
+           "rate_shift"]
+
+#: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
+MIN_RATE = 1e-4
+
+
+
+def rate_measure(lam: float, settling: bool) -> float:
+    """The coordinate the rate tolerance is on (docs/design.md §3.2.2, "Where the rate goes").
+
+    ``-ln(-ln lambda)`` (the settling time's logarithm, up to sign; ``decay_rate="auto"``) with lambda clamped to
+    ``[MIN_RATE, 1 - 1e-9]``, else ``ln lambda`` (``-inf`` at lambda = 0).
+
+    Parameters
+    ----------
+    lam : float
+        The decay rate, in [0, 1].
+    settling : bool
+
+    Returns
+    -------
+    float
+    """
+    if settling:
+        return -math.log(-math.log(min(max(lam, MIN_RATE), 1.0 - 1e-9)))
+    return math.log(lam) if lam > 0.0 else -math.inf
+
+
+def rate_shift(lam: float, du: float, settling: bool) -> float:
+    """The rate ``du`` above ``lam`` in :func:`rate_measure`'s coordinate (its inverse at ``measure(lam) + du``)."""
+    u = rate_measure(lam, settling) + du
+    return math.exp(-math.exp(-u)) if settling else math.exp(u)
+
 
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
 #: or above it by at most this fraction of ``end - lo``.
@@ -320,6 +353,10 @@ PATH_ABOVE = (0.05, 0.15, 0.3)
 #: One SDP-equivalent of the path (``res.solve_count``): this many Newton steps, about a plain design SDP's
 #: (the median of a plain design SDP's iterations, measured: paper 10, n = 8 22, 20 45, 30 20, 50 24).
 PATH_STEPS_PER_SDP = 22
+#: The path's share of the design's ``time_limit``: the probes go on from its certified end in the rest.
+PATH_TIME_SHARE = 0.5
+#: The path's Newton steps at most (measured: 23-55 on the bench rows; docs/design.md §3.2.2).
+PATH_MAX_ITER = 200
 
 
 def path_search(modes, settling: bool, tol_width: float, done, time_limit: float | None = None):
@@ -339,6 +376,7 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
     done : callable
         ``done(lo, hi)``.
     time_limit : float, optional
+        The design's limit: the path gets ``PATH_TIME_SHARE`` of it.
 
     Returns
     -------
@@ -349,13 +387,11 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
     """
     from .ipm.rate_path import follow_rate
 
-    def shift(lam, du):  # the rate du above lam in the tolerance's coordinate
-        if settling:
-            return math.exp(-math.exp(math.log(-math.log(min(lam, 1.0 - 1e-9))) - du))
-        return lam * math.exp(du)
+    def shift(lam, du):
+        return rate_shift(lam, du, settling)
 
     def measure(lam):
-        return -math.log(-math.log(min(lam, 1.0 - 1e-9))) if settling else math.log(lam)
+        return rate_measure(lam, settling)
 
     def aim(lam, t, upper, rp, q, lo, hi, W, M):
         if not hi < 1.0:
@@ -369,7 +405,7 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
         if PATH_NEWTON and lam >= 1.0:
             # the sign is settled here (the probes' rule): the Newton root of the margin's model, above the root
             # where the margin is convex, from the iterate's own margin t (the lower of its bounds)
-            newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, 1e-4), lam)
+            newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, MIN_RATE), lam)
             if newton is not None:
                 target = min(target, newton)
         if lo > 0.0:
@@ -382,7 +418,8 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
         return hi < 1.0 and done(lo, min(shift(hi, PATH_ABOVE[-1] * tol_width), 1.0))
 
     coef, active = modes.scheme_coef()
-    path = follow_rate(modes.free, coef, active, modes.eta, closed, aim, time_limit=time_limit)
+    path = follow_rate(modes.free, coef, active, modes.eta, closed, aim, max_iter=PATH_MAX_ITER,
+                       time_limit=None if time_limit is None else PATH_TIME_SHARE * time_limit)
     if not (path.hi < 1.0 and path.W is not None):
         return path, []
     return path, [min(shift(path.hi, a * tol_width), 1.0) for a in PATH_ABOVE]

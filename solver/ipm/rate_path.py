@@ -14,9 +14,10 @@ interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda be
   below ``feas_tol`` (the sign rule of :attr:`IPMOptions.sign_only`); the largest such lambda is the lower end.
 
 At a change of rate the slacks keep their distance to the boundary (``t`` moves by the change of the blocks'
-smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s`` (up in rate,
-combined with an earlier iterate's from above where that leaves the cone: :func:`_raise`), which leaves
-``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual bound carry over exactly.  Which rates are certified and which are refuted is decided afterwards by the
+smallest eigenvalue) and the multipliers' off-diagonal blocks are multiplied by ``c_s / c'_s``, which leaves
+``A^*(X)`` and ``<C, X>`` unchanged: the primal residual and the dual bound carry over exactly.  Up in rate,
+where that leaves the cone, the multipliers are combined with an earlier iterate's from above (:func:`_raise`):
+residual and bound are then the combination's (the residual no larger than the larger of the two).  Which rates are certified and which are refuted is decided afterwards by the
 design's own float64 re-check and Farkas re-check (solver/rate_search.py); this module only finds candidates.
 """
 
@@ -155,10 +156,12 @@ def _raise(X2, Xb, up, new, c2, above, n):
     ``X2`` (the current multipliers ``Xb`` with their off-diagonal blocks scaled by ``c / c'``) keeps ``A^*(X)``
     and ``<C, X>`` but can leave the cone where ``c / c' > 1`` (the blocks ``up``).  The multipliers of an earlier
     iterate at a rate ``lambda_a >= new`` with primal residual below 1e-6, scaled the same way (``c_a / c' <= 1``:
-    they stay positive semidefinite), keep them too; the combination ``theta X2 + (1 - theta) X_a`` with the
-    largest ``theta`` in 1/2, 1/4, ... whose smallest eigenvalues keep ``1e-3 (1 - theta)`` of ``X_a``'s keeps both, and with them
-    the primal residual and the dual bound.  Without such an iterate a block that would lose definiteness keeps
-    its multiplier (its residual changes).
+    they stay positive semidefinite), keep their own ``A^*(X_a)`` and ``<C, X_a>`` (those of that earlier
+    iterate, not ``X2``'s).  The combination ``theta X2 + (1 - theta) X_a`` with the largest ``theta`` in 1/2,
+    1/4, ... whose smallest eigenvalues keep ``1e-3 (1 - theta)`` of ``X_a``'s is taken: its primal residual and
+    dual bound are the same combination of the two iterates' (exactly ``X2``'s only at ``theta = 1``, i.e. when
+    ``X2`` stays in the cone); the residual stays below the larger of the two.  Without such an iterate a block
+    that would lose definiteness keeps its multiplier (its residual changes).
 
     Parameters
     ----------
@@ -199,6 +202,16 @@ def _raise(X2, Xb, up, new, c2, above, n):
     bad[up] = _eigvalsh(X2[up])[:, 0] <= floor
     X2[bad] = Xb[bad]
     return X2
+
+
+def _prune_above(above: list, hi: float) -> list:
+    """The entries of ``above`` that :func:`_raise` can still use at a new rate ``<= hi``: those below ``hi`` and the
+    one with the smallest ``lambda_a >= hi`` (``hi``: the path's certified end, which only decreases)."""
+    over = [a for a in above if a[0] >= hi]
+    keep = [a for a in above if a[0] < hi]
+    if over:
+        keep.append(min(over, key=lambda a: a[0]))
+    return keep
 
 
 def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limit: float | None = None,
@@ -282,6 +295,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             X2 = _raise(X2, Xb, up, new, c2, st["above"], n)
         if rp < 1e-6:
             st["above"].append((lam, c, Xb.copy()))
+        st["above"] = _prune_above(st["above"], out.hi)
         st["lam"], st["prob"], st["c"] = float(new), prob2, c2
         out.retargets += 1
         st["moved"] = True

@@ -106,3 +106,96 @@ def test_an_upward_change_of_rate_keeps_the_primal_residual():
     rp_before, rp_after = path.rates[k - 1][4], path.rates[k][4]
     assert rp_before < 1e-8 and rp_after < 1e-8
     assert any(r[1] == 0.36 and r[2] > 0 for r in path.rates[k:])  # and the path goes on to certify 0.36
+
+
+def _certifies_rate(fam, n_drop, gains, X, rate):
+    """Independent float64 check of the decay claim (docs/design.md §3.1): ``X > 0`` and
+    ``A^T X A - rate^(2 eta) X < 0`` for every interval closed loop ``A_{l,eta}``, built by stepping."""
+    from .paper_data import interval_matrix_by_stepping
+
+    if np.linalg.eigvalsh(X)[0] <= 0:
+        return False
+    for F, G in zip(fam.F, fam.G):
+        for eta in range(1, n_drop + 1):
+            A = interval_matrix_by_stepping(F, G, gains, eta)
+            D = A.T @ X @ A - rate ** (2 * eta) * X
+            if np.linalg.eigvalsh(0.5 * (D + D.T))[-1] >= 0:
+                return False
+    return True
+
+
+_SHORT = [("paper", PlantFamily.paper_example(0.1), 3),
+          ("near0", random_family(3, 2, 1, seed=0, spread=0.05), 3),
+          ("near1", random_family(3, 2, 1, seed=1, spread=0.05), 3)]
+
+
+@pytest.mark.parametrize("name,fam,n_drop", _SHORT, ids=[f[0] for f in _SHORT])
+def test_a_path_stopped_early_hands_its_certified_rate_to_the_probes(monkeypatch, name, fam, n_drop):
+    # the path stops at its step cap before its bracket closes (status max_iterations, no refuted rate needed):
+    # its certified rate is re-checked and the probes start there (before: the path was discarded, the probes
+    # started again from lambda = 1); the end result is the bisection's rate to the tolerance
+    rate_search = sys.modules["solver.rate_search"]
+    tol = 1e-3
+    monkeypatch.setattr(rate_search, "PATH_MAX_ITER", 8)
+    modes = ModeSet.from_family(fam, n_drop)
+    res_p, br_p = _bracket(modes, "path", tol)
+    first = res_p.rate_search[0]
+    assert first.get("step") == "path" and first["outcome"] == "stabilized" and first["iterations"] <= 8
+    assert 1.0 not in [e["decay_rate"] for e in res_p.rate_search]  # no probe restarted from lambda = 1
+    assert res_p.outcome == "stabilized" and br_p["upper"] <= first["decay_rate"]
+    assert br_p["upper"] - br_p["lower"] <= tol * br_p["upper"] * (1 + 1e-9)
+    res_b, br_b = _bracket(modes, "bisection", tol)
+    if br_b["lower_proven"] and br_p["lower_proven"]:
+        assert abs(br_p["upper"] - br_b["upper"]) <= tol * max(br_p["upper"], br_b["upper"])
+    assert _certifies_rate(fam, n_drop, res_p.gains, res_p.certificate.X, br_p["upper"] * (1 + 1e-9))
+
+
+def test_a_path_stopped_early_keeps_its_gains_when_the_probes_run_out_of_time(monkeypatch):
+    # the time limit forced deterministically: every probe after the path reports "time limit reached" (as the
+    # runner does when its share runs out). Before: not_converged with no gains; now the path's certified gains
+    rate_search = sys.modules["solver.rate_search"]
+    monkeypatch.setattr(rate_search, "PATH_MAX_ITER", 8)
+    out_of_time = type("OutOfTime", (), {"run": staticmethod(
+        lambda modes, options: design_module._time_out(modes, "lmi", options, []))})
+    monkeypatch.setitem(design_module.METHODS, "lmi", out_of_time)
+    fam = PlantFamily.paper_example(0.1)
+    modes = ModeSet.from_family(fam, 3)
+    res = design_module._smallest_rate("lmi", modes, DesignOptions(time_limit=100.0), 1e-3, strategy="path")
+    assert res.outcome == "not_converged" and "time limit" in res.message
+    assert res.gains is not None and res.rate_search[0]["step"] == "path"
+    rate = res.rate_search[0]["decay_rate"]
+    assert res.decay_rate == rate < 1.0 and res.certificate.decay_rate == pytest.approx(rate)
+    assert res.rate_bracket["upper"] == rate and res.rate_bracket["lower"] < rate
+    assert _certifies_rate(fam, 3, res.gains, res.certificate.X, rate * (1 + 1e-9))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pruned_raise_cache_gives_the_same_multipliers(seed):
+    # _raise uses the earlier iterate with the smallest lambda_a >= new; every new rate is <= the certified end:
+    # the pruned cache gives the same multipliers as the full one, and holds one entry at or above the end
+    from solver.ipm.rate_path import _prune_above, _raise
+
+    rng = np.random.default_rng(seed)
+    n, S = 2, 3
+    eta = np.array([1.0, 2.0, 3.0])
+
+    def psd(scale=1.0):
+        A = rng.standard_normal((S, 2 * n, 2 * n))
+        return scale * (A @ np.swapaxes(A, 1, 2)) + 1e-2 * np.eye(2 * n)
+
+    lams = rng.uniform(0.3, 1.0, 12)
+    above = [(lam, lam ** -eta, psd()) for lam in lams]
+    hi = float(np.median(lams))
+    kept = _prune_above(above, hi)
+    assert sum(a[0] >= hi for a in kept) == 1 and len(kept) == sum(lams < hi) + 1
+    assert min(a[0] for a in above if a[0] >= hi) in [a[0] for a in kept]
+    for new in rng.uniform(0.2, hi, 6):
+        c2 = new ** -eta
+        Xb = psd()
+        X2 = Xb.copy()
+        X2[:, n:, :n] *= 3.0  # an upward move that leaves the cone
+        X2[:, :n, n:] *= 3.0
+        up = np.ones(S, dtype=bool)
+        full = _raise(X2.copy(), Xb, up, new, c2, above, n)
+        pruned = _raise(X2.copy(), Xb, up, new, c2, kept, n)
+        np.testing.assert_array_equal(full, pruned)

@@ -289,3 +289,24 @@ def test_close_high_ends_the_bracket():
     rate, how = next_rate(lo, hi, t_lo, 1e-4, None, done, lambda a, b: 0.5 * (a + b), from_above=False,
                           measure=measure, model_lo=(t_lo, q, eta))
     assert how == "close_high" and rate == h
+
+
+@pytest.mark.parametrize("settling", [False, True])
+def test_rate_measure_closed_forms_and_its_shift(settling):
+    # the tolerance's coordinate, once for the probes and the path: closed forms, the clamp at MIN_RATE and
+    # 1 - 1e-9 (settling), -inf at 0 (ln), and rate_shift its inverse
+    from solver.rate_search import MIN_RATE, rate_measure, rate_shift
+
+    for lam in (1e-6, 1e-3, 0.2, 0.9, 0.999):
+        ref = -np.log(-np.log(max(lam, MIN_RATE))) if settling else np.log(lam)
+        assert rate_measure(lam, settling) == pytest.approx(ref, rel=1e-14)
+        for du in (-0.3, 0.01, 0.2):
+            back = rate_shift(lam, du, settling)
+            if settling and not MIN_RATE <= back <= 1 - 1e-9:
+                continue  # clamped there
+            assert rate_measure(back, settling) == pytest.approx(
+                rate_measure(lam, settling) + du, rel=1e-12, abs=1e-12)
+    assert rate_measure(1.0, settling) == pytest.approx(-np.log(-np.log(1 - 1e-9)) if settling else 0.0)
+    low = rate_measure(0.0, settling)
+    assert low == (-np.log(-np.log(MIN_RATE)) if settling else -np.inf)
+    assert rate_shift(0.0, 0.1, settling) == (pytest.approx(rate_shift(MIN_RATE, 0.1, True)) if settling else 0.0)
