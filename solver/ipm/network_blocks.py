@@ -304,13 +304,13 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
     The block-sparse path (:mod:`solver.ipm.sparse_schur`): the Cholesky factor's ``q x q`` blocks (``q = D (D + 1)
     / 2``; one per state and per edge of the filled state graph, :func:`solver.ipm.sparse_schur.node_factor_blocks`)
     twice (a retried factorization rebuilds them before the old ones go), the largest panel update ``(f q)^2`` (f:
-    the largest elimination front), the assembly's pieces (7 ``D x D`` per block, one ``D^4`` product, four gathers
-    of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the heap's fragmentation;
+    the largest elimination front, :func:`solver.ipm.sparse_schur.node_front`), the assembly's pieces (7 ``D x D``
+    per block, one ``D^4`` product, four gathers of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the heap's fragmentation;
     the dense path: :func:`solver.compiled.ipm_memory`.  Measured at V = 64, D = 32: estimate 1.6 GiB, peak
     resident set 1.67 GB.
     """
     from ..compiled import ipm_memory
-    from .sparse_schur import minimum_degree
+    from .sparse_schur import node_factor_blocks, node_front
 
     V, D = len(succ), int(D)
     q = D * (D + 1) // 2
@@ -319,9 +319,8 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
     if schur == "dense" or (schur == "auto" and V < SPARSE_NODE_FROM):
         full = V * D * D + 1
         return ipm_memory(full, V * q, nb, D, full)
-    _, below = minimum_degree(V, [(v, w) for v in range(V) for w in succ[v]])
-    blocks = V + sum(len(b) for b in below)
-    front = max((len(b) for b in below), default=0)
+    pairs = [(v, w) for v in range(V) for w in succ[v]]
+    blocks, front = node_factor_blocks(V, pairs), node_front(V, pairs)
     return 10 * (2 * blocks * q * q + (front * q) ** 2 + 14 * nb * D * D + D**4 + 4 * q * q + 30 * nb * D * D)
 
 
