@@ -242,10 +242,12 @@ def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float =
 
 
 # ------------------------------------------------------------------------------------ fixed gains: node SDP
-#: States from which :func:`node_problem` takes the block-sparse Schur complement (measured faster than the dense
-#: one from V = 3: 0.019 s against 0.022 s at D = 6, 0.033 s against 0.083 s at V = 11, 0.21 s against 5.1 s at
-#: V = 64, D = 8, CPU).
-SPARSE_NODE_FROM = 2
+#: States from which :func:`node_problem` takes the block-sparse Schur complement.  CPU per solve, one thread, a
+#: ring / complete successor graph: at V = 2 and 3 the dense one is faster (D = 2: 1.3-1.4 ms against 2.0-2.4 ms;
+#: D = 6: 3.2-4.9 ms against 3.9-5.6 ms); at V = 4 they are even (D = 6: 7.7 / 29 ms dense against 8.5 / 26 ms);
+#: the sparse one is faster from V = 6 at D = 6 (22 / 32 ms against 26 / 39 ms), at V = 11 (30 ms against 76 ms)
+#: and at V = 64, D = 8 (0.21 s against 5.1 s).
+SPARSE_NODE_FROM = 4
 
 
 def node_problem(A_states, succ, rho: float = 1.0, schur: str = "auto") -> BlockLMI:
