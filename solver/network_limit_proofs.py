@@ -62,7 +62,8 @@ class NetworkLimitCertificate:
     ----------
     multipliers : NetworkLimitMultipliers
     verified : bool
-        ``bound > floor``: the proof excludes some solution size every solution would need.
+        ``bound > floor``: the excluded range ``floor <= ||Z||_F < bound`` is not empty (every solution has
+        ``||Z||_F >= floor``); with a finite bound, solutions with ``||Z||_F >= bound`` are not excluded.
     bound : float
         No solution has ``||Z||_F < bound`` (``inf``: no solution at all).
     floor : float
@@ -98,6 +99,7 @@ class NetworkLimitCertificate:
 
     def statement(self) -> str:
         size = "of any size" if np.isinf(self.bound) else f"with ||Z||_F < {self.bound:.3g}"
+        scope = "" if np.isinf(self.bound) else f" within ||Z||_F < {self.bound:.3g} (larger Z not excluded)"
         rate = "" if self.decay_rate is None else f" at decay rate {self.decay_rate:.6g}"
         as_solved = "" if not (self.strict or self.slack) else (
             f"; as the design states it: invariance blocks {1 + self.strict:.6g} times stricter, limits "
@@ -106,7 +108,7 @@ class NetworkLimitCertificate:
                 f"x' W_v^-1 x <= 1 invariant along every admissible run{rate} through a common slack Z, "
                 f"|u_i| <= u_max_i on them, x0's history in every one{as_solved}) has no solution {size} (every "
                 f"solution has ||Z||_F >= {self.floor:.3g}; Farkas certificate re-checked in float64); this excludes that "
-                "sufficient condition with these limits, not every gain")
+                f"sufficient condition with these limits{scope}, not every gain")
 
     def to_dict(self) -> dict:
         m = self.multipliers

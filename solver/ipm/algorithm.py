@@ -306,7 +306,8 @@ def _ipm_core(C, b, op, adj, schur, o: IPMOptions, t_start: float, feasible_star
     Newton step aiming at ``S + dS = C + A(y + dy)`` (``dS = A(dy) - E``), so a dual step of length alpha
     leaves ``(1 - alpha) E``.  ``E`` is dropped (``S = C + A(y)``, the feasible iteration from then on) at
     the first iterate where ``C + A(y)`` itself is positive definite; until then no iterate is a candidate
-    answer (the status then is ``"no_interior"`` when the iteration ends).
+    answer (the status then is ``"no_interior"`` when the iteration ends, at the latest after
+    :data:`ONE_PHASE_GIVE_UP` iterations).
     """
     with np.errstate(invalid="ignore"):  # a failed Cholesky factor is NaNs (checked), not a warning
         return _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset, phase1, y_start,
@@ -435,6 +436,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             status = "stalled"
             break
         if it == o.max_iter:
+            break
+        if E is not None and it >= ONE_PHASE_GIVE_UP:
+            # the dual residual not dropped yet: most likely no interior (docs/design.md §8.3.2); the two phases run
+            status = "max_iterations"
             break
         if o.time_limit is not None and perf() - t_start > o.time_limit:
             status = "time_limit"
@@ -761,6 +766,11 @@ INFEASIBLE_T = 1e-6
 #: multipliers 0.1-10 times the fit or 10-10^4 absolute gave no fewer iterations on both).
 SLACK_START = 10.0
 
+#: The one-phase solve gives up (status ``"no_interior"``, the two phases then run) when its dual residual ``E`` has
+#: not been dropped after this many iterations (docs/design.md §8.3.2: a problem without an interior otherwise runs
+#: the attempt to ``max_iter``; the slowest drop measured is 51 iterations, a hinf SDP that then falls back).
+ONE_PHASE_GIVE_UP = 40
+
 
 def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: float):
     """``min <c, V>`` from ``V = V0`` by the infeasible start (:func:`_ipm_core`'s ``slack_start``): the problem in the
@@ -783,7 +793,8 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     dual residual carried along and dropped at the first point where every block is positive definite).  When
     it ends at a strictly feasible point with status ``"optimal"``, ``"inaccurate"``, ``"stalled"`` or
     ``"time_limit"``, that is the answer (``t`` and ``t_upper`` ``nan``, ``phase1_iterations`` 0); otherwise
-    (no such point, or ``"max_iterations"`` / ``"numerical_error"``) the two phases below run.
+    (no such point, or ``"max_iterations"`` / ``"numerical_error"``) the two phases below run.  The attempt gives up
+    after :data:`ONE_PHASE_GIVE_UP` iterations without a strictly feasible point.
 
     Phase 1: ``max t`` s.t. every block ``- t I >= 0`` from ``problem`` (built without an objective),
     stopped at the first iterate with ``t > 0`` and ``t >= upper / 2`` (strictly feasible, away from the

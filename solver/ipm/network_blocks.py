@@ -242,10 +242,12 @@ def warm_start(previous: NetworkIPMSolution, shift: float = 1e-2, blend: float =
 
 
 # ------------------------------------------------------------------------------------ fixed gains: node SDP
-#: States from which :func:`node_problem` takes the block-sparse Schur complement (measured faster than the dense
-#: one from V = 3: 0.019 s against 0.022 s at D = 6, 0.033 s against 0.083 s at V = 11, 0.21 s against 5.1 s at
-#: V = 64, D = 8, CPU).
-SPARSE_NODE_FROM = 2
+#: States from which :func:`node_problem` takes the block-sparse Schur complement.  CPU per solve, one thread, a
+#: ring / complete successor graph: at V = 2 and 3 the dense one is faster (D = 2: 1.3-1.4 ms against 2.0-2.4 ms;
+#: D = 6: 3.2-4.9 ms against 3.9-5.6 ms); at V = 4 they are even (D = 6: 7.7 / 29 ms dense against 8.5 / 26 ms);
+#: the sparse one is faster from V = 6 at D = 6 (22 / 32 ms against 26 / 39 ms), at V = 11 (30 ms against 76 ms)
+#: and at V = 64, D = 8 (0.21 s against 5.1 s).
+SPARSE_NODE_FROM = 4
 
 
 def node_problem(A_states, succ, rho: float = 1.0, schur: str = "auto") -> BlockLMI:
@@ -304,13 +306,13 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
     The block-sparse path (:mod:`solver.ipm.sparse_schur`): the Cholesky factor's ``q x q`` blocks (``q = D (D + 1)
     / 2``; one per state and per edge of the filled state graph, :func:`solver.ipm.sparse_schur.node_factor_blocks`)
     twice (a retried factorization rebuilds them before the old ones go), the largest panel update ``(f q)^2`` (f:
-    the largest elimination front), the assembly's pieces (7 ``D x D`` per block, one ``D^4`` product, four gathers
-    of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the heap's fragmentation;
+    the largest elimination front, :func:`solver.ipm.sparse_schur.node_front`), the assembly's pieces (7 ``D x D``
+    per block, one ``D^4`` product, four gathers of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the heap's fragmentation;
     the dense path: :func:`solver.compiled.ipm_memory`.  Measured at V = 64, D = 32: estimate 1.6 GiB, peak
     resident set 1.67 GB.
     """
     from ..compiled import ipm_memory
-    from .sparse_schur import minimum_degree
+    from .sparse_schur import node_factor_blocks, node_front
 
     V, D = len(succ), int(D)
     q = D * (D + 1) // 2
@@ -319,9 +321,8 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
     if schur == "dense" or (schur == "auto" and V < SPARSE_NODE_FROM):
         full = V * D * D + 1
         return ipm_memory(full, V * q, nb, D, full)
-    _, below = minimum_degree(V, [(v, w) for v in range(V) for w in succ[v]])
-    blocks = V + sum(len(b) for b in below)
-    front = max((len(b) for b in below), default=0)
+    pairs = [(v, w) for v in range(V) for w in succ[v]]
+    blocks, front = node_factor_blocks(V, pairs), node_front(V, pairs)
     return 10 * (2 * blocks * q * q + (front * q) ** 2 + 14 * nb * D * D + D**4 + 4 * q * q + 30 * nb * D * D)
 
 

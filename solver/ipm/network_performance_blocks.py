@@ -278,7 +278,8 @@ class NetworkPerformanceSolution:
 
 def solve_network_performance(problem: NetworkPerformanceProblem,
                               options: IPMOptions | None = None) -> NetworkPerformanceSolution:
-    """Phase 1, then ``min g`` (:func:`solve_grouped`), mapped back to ``(W, Y, Z)``."""
+    """``min g`` by :func:`solve_grouped` (one phase from the infeasible start, the two phases as its fallback,
+    docs/design.md §8.3.2), mapped back to ``(W, Y, Z)``."""
     sol = solve_grouped(problem.lmi, {"g": 1.0}, options)
     sh = problem.shape
     n, m, N, k, zb, V = sh["n"], sh["m"], sh["N"], sh["k"], sh["zb"], sh["V"]

@@ -6,8 +6,8 @@ V symmetric node matrices ``P_v`` (D x D), and blocks that each read one or two 
 coordinates: the ``q x q`` block of nodes ``(u, v)`` (``q = D (D + 1) / 2``) is nonzero only when some block reads
 both, so the dense ``(V q)^2`` matrix of :func:`solver.ipm.schur.assemble` is replaced by
 
-* the nonzero node blocks, assembled per block-touched node pair from the Kronecker pieces of
-  :func:`solver.ipm.schur.pair_groups` and projected onto the symmetric coordinates;
+* the nonzero node blocks, assembled per block-touched node pair from the products of
+  :func:`solver.ipm.schur._products` (bucketed once, :meth:`NodeStructure._entries`) in the symmetric coordinates;
 * a dense border: the ``t`` coordinate (its row is an adjoint, as in the dense assembly);
 * the equality ``<a, vec V> = beta``, kept as a constraint (a Lagrange multiplier) instead of eliminated: the
   algorithm's reduced coordinates drop its pivot ``x_piv = w^T y``, which couples every node's trace coordinates,
@@ -31,11 +31,9 @@ from scipy.linalg.blas import dtrsm as _trsm
 
 from .schur import _plan, _products
 
-__all__ = ["NodeStructure", "SparseSchur", "minimum_degree", "node_factor_blocks"]
+__all__ = ["NodeStructure", "SparseSchur", "minimum_degree", "node_factor_blocks", "node_front"]
 
 _potrf = scipy.linalg.lapack.dpotrf
-#: Bytes of the Kronecker pieces held at once by the assembly (blocks are processed in chunks below this).
-CHUNK_BYTES = 64 * 2**20
 
 
 def minimum_degree(V: int, pairs) -> tuple[np.ndarray, list]:
@@ -84,6 +82,12 @@ def node_factor_blocks(V: int, pairs) -> int:
     return V + sum(len(b) for b in below)
 
 
+def node_front(V: int, pairs) -> int:
+    """The largest elimination front of the node graph: the most off-diagonal blocks in one factor column."""
+    _, below = minimum_degree(V, pairs)
+    return max((len(b) for b in below), default=0)
+
+
 class NodeStructure:
     """What the block-sparse Schur complement needs of a problem, built once (shapes and selections only).
 
@@ -117,10 +121,6 @@ class NodeStructure:
         i1, j1 = np.triu_indices(D)
         self.i1, self.j1 = i1, j1
         self.diag = np.flatnonzero(i1 == j1)
-
-    @property
-    def factor_blocks(self) -> int:
-        return self.V + sum(len(b) for b in self.below)
 
     def _entries(self, problem):
         """The static bucketing of every (block, product pair) into the stored node block it adds to (built once).

@@ -687,9 +687,11 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
             return res
         if plain.outcome == "not_certified":
             if plain.certificate.kind == "farkas_network_limits":
+                bound = plain.certificate.bound
+                scope = "" if np.isinf(bound) else f" within ||Z||_F < {bound:.3g}"
                 what = (f"with these limits solves that SDP (its blocks' leading 2k x 2k parts are the invariance "
-                        f"blocks; the same input and x0 blocks), so no {objective} bound of this form exists on "
-                        f"{where}")
+                        f"blocks; the same input and x0 blocks), so no {objective} bound of this form exists"
+                        f"{scope} on {where}")
             else:
                 what = (f"solves that LMI (its blocks' leading 2k x 2k parts), so no {objective} bound of this form "
                         f"exists on {where}, and cone complementarity on the exact node conditions found no gains")

@@ -83,6 +83,24 @@ def test_unstable_plant_on_delays_gets_the_stability_designs_gains_with_a_certif
     assert 0 < worst <= perf.upper
 
 
+@pytest.mark.parametrize("rho,seed", [(1.1, 1), (4.0, 0)])
+def test_one_phase_attempt_without_an_interior_gives_up_early(rho, seed):
+    """The cost SDP on delays(1, 3) with an unstable plant has no interior (docs/design.md §8.3.2, §11.3): the
+    one-phase attempt never becomes strictly feasible and hands over to the two phases after
+    ``ONE_PHASE_GIVE_UP`` iterations, not after ``max_iter`` (iteration counts against the two phases alone)."""
+    from solver.ipm.algorithm import solve_grouped
+
+    rng = np.random.default_rng(seed)
+    F = rng.standard_normal((2, 2))
+    F *= rho / np.max(np.abs(np.linalg.eigvals(F)))
+    fam = PlantFamily([F], [rng.standard_normal((2, 1))], sampling_period=0.1)
+    lmi = network_performance_problem(npf.channels(fam, Network.delays(1, 3), "cost"), "cost", None, None).lmi
+    one = solve_grouped(lmi, {"g": 1.0})
+    two = solve_grouped(lmi, {"g": 1.0}, one_phase=False)
+    assert one.status == two.status == "no_interior" and one.phase1_iterations == two.phase1_iterations
+    assert one.iterations <= two.iterations + 45  # max_iter (100) more before the give-up
+
+
 def test_refuted_network_lmi_gives_not_certified_with_a_proof_that_re_checks():
     """Spectral radius 4 on delays(1, 3): the network LMI is refuted and cone complementarity finds nothing, so the
     cost design says "not_certified" with the Farkas multipliers, which re-check (float64, solver-independent) on

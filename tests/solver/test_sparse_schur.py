@@ -100,6 +100,7 @@ def test_analysis_verdict_and_rate_on_the_sparse_ipm_dense_ipm_and_clarabel(monk
 
     fam = PlantFamily(**DELAY_FAMILY)
     for net in (Network.weakly_hard(1, 3, 2), Network.delays(1, 2)):
+        monkeypatch.setattr(blocks, "SPARSE_NODE_FROM", 1)  # the block-sparse path, whatever the state count
         ipm = analyze(fam, DELAY_GAINS, network=net, solver="IPM")
         monkeypatch.setattr(blocks, "SPARSE_NODE_FROM", 10**9)
         dense = analyze(fam, DELAY_GAINS, network=net, solver="IPM")
