@@ -137,18 +137,19 @@ MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 #: ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64 re-checks) and
 #: ``ESTIMATE_SECONDS_FIXED``, and weighs the solves of each path (:data:`ESTIMATE_SOLVE_WEIGHT`).
 #: Fitted by least squares on log CPU time to 28 designs by ``python -m bench size`` (its table is in
-#: docs/design.md §3.6; worst factor 3.3) on the 2-core development machine, loaded by other jobs.
+#: docs/design.md §3.6; 0.30 .. 2.86, worst factor 3.3, 2026-11-27) on the 2-core development machine, loaded by
+#: other jobs.
 ESTIMATE_ITERATIONS = 25
-ESTIMATE_FLOPS_PER_SECOND = 3.9e10
-ESTIMATE_FLOPS_PER_SIDE = 3.2e8
-ESTIMATE_SECONDS_PER_BLOCK = 2.2e-5
-ESTIMATE_SECONDS_PER_MODE = 7e-6
-ESTIMATE_SECONDS_FIXED = 4e-5
+ESTIMATE_FLOPS_PER_SECOND = 3.48e10
+ESTIMATE_FLOPS_PER_SIDE = 2.86e8
+ESTIMATE_SECONDS_PER_BLOCK = 2.21e-5
+ESTIMATE_SECONDS_PER_MODE = 2.49e-6
+ESTIMATE_SECONDS_FIXED = 1.35e-5
 #: Effective cold solves per structural solve of each path (:func:`design_path`): a warm-started bisection step
 #: costs less than a cold solve; a performance design runs a phase 1, a phase 2 and (cost with x0) a tie-break
 #: stage, and may add Clarabel's proposal.  Calibrated with the constants above.
-ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 0.5, "max": 0.48, "cost": 18.0, "hinf": 40.0,
-                         "u_max": 4.2, "switched": 1.5, "ccl": 10.6, "network": 62.0}
+ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 0.39, "max": 0.34, "cost": 12.5, "hinf": 30.8,
+                         "u_max": 4.7, "switched": 1.47, "ccl": 11.8, "network": 15.1}
 #: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_SOLVE_WEIGHT`).
 DESIGN_PATHS = tuple(ESTIMATE_SOLVE_WEIGHT)
 
