@@ -585,7 +585,6 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         while max_length < MAX_PATTERN_LENGTH and total + len(data) ** (max_length + 1) <= max_count:
             max_length += 1
             total += len(data) ** max_length
-    clock = time.process_time()
     pats = patterns(len(data), max_length, max_count, rotations=kind == "cost")
     arrays = periodic.mode_arrays(data)
     approx = np.full(len(pats), np.nan)  # nan: skipped (unstable hinf, unstable cost-free, or pruned)
@@ -647,8 +646,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         # grow only where the exhaustive search leaves a gap worth closing: its coarse sweep values are lower bounds
         if deep and cands and len(data) > 1 and not cands[0][0] >= stop * (1 - GROW_ABOVE_GAP):
             grown, count = grow_patterns(data, [(float(approx[i]), pats[i]) for i in _top(approx, GROW_BEAM)],
-                                         max(len(p) for p in pats), stop=stop,
-                                         seconds=max(GROW_TIME * (time.process_time() - clock), 0.05))
+                                         max(len(p) for p in pats), stop=stop)
             grown_count = count
             if grown:
                 cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
@@ -942,19 +940,18 @@ def _top(values: np.ndarray, count: int) -> list[int]:
 GROW_BEAM = 12
 #: ... the longest period grown ...
 GROW_LENGTH = 32
-#: ... and the pattern intervals valued in all (a pattern of k intervals costs a sweep of a k-interval lifted system).
+#: ... and the pattern intervals valued in all (a pattern of k intervals costs a sweep of a k-interval lifted system),
+#: times ``min(1, (4 / n)^3)`` for n states (a sweep's cost grows like n^3); a count, not a time, so that the witness
+#: does not depend on the machine ...
 GROW_BUDGET = 1500
-#: ... or this many times the CPU time of the exhaustive search (at least 0.05 s) ...
-GROW_TIME = 1.0
 #: ... and only when the exhaustive search's best coarse value is more than this far below the upper end (relative):
-#: n = 8 random family of ``bench speed``: the growth took 0.4 s (and up to 4x its budget before the sweeps
-#: stopped at the deadline) without moving the 6.4e-4 gap, which the certified upper end sets.
+#: n = 8 random family of ``bench speed``: the growth took 5 s without moving the 6.4e-4 gap (by 1e-5 of it), which the
+#: certified upper end sets.
 GROW_ABOVE_GAP = 1e-3
 
 
 def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.inf, beam: int = GROW_BEAM,
-                  max_length: int = GROW_LENGTH, budget: int = GROW_BUDGET,
-                  seconds: float = np.inf) -> tuple[list, int]:
+                  max_length: int = GROW_LENGTH, budget: int | None = None) -> tuple[list, int]:
     """Longer periodic patterns for the H-infinity lower bound, grown from the best ones: ``(value, pattern)``
     pairs (coarse sweep values) and the number of patterns valued.
 
@@ -962,17 +959,19 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
     (one per rotation class, repetitions of shorter patterns skipped); the extensions are valued by the stacked
     coarse sweep, skipping those whose cheap upper bound cannot beat the best sweep (:func:`_sweep_pruned`), and
     the ``beam`` best become the next beam, until the period reaches ``max_length``, a value reaches ``stop``,
-    ``budget`` pattern intervals have been valued or ``seconds`` of CPU time are spent (the caller gives the
-    time of the exhaustive search: the budget scales with the problem's lifted sizes).
+    ``budget`` pattern intervals have been valued (default :data:`GROW_BUDGET` scaled by the state dimension; a
+    level's extensions are cut where they would pass it, in the beam's order).
     """
-    clock = time.process_time()
     from . import periodic
+
+    if budget is None:
+        budget = max(int(GROW_BUDGET * min(1.0, (4.0 / data[0]["A"].shape[0]) ** 3)), 1)
 
     arrays = periodic.mode_arrays(data)
     beam_pats = [p for _, p in seeds]
     found, seen, count, work = [], set(beam_pats), 0, 0
     best = max((v for v, _ in seeds), default=-np.inf)
-    while beam_pats and work < budget and time.process_time() - clock < seconds:
+    while beam_pats and work < budget:
         new = []
         for p in beam_pats:
             if len(p) >= max_length:
@@ -985,6 +984,8 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
                     continue
                 seen.add(q)
                 new.append(q)
+        keep = np.cumsum([len(q) for q in new]) <= budget - work
+        new = [q for q, k in zip(new, keep) if k]
         if not new:
             break
         values = np.full(len(new), np.nan)
@@ -993,7 +994,7 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
             sys = periodic.period_stack(arrays, idx, "hinf")
             good = periodic.spectral_radius(sys["Phi"]) < 1
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-        _sweep_pruned(systems, values, deadline=clock + seconds)
+        _sweep_pruned(systems, values)
         count += len(new)
         work += sum(len(q) for q in new)
         top = _top(values, beam)
@@ -1006,12 +1007,11 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
     return found, count
 
 
-def _sweep_pruned(systems: list, coarse: np.ndarray, deadline: float = np.inf) -> None:
+def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     """Coarse sweeps (``SWEEP`` points on [0, pi]) into ``coarse``, skipping patterns that cannot win.
 
     A pattern whose upper bound (:func:`solver.periodic.gain_upper_bounds`) is below the best sweep value
-    already found cannot reach it after refinement either; its entry stays NaN.  After ``deadline`` (process
-    time) no further batch starts: the entries left are NaN too (a search that stops early is still a lower bound).
+    already found cannot reach it after refinement either; its entry stays NaN.
     """
     from . import periodic
 
@@ -1020,7 +1020,7 @@ def _sweep_pruned(systems: list, coarse: np.ndarray, deadline: float = np.inf) -
     entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
                      key=lambda e: -e[0])
     best, start = -np.inf, 0
-    while start < len(entries) and entries[start][0] > best and time.process_time() < deadline:
+    while start < len(entries) and entries[start][0] > best:
         batch = []
         while start < len(entries) and len(batch) < 64 and entries[start][0] > best:
             batch.append(entries[start])

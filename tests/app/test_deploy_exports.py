@@ -107,7 +107,12 @@ def test_problem_sdpa_resolves_to_minus_the_objective(client, method, options):
     resp = client.get(f"/v1/designs/{job['id']}/problem.dat-s")
     assert resp.status_code == 200 and resp.headers["content-type"].startswith("text/plain")
     t_star = job["result"]["history"][-1]["objective"]
-    assert resolve(resp.text) == pytest.approx(-t_star, rel=1e-5, abs=1e-6)
+    if options.get("decay_rate") == "max":
+        # the rate path's last point (docs/design.md §3.2.2) is a certified, not an optimal, margin at that rate: the
+        # exported SDP's optimum is at least it, and near 0 (the best rate is where the margin vanishes)
+        assert -resolve(resp.text) >= t_star * (1 - 1e-5) - 1e-7 and -resolve(resp.text) < 1e-4
+    else:
+        assert resolve(resp.text) == pytest.approx(-t_star, rel=1e-5, abs=1e-6)
 
 
 def test_problem_sdpa_refuses_ccl(client):
