@@ -17,7 +17,8 @@ from .ipm import blas_threads
 from .lyapunov import recheck_common, recheck_lifted, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
-from .rate_search import MIN_RATE, margin_model, model_root, network_margin_model, next_rate, rate_measure
+from .rate_search import (MIN_RATE, margin_model, model_root, network_margin_model, next_rate, rate_done,
+                          rate_measure, rate_midpoint)
 from .result import DesignResult, certified_settling, metric_condition
 from .brackets import bracket_back
 from .scaling import Scaling, balance, performance_balance
@@ -546,15 +547,10 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     settling = decay_rate == "auto"
 
     def done(lo, hi):
-        if not settling:
-            return hi - lo <= tol * hi
-        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+        return rate_done(lo, hi, tol, settling)
 
     def midpoint(lo, hi):
-        if settling:
-            s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            return float(np.exp(-np.sqrt(s_hi * s_lo)))
-        return 0.5 * (lo + hi)
+        return rate_midpoint(lo, hi, settling)
 
     solves = best.timings.get("solves", 0)
     lo, hi, tries = 0.0, 1.0, [{"decay_rate": 1.0, "outcome": "stabilized"}]
@@ -1132,17 +1128,10 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         return res
 
     def done(lo, hi):
-        if not settling:
-            return hi - lo <= tol * hi
-        # settling times -1/ln(lambda) of the two ends within 1 + tol (ends clamped as in the midpoint, so a
-        # bracket pinned at hi = 1 ends too, once lo is within 1e-9 of 1: no certified rate below 1)
-        return -np.log(max(lo, MIN_RATE)) <= (1 + tol) * -np.log(min(hi, 1 - 1e-9))
+        return rate_done(lo, hi, tol, settling)
 
     def midpoint(lo, hi):
-        if settling:  # geometric mean of -ln(lambda) between the ends (hi = 1 and lo = 0 replaced)
-            s_hi, s_lo = -np.log(min(hi, 1 - 1e-9)), -np.log(max(lo, MIN_RATE))
-            return float(np.exp(-np.sqrt(s_hi * s_lo)))
-        return 0.5 * (lo + hi)
+        return rate_midpoint(lo, hi, settling)
 
     def measure(lam):  # the coordinate the tolerance is on: settling times' logarithm, or ln lambda
         return rate_measure(lam, settling)

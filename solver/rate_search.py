@@ -61,6 +61,24 @@ def rate_shift(lam: float, du: float, settling: bool) -> float:
     return math.exp(-math.exp(-u)) if settling else math.exp(u)
 
 
+def rate_done(lo: float, hi: float, tol: float, settling: bool) -> bool:
+    """Whether the bracket ``[lo, hi]`` meets the tolerance: ``hi - lo <= tol hi``, or (``settling``) the settling
+    times ``-1/ln lambda`` of its ends within ``1 + tol`` (ends clamped as in :func:`rate_midpoint`, so a bracket
+    pinned at ``hi = 1`` ends too once ``lo`` is within 1e-9 of 1: no certified rate below 1)."""
+    if not settling:
+        return hi - lo <= tol * hi
+    return -math.log(max(lo, MIN_RATE)) <= (1 + tol) * -math.log(min(hi, 1 - 1e-9))
+
+
+def rate_midpoint(lo: float, hi: float, settling: bool) -> float:
+    """The bisection's next rate: the middle, or (``settling``) the geometric mean of ``-ln lambda`` between the
+    ends (``hi = 1`` and ``lo = 0`` replaced by ``1 - 1e-9`` and ``MIN_RATE``)."""
+    if settling:
+        s_hi, s_lo = -math.log(min(hi, 1 - 1e-9)), -math.log(max(lo, MIN_RATE))
+        return math.exp(-math.sqrt(s_hi * s_lo))
+    return 0.5 * (lo + hi)
+
+
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end
 #: or above it by at most this fraction of ``end - lo``.
 CLOSE_HIGH_SLACK = 0.25
