@@ -711,6 +711,9 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
                 plain.performance = bracket_back(scaled, scale, lifted, plain.gains, x0)
         except SolverFailed:
             return res
+        if not plain.performance.verified:  # "stabilized" only with the bracket the objective asked for
+            res.message += f"; the plain design's gains have no certified {objective} bound either"
+            return res
         plain.objective = objective
         plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
                          f"{plain.performance.message}")

@@ -676,8 +676,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         if plain.outcome == "stabilized":
             perf = bracket(ch_user, plain.gains, objective, x0=x0, time_limit=_left(time_limit, start))
             base.update(method=plain.method, solver=plain.solver)
-            res = DesignResult(outcome="stabilized", gains=plain.gains, certificate=plain.certificate,
-                               history=history, timings=timings, solver_status=plain.solver_status,
+            outcome = "stabilized" if perf.verified else "not_converged"  # not without the bracket asked for
+            res = DesignResult(outcome=outcome, gains=plain.gains, certificate=plain.certificate, history=history,
+                               timings=timings, solver_status=plain.solver_status,
                                objective=objective, performance=perf, spectral_radii=plain.spectral_radii, **base,
                                message=f"the network {objective} SDP certified nothing ({why}); the "
                                        f"{'input-limited ' if kothare else ''}stability design's gains instead, "
@@ -716,6 +717,11 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                             timings=timings, solver_status=best["status"], objective=objective, performance=perf,
                             **base, message=f"stabilizing gains found on {where} but the input limits are not "
                                             f"proven: {best['inv_reason']}; {perf.message}{via}")
+    if not perf.verified:  # "stabilized" only with the bracket the objective asked for
+        return DesignResult(outcome="not_converged", gains=gains, certificate=cert, history=history,
+                            timings=timings, solver_status=best["status"], objective=objective, performance=perf,
+                            **base, message=f"stabilizing gains found on {where} (node certificate re-checked) but "
+                                            f"no certified {objective} bound: {perf.message}{via}")
     limits = ("; inputs within u_max from every state of the node ellipsoids (invariant along every admissible "
               "run; re-checked)") if kothare else ""
     res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history, timings=timings,

@@ -640,6 +640,9 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
             return _no_design(lifted, options, clock, objective, f"stabilizing gains found but the input limits "
                               f"are not proven: {inv_reason}", info, x0, u_max)
         outcome, message = "not_converged", f"stabilizing gains found but the input limits are not proven: {inv_reason}"
+    elif performance is not None and not performance.verified:  # "stabilized" only with the bracket asked for
+        outcome, message = "not_converged", (f"stabilizing gains ({cert.kind} certificate re-checked{rate_txt}) but "
+                                             f"no certified {objective} bound")
     else:
         outcome = "stabilized"
         message = f"stabilized; {cert.kind} certificate re-checked (relative margin {cert.margin:.3g}){rate_txt}"

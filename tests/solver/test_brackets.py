@@ -458,3 +458,26 @@ def test_random_families_cost_certificates_hold_by_independent_stepping(seed, sw
         A, S = interval_maps_by_stepping(fam, res.gains, seq)
         assert np.linalg.eigvalsh(A.T @ P @ A - P + S)[-1] <= 1e-12 * np.linalg.norm(P, 2)
     assert np.trace(P) == pytest.approx(perf.upper, rel=1e-12)
+
+
+def test_no_certified_bracket_is_not_stabilized(monkeypatch):
+    """A design whose gains re-check but whose bound does not certify answers "not_converged" with the gains and
+    the reason: "stabilized" comes only with the bracket the objective asked for (single and network designs)."""
+    import dataclasses
+
+    from solver import Network
+    from solver.methods import network_performance, performance as perf_mod
+
+    def unverified(wrapped):
+        def run(*args, **kwargs):
+            out = wrapped(*args, **kwargs)
+            return dataclasses.replace(out, verified=False, upper=float("inf"), certificate=None)
+        return run
+
+    fam = PlantFamily.paper_example(0.1)
+    monkeypatch.setattr(perf_mod, "bracket", unverified(perf_mod.bracket))
+    res = design(fam, 3, objective="cost")
+    assert res.outcome == "not_converged" and res.gains is not None and "no certified cost bound" in res.message
+    monkeypatch.setattr(network_performance, "bracket", unverified(network_performance.bracket))
+    res = design(fam, network=Network.weakly_hard(1, 3, 3), objective="cost")
+    assert res.outcome == "not_converged" and res.gains is not None and "no certified cost bound" in res.message
