@@ -41,6 +41,16 @@ def walk_samples(walk):
     return out
 
 
+def switching_runs(net, lifted: bool, T: int = 7):
+    """Every admissible age sequence of ``T`` samples (starting fresh on the lifted form) with the plant switching
+    once, at sample 3: ``(ages, plant per sample)``."""
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if (lifted and ages[0] != 0) or not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
+            yield ages, [plants[0]] * 3 + [plants[1]] * (T - 3)
+
+
 # ------------------------------------------------------------------------------------------- the paper's network
 @pytest.mark.parametrize("objective", ["cost", "hinf"])
 def test_bounded_drops_reproduces_todays_bracket(objective):
@@ -193,13 +203,9 @@ def test_input_limits_hold_on_every_admissible_run_from_the_boundary(net):
     x0 = np.array([1.0, -1.0])
     assert max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X) <= 1.0
     x0 = x0 / np.sqrt(max(float((S @ x0) @ Xv @ (S @ x0)) for Xv in X))  # on the boundary
-    peak, T = 0.0, 7
-    for ages in itertools.product(range(net.n_drop), repeat=T):
-        if (lifted and ages[0] != 0) or not net.admissible(ages):
-            continue
-        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
-            seq = [plants[0]] * 3 + [plants[1]] * (T - 3)
-            peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
+    peak = 0.0
+    for ages, seq in switching_runs(net, lifted):
+        peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
     assert peak <= u_max[0] * (1 + 1e-9)
     assert peak > 0.05 * u_max[0]  # the runs do use the inputs
 
@@ -226,17 +232,12 @@ def test_cost_with_input_limits_bounds_every_admissible_run_and_meets_the_limits
     assert perf.verified and perf.lower <= perf.upper
     lifted = perf.form == "lifted"
     Q, R = np.eye(2), np.eye(1)
-    peak, peak_free, worst, count, T = 0.0, 0.0, 0.0, 0, 7
-    for ages in itertools.product(range(net.n_drop), repeat=T):
-        if (lifted and ages[0] != 0) or not net.admissible(ages):
-            continue
-        for plants in itertools.product(range(MOTOR.n_modes), repeat=2):
-            seq = [plants[0]] * 3 + [plants[1]] * (T - 3)
-            peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
-            peak_free = max(peak_free, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, free.gains, x0, ages,
-                                                                       seq)))))
-            worst = max(worst, run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, seq, ages[0]))
-            count += 1
+    peak, peak_free, worst, count = 0.0, 0.0, 0.0, 0
+    for ages, seq in switching_runs(net, lifted):
+        peak = max(peak, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, res.gains, x0, ages, seq)))))
+        peak_free = max(peak_free, float(np.max(np.abs(run_inputs(MOTOR.F, MOTOR.G, free.gains, x0, ages, seq)))))
+        worst = max(worst, run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, seq, ages[0]))
+        count += 1
     assert count > 20
     assert peak_free > u_max[0]  # the limit is active: the unconstrained gains exceed it
     assert peak <= u_max[0] * (1 + 1e-9)
