@@ -304,15 +304,16 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
     """Bytes the structured IPM needs at its peak for :func:`node_problem` (docs/design.md §11.4).
 
     The block-sparse path (:mod:`solver.ipm.sparse_schur`): the Cholesky factor's ``q x q`` blocks (``q = D (D + 1)
-    / 2``; one per state and per edge of the filled state graph, :func:`solver.ipm.sparse_schur.node_factor_blocks`)
-    twice (a retried factorization rebuilds them before the old ones go), the largest panel update ``(f q)^2`` (f:
-    the largest elimination front, :func:`solver.ipm.sparse_schur.node_front`), the assembly's pieces (7 ``D x D``
-    per block, one ``D^4`` product, four gathers of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the heap's fragmentation;
+    / 2``; one per state and per edge of the filled state graph) twice (a retried factorization rebuilds them before
+    the old ones go), the largest panel update ``(f q)^2`` (f: the largest elimination front; both from
+    :func:`solver.ipm.sparse_schur.node_factor_size`), the assembly's pieces (7 ``D x D`` per block, one ``D^4``
+    product, four gathers of ``q^2`` positions) and about 30 block-diagonal iterates, with a quarter more for the
+    heap's fragmentation;
     the dense path: :func:`solver.compiled.ipm_memory`.  Measured at V = 64, D = 32: estimate 1.6 GiB, peak
     resident set 1.67 GB.
     """
     from ..compiled import ipm_memory
-    from .sparse_schur import node_factor_blocks, node_front
+    from .sparse_schur import node_factor_size
 
     V, D = len(succ), int(D)
     q = D * (D + 1) // 2
@@ -322,7 +323,7 @@ def node_memory(succ, D: int, schur: str = "auto") -> int:
         full = V * D * D + 1
         return ipm_memory(full, V * q, nb, D, full)
     pairs = [(v, w) for v in range(V) for w in succ[v]]
-    blocks, front = node_factor_blocks(V, pairs), node_front(V, pairs)
+    blocks, front = node_factor_size(V, pairs)
     return 10 * (2 * blocks * q * q + (front * q) ** 2 + 14 * nb * D * D + D**4 + 4 * q * q + 30 * nb * D * D)
 
 

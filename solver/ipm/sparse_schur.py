@@ -31,7 +31,7 @@ from scipy.linalg.blas import dtrsm as _trsm
 
 from .schur import _plan, _products
 
-__all__ = ["NodeStructure", "SparseSchur", "minimum_degree", "node_factor_blocks", "node_front"]
+__all__ = ["NodeStructure", "SparseSchur", "minimum_degree", "node_factor_size"]
 
 _potrf = scipy.linalg.lapack.dpotrf
 
@@ -76,16 +76,11 @@ def minimum_degree(V: int, pairs) -> tuple[np.ndarray, list]:
     return np.array(order, dtype=int), below
 
 
-def node_factor_blocks(V: int, pairs) -> int:
-    """Number of ``q x q`` blocks of the node graph's Cholesky factor (diagonal and fill included)."""
+def node_factor_size(V: int, pairs) -> tuple[int, int]:
+    """The node graph's Cholesky factor in minimum-degree order: its number of ``q x q`` blocks (diagonal and fill
+    included) and its largest elimination front (the most off-diagonal blocks in one factor column)."""
     _, below = minimum_degree(V, pairs)
-    return V + sum(len(b) for b in below)
-
-
-def node_front(V: int, pairs) -> int:
-    """The largest elimination front of the node graph: the most off-diagonal blocks in one factor column."""
-    _, below = minimum_degree(V, pairs)
-    return max((len(b) for b in below), default=0)
+    return V + sum(len(b) for b in below), max((len(b) for b in below), default=0)
 
 
 class NodeStructure:
