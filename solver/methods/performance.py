@@ -62,6 +62,12 @@ MAX_RADIUS = 1e3
 RECENTRE_GAP = 1e-1
 RECENTRE_FEAS = 1e-6
 RECENTRE_BACK = 0.9
+#: Cost and hinf SDPs switch to the state coordinates of their iterate's W at this relative gap and primal residual
+#: (docs/design.md §8.3.2): by then W has its answer's shape (n = 12: the switch at 1e-1, 1e-2 or 1e-3 gives the
+#: same answer in 11, 7 and 7 more iterations), and in the original coordinates the multipliers' size (~P^2,
+#: 1e5) let the rounding of the Newton step's ``X dS S^-1`` floor the primal residual at 1e-6..1e-5.
+SWITCH_GAP = 1e-2
+SWITCH_FEAS = 1e-6
 
 
 def _blkdiag(*blocks):
@@ -197,8 +203,9 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
         if radius is not None:
             sol = _solve_recentred(prob, lifted, x0, u_max, c, radius, time_limit, start)
         else:
-            sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL,
-                                                             time_limit=time_limit))
+            sol = _solve_in_answer_coordinates(prob, lifted, objective, x0, u_max, time_limit, start,
+                                               cap=None if tie_weight is not None else cap, tie_weight=tie_weight,
+                                               trace_weight=trace_weight)
         status = _ipm_status(sol.status)
         # the constants' size without the radius cap (radius^2 ~ 1e7 would hide t* = -0.9 of the paper motor)
         scale = max([1.0] + [float(np.abs(C).max()) for g, C in zip(prob.lmi.groups_spec, prob.lmi.C)
@@ -251,6 +258,46 @@ def similar(lifted: Lifted, T: np.ndarray) -> Lifted:
                       state=AffineRows(Ti @ lm.state.free @ T, np.einsum("ik,qkm->qim", Ti, lm.state.coef)),
                       cost=None, output=None, B=None, D=None) for lm in lifted.lifted]
     return Lifted(modes=lifted.modes, lifted=out)
+
+
+def _solve_in_answer_coordinates(prob, lifted: Lifted, objective: str, x0, u_max, time_limit, start, **build):
+    """A cost or hinf SDP on the IPM, its last iterations in the state coordinates of its answer (docs/design.md
+    §8.3.2): solved as built until the relative gap is below :data:`SWITCH_GAP` (primal residual
+    :data:`SWITCH_FEAS`); then, with ``W_1 = T T'`` (``T = W_1^{1/2}``) that iterate's W, the same SDP in the
+    coordinates ``x = T z`` (:func:`solver.ipm.performance_problem`'s ``coordinates``, where ``W_1`` is ``I``) from
+    the same iterate carried over exactly (:func:`solver.ipm.performance_blocks.recentre`: variables and multipliers
+    by congruence), to :data:`IPM_TOL`.  The answer is mapped back (``W = T W' T'``, ``Y = Y' T'``) and kept when
+    it is finite; otherwise the first stage's."""
+    from .. import ipm
+    from ..ipm.performance_blocks import recentre
+
+    def left():
+        return None if time_limit is None else time_limit - (time.perf_counter() - start)
+
+    sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=SWITCH_GAP, feas_tol=SWITCH_FEAS, time_limit=left()))
+    if sol.status != "optimal" or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
+        return sol  # converged already, or stopped short of SWITCH_GAP (its iterate, if any, is the proposal)
+    sol.status = "inaccurate"  # the first stage's answer, should the second give none
+    lam, U = np.linalg.eigh(sol.W)
+    if not lam[0] > 0:
+        return sol
+    T = (U * np.sqrt(lam)) @ U.T
+    prob2 = ipm.performance_problem(lifted, objective, x0, u_max, limit_slack=LIMIT_SLACK, coordinates=T, **build)
+    y0, X0 = recentre(prob, sol, prob2, T)
+    sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
+                                 y_start=y0, x_start=X0)
+    if not np.isfinite(sol2.value):
+        return sol
+    sol2.W = T @ sol2.W @ T.T
+    sol2.W = 0.5 * (sol2.W + sol2.W.T)
+    sol2.Y = [y @ T.T for y in sol2.Y]
+    if "Z" in sol2.scalars:
+        Ti = np.linalg.inv(T)
+        sol2.scalars["Z"] = Ti.T @ sol2.scalars["Z"] @ Ti
+    sol2.raw.iterations += sol.raw.iterations
+    sol2.raw.timings = {k: v + sol.raw.timings.get(k, 0.0) for k, v in sol2.raw.timings.items()}
+    sol2.problem = prob
+    return sol2
 
 
 def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_limit, start):
