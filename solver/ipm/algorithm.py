@@ -58,6 +58,9 @@ class IPMOptions:
     max_iter: int = 100
     step: float = 0.98
     time_limit: float | None = None
+    #: Iteration cap of the objective's solve after phase 1 (None: ``max_iter``), e.g. a first stage that only
+    #: has to give a shape (docs/design.md §8.3.3).
+    objective_max_iter: int | None = None
     dense: bool | None = None
     threads: int | None = 1
     sign_only: bool = False
@@ -875,7 +878,8 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
             op2, adj2, schur2 = two.ops(o.dense)
             offset = _offset(two, objective)
             xst = _x_start(adj2, two.b, two.C)
-            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
+            o2 = o if o.objective_max_iter is None else dataclasses.replace(o, max_iter=o.objective_max_iter)
+            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o2, t_start, feasible_start=True,
                               x_start=xst, offset=offset)
             _add_timings(timings, core2.timings)
             out.update(_objective_answer(two, core2, offset, names, it1, done + it1))
