@@ -1016,6 +1016,12 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
     return found, count
 
 
+#: The coarse sweep first takes every PRESWEEP-th of its SWEEP points (17 of 97) ...
+PRESWEEP = 6
+#: ... and sweeps all of them only for patterns within this fraction of the best value found so far.
+PRESWEEP_KEEP = 0.8
+
+
 def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     """Coarse sweeps (``SWEEP`` points on [0, pi]) into ``coarse``, skipping patterns that cannot win.
 
@@ -1034,10 +1040,17 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
         while start < len(entries) and len(batch) < 64 and entries[start][0] > best:
             batch.append(entries[start])
             start += 1
-        for g in {e[1] for e in batch}:
+        for g in sorted({e[1] for e in batch}):
             pos, sys, _ = bounds[g]
             rows = np.array([e[2] for e in batch if e[1] == g])
-            vals = periodic.sweep_gains({k: v[rows] for k, v in sys.items()}, omega)
+            # every PRESWEEP-th point first (a subset of the sweep: values below the full sweep's); the full sweep
+            # only where that comes within PRESWEEP_KEEP of the best so far (n = 12 hinf: 13 of 323 patterns are
+            # within 0.9 of the best; a pattern left out keeps its subset value, still a lower bound)
+            vals = periodic.sweep_gains({k: v[rows] for k, v in sys.items()}, omega[::PRESWEEP])
+            full = vals >= PRESWEEP_KEEP * max(best, float(np.max(vals)))
+            if np.any(full):
+                vals[full] = np.maximum(vals[full], periodic.sweep_gains({k: v[rows[full]] for k, v in sys.items()},
+                                                                         omega))
             coarse[pos[rows]] = vals
             best = max(best, float(np.max(vals)))
 

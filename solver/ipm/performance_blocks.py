@@ -496,8 +496,7 @@ def recentre(first: PerformanceProblem, sol: "PerformanceSolution", second: Perf
         parts.append(v.ravel())
     if lmi2.with_t:
         parts.append(np.zeros(1))
-    x = np.concatenate(parts)
-    y = np.linalg.lstsq(lmi2.T.toarray(), x, rcond=None)[0]
+    y = coordinates_of(lmi2, np.concatenate(parts))
     X = []
     for g1, C in zip(lmi1.groups_spec, lmi1.C):
         D = _congruence(first, g1.name, C, T)
@@ -505,3 +504,13 @@ def recentre(first: PerformanceProblem, sol: "PerformanceSolution", second: Perf
         Xn = D.transpose(0, 2, 1) @ Xg @ D
         X.append(0.5 * (Xn + Xn.transpose(0, 2, 1)))
     return y, X
+
+
+def coordinates_of(lmi: GroupedLMI, x: np.ndarray) -> np.ndarray:
+    """The solver's coordinates ``y`` of the full variable vector ``x`` (``x = T y``, x in T's range): the normal
+    equations on the sparse basis (``T' T`` is diagonal for these bases: each full entry is one coordinate; a dense
+    least-squares solve took 2.4 s at n = 30)."""
+    import scipy.sparse.linalg
+
+    T = lmi.T.tocsc()
+    return np.asarray(scipy.sparse.linalg.spsolve((T.T @ T).tocsc(), T.T @ x), dtype=np.float64).reshape(-1)

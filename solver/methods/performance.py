@@ -319,6 +319,8 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     lam, U = np.linalg.eigh(sol.W)
     if not lam[0] > 0:
         return sol
+    from ..ipm.performance_blocks import coordinates_of
+
     T, Ti = (U * np.sqrt(lam)) @ U.T, (U / np.sqrt(lam)) @ U.T
     prob2 = ipm.performance_problem(similar(lifted, T), "stability", None if x0 is None else Ti @ x0, u_max, c=c,
                                     radius=radius / np.sqrt(lam[0]), limit_slack=LIMIT_SLACK,
@@ -329,7 +331,7 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     Ys = [y @ Ti * g for y, g in zip(sol.Y, prob2.gain_scale)]
     x = np.concatenate([np.eye(len(lam)).ravel()] + [y.ravel() for y in Ys]
                        + [[RECENTRE_BACK, 0.0]])
-    y0 = np.linalg.lstsq(prob2.lmi.T.toarray(), x, rcond=None)[0]
+    y0 = coordinates_of(prob2.lmi, x)
     left = None if time_limit is None else time_limit - (time.perf_counter() - start)
     sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left),
                                  y_start=y0)
