@@ -3,18 +3,25 @@
 :func:`solver.compiled.design_size` estimates the CPU time and memory of a whole design request from its
 dimensions alone; the library refuses (:func:`solver.design`, :func:`solver.analyze`) and the service limits
 (``NCS_JOB_TIME_LIMIT``, ``NCS_WORKER_MEMORY_MB``) with it.  This script measures designs on every path (plain, a
-given rate, ``"auto"``, ``"max"``, cost, H-infinity, input limits, switched, ccl, a network; small to large n and
-n_drop), each in a child process of its own (CPU time by ``time.process_time``, the peak resident set above the
-interpreter's by ``getrusage``), then fits by least squares on log time
+given rate, ``"auto"``, ``"max"``, cost, H-infinity, input limits, switched, ccl, a network; n = 2 to 50), each in a
+child process of its own at one BLAS thread (CPU time by ``time.process_time``, the peak resident set above the
+interpreter's by ``getrusage``, and what the design did: every IPM run's Newton steps, groups, Schur size and CPU,
+the bracket's lower-bound search's CPU), then fits in three least-squares problems on log CPU time
+(docs/design.md §3.6):
 
-* the scale of the flop rates (:data:`~solver.compiled.ESTIMATE_FLOPS_PER_SECOND` and
-  :data:`~solver.compiled.ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND` together), :data:`~solver.compiled.ESTIMATE_SECONDS_PER_BLOCK`,
-  :data:`~solver.compiled.ESTIMATE_SECONDS_PER_MODE`, :data:`~solver.compiled.ESTIMATE_SECONDS_FIXED`;
-* each path's :data:`~solver.compiled.ESTIMATE_SOLVE_WEIGHT` (plain and rate stay 1),
+1. one step's constants (:data:`~solver.compiled.ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND`,
+   :data:`~solver.compiled.ESTIMATE_BLOCK_FLOPS_PER_SIDE`, :data:`~solver.compiled.ESTIMATE_SECONDS_PER_BLOCK`,
+   :data:`~solver.compiled.ESTIMATE_SECONDS_PER_STEP`) on the IPM's CPU per measured Newton step;
+2. the lower-bound search's rate and fixed part per kind on its own CPU (cost, hinf);
+3. each path's :data:`~solver.compiled.ESTIMATE_PATH_ITERATIONS` (``"rate"`` follows ``"plain"``),
+   :data:`~solver.compiled.ESTIMATE_SECONDS_PER_MODE` and :data:`~solver.compiled.ESTIMATE_SECONDS_FIXED` on the
+   whole request's CPU,
 
-and prints the table of estimate / measured per path and size with the constants to put in solver/compiled.py.
-``--no-fit`` prints the table of today's constants only.  Designs that fail or hit ``--cap`` are listed but not
-fitted.  Runs about 5 to 10 minutes of CPU.
+and prints, per path and size, the estimate, the measured CPU and their ratio (and the Newton steps and the search
+estimated / measured, the memory against the resident growth), with the constants to put in solver/compiled.py.
+``--save FILE`` keeps the measured rows, ``--load FILE`` refits to them without measuring (bench/size_rows.json:
+the rows behind today's constants); ``--no-fit`` prints today's table only.  Designs that fail or hit ``--cap``
+are listed but not fitted.  Measuring runs about 5 minutes of CPU (15 minutes wall on the shared machine).
 """
 
 from __future__ import annotations
