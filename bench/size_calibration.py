@@ -391,7 +391,8 @@ def main(argv=None) -> int:
     p.add_argument("--paths", default="", help="only these paths, e.g. plain,auto")
     p.add_argument("--no-fit", action="store_true", help="the table with today's constants only")
     p.add_argument("--save", default="", help="write the measured rows to this JSON file")
-    p.add_argument("--load", default="", help="fit to the rows of these JSON files (comma-separated, from --save) instead of measuring")
+    p.add_argument("--load", default="",
+                   help="fit to the rows of these JSON files (comma-separated, from --save) instead of measuring")
     a = p.parse_args(argv)
     only = set(a.paths.split(",")) - {""}
     if a.load:

@@ -297,10 +297,12 @@ class DesignSize:
         Estimated peak solver memory (bytes): the larger of the structured IPM's
         (a ``v_b x v_b`` Schur piece per block, ``v_b`` the variables block b touches, plus the
         dense ``p x p`` Schur complement) and a general conic solver's (a dense
-        ``(k(k+1)/2)^2`` scaling per PSD cone of side k).
+        ``(k(k+1)/2)^2`` scaling per PSD cone of side k); cost and hinf: at least the bracket's lower-bound
+        search's (:func:`lower_bound_work`).
     seconds : float
         Estimated CPU time of one cold solve of the path's SDP (s): ``ESTIMATE_PATH_ITERATIONS["plain"] ln(1 +
-        lmi_size)`` interior-point steps (Schur assembly and factorizations at the calibrated rates, :func:`_step_seconds`).
+        lmi_size)`` interior-point steps (Schur assembly and factorizations at the calibrated rates,
+        :func:`_step_seconds`).
     path : str
         The request's path (:func:`design_path`): "plain", "rate", "auto", "max", "cost", "hinf", "u_max",
         "switched", "ccl" or "network".
@@ -421,8 +423,10 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     The one estimate behind the library's refusal (:func:`solver.design`, :func:`solver.analyze`) and the
     service's limits (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``), for every path:
     plain, a given rate, ``decay_rate="auto"``/``"max"`` (a bisection), the cost, H-infinity and input-limited
-    designs (their lifted blocks of side ``2n + eta (n + m)``, ``2n + eta (p_w + p_z)``; the input blocks
-    ``n + 1``), switched, ccl, and a network (:func:`network_design_size`; ``n_drop`` is then the network's).
+    designs (their blocks as the IPM builds them, docs/design.md §3.6: compact lifted blocks of side
+    ``2n + min(eta (n + m), n + min(eta, J) m)`` (cost) and ``2n + eta p_w + min(eta p_z, n + min(eta, J) m + (eta - 1)
+    p_w)`` (hinf) merged into groups; the input blocks ``n + 1``; the bracket's lower-bound search), switched, ccl,
+    and a network (:func:`network_design_size`; ``n_drop`` is then the network's).
     ``n_drop`` is the interval length of a design for a channel too (:func:`solver.design_for_channel`).
 
     Parameters

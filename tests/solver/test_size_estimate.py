@@ -105,7 +105,8 @@ def test_the_performance_estimate_counts_the_blocks_the_ipm_solves(objective, ex
     assert sum(g.C.shape[0] for g in prob.lmi.groups_spec if g.name == "input") == inputs
 
 
-PATH_REQUESTS = {"plain": {"decay_rate": None}, "rate": {"decay_rate": 0.9}, "auto": {"decay_rate": "auto"}, "max": {"decay_rate": "max"},
+PATH_REQUESTS = {"plain": {"decay_rate": None}, "rate": {"decay_rate": 0.9}, "auto": {"decay_rate": "auto"},
+                 "max": {"decay_rate": "max"},
                  "cost": {"objective": "cost"}, "hinf": {"objective": "hinf"}, "u_max": {"u_max": [1.0]},
                  "switched": {"method": "switched", "decay_rate": None}, "ccl": {"method": "ccl"}}
 
