@@ -25,7 +25,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from .compiled import SolveInfo
+from .compiled import SolveInfo, time_left
 from .errors import InvalidInput, SolverFailed
 from .lifting import Lifted
 
@@ -390,7 +390,7 @@ def solve_sdp(prob: cp.Problem, solver: str, time_limit: float | None = None) ->
     start = time.perf_counter()
     for i, opts in enumerate(attempts):
         if time_limit is not None:
-            opts[limit_key] = max(float(time_limit) - (time.perf_counter() - start), 1e-3)
+            opts[limit_key] = time_left(float(time_limit), start, floor=1e-3)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)

@@ -130,6 +130,31 @@ def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
 #: service's job time limit (``NCS_JOB_TIME_LIMIT``).
 MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 
+
+def time_left(time_limit: float | None, start: float, floor: float | None = None) -> float | None:
+    """What is left of ``time_limit`` since ``start``: the time limit of the next step of a run.
+
+    Parameters
+    ----------
+    time_limit : float or None
+        The run's limit (seconds); None: no limit.
+    start : float
+        The run's start, a :func:`time.perf_counter` reading (seconds).
+    floor : float, optional
+        The least value returned (seconds), for a solver that needs a positive limit.  None: the plain rest,
+        which is ``<= 0`` once the run is out of time (callers that stop then must not pass a floor).
+
+    Returns
+    -------
+    float or None
+        Seconds left (None without a limit).
+    """
+    if time_limit is None:
+        return None
+    left = time_limit - (time.perf_counter() - start)
+    return left if floor is None else max(left, floor)
+
+
 #: The time estimate of :func:`design_size` (docs/design.md §3.6): the path's Newton steps times one step's work,
 #: plus the bracket's lower-bound search.  One interior-point step (:func:`_step_seconds`) costs ``2 v^2`` per block
 #: touching v variables for the Schur pieces (at ``ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND``), ``k^3`` per block of side

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver, clarabel_fits, design_size, request_solves, resolve_solver
+from .compiled import check_solver, clarabel_fits, design_size, request_solves, resolve_solver, time_left
 from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
@@ -459,7 +459,7 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
     Gains that stabilize the network stabilize every run it admits, so a proof that none stabilizes the
     bounded-drops runs (in the sense of that proof) carries over; the converse direction would be wrong.
     """
-    remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    remaining = time_left(time_limit, start)
     if remaining is not None and remaining <= 0:
         return res
     try:
@@ -489,7 +489,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     notes: list = []
 
     def left():
-        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+        return time_left(time_limit, start, floor=1e-3)
 
     def recheck(gains, rate):
         """Plain stability: the network analysis must accept the gains (its own certificate is kept)."""
@@ -689,7 +689,7 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
                 or u_max is not None:
             return res
-        remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        remaining = time_left(time_limit, start)
         if remaining is not None and remaining <= 0:
             return res
         try:
@@ -746,7 +746,7 @@ def _limited_auto(family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin
     start = time.perf_counter()
 
     def left():
-        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+        return time_left(time_limit, start, floor=1e-3)
 
     def out_of_time():
         return time_limit is not None and time.perf_counter() - start >= time_limit
@@ -922,8 +922,7 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
             first.method = "switched"
             return first
         if first is not None and first.outcome == "stabilized":
-            rest = options if options.time_limit is None else replace(
-                options, time_limit=max(options.time_limit - (time.perf_counter() - start), 1e-9))
+            rest = replace(options, time_limit=time_left(options.time_limit, start, floor=1e-9))
             return _smallest_rate("switched", modes, rest, rate_tol, upper=first, user_limit=options.time_limit)
     return _run(method, modes, options, decay_rate, rate_tol)
 
@@ -995,7 +994,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
         how = (f"{open_loop:.6g}^{AUTO_OPEN_LOOP_SPEEDUP:g}: the plant is stable without control (open-loop spectral "
                f"radius {open_loop:.6g} per sample), so settling {AUTO_OPEN_LOOP_SPEEDUP:g}x faster than its own, no "
                f"faster")
-    remaining = None if options.time_limit is None else options.time_limit - (time.perf_counter() - start)
+    remaining = time_left(options.time_limit, start)
     if remaining is not None and remaining <= 0:
         return best
     try:
@@ -1106,7 +1105,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 
     def attempt(lam):
         nonlocal timed_out
-        remaining = None if limit is None else limit - (time.perf_counter() - start)
+        remaining = time_left(limit, start)
         if remaining is not None and remaining <= 0:
             timed_out = True
             return None

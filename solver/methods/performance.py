@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from .. import compiled
-from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block
+from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_left
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
@@ -228,7 +228,7 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
                                    f"(primal residual {sol.raw.primal_residual:.1e}, gap {sol.raw.gap:.1e})",
                                    status=sol.status)
             return info, None, None, {"ipm": sol}
-        time_limit = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        time_limit = time_left(time_limit, start)
         start = time.perf_counter()
     problem, Wv, Yv, extra = build(lifted, "stability" if objective == "stability" else objective, x0, u_max,
                                    rate, cap=cap, trace_weight=trace_weight)
@@ -278,7 +278,7 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     x = np.concatenate([np.eye(len(lam)).ravel()] + [y.ravel() for y in Ys]
                        + [[RECENTRE_BACK, 0.0]])
     y0 = np.linalg.lstsq(prob2.lmi.T.toarray(), x, rcond=None)[0]
-    left = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    left = time_left(time_limit, start)
     sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left),
                                  y_start=y0)
     if not np.isfinite(sol2.value) or sol2.value * lam[0] > sol.value:
