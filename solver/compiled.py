@@ -232,15 +232,15 @@ def _step_seconds(blocks, p: int) -> float:
     pieces = products = 0.0
     n_blocks = 0
     for k, v, count in blocks:
-        pieces += min(float(count) * 2.0 * float(v) ** 2, 1e300)
+        count = float(min(count, 10**300))  # per-sample counts can be astronomical
+        pieces += min(count * 2.0 * float(v) ** 2, 1e300)
         # small blocks run far below the BLAS rate: rank-k work, ESTIMATE_BLOCK_FLOPS_PER_SIDE per unit of k
         rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_BLOCK_FLOPS_PER_SIDE * k)
-        products += min(float(count) * float(k) ** 3 / rate, 1e300)
+        products += min(count * float(k) ** 3 / rate, 1e300)
         n_blocks += count
     seconds = (pieces / ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND + products
-               + float(p) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND)
-    return float(min(seconds + min(n_blocks, 10**300) * ESTIMATE_SECONDS_PER_BLOCK + ESTIMATE_SECONDS_PER_STEP,
-                     1e300))
+               + float(min(p, 10**100)) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND)
+    return float(min(seconds + min(n_blocks, 1e300) * ESTIMATE_SECONDS_PER_BLOCK + ESTIMATE_SECONDS_PER_STEP, 1e300))
 
 
 def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbances: int = 1,
@@ -264,9 +264,12 @@ def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbance
     """
     from . import brackets, periodic
 
-    n, S, N = float(n), int(n_modes), int(n_drop)
-    if S < 1:
+    n, N = float(n), int(n_drop)
+    if int(n_modes) < 1:
         return 0.0, 0.0
+    # the pattern counts saturate at their cap (<= 4000) long before S = 1e6; the memory's S is a float (per-sample
+    # mode counts can be astronomical)
+    S, S_mem = min(int(n_modes), 10**6), float(min(int(n_modes), 10**300))
     cost = kind == "cost"
     cap = brackets.MAX_PATTERNS if cost else brackets.MAX_PATTERNS_HINF
     L, total = brackets.PATTERN_LENGTH, sum(float(S) ** k for k in range(1, brackets.PATTERN_LENGTH + 1))
@@ -281,9 +284,9 @@ def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbance
         runs = c * (c - 1) * brackets.RUN_LENGTH**2 if c >= 2 else 0
         nodes = brackets.NODE_BUDGET * min(1.0, (8.0 / n) ** 3)
         flops = (P * (6 * L_used + 60) + runs * 70) * n**3 + nodes * (4 * n**3 + 2 * brackets.TAILS * n**2)
-        beam = min(brackets.BEAM, max(8, 2_000_000 // max(S * int(n) ** 2, 1)))
-        memory = 8 * 4 * max(6 * P * n * n, runs / max(c * (c - 1), 1) * 8 * n * n, beam * S * n * n)
-        return float(flops), float(memory)
+        beam = min(brackets.BEAM, max(8, 2e6 // max(S_mem * n * n, 1.0)))
+        memory = 8 * 4 * max(6 * P * n * n, runs / max(c * (c - 1), 1) * 8 * n * n, min(beam * S_mem * n * n, 1e300))
+        return float(flops), float(min(memory, 1e300))
     q, r = N * int(n_disturbances), N * int(n_outputs)
     grow_budget = max(brackets.GROW_BUDGET * min(1.0, (4.0 / n) ** 3), 1.0)
     L_grow, work, level = L_used, 0.0, brackets.GROW_BEAM * S

@@ -202,3 +202,14 @@ def test_a_design_for_a_channel_counts_its_analysis_and_names_the_channel(monkey
     with pytest.raises(InvalidInput) as err:
         design_for_channel(fam, ch, 1e-4, per="sample", max_memory=(plain.memory + both.channel_memory) / 2)
     assert err.value.field == ("channel",) and f"operator of size up to {size}" in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("path", sorted(PATH_REQUESTS))
+def test_astronomical_per_sample_counts_are_refused_not_raised(path):
+    # per-sample switching over 1000 samples: 3^1000 loop modes, beyond a float; the estimate saturates and refuses
+    kw = dict(PATH_REQUESTS[path])
+    method = kw.pop("method", "lmi")
+    size = design_size(method, 4, 1, 3, 1000, "per_sample", **kw)
+    assert size.total_seconds >= 1e290 and size.memory >= 1e290
+    with pytest.raises(InvalidInput):
+        size.check()
