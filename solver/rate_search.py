@@ -356,19 +356,9 @@ def _closing_low(hi: float, done) -> float:
 PATH_BELOW = 0.5
 #: ... or to the Newton root of the margin's model (:func:`model_root`) where the iterate settled the margin's sign
 PATH_NEWTON = True
-#: The first move leaves lambda = 1 once the iterate's margin is positive and at least this share of its dual bound
+#: ... the first move leaves lambda = 1 once the iterate's margin is positive and at least this share of its dual
+#: bound (the probes' sign rule; measured 0.25 and 0: more steps on the test families, mixed on the bench rows)
 PATH_SETTLED = 0.5
-#: The first move goes this share of the way to the Newton root (in the tolerance's coordinate)
-PATH_FIRST_SHARE = 1.0
-#: Below lambda = 1 the path moves only once the iterate's margin ``t`` is at least this share of its dual bound
-#: (0: after every Newton step, the method of centers)
-PATH_CENTRE = 0.0
-#: After a refuted rate the path moves up to the root of the margin's model at that rate (its dual bound and
-#: slopes), else to the bracket's middle
-PATH_NEWTON_LO = False
-#: ... or to the root of the margin's model from ``t + PATH_AIM_UPPER (upper - t)`` (between the iterate's margin and
-#: its dual bound) when that lies lower
-PATH_AIM_UPPER = 0.0
 #: ... when that moves the rate by at least this fraction of the width (smaller moves cost a re-centring each).
 PATH_MIN_MOVE = 0.125
 #: The certified end is re-checked these fractions of the width above the iterate's own rate, the first that
@@ -421,34 +411,16 @@ def path_search(modes, settling: bool, tol_width: float, done, time_limit: float
         if not hi < 1.0:
             return None
         if lo >= lam:  # refuted here: up to the middle of the bracket (in the tolerance's coordinate)
-            middle = shift(hi, -0.5 * (measure(hi) - measure(lo)))
-            if PATH_NEWTON_LO:
-                # or to the root of the margin's model from the refuting multipliers (the probes' "newton_lo":
-                # their dual bound and slope), raised by PATH_BELOW of the width to land above the root
-                newton = model_root((upper, q, modes.eta.astype(float)), lam, lam, hi)
-                if newton is not None:
-                    up = min(shift(newton, PATH_BELOW * tol_width), shift(hi, -0.25 * tol_width))
-                    return max(up, shift(lo, 0.25 * tol_width))
-            return middle
+            return shift(hi, -0.5 * (measure(hi) - measure(lo)))
         settled = t > 0.0 and rp < 1e-6 and t >= PATH_SETTLED * upper
         if PATH_NEWTON and lam >= 1.0 and not settled:
             return None  # the first move is Newton's, from lambda = 1 once its sign is settled (as the first probe)
-        if lam < 1.0 and PATH_CENTRE > 0.0 and upper > 0.0 and t < PATH_CENTRE * upper:
-            return None  # the margin first grows to a share of the dual bound: the next move goes that much further
         target = min(lam, shift(hi, -PATH_BELOW * tol_width))
-        if PATH_AIM_UPPER > 0.0 and lam < 1.0 and rp < 1e-6 and upper > t:
-            t0 = t + PATH_AIM_UPPER * (upper - t)
-            if t0 > 0.0:
-                newton = model_root((t0, q, modes.eta.astype(float)), lam, max(lo, MIN_RATE), lam)
-                if newton is not None:
-                    target = min(target, newton)
         if PATH_NEWTON and lam >= 1.0:
             # the sign is settled here (the probes' rule): the Newton root of the margin's model, above the root
             # where the margin is convex, from the iterate's own margin t (the lower of its bounds)
             newton = model_root((t, q, modes.eta.astype(float)), lam, max(lo, MIN_RATE), lam)
             if newton is not None:
-                if PATH_FIRST_SHARE != 1.0:
-                    newton = shift(lam, PATH_FIRST_SHARE * (measure(newton) - measure(lam)))
                 target = min(target, newton)
         if lo > 0.0:
             target = max(target, shift(lo, 0.25 * tol_width))
