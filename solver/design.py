@@ -1241,30 +1241,51 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     """
     from .compiled import DesignSdpSolution, SolveInfo
     from .methods.common import run_one_shot
-    from .rate_search import path_search, path_steps_solves
+    from .rate_search import _closing_high, path_rates, path_search, path_steps_solves
 
     path, his = path_search(modes, settling, tol_width, done, options.time_limit)
     if not his:
         return None
     coef, active = modes.scheme_coef()
-    M = modes.free @ path.W
-    if coef.size:
-        M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], path.Y)
 
     def info(t):
         return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
                          iterations=path.iterations)
 
-    plain = replace(options, sign_only=False, warm_start=None)
-    for hi in his:  # the iterate's margin at hi: the blocks' smallest eigenvalue
+    def recheck(W, Y, X, hi):  # the iterate's margin at hi: the blocks' smallest eigenvalue
+        M = modes.free @ W
+        if coef.size:
+            M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], Y)
         c = hi ** (-modes.eta.astype(float))
-        blocks = np.block([[np.broadcast_to(path.W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
-                           [c[:, None, None] * M, np.broadcast_to(path.W, M.shape)]])
+        blocks = np.block([[np.broadcast_to(W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
+                           [c[:, None, None] * M, np.broadcast_to(W, M.shape)]])
         t_hi = float(np.linalg.eigvalsh(blocks)[:, 0].min())
-        sol_hi = DesignSdpSolution(t=t_hi, W=path.W, Y=path.Y, S=None, duals=path.X_hi, info=info(t_hi))
-        res_hi = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol_hi)
-        if res_hi.outcome == "stabilized":
-            break
+        # (no multipliers for the re-check: at a rate the iterate itself certifies in closed form no Farkas
+        # certificate can pass, and its re-check cost more than the paper example's Newton steps)
+        sol = DesignSdpSolution(t=t_hi, W=W, Y=Y, S=None, duals=None, info=info(t_hi))
+        res = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol)
+        sol.duals = X  # the probes' model and warm start (when the path leaves the bracket open)
+        return sol, res
+
+    plain = replace(options, sign_only=False, warm_start=None)
+    # the last certifying iterate first, then earlier ones (better centred: the paper example's last one is
+    # certified 1e-7 above its re-check's resolution), each at the rates above its own that still close the bracket
+    tries = [(his, path.W, path.Y, path.X_hi)]
+    if 0.0 < path.lo < his[-1]:  # the largest rate that still closes the bracket with the path's lower end
+        top = _closing_high(path.lo, 1.0, done)
+        if his[-1] < top < 1.0:
+            tries[0] = (his + [top], path.W, path.Y, path.X_hi)
+    for rate, W, Y, X in path.earlier:
+        ups = [h for h in path_rates(rate, settling, tol_width) if path.lo <= 0.0 or done(path.lo, h)]
+        tries.append((ups, W, Y, X))
+    for rates, W, Y, X in tries:
+        for hi in rates:
+            sol_hi, res_hi = recheck(W, Y, X, hi)
+            if res_hi.outcome == "stabilized":
+                break
+        else:
+            continue
+        break
     else:
         return None
     res_hi.sdp = sol_hi
