@@ -143,6 +143,9 @@ def performance_summary(perf: dict | None, name: str) -> list[str]:
     if not perf:
         return []
     upper = "none certified" if perf.get("upper") is None else f"{perf['upper']:.6g}"
+    quadratic = perf.get("certificate_upper")
+    if perf.get("upper") is not None and quadratic is not None and quadratic > perf["upper"]:
+        upper += f", quadratic certificate alone {quadratic:.6g}"  # the prefix tree tightened it (§8.4)
     lower = "-" if perf.get("lower") is None else f"{perf['lower']:.6g}"
     pairs = [f"({p}, {e})" for p, e in perf.get("witness") or []]
     lead = int(perf.get("lead") or 0)
