@@ -65,7 +65,8 @@ def test_bounded_drops_reproduces_todays_bracket(objective):
     # the lower ends are witnessed walks of two searches (the network's closed walks; the single network's periodic
     # patterns and prefixes, docs/design.md §8.4), each a lower bound on the other's gains' worst case
     assert p.lower == pytest.approx(q.lower, rel=1e-5)
-    assert max(p.lower, q.lower) <= min(p.upper, q.upper) * (1 + 1e-9)
+    assert max(p.lower, q.lower) <= min(p.certificate_upper, q.certificate_upper) * (1 + 1e-9)
+    assert p.lower <= p.upper and q.lower <= q.upper
 
 
 def test_bounded_drops_x0_cost_reproduces_todays_bound():
