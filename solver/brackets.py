@@ -640,11 +640,11 @@ class LowerBound(NamedTuple):
     note: str
     #: ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: periodic from the start).
     lead: int = 0
-    #: The prefix search's certified tree bound (:attr:`PrefixSearch.bound`), None when it did not run ...
+    #: The certified tree bound (:attr:`PrefixSearch.bound`, or :func:`tree_bound` when smaller), None when the
+    #: prefix search did not run ...
     bound: float | None = None
-    #: ... the depth it was proved at and the prefixes the search valued.
-    tree_depth: int = 0
-    tree_nodes: int = 0
+    #: ... and how it was proved (search, depth, prefixes valued).
+    tree: str = ""
 
 
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
@@ -725,8 +725,13 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []))
                 found = prefix_search(data, tails, certificate, _moment(data[0]["A"].shape[0], x0, weight),
                                       floor=best, budget=budget)
-                tree = found
                 bound = found.bound
+                tree = f"prefix tree on P, depth {found.depth} ({found.nodes} prefixes valued)"
+                if bound > max(best, found.value or -np.inf) * (1 + 1e-9):  # the beam left prefixes open
+                    again, count = tree_bound(data, certificate, _moment(data[0]["A"].shape[0], x0, weight),
+                                              max(best, found.value or -np.inf))
+                    if again < bound:
+                        bound, tree = again, f"prefix tree on P, best first ({count} prefixes valued)"
                 if found.value is not None and found.value > best:
                     best, witness, lead = found.value, found.prefix + found.tail, len(found.prefix)
                     note = (f"witness from the prefix search ({found.nodes} prefixes valued): {lead} intervals "
@@ -758,8 +763,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         labels.append((plant, lm.eta))
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
-    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound,
-                      0 if tree is None else tree.depth, 0 if tree is None else tree.nodes)
+    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
 
 
 def _tails(data: list[dict], seqs: list) -> list:
@@ -954,6 +958,57 @@ def _certified(value, allowance):
     return (value + allowance * (1 + ALLOWANCE_MARGIN)) * (1 + 4 * u)
 
 
+class _TreeValues:
+    """Node values ``c + <P, Sigma>`` of the prefix tree with their rounding allowances (docs/design.md §8.4, "Tree
+    bound"), shared by the beam search (:func:`prefix_search`) and the best-first bound (:func:`tree_bound`).
+
+    With ``p = sqrt(diag P)``, a symmetric error F of a moment moves every later node value by at most ``p'|F|p``
+    (its cost-to-go ``<Q, F>`` has ``0 <= Q <= P``); one congruence ``A Sigma A'`` errs by ``gamma_2n |A||Sigma||A'|``
+    (``p' . p = w_s'|Sigma|w_s`` with ``w_s = |A_s|'p``), its symmetrization by ``u |Sigma'|``; an inner product of
+    ``n^2`` terms by ``gamma_{n^2+1}``; an addition by ``u`` of its result.
+    """
+
+    def __init__(self, data: list[dict], P: np.ndarray):
+        self.A = np.stack([d["A"] for d in data])
+        self.At = np.swapaxes(self.A, 1, 2)
+        self.Sm = np.stack([_sym(d["S"]) for d in data])
+        self.P = _sym(P)
+        n = self.A.shape[1]
+        self.p = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))
+        self.Wp = np.einsum("sij,i->sj", np.abs(self.A), self.p)  # (S, n)
+        self.absS, self.absP = np.abs(self.Sm), np.abs(self.P)
+        self.g_dot, self.g_mom, self.g_one = _gamma(n * n + 1), _gamma(2 * n), _gamma(1)
+        # gradual underflow breaks the relative model: at most a few n^3 roundings of 2^-1074 per entry and step
+        self.tiny = n**3 * 1e-300 * (1.0 + float(np.sum(self.p)))**2
+
+    def root(self, M: np.ndarray):
+        """``(Sigma (1, n, n), c (1,), allowance (1,), certified value)`` of the empty prefix (``M`` rounded once,
+        ``x0 x0'``)."""
+        Sig = _sym(M)
+        allow = self.g_one * float(self.p @ np.abs(Sig) @ self.p)
+        value = float(np.sum(self.P * Sig))
+        cert = float(_certified(value, allow + self.g_dot * float(np.sum(self.absP * np.abs(Sig)))
+                                + self.g_one * abs(value)))
+        return Sig[None], np.zeros(1), np.array([allow]), cert
+
+    def children(self, Sig: np.ndarray, c: np.ndarray, allow: np.ndarray):
+        """Every parent (``Sig`` (B, n, n), ``c``, ``allow`` (B,)) extended by every mode: ``(c2, Sig2, allow2, up,
+        cert)``, shapes (B, S), (B, S, n, n), (B, S) x 3: cost so far, moment, carried allowance, computed value
+        ``c2 + <P, Sig2>`` and its certified upper bound."""
+        absSig = np.abs(Sig)
+        c2 = c[:, None] + np.einsum("sij,bji->bs", self.Sm, Sig)
+        Sig2 = self.A[None] @ Sig[:, None] @ self.At[None]
+        Sig2 = 0.5 * (Sig2 + np.swapaxes(Sig2, -1, -2))
+        absSig2 = np.abs(Sig2)
+        allow2 = (allow[:, None] + self.g_dot * np.einsum("sij,bij->bs", self.absS, absSig) + self.g_one * np.abs(c2)
+                  + self.g_mom * np.einsum("si,bij,sj->bs", self.Wp, absSig, self.Wp)
+                  + self.g_one * np.einsum("i,bsij,j->bs", self.p, absSig2, self.p) + self.tiny)
+        up = c2 + np.einsum("ij,bsji->bs", self.P, Sig2)
+        cert = _certified(up, allow2 + self.g_dot * np.einsum("ij,bsij->bs", self.absP, absSig2)
+                          + self.g_one * np.abs(up))
+        return c2, Sig2, allow2, up, cert
+
+
 def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, floor: float = -np.inf,
                   beam: int = BEAM, budget: int = NODE_BUDGET, max_depth: int | None = None) -> PrefixSearch:
     """Branch and bound over admissible interval sequences: a prefix, then a periodic tail (cost).
@@ -976,31 +1031,16 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
     beyond the beam) above it; the smallest over the depths.  ``P`` must be a certificate whose inequality
     passed :func:`check_cost`: the bound is proved for it, not re-checked here.
     """
-    A = np.stack([d["A"] for d in data])
-    Sm = np.stack([_sym(d["S"]) for d in data])
-    At = np.swapaxes(A, 1, 2)
+    values = _TreeValues(data, P)
+    A, Sm, P = values.A, values.Sm, values.P
     PT = np.stack([_sym(Pt) for _, Pt in tails]) if tails else None
-    P = _sym(P)
     n, S = A.shape[1], A.shape[0]
     # above n = 8 the budget shrinks as n^-3 (the same CPU time), the beam to ~16 MB of moments per depth
     scale = min(1.0, (8.0 / n) ** 3)
     budget, steps = int(budget * scale), max(int(ROLLOUT_STEPS * scale), 1)
     beam = int(min(beam, max(8, 2_000_000 // (S * n * n))))
-    Sig, c = _sym(M)[None], np.zeros(1)
-    # Rounding allowances (docs/design.md §8.4, "Tree bound"): with p = sqrt(diag P), any symmetric error F of a
-    # moment moves every later node value by at most p'|F|p (the cost-to-go of an error is <Q, F> with
-    # 0 <= Q <= P); one congruence A Sigma A' errs by gamma_2n |A||Sigma||A'| (p' . p = w_s'|Sigma|w_s with
-    # w_s = |A_s|'p), its symmetrization by u |Sigma'|; an inner product of n^2 terms by gamma_{n^2+1}.
-    p = np.sqrt(np.maximum(np.diagonal(P), 0.0))
-    Wp = np.einsum("sij,i->sj", np.abs(A), p)  # (S, n)
-    absS, absP = np.abs(Sm), np.abs(P)
-    g_dot, g_mom, g_one = _gamma(n * n + 1), _gamma(2 * n), _gamma(1)
-    allow = np.array([g_one * float(p @ np.abs(Sig[0]) @ p)])  # M itself rounded (x0 x0')
-    # gradual underflow breaks the relative model: at most a few n^3 roundings of 2^-1074 per entry and step
-    tiny = n**3 * 1e-300 * (1.0 + float(np.sum(p)))**2
-    root = float(np.sum(P * Sig[0]))
-    tree, tree_depth = float(_certified(root, allow[0] + g_dot * float(np.sum(absP * np.abs(Sig[0])))
-                                        + g_one * abs(root))), 0
+    Sig, c, allow, tree = values.root(M)
+    tree_depth = 0
     best = floor
     candidates = []  # (approximate value, prefix, tail or None: the prefix ends in a cycle)
     history = []  # per depth: (parent position, mode) of the kept nodes
@@ -1021,17 +1061,7 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
         best = max(best, float(cost[0]))
     while Sig.shape[0] and nodes < budget and (max_depth is None or len(history) < max_depth):
         B = Sig.shape[0]
-        absSig = np.abs(Sig)
-        stage = np.einsum("sij,bji->bs", Sm, Sig)
-        c2 = c[:, None] + stage  # (B, S)
-        Sig2 = A[None] @ Sig[:, None] @ At[None]  # (B, S, n, n)
-        Sig2 = 0.5 * (Sig2 + np.swapaxes(Sig2, -1, -2))
-        absSig2 = np.abs(Sig2)
-        allow2 = (allow[:, None] + g_dot * np.einsum("sij,bij->bs", absS, absSig) + g_one * np.abs(c2)
-                  + g_mom * np.einsum("si,bij,sj->bs", Wp, absSig, Wp)
-                  + g_one * np.einsum("i,bsij,j->bs", p, absSig2, p) + tiny)
-        up = c2 + np.einsum("ij,bsji->bs", P, Sig2)
-        cert = _certified(up, allow2 + g_dot * np.einsum("ij,bsij->bs", absP, absSig2) + g_one * np.abs(up))
+        c2, Sig2, allow2, up, cert = values.children(Sig, c, allow)
         nodes += B * S
         if tails:
             tail = c2[..., None] + np.einsum("tij,bsji->bst", PT, Sig2)
@@ -1077,6 +1107,52 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
         if np.isfinite(value) and value > floor and (found.value is None or value > found.value):
             found.value, found.prefix, found.tail = value, tuple(prefix), tuple(tail)
     return found
+
+
+#: The best-first tree bound (:func:`tree_bound`): nodes valued, a quarter of the prefix search's ...
+BOUND_BUDGET = NODE_BUDGET // 4
+#: ... taken from the frontier this many at a time (one stacked expansion).
+BOUND_BATCH = 64
+
+
+def tree_bound(data: list[dict], P: np.ndarray, M: np.ndarray, best: float, budget: int = BOUND_BUDGET):
+    """The tree bound by best-first expansion (docs/design.md §8.4, "Tree bound"): ``(bound, nodes valued)``.
+
+    The frontier starts at the root; the ``BOUND_BATCH`` nodes of largest certified value are replaced by their
+    children, those whose computed value is at most ``best`` (a witnessed cost) closed.  At every step each
+    admissible sequence passes a frontier node or a closed one, so ``max(frontier, closed)`` bounds every
+    sequence's cost; the smallest over the steps is returned.  It goes straight at the prefixes that set the
+    bound, where the beam of :func:`prefix_search` drops some of them for width.  ``budget`` scales as
+    :func:`prefix_search`'s above n = 8.
+    """
+    import heapq
+
+    values = _TreeValues(data, P)
+    n, S = values.A.shape[1], values.A.shape[0]
+    budget = int(budget * min(1.0, (8.0 / n) ** 3))
+    cap = budget + BOUND_BATCH * S + 1
+    sigs, cs, allows = np.empty((cap, n, n)), np.empty(cap), np.empty(cap)
+    Sig, c, allow, bound = values.root(M)
+    sigs[0], cs[0], allows[0] = Sig[0], c[0], allow[0]
+    heap, size, closed, nodes = [(-bound, 0)], 1, -np.inf, 0
+    while heap and nodes < budget:
+        ids = [heapq.heappop(heap)[1] for _ in range(min(BOUND_BATCH, len(heap)))]
+        c2, Sig2, allow2, up, cert = values.children(sigs[ids], cs[ids], allows[ids])
+        nodes += up.size
+        up, cert = up.ravel(), cert.ravel()
+        shut = ~(up > best)  # NaN counts as closed: its certified value (NaN) makes the level infinite below
+        if np.any(shut):
+            closed = max(closed, float(np.max(cert[shut])) if np.all(np.isfinite(cert[shut])) else np.inf)
+        keep = np.flatnonzero(~shut)
+        k = keep.size
+        sigs[size:size + k], cs[size:size + k] = Sig2.reshape(-1, n, n)[keep], c2.ravel()[keep]
+        allows[size:size + k] = allow2.ravel()[keep]
+        for j, i in enumerate(keep):
+            heapq.heappush(heap, (-float(cert[i]), size + j))
+        size += k
+        level = max(closed, -heap[0][0] if heap else -np.inf)
+        bound = min(bound, level if np.isfinite(level) else np.inf)
+    return float(bound), nodes
 
 
 def _top(values: np.ndarray, count: int) -> list[int]:
@@ -1210,8 +1286,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     if P is not None and found.bound is not None and found.bound < upper:
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
         upper = found.bound
-        tree = (f"prefix tree on P, depth {found.tree_depth} ({found.tree_nodes} prefixes valued); "
-                f"the quadratic certificate alone: {quadratic:.6g}")
+        tree = f"{found.tree}; the quadratic certificate alone: {quadratic:.6g}"
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
         P, upper, quadratic = None, None, None

@@ -12,7 +12,7 @@ import pytest
 import scipy.linalg
 
 from solver import PlantFamily, design
-from solver.brackets import Performance, _moment, _tails, prefix_search, recheck_tree_bound
+from solver.brackets import Performance, _moment, _tails, prefix_search, recheck_tree_bound, tree_bound
 from solver.lifting import lift_modes
 from solver.network import ModeSet
 
@@ -62,6 +62,22 @@ def test_the_tree_bound_covers_every_prefix_in_exact_arithmetic(case, with_x0):
     assert perf.lower <= perf.upper <= perf.certificate_upper
     value = float(np.trace(P)) if x0 is None else float(x0 @ P @ x0)
     assert perf.certificate_upper == pytest.approx(value, rel=1e-12)
+
+
+@pytest.mark.parametrize("case", FAMILIES[1:3], ids=lambda c: f"seed{c[0]}-r{c[1]}-n{c[2]}-N{c[3]}")
+def test_the_best_first_bound_covers_every_prefix_in_exact_arithmetic(case):
+    """Two or three loop modes, S + S^2 + S^3 prefixes valued, so the best-first frontier lies within depth 3 and
+    its bound is at least the exact largest ``c_3 + <P, Sigma_3>``; with the witness to close nodes and its full
+    budget it lies between the lower end and the quadratic bound."""
+    seed, r, n, N = case
+    perf, data = _designed(seed, r, n, N, None)
+    S = len(data)
+    bound, nodes = tree_bound(data, perf.certificate, np.eye(n), -np.inf, budget=S + S**2 + S**3)
+    assert nodes == S + S**2 + S**3
+    ok, worst = recheck_tree_bound(data, perf.certificate, bound, 3)
+    assert ok and Fraction(bound) >= worst
+    closed, _ = tree_bound(data, perf.certificate, np.eye(n), perf.lower)
+    assert perf.lower <= closed <= perf.certificate_upper * (1 + 1e-12)
 
 
 @pytest.mark.parametrize("with_x0", [False, True], ids=["trace", "x0"])
