@@ -8,6 +8,10 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
       cost:  A_s' P A_s - P + S_s <= 0                                 (bound x0' P x0, or trace P)
       hinf:  [A_s B_s; C_s D_s]' diag(P, I) [A_s B_s; C_s D_s] - diag(P, gamma^2 I) <= 0
 
+  For the cost, the prefix tree on that P (:func:`prefix_search`, :func:`tree_bound`) may prove a smaller bound,
+  with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"); the quadratic bound stays in
+  ``certificate_upper``.
+
 * ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (frequency sweep, a lower
   bound by construction) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
 """
@@ -69,7 +73,8 @@ class Performance:
         over initial states of covariance I (``x0`` None).  ``hinf``: worst-case l2 gain gamma from w
         to z with x(0) = 0.
     upper : float or None
-        Certified upper bound (None when no certificate passed the re-check; ``message`` says why).
+        Certified upper bound (None when no certificate passed the re-check; ``message`` says why): for the cost
+        the smaller of ``certificate_upper`` and the prefix tree's certified bound on the same P.
     lower : float or None
         The value of the worst periodic allowed pattern searched (``inf`` when one is unstable).
     witness : list of tuple
