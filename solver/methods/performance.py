@@ -499,7 +499,7 @@ def _score(c: dict, u_max) -> tuple:
     perf = c["performance"]
     verified = perf is not None and perf.verified
     return (c["cert"] is not None, u_max is None or c["invariant"] is not None, verified or perf is None,
-            -perf.upper if verified else 0.0)
+            -perf.certificate_upper if verified else 0.0)
 
 
 def _good(c: dict | None, u_max) -> bool:
@@ -611,7 +611,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
             # suspension, Q = I: equal to 2e-10 with gains 1e-4 apart), the refinement's gains are the Riccati ones
             if c is not None and _score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
                     not _score(best, u_max)[2] or best["performance"] is None or
-                    c["performance"].upper <= best["performance"].upper * (1 + 1e-8)):
+                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8)):
                 best = c
                 best["refined"] = True
     if best is None:
