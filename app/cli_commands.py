@@ -143,13 +143,17 @@ def performance_summary(perf: dict | None, name: str) -> list[str]:
     if not perf:
         return []
     upper = "none certified" if perf.get("upper") is None else f"{perf['upper']:.6g}"
+    source = "re-checked certificate"
+    quadratic = perf.get("certificate_upper")
+    if perf.get("upper") is not None and quadratic is not None and quadratic > perf["upper"]:
+        source = f"prefix tree on the re-checked certificate, whose bound alone is {quadratic:.6g}"  # §8.4
     lower = "-" if perf.get("lower") is None else f"{perf['lower']:.6g}"
     pairs = [f"({p}, {e})" for p, e in perf.get("witness") or []]
     lead = int(perf.get("lead") or 0)
     if lead:  # a prefix run once, then the period repeated (docs/design.md §8.4)
         witness = f"{' '.join(pairs[:lead])}, then the period {' '.join(pairs[lead:])}"
-        return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst pattern searched: {witness})"]
-    return [f"{name}: upper {upper} (re-checked certificate), lower {lower} (worst periodic pattern {' '.join(pairs)})"]
+        return [f"{name}: upper {upper} ({source}), lower {lower} (worst pattern searched: {witness})"]
+    return [f"{name}: upper {upper} ({source}), lower {lower} (worst periodic pattern {' '.join(pairs)})"]
 
 
 # ------------------------------------------------------------------------------------------- summary

@@ -2,7 +2,7 @@
 
 Each cell is one ``design(family, network=net, decay_rate=None)`` (``solver="AUTO"``: the structured IPM, Clarabel as
 its fallback) and one ``analyze(family, gains, network=net)`` of the designed gains, in this process.  ``--solvers``
-prints the IPM beside Clarabel instead: per cell and solver, in a fresh forked process each, the network LMI alone
+prints the IPM beside Clarabel instead: per cell and solver, in a fresh spawned process each, the network LMI alone
 (``network_lmi.solve_sdp``: its t*, CPU seconds and the process's peak resident-set growth, ``ru_maxrss``) and the whole
 ``design(..., solver=...)`` (CPU seconds, outcome, solves; its analysis re-check runs on Clarabel either way).
 Families: the paper's motor (n = 2, r = 3, bench/../tests/solver/paper_data.py) and seeded random stable-ish
@@ -77,7 +77,7 @@ def cell(name, fam, net, time_limit):
 
 
 def _one_solver(args):
-    """In a forked child: the network LMI alone and the whole design on one solver (CPU s, peak RSS growth)."""
+    """In a fresh process: the network LMI alone and the whole design on one solver (CPU s, peak RSS growth)."""
     import resource
 
     from solver import design
@@ -102,17 +102,14 @@ def _one_solver(args):
 
 
 def solver_cell(name, fam, net, time_limit):
-    """One row of the ``--solvers`` table: the IPM and Clarabel, each in a fresh forked process."""
-    import multiprocessing as mp
-
+    """One row of the ``--solvers`` table: the IPM and Clarabel, each in a fresh spawned process."""
     from solver.methods import network_lmi
 
     prob = network_lmi.build_problem(fam, net)
     row = {"family": name, "network": net.describe(), "nodes": net.nodes, "form": prob.form,
            "size": f"{prob.n_blocks} x {2 * prob.k}", "load": _load()}
     for solver in ("IPM", "CLARABEL"):
-        with mp.get_context("fork").Pool(1) as pool:
-            row[solver] = pool.apply(_one_solver, ((fam, net, solver, time_limit),))
+        row[solver] = _spawned(_one_solver, (fam, net, solver, time_limit))
     return row
 
 
@@ -150,7 +147,7 @@ def _one_analysis(args):
     return out
 
 
-def _forked(fn, args):
+def _spawned(fn, args):
     """``fn(args)`` in a fresh spawned process (a forked pool worker deadlocked on a lock the parent held)."""
     import multiprocessing as mp
 
@@ -182,10 +179,10 @@ def analysis_table(cases, time_limit, clarabel_bounds_up_to: int = 2000) -> None
         if res.gains is None:
             print(head + " - | - | - | - | - | " + _load() + " |", flush=True)
             continue
-        a = _forked(_one_analysis, (fam, net, res.gains, "IPM", "none"))
-        b = _forked(_one_analysis, (fam, net, res.gains, "CLARABEL", "none"))
-        fa = _forked(_one_analysis, (fam, net, res.gains, "AUTO", "quadratic"))
-        fb = (_forked(_one_analysis, (fam, net, res.gains, "CLARABEL", "quadratic")) if V * D <= clarabel_bounds_up_to
+        a = _spawned(_one_analysis, (fam, net, res.gains, "IPM", "none"))
+        b = _spawned(_one_analysis, (fam, net, res.gains, "CLARABEL", "none"))
+        fa = _spawned(_one_analysis, (fam, net, res.gains, "AUTO", "quadratic"))
+        fb = (_spawned(_one_analysis, (fam, net, res.gains, "CLARABEL", "quadratic")) if V * D <= clarabel_bounds_up_to
               else {"cpu": float("nan"), "upper": None})
 
         def up(x):

@@ -50,9 +50,11 @@ def request(objective: str, fam, x0, u_max) -> dict:
 
 
 def figure(res) -> float | None:
-    """The certified number a design reports for its objective (None when there is none)."""
-    if res.performance is not None and res.performance.upper is not None:
-        return float(res.performance.upper)
+    """The certified number a design reports for its objective (None when there is none): for cost and hinf the
+    quadratic certificate's bound (what the SDP optimizes; the reported cost ``upper`` may be the prefix tree's
+    tighter one, docs/design.md §8.4)."""
+    if res.performance is not None and res.performance.certificate_upper is not None:
+        return float(res.performance.certificate_upper)
     if res.invariant_set is not None:
         X = np.asarray(res.invariant_set)
         return float(np.linalg.eigvalsh(0.5 * (X + X.T))[-1] ** -0.5)

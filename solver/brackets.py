@@ -8,6 +8,10 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
       cost:  A_s' P A_s - P + S_s <= 0                                 (bound x0' P x0, or trace P)
       hinf:  [A_s B_s; C_s D_s]' diag(P, I) [A_s B_s; C_s D_s] - diag(P, gamma^2 I) <= 0
 
+  For the cost, the prefix tree on that P (:func:`prefix_search`, :func:`tree_bound`) may prove a smaller bound,
+  with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"); the quadratic bound stays in
+  ``certificate_upper``.
+
 * ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (frequency sweep, a lower
   bound by construction) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
 """
@@ -25,7 +29,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from .compiled import SolveInfo
+from .compiled import SolveInfo, time_left
 from .errors import InvalidInput, SolverFailed
 from .lifting import Lifted
 
@@ -69,7 +73,8 @@ class Performance:
         over initial states of covariance I (``x0`` None).  ``hinf``: worst-case l2 gain gamma from w
         to z with x(0) = 0.
     upper : float or None
-        Certified upper bound (None when no certificate passed the re-check; ``message`` says why).
+        Certified upper bound (None when no certificate passed the re-check; ``message`` says why): for the cost
+        the smaller of ``certificate_upper`` and the prefix tree's certified bound on the same P.
     lower : float or None
         The value of the worst periodic allowed pattern searched (``inf`` when one is unstable).
     witness : list of tuple
@@ -88,6 +93,10 @@ class Performance:
     lead : int
         ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: the whole witness is the
         period, repeated from the start; a prefix comes from the prefix search, docs/design.md §8.4).
+    certificate_upper : float or None
+        The common quadratic certificate's own bound (``x0' P x0``, ``trace P`` or ``gamma``), what the design's
+        SDP minimizes.  ``upper`` is the smaller of it and the prefix tree's certified bound (cost,
+        docs/design.md §8.4, "Tree bound"); compare designs or solvers on this field.
     """
 
     kind: str
@@ -101,8 +110,11 @@ class Performance:
     patterns: int = 0
     message: str = ""
     lead: int = 0
+    certificate_upper: float | None = None
 
     def __post_init__(self):
+        if self.certificate_upper is None:
+            self.certificate_upper = self.upper
         if self.gap is None and self.upper is not None and self.lower is not None and self.upper > 0:
             self.gap = float((self.upper - self.lower) / self.upper) if np.isfinite(self.lower) else None
 
@@ -123,6 +135,7 @@ class Performance:
             "patterns": self.patterns,
             "message": self.message,
             "lead": int(self.lead),
+            "certificate_upper": num(self.certificate_upper),
         }
 
     @classmethod
@@ -141,7 +154,8 @@ class Performance:
                    certificate=None if cert is None else np.array(cert, dtype=np.float64),
                    verified=bool(data.get("verified")), gap=data.get("gap"),
                    x0=None if x0 is None else np.array(x0, dtype=np.float64), patterns=int(data.get("patterns") or 0),
-                   message=data.get("message") or "", lead=int(data.get("lead") or 0))
+                   message=data.get("message") or "", lead=int(data.get("lead") or 0),
+                   certificate_upper=data.get("certificate_upper"))
 
     def __getitem__(self, key: str):
         """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
@@ -186,7 +200,8 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
     P = scale.quadratic_back(perf.certificate, perf.kind)
     message = perf.message
     what = "cost" if cost else "l2 gain"
-    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst periodic pattern searched: ", perf.lower)):
+    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst periodic pattern searched: ", perf.lower),
+                      ("the quadratic certificate alone: ", perf.certificate_upper)):
         if v is not None and np.isfinite(v):
             message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
     if P is not None:
@@ -195,7 +210,8 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
         message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
     return Performance(kind=perf.kind, upper=None if perf.upper is None else perf.upper * k,
                        lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
-                       verified=perf.verified, x0=x0, patterns=perf.patterns, message=message, lead=perf.lead)
+                       verified=perf.verified, x0=x0, patterns=perf.patterns, message=message, lead=perf.lead,
+                       certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k)
 
 
 def check_x0(x0, n: int) -> np.ndarray | None:
@@ -226,6 +242,85 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
         size = np.linalg.norm(APA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
         worst = max(worst, np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size)
     return bool(worst < -_allowance(P.shape[0])), float(worst)
+
+
+def _psd_exact(M: list) -> bool:
+    """Whether the symmetric rational matrix ``M`` (lists of Fractions) is positive semidefinite, exactly:
+    symmetric elimination with diagonal pivots (a zero pivot needs a zero row)."""
+    M = [row[:] for row in M]
+    n = len(M)
+    for k in range(n):
+        d = M[k][k]
+        if d < 0:
+            return False
+        if d == 0:
+            if any(M[k][j] != 0 for j in range(k + 1, n)):
+                return False
+            continue
+        for i in range(k + 1, n):
+            f = M[i][k] / d
+            for j in range(k + 1, n):
+                M[i][j] -= f * M[k][j]
+    return True
+
+
+def recheck_tree_bound(data: list[dict], P: np.ndarray, bound: float, depth: int, x0: np.ndarray | None = None,
+                       weight: np.ndarray | None = None):
+    """Exact re-check of a cost bound at one depth of the prefix tree, independent of :func:`prefix_search`.
+
+    In rational arithmetic on the float64 numbers (``fractions.Fraction``): ``P - A_s' P A_s - S_s`` is positive
+    semidefinite for every mode (so every continuation of a prefix costs at most ``<P, Sigma>``), and every
+    admissible sequence of ``depth`` intervals has ``c_depth + <P, Sigma_depth> <= bound`` (``Sigma_0 = x0 x0'``,
+    ``diag(weight)`` or I).  Both together prove that no admissible sequence costs more than ``bound``
+    (docs/design.md §8.4, "Tree bound").  Enumerates all ``S^depth`` sequences: small cases only.
+
+    Returns
+    -------
+    (passed, worst) : (bool, Fraction or None)
+        ``worst`` the exact largest ``c_depth + <P, Sigma_depth>`` (None when P's inequality fails).
+    """
+    from fractions import Fraction
+
+    def frac(M):
+        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+    def mul(X, Y):
+        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
+
+    def tr(X):
+        return [list(col) for col in zip(*X)]
+
+    def inner(X, Y):
+        return sum(X[i][j] * Y[i][j] for i in range(len(X)) for j in range(len(X)))
+
+    n = np.asarray(P).shape[0]
+    Pq = frac(P)
+    Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    modes = []
+    for d in data:
+        A, Sq = frac(d["A"]), frac(d["S"])
+        Sq = [[(Sq[i][j] + Sq[j][i]) / 2 for j in range(n)] for i in range(n)]
+        APA = mul(mul(tr(A), Pq), A)
+        if not _psd_exact([[Pq[i][j] - APA[i][j] - Sq[i][j] for j in range(n)] for i in range(n)]):
+            return False, None
+        modes.append((A, tr(A), Sq))
+    if x0 is not None:
+        xq = [Fraction(float(v)) for v in np.asarray(x0, dtype=np.float64)]
+        M = [[xq[i] * xq[j] for j in range(n)] for i in range(n)]
+    else:
+        w = np.ones(n) if weight is None else np.asarray(weight, dtype=np.float64)
+        M = [[Fraction(float(w[i])) if i == j else Fraction(0) for j in range(n)] for i in range(n)]
+    worst = None
+    stack = [(0, Fraction(0), M)]
+    while stack:
+        k, c, Sig = stack.pop()
+        if k == depth:
+            value = c + inner(Pq, Sig)
+            worst = value if worst is None or value > worst else worst
+            continue
+        for A, At, Sq in modes:
+            stack.append((k + 1, c + inner(Sq, Sig), mul(mul(A, Sig), At)))
+    return bool(worst <= Fraction(float(bound))), worst
 
 
 def _trace(P, weight):
@@ -390,7 +485,7 @@ def solve_sdp(prob: cp.Problem, solver: str, time_limit: float | None = None) ->
     start = time.perf_counter()
     for i, opts in enumerate(attempts):
         if time_limit is not None:
-            opts[limit_key] = max(float(time_limit) - (time.perf_counter() - start), 1e-3)
+            opts[limit_key] = time_left(float(time_limit), start, floor=1e-3)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
@@ -559,8 +654,11 @@ class LowerBound(NamedTuple):
     note: str
     #: ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: periodic from the start).
     lead: int = 0
-    #: The prefix search's diagnostic bound (:attr:`PrefixSearch.bound`), None when it did not run.
+    #: The certified tree bound (:attr:`PrefixSearch.bound`, or :func:`tree_bound` when smaller), None when the
+    #: prefix search did not run ...
     bound: float | None = None
+    #: ... and how it was proved (search, depth, prefixes valued).
+    tree: str = ""
 
 
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
@@ -617,7 +715,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         else:
             good = ~bad
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-    note, skipped, lead, bound, grown_count = "", 0, 0, None, 0
+    note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
             first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
@@ -641,12 +739,17 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []))
                 found = prefix_search(data, tails, certificate, _moment(data[0]["A"].shape[0], x0, weight),
                                       floor=best, budget=budget)
-                if found is not None:
-                    bound = found.bound
-                    if found.value > best:
-                        best, witness, lead = found.value, found.prefix + found.tail, len(found.prefix)
-                        note = (f"witness from the prefix search ({found.nodes} prefixes valued): {lead} intervals "
-                                f"once, then a period of {len(found.tail)}")
+                bound = found.bound
+                tree = f"prefix tree on P, depth {found.depth} ({found.nodes} prefixes valued)"
+                if bound > max(best, found.value or -np.inf) * (1 + 1e-9):  # the beam left prefixes open
+                    again, count = tree_bound(data, certificate, _moment(data[0]["A"].shape[0], x0, weight),
+                                              max(best, found.value or -np.inf))
+                    if again < bound:
+                        bound, tree = again, f"prefix tree on P, best first ({count} prefixes valued)"
+                if found.value is not None and found.value > best:
+                    best, witness, lead = found.value, found.prefix + found.tail, len(found.prefix)
+                    note = (f"witness from the prefix search ({found.nodes} prefixes valued): {lead} intervals "
+                            f"once, then a period of {len(found.tail)}")
     else:
         skipped = int(np.sum(unstable))
         _sweep_pruned(systems, approx)
@@ -674,7 +777,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         labels.append((plant, lm.eta))
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
-    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound)
+    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
 
 
 def _tails(data: list[dict], seqs: list) -> list:
@@ -764,23 +867,27 @@ class PrefixSearch:
 
     Attributes
     ----------
-    value : float
-        The exact cost of ``prefix`` followed by ``tail`` repeated forever (re-evaluated on its own).
+    value : float or None
+        The exact cost of ``prefix`` followed by ``tail`` repeated forever (re-evaluated on its own); None when
+        no sequence beat the search's ``floor``.
     prefix, tail : tuple of int
-        Loop-mode indices: the intervals applied once, then the period repeated.
+        Loop-mode indices: the intervals applied once, then the period repeated (empty when ``value`` is None).
     bound : float
-        ``max`` over the prefixes not ruled out of ``c + <P, Sigma>`` (the certificate's bound on every
-        continuation; every prefix ruled out is at most ``value``): the worst case lies in ``[value, bound]`` up
-        to rounding.  A diagnostic (it bounds what a deeper search could still find), not a certified number.
+        The certified tree bound (docs/design.md §8.4, "Tree bound"): no admissible sequence costs more, given
+        that ``P``'s inequality holds in exact arithmetic on the float64 data (:func:`check_cost`).  Every node
+        value ``c + <P, Sigma>`` carries a rigorous rounding allowance; the smallest per-depth bound is kept.
+    depth : int
+        The depth whose bound is ``bound`` (0: the root, ``<P, M>`` with its allowance).
     nodes : int
         Prefixes valued.
     """
 
-    value: float
+    value: float | None
     prefix: tuple
     tail: tuple
     bound: float
     nodes: int
+    depth: int = 0
 
 
 def _moment(n: int, x0: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
@@ -847,8 +954,77 @@ ROLLOUT_STEPS = 4000
 ROLLOUTS = 4
 
 
+def _gamma(k: int) -> float:
+    """Higham's ``gamma_k = k u / (1 - k u)`` (u the unit roundoff): a sum of k float64 products of nonnegative
+    magnitudes errs by at most ``gamma_k`` times the sum of their absolute values (any summation order)."""
+    u = np.finfo(float).eps / 2
+    return k * u / (1 - k * u)
+
+
+#: Relative margin on a computed rounding allowance (it is itself a float64 sum of nonnegative terms, exact to a
+#: few ``gamma_k``, far below this).
+ALLOWANCE_MARGIN = 1e-6
+
+
+def _certified(value, allowance):
+    """``value + allowance`` rounded up: at least the exact sum (float64, ``value + allowance >= 0``)."""
+    u = np.finfo(float).eps / 2
+    return (value + allowance * (1 + ALLOWANCE_MARGIN)) * (1 + 4 * u)
+
+
+class _TreeValues:
+    """Node values ``c + <P, Sigma>`` of the prefix tree with their rounding allowances (docs/design.md §8.4, "Tree
+    bound"), shared by the beam search (:func:`prefix_search`) and the best-first bound (:func:`tree_bound`).
+
+    With ``p = sqrt(diag P)``, a symmetric error F of a moment moves every later node value by at most ``p'|F|p``
+    (its cost-to-go ``<Q, F>`` has ``0 <= Q <= P``); one congruence ``A Sigma A'`` errs by ``gamma_2n |A||Sigma||A'|``
+    (``p' . p = w_s'|Sigma|w_s`` with ``w_s = |A_s|'p``), its symmetrization by ``u |Sigma'|``; an inner product of
+    ``n^2`` terms by ``gamma_{n^2+1}``; an addition by ``u`` of its result.
+    """
+
+    def __init__(self, data: list[dict], P: np.ndarray):
+        self.A = np.stack([d["A"] for d in data])
+        self.At = np.swapaxes(self.A, 1, 2)
+        self.Sm = np.stack([_sym(d["S"]) for d in data])
+        self.P = _sym(P)
+        n = self.A.shape[1]
+        self.p = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))
+        self.Wp = np.einsum("sij,i->sj", np.abs(self.A), self.p)  # (S, n)
+        self.absS, self.absP = np.abs(self.Sm), np.abs(self.P)
+        self.g_dot, self.g_mom, self.g_one = _gamma(n * n + 1), _gamma(2 * n), _gamma(1)
+        # gradual underflow breaks the relative model: at most a few n^3 roundings of 2^-1074 per entry and step
+        self.tiny = n**3 * 1e-300 * (1.0 + float(np.sum(self.p)))**2
+
+    def root(self, M: np.ndarray):
+        """``(Sigma (1, n, n), c (1,), allowance (1,), certified value)`` of the empty prefix (``M`` rounded once,
+        ``x0 x0'``)."""
+        Sig = _sym(M)
+        allow = self.g_one * float(self.p @ np.abs(Sig) @ self.p)
+        value = float(np.sum(self.P * Sig))
+        cert = float(_certified(value, allow + self.g_dot * float(np.sum(self.absP * np.abs(Sig)))
+                                + self.g_one * abs(value)))
+        return Sig[None], np.zeros(1), np.array([allow]), cert
+
+    def children(self, Sig: np.ndarray, c: np.ndarray, allow: np.ndarray):
+        """Every parent (``Sig`` (B, n, n), ``c``, ``allow`` (B,)) extended by every mode: ``(c2, Sig2, allow2, up,
+        cert)``, shapes (B, S), (B, S, n, n), (B, S) x 3: cost so far, moment, carried allowance, computed value
+        ``c2 + <P, Sig2>`` and its certified upper bound."""
+        absSig = np.abs(Sig)
+        c2 = c[:, None] + np.einsum("sij,bji->bs", self.Sm, Sig)
+        Sig2 = self.A[None] @ Sig[:, None] @ self.At[None]
+        Sig2 = 0.5 * (Sig2 + np.swapaxes(Sig2, -1, -2))
+        absSig2 = np.abs(Sig2)
+        allow2 = (allow[:, None] + self.g_dot * np.einsum("sij,bij->bs", self.absS, absSig) + self.g_one * np.abs(c2)
+                  + self.g_mom * np.einsum("si,bij,sj->bs", self.Wp, absSig, self.Wp)
+                  + self.g_one * np.einsum("i,bsij,j->bs", self.p, absSig2, self.p) + self.tiny)
+        up = c2 + np.einsum("ij,bsji->bs", self.P, Sig2)
+        cert = _certified(up, allow2 + self.g_dot * np.einsum("ij,bsij->bs", self.absP, absSig2)
+                          + self.g_one * np.abs(up))
+        return c2, Sig2, allow2, up, cert
+
+
 def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, floor: float = -np.inf,
-                  beam: int = BEAM, budget: int = NODE_BUDGET) -> PrefixSearch | None:
+                  beam: int = BEAM, budget: int = NODE_BUDGET, max_depth: int | None = None) -> PrefixSearch:
     """Branch and bound over admissible interval sequences: a prefix, then a periodic tail (cost).
 
     A node is a prefix ``s_1 .. s_k`` with its cost so far ``c = sum_i <S_{s_i}, Sigma_{i-1}>`` and its moment
@@ -857,29 +1033,32 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
     tail ``T`` repeated forever costs exactly ``c + <P_T, Sigma_k>`` (``tails``: ``(pattern, P_T)`` pairs).
     Depth by depth every node is extended by every mode; nodes whose bound does not exceed the best value found
     (above ``floor``, the periodic search's) are dropped, of the rest the ``beam`` with the largest bounds are
-    kept, until none is left or ``budget`` nodes have been valued.  Greedy continuations (:func:`_rollouts`, the
-    certificate and the best tails as value functions) from the root and from the ``ROLLOUTS`` most promising
-    nodes at depths 1, 2, 4, 8, ... supply long sequences: each ends in a cycle (:func:`_cycle`) that becomes the
-    tail.  The best candidates are re-evaluated on their own (:func:`sequence_cost`).  None when nothing beats
-    ``floor``.
+    kept, until none is left, ``budget`` nodes have been valued or ``max_depth`` is reached.  Greedy
+    continuations (:func:`_rollouts`, the certificate and the best tails as value functions) from the root and
+    from the ``ROLLOUTS`` most promising nodes at depths 1, 2, 4, 8, ... supply long sequences: each ends in a
+    cycle (:func:`_cycle`) that becomes the tail.  The best candidates are re-evaluated on their own
+    (:func:`sequence_cost`); ``value`` is None when nothing beats ``floor``.
+
+    The certified tree bound (docs/design.md §8.4, "Tree bound"): each node's ``c + <P, Sigma>`` plus a
+    rigorous allowance for the rounding of ``c``, ``Sigma`` and the inner products (a forward error bound
+    carried along the path), the largest over the nodes valued at depth d and the nodes dropped (pruned or
+    beyond the beam) above it; the smallest over the depths.  ``P`` must be a certificate whose inequality
+    passed :func:`check_cost`: the bound is proved for it, not re-checked here.
     """
-    if not tails:
-        return None
-    A = np.stack([d["A"] for d in data])
-    Sm = np.stack([_sym(d["S"]) for d in data])
-    At = np.swapaxes(A, 1, 2)
-    PT = np.stack([_sym(Pt) for _, Pt in tails])
-    P = _sym(P)
+    values = _TreeValues(data, P)
+    A, Sm, P = values.A, values.Sm, values.P
+    PT = np.stack([_sym(Pt) for _, Pt in tails]) if tails else None
     n, S = A.shape[1], A.shape[0]
     # above n = 8 the budget shrinks as n^-3 (the same CPU time), the beam to ~16 MB of moments per depth
     scale = min(1.0, (8.0 / n) ** 3)
     budget, steps = int(budget * scale), max(int(ROLLOUT_STEPS * scale), 1)
     beam = int(min(beam, max(8, 2_000_000 // (S * n * n))))
-    Sig, c = _sym(M)[None], np.zeros(1)
+    Sig, c, allow, tree = values.root(M)
+    tree_depth = 0
     best = floor
     candidates = []  # (approximate value, prefix, tail or None: the prefix ends in a cycle)
     history = []  # per depth: (parent position, mode) of the kept nodes
-    dropped, nodes = -np.inf, 0
+    dropped, nodes = -np.inf, 0  # dropped: the largest certified value of a node not kept (pruned or beam)
 
     def path(depth, b):
         out = []
@@ -889,36 +1068,42 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
             b = int(parents[b])
         return tuple(reversed(out))
 
-    for V in [P] + [PT[i] for i in range(min(3, len(tails)))]:  # from the root
+    for V in [P] + ([PT[i] for i in range(min(3, len(tails)))] if tails else []):  # from the root
         cost, seqs, work = _rollouts(A, Sm, Sig, V, P, steps)
         nodes += work
         candidates.append((float(cost[0]), tuple(int(v) for v in seqs[0]), None))
         best = max(best, float(cost[0]))
-    bound = float(np.sum(P * M))
-    while Sig.shape[0] and nodes < budget:
+    while Sig.shape[0] and nodes < budget and (max_depth is None or len(history) < max_depth):
         B = Sig.shape[0]
-        c2 = c[:, None] + np.einsum("sij,bji->bs", Sm, Sig)  # (B, S)
-        Sig2 = A[None] @ Sig[:, None] @ At[None]  # (B, S, n, n)
-        Sig2 = 0.5 * (Sig2 + np.swapaxes(Sig2, -1, -2))
-        up = c2 + np.einsum("ij,bsji->bs", P, Sig2)
-        tail = c2[..., None] + np.einsum("tij,bsji->bst", PT, Sig2)
+        c2, Sig2, allow2, up, cert = values.children(Sig, c, allow)
         nodes += B * S
-        t_best = np.argmax(tail, axis=-1)
-        lo = np.take_along_axis(tail, t_best[..., None], axis=-1)[..., 0]
-        k = int(np.argmax(lo))
-        if lo.flat[k] > best:
-            b, s = divmod(k, S)
-            best = float(lo.flat[k])
-            candidates.append((best, path(len(history), b) + (s,), tails[int(t_best.flat[k])][0]))
-        up, c2, Sig2 = up.ravel(), c2.ravel(), Sig2.reshape(B * S, n, n)
+        if tails:
+            tail = c2[..., None] + np.einsum("tij,bsji->bst", PT, Sig2)
+            t_best = np.argmax(tail, axis=-1)
+            lo = np.take_along_axis(tail, t_best[..., None], axis=-1)[..., 0]
+            k = int(np.argmax(lo))
+            if lo.flat[k] > best:
+                b, s = divmod(k, S)
+                best = float(lo.flat[k])
+                candidates.append((best, path(len(history), b) + (s,), tails[int(t_best.flat[k])][0]))
+        up, cert, c2, Sig2 = up.ravel(), cert.ravel(), c2.ravel(), Sig2.reshape(B * S, n, n)
+        allow2 = allow2.ravel()
         live = np.flatnonzero(up > best + 1e-12 * abs(best))
+        pruned = np.ones(up.size, dtype=bool)
         if live.size > beam:
-            order = live[np.argsort(-up[live], kind="stable")]
-            live, rest = order[:beam], order[beam:]
-            dropped = max(dropped, float(up[rest[0]]))
+            live = live[np.argsort(-up[live], kind="stable")[:beam]]
+        pruned[live] = False
+        if np.any(pruned):  # every continuation of a node not kept is covered by its own certified value
+            dropped = max(dropped, float(np.max(cert[pruned])))
         history.append((live // S, live % S))
-        Sig, c = Sig2[live], c2[live]
+        Sig, c, allow = Sig2[live], c2[live], allow2[live]
         depth = len(history)
+        # depth d: every admissible sequence passes a node valued here or a node dropped above
+        level = max(dropped, float(np.max(cert[live])) if live.size else -np.inf)
+        if not np.isfinite(level):
+            level = np.inf
+        if level < tree:
+            tree, tree_depth = level, depth
         if live.size and depth & (depth - 1) == 0:  # depths 1, 2, 4, 8, ...: continue the most promising greedily
             top = np.argsort(-up[live], kind="stable")[:ROLLOUTS]
             cost, seqs, work = _rollouts(A, Sm, Sig[top], P, P, steps)
@@ -928,15 +1113,60 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
                 if value > best:
                     best = value
                     candidates.append((value, path(depth, int(b)) + tuple(int(v) for v in seqs[r]), None))
-        bound = max(best, dropped, float(np.max(up[live])) if live.size else -np.inf)
-    found = None
+    found = PrefixSearch(value=None, prefix=(), tail=(), bound=float(tree), nodes=nodes, depth=tree_depth)
     for _, prefix, tail in sorted(candidates, key=lambda e: -e[0])[:4]:
         if tail is None:
             prefix, tail = _cycle(prefix)
         value = sequence_cost(data, prefix, tail, M)
-        if np.isfinite(value) and value > floor and (found is None or value > found.value):
-            found = PrefixSearch(value=value, prefix=tuple(prefix), tail=tuple(tail), bound=bound, nodes=nodes)
+        if np.isfinite(value) and value > floor and (found.value is None or value > found.value):
+            found.value, found.prefix, found.tail = value, tuple(prefix), tuple(tail)
     return found
+
+
+#: The best-first tree bound (:func:`tree_bound`): nodes valued, a quarter of the prefix search's ...
+BOUND_BUDGET = NODE_BUDGET // 4
+#: ... taken from the frontier this many at a time (one stacked expansion).
+BOUND_BATCH = 64
+
+
+def tree_bound(data: list[dict], P: np.ndarray, M: np.ndarray, best: float, budget: int = BOUND_BUDGET):
+    """The tree bound by best-first expansion (docs/design.md §8.4, "Tree bound"): ``(bound, nodes valued)``.
+
+    The frontier starts at the root; the ``BOUND_BATCH`` nodes of largest certified value are replaced by their
+    children, those whose computed value is at most ``best`` (a witnessed cost) closed.  At every step each
+    admissible sequence passes a frontier node or a closed one, so ``max(frontier, closed)`` bounds every
+    sequence's cost; the smallest over the steps is returned.  It goes straight at the prefixes that set the
+    bound, where the beam of :func:`prefix_search` drops some of them for width.  ``budget`` scales as
+    :func:`prefix_search`'s above n = 8.
+    """
+    import heapq
+
+    values = _TreeValues(data, P)
+    n, S = values.A.shape[1], values.A.shape[0]
+    budget = int(budget * min(1.0, (8.0 / n) ** 3))
+    cap = budget + BOUND_BATCH * S + 1
+    sigs, cs, allows = np.empty((cap, n, n)), np.empty(cap), np.empty(cap)
+    Sig, c, allow, bound = values.root(M)
+    sigs[0], cs[0], allows[0] = Sig[0], c[0], allow[0]
+    heap, size, closed, nodes = [(-bound, 0)], 1, -np.inf, 0
+    while heap and nodes < budget:
+        ids = [heapq.heappop(heap)[1] for _ in range(min(BOUND_BATCH, len(heap)))]
+        c2, Sig2, allow2, up, cert = values.children(sigs[ids], cs[ids], allows[ids])
+        nodes += up.size
+        up, cert = up.ravel(), cert.ravel()
+        shut = ~(up > best)  # NaN counts as closed: its certified value (NaN) makes the level infinite below
+        if np.any(shut):
+            closed = max(closed, float(np.max(cert[shut])) if np.all(np.isfinite(cert[shut])) else np.inf)
+        keep = np.flatnonzero(~shut)
+        k = keep.size
+        sigs[size:size + k], cs[size:size + k] = Sig2.reshape(-1, n, n)[keep], c2.ravel()[keep]
+        allows[size:size + k] = allow2.ravel()[keep]
+        for j, i in enumerate(keep):
+            heapq.heappush(heap, (-float(cert[i]), size + j))
+        size += k
+        level = max(closed, -heap[0][0] if heap else -np.inf)
+        bound = min(bound, level if np.isfinite(level) else np.inf)
+    return float(bound), nodes
 
 
 def _top(values: np.ndarray, count: int) -> list[int]:
@@ -1076,14 +1306,21 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
         reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
-    lower, witness, count, note, lead, _ = lower_bound(lifted, gains, kind, x0, data=data, weight=weight,
-                                                       stop=np.inf if upper is None else upper, certificate=P)
+    found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
+                        certificate=P)
+    lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
+    quadratic, tree = upper, ""
+    if P is not None and found.bound is not None and found.bound < upper:
+        # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
+        upper = found.bound
+        tree = f"{found.tree}; the quadratic certificate alone: {quadratic:.6g}"
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
-        P, upper, reason = None, None, f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
+        P, upper, quadratic = None, None, None
+        reason = f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     if P is not None:
-        message = f"{what} certified <= {upper:.6g} (float64 re-check of P)"
+        message = f"{what} certified <= {upper:.6g} ({tree or 'float64 re-check of P'})"
     else:
         message = f"no certified upper bound: {reason}"
     if lower is not None:
@@ -1091,4 +1328,5 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     if note:
         message += f"; {note}"
     return Performance(kind=kind, upper=upper, lower=lower, witness=witness, certificate=P,
-                       verified=P is not None, x0=x0, patterns=count, message=message, lead=lead)
+                       verified=P is not None, x0=x0, patterns=count, message=message, lead=lead,
+                       certificate_upper=quadratic)

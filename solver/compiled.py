@@ -9,6 +9,7 @@ maps new parameter values to the conic data.
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 import warnings
@@ -129,29 +130,65 @@ def check_memory(cone_sides, what: str, ipm_bytes: int | None = None) -> None:
 #: service's job time limit (``NCS_JOB_TIME_LIMIT``).
 MAX_SOLVER_SECONDS = float(os.environ.get("NCS_SOLVER_MAX_SECONDS", 300.0))
 
-#: The time estimate of :func:`design_size` (one cold solve): ``ESTIMATE_ITERATIONS`` interior-point
-#: iterations, each its flops (per block of side k touching v variables: ``k v^2`` for the Schur assembly and
-#: ``k^3`` for its factorization, plus ``p^3 / 3`` for the Schur complement's) at a rate that grows with the
-#: block side (rank-k work: ``ESTIMATE_FLOPS_PER_SIDE`` per unit of k, at most ``ESTIMATE_FLOPS_PER_SECOND``),
-#: plus ``ESTIMATE_SECONDS_PER_BLOCK`` per block and iteration (the batched small calls).  The whole request adds
-#: ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64 re-checks) and
-#: ``ESTIMATE_SECONDS_FIXED``, and weighs the solves of each path (:data:`ESTIMATE_SOLVE_WEIGHT`).
-#: Fitted by least squares on log CPU time to 28 designs by ``python -m bench size`` (its table is in
-#: docs/design.md §3.6; 0.30 .. 2.86, worst factor 3.3, 2026-11-27) on the 2-core development machine, loaded by
-#: other jobs.
-ESTIMATE_ITERATIONS = 25
-ESTIMATE_FLOPS_PER_SECOND = 3.48e10
-ESTIMATE_FLOPS_PER_SIDE = 2.86e8
-ESTIMATE_SECONDS_PER_BLOCK = 2.21e-5
-ESTIMATE_SECONDS_PER_MODE = 2.49e-6
-ESTIMATE_SECONDS_FIXED = 1.35e-5
-#: Effective cold solves per structural solve of each path (:func:`design_path`): a warm-started bisection step
-#: costs less than a cold solve; a performance design runs a phase 1, a phase 2 and (cost with x0) a tie-break
-#: stage, and may add Clarabel's proposal.  Calibrated with the constants above.
-ESTIMATE_SOLVE_WEIGHT = {"plain": 1.0, "rate": 1.0, "auto": 0.39, "max": 0.34, "cost": 12.5, "hinf": 30.8,
-                         "u_max": 4.7, "switched": 1.47, "ccl": 11.8, "network": 15.1}
-#: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_SOLVE_WEIGHT`).
-DESIGN_PATHS = tuple(ESTIMATE_SOLVE_WEIGHT)
+
+def time_left(time_limit: float | None, start: float, floor: float | None = None) -> float | None:
+    """What is left of ``time_limit`` since ``start``: the time limit of the next step of a run.
+
+    Parameters
+    ----------
+    time_limit : float or None
+        The run's limit (seconds); None: no limit.
+    start : float
+        The run's start, a :func:`time.perf_counter` reading (seconds).
+    floor : float, optional
+        The least value returned (seconds), for a solver that needs a positive limit.  None: the plain rest,
+        which is ``<= 0`` once the run is out of time (callers that stop then must not pass a floor).
+
+    Returns
+    -------
+    float or None
+        Seconds left (None without a limit).
+    """
+    if time_limit is None:
+        return None
+    left = time_limit - (time.perf_counter() - start)
+    return left if floor is None else max(left, floor)
+
+
+#: The time estimate of :func:`design_size` (docs/design.md §3.6): the path's Newton steps times one step's work,
+#: plus the bracket's lower-bound search.  One interior-point step (:func:`_step_seconds`) costs ``2 v^2`` per block
+#: touching v variables for the Schur pieces (at ``ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND``), ``k^3`` per block of side
+#: k for its products and factorizations (at ``ESTIMATE_BLOCK_FLOPS_PER_SIDE`` per unit of k: rank-k work, at most
+#: the BLAS rate), ``p^3 / 3`` for the Schur complement's Cholesky factor (at ``ESTIMATE_FLOPS_PER_SECOND``, LAPACK's
+#: rate on this machine, measured, not fitted), ``ESTIMATE_SECONDS_PER_BLOCK`` per block (the batched small calls)
+#: and ``ESTIMATE_SECONDS_PER_STEP``.  A solve takes ``I ln(1 + nu)`` steps, ``nu`` the LMI's total side (the
+#: barrier parameter: a predictor-corrector's steps grow like ``log(nu / eps)``; measured 10, 15, 22, 21, 24 plain
+#: steps at nu = 36, 160, 800, 1200, 10000), ``I`` the path's :data:`ESTIMATE_PATH_ITERATIONS`.  A request adds the
+#: lower-bound search (cost, hinf: :func:`lower_bound_work`'s flops at ``ESTIMATE_SEARCH_FLOPS_PER_SECOND`` plus
+#: ``ESTIMATE_SEARCH_SECONDS``), ``ESTIMATE_SECONDS_PER_MODE`` per closed-loop mode (building the modes, the float64
+#: re-checks) and ``ESTIMATE_SECONDS_FIXED``.  Fitted by ``python -m bench size`` in three least-squares problems
+#: on log CPU time (the per-step constants on the measured Newton steps, the search's on its own CPU, the paths'
+#: steps and the rest on the whole request), 45 designs, 2026-11-27, the 2-core development machine loaded by other
+#: jobs, one BLAS thread; refit after a change to the IPM or the search (``python -m bench size``).
+ESTIMATE_FLOPS_PER_SECOND = 2e10
+ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND = 2.87e9
+ESTIMATE_BLOCK_FLOPS_PER_SIDE = 2.17e6
+ESTIMATE_SECONDS_PER_BLOCK = 5.45e-5
+ESTIMATE_SECONDS_PER_STEP = 1.6e-6
+ESTIMATE_SECONDS_PER_MODE = 2.34e-6
+ESTIMATE_SECONDS_FIXED = 6.89e-6
+#: Newton steps per structural solve (:func:`request_solves`) and unit of ``ln(1 + nu)``, per path
+#: (:func:`design_path`; "plain" is one cold solve): a bisection's probes stop early and the rate path moves between
+#: steps (``"auto"``, ``"max"``: 12 structural solves, 60-110 steps measured); a performance design runs a phase 1,
+#: a phase 2 and (u_max: three runs, 110-190 steps) a tie-break stage on its own blocks.
+ESTIMATE_PATH_ITERATIONS = {"plain": 3.62, "rate": 3.62, "auto": 1.07, "max": 0.81, "cost": 4.74, "hinf": 6.33,
+                            "u_max": 19.0, "switched": 2.98, "ccl": 23.4, "network": 74.7}
+#: The lower-bound search of a bracket (solver/brackets.py ``lower_bound``): its flops
+#: (:func:`lower_bound_work`) at this rate, plus a fixed part per kind (the scalar searches, the re-evaluations).
+ESTIMATE_SEARCH_FLOPS_PER_SECOND = {"cost": 5.38e9, "hinf": 1.29e10}
+ESTIMATE_SEARCH_SECONDS = {"cost": 0.09, "hinf": 0.647}
+#: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_PATH_ITERATIONS`).
+DESIGN_PATHS = tuple(ESTIMATE_PATH_ITERATIONS)
 
 
 def design_path(method: str = "lmi", objective: str = "stability", decay_rate=None, u_max=None,
@@ -188,16 +225,87 @@ def request_solves(method: str, decay_rate, rate_tol: float = 1e-3, objective: s
     return 1
 
 
-def _solve_seconds(blocks, p: int) -> float:
-    """Seconds of one cold solve for ``blocks`` = [(side k, variables touched v, count)] and p variables."""
-    seconds, n_blocks = 0.0, 0
+def _step_seconds(blocks, p: int) -> float:
+    """Seconds of one interior-point step for ``blocks`` = [(side k, variables touched v, count)] and p variables:
+    the Schur pieces (``2 v^2`` per block), the per-block products and factorizations (``k^3``), the Schur
+    complement's factorization (``p^3 / 3``), each at its own rate, and the per-block and per-step overheads."""
+    pieces = products = 0.0
+    n_blocks = 0
     for k, v, count in blocks:
-        rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_FLOPS_PER_SIDE * k)
-        seconds += min(float(count) * (k * float(v) ** 2 + float(k) ** 3), 1e300) / rate
+        count = float(min(count, 10**300))  # per-sample counts can be astronomical
+        pieces += min(count * 2.0 * float(v) ** 2, 1e300)
+        # small blocks run far below the BLAS rate: rank-k work, ESTIMATE_BLOCK_FLOPS_PER_SIDE per unit of k
+        rate = min(ESTIMATE_FLOPS_PER_SECOND, ESTIMATE_BLOCK_FLOPS_PER_SIDE * k)
+        products += min(count * float(k) ** 3 / rate, 1e300)
         n_blocks += count
-    seconds += float(p) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND
-    seconds = ESTIMATE_ITERATIONS * (seconds + min(n_blocks, 10**300) * ESTIMATE_SECONDS_PER_BLOCK)
-    return float(min(seconds, 1e300))
+    seconds = (pieces / ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND + products
+               + float(min(p, 10**100)) ** 3 / 3 / ESTIMATE_FLOPS_PER_SECOND)
+    return float(min(seconds + min(n_blocks, 1e300) * ESTIMATE_SECONDS_PER_BLOCK + ESTIMATE_SECONDS_PER_STEP, 1e300))
+
+
+def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbances: int = 1,
+                     n_outputs: int = 1) -> tuple[float, float]:
+    """``(flops, bytes)`` of a bracket's lower-bound search (docs/design.md §8.4) from the sizes alone.
+
+    Counted as solver/brackets.py's ``lower_bound`` runs it (its constants are read from there): ``S`` loop modes,
+    ``P`` periodic patterns of up to ``L`` intervals (as many as fit ``MAX_PATTERNS``, or ``MAX_PATTERNS_HINF``).
+
+    * cost: the patterns' products and Stein doublings (about ``(6 L + 60) n^3`` each), the two-run search
+      (``c (c - 1)`` mode pairs, ``c = min(S, RUN_MODES)``, ``RUN_LENGTH^2`` patterns of ``70 n^3`` each) and the
+      prefix search (``NODE_BUDGET min(1, (8 / n)^3)`` nodes of ``4 n^3 + 2 TAILS n^2``); memory: the stacked
+      doublings (``6 P n^2`` numbers) and the prefix search's moments (``beam S n^2`` numbers, ``beam`` capped
+      at ``2e6 / (S n^2)`` in code: 16 MB per depth), four copies each;
+    * hinf: per pattern a frequency sweep (``SWEEP`` points of ``11 n^3 + 16 n^2 w + 8 n w^2`` flops, complex,
+      ``w = L n_drop min(p_w, p_z)`` the smaller side of the lifted period) and its eigenvalue bound
+      (``40 n^3``), for the exhaustive patterns and the grown ones (``GROW_BUDGET min(1, (4 / n)^3)`` pattern
+      intervals, periods up to ``GROW_LENGTH``); memory: the stacked period systems (``P (L r (L q + n) + n^2)``
+      numbers, ``r = n_drop p_z``, ``q = n_drop p_w``, three copies) and one sweep chunk (``CHUNK`` patterns x
+      frequencies of ``3 (n^2 + n w + w^2)`` complex numbers).
+    """
+    from . import brackets, periodic
+
+    n, N = float(n), int(n_drop)
+    if int(n_modes) < 1:
+        return 0.0, 0.0
+    # the pattern counts saturate at their cap (<= 4000) long before S = 1e6; the memory's S is a float (per-sample
+    # mode counts can be astronomical)
+    S, S_mem = min(int(n_modes), 10**6), float(min(int(n_modes), 10**300))
+    cost = kind == "cost"
+    cap = brackets.MAX_PATTERNS if cost else brackets.MAX_PATTERNS_HINF
+    L, total = brackets.PATTERN_LENGTH, sum(float(S) ** k for k in range(1, brackets.PATTERN_LENGTH + 1))
+    while L < brackets.MAX_PATTERN_LENGTH and total + float(S) ** (L + 1) <= cap:
+        L += 1
+        total += float(S) ** L
+    P = min(float(cap), total if cost else total / 2 + S)  # hinf: one pattern per rotation class (about half)
+    # the longest period actually valued: the exhaustive patterns stop where the count does
+    L_used = next((k for k in range(1, L + 1) if sum(float(S) ** j for j in range(1, k + 1)) >= P), L)
+    if cost:
+        c = min(S, brackets.RUN_MODES)
+        runs = c * (c - 1) * brackets.RUN_LENGTH**2 if c >= 2 else 0
+        nodes = brackets.NODE_BUDGET * min(1.0, (8.0 / n) ** 3)
+        flops = (P * (6 * L_used + 60) + runs * 70) * n**3 + nodes * (4 * n**3 + 2 * brackets.TAILS * n**2)
+        beam = min(brackets.BEAM, max(8, 2e6 // max(S_mem * n * n, 1.0)))
+        memory = 8 * 4 * max(6 * P * n * n, runs / max(c * (c - 1), 1) * 8 * n * n, min(beam * S_mem * n * n, 1e300))
+        return float(flops), float(min(memory, 1e300))
+    q, r = N * int(n_disturbances), N * int(n_outputs)
+    grow_budget = max(brackets.GROW_BUDGET * min(1.0, (4.0 / n) ** 3), 1.0)
+    L_grow, work, level = L_used, 0.0, brackets.GROW_BEAM * S
+    while work < grow_budget and L_grow < brackets.GROW_LENGTH:
+        L_grow += 1
+        work += level * L_grow
+    grown = min(work, grow_budget) / max(L_grow, 1)  # patterns valued by the growth (about)
+    L_max = max(L_used, L_grow if S > 1 else L_used)
+
+    def sweep(length):
+        w = length * min(q, r)
+        return brackets.SWEEP * 4 * (11 * n**3 + 16 * n * n * w + 8 * n * w * w) + 160 * n**3
+
+    flops = P * sweep(L_used) + grown * sweep(L_grow) + brackets.REFINED * 40 * (n + 3) * sweep(L_max) / brackets.SWEEP
+    w_max = L_max * min(q, r)
+    chunk = min(periodic.CHUNK, (periodic.CHUNK // brackets.SWEEP) * brackets.SWEEP)
+    memory = (8 * 3 * max(P * (L_used * r * (L_used * q + n) + n * n), grown * (L_grow * r * (L_grow * q + n)))
+              + 16 * 3 * chunk * (n * n + n * w_max + w_max * w_max))
+    return float(flops), float(memory)
 
 
 @dataclass(frozen=True)
@@ -217,18 +325,21 @@ class DesignSize:
         Estimated peak solver memory (bytes): the larger of the structured IPM's
         (a ``v_b x v_b`` Schur piece per block, ``v_b`` the variables block b touches, plus the
         dense ``p x p`` Schur complement) and a general conic solver's (a dense
-        ``(k(k+1)/2)^2`` scaling per PSD cone of side k).
+        ``(k(k+1)/2)^2`` scaling per PSD cone of side k); cost and hinf: at least the bracket's lower-bound
+        search's (:func:`lower_bound_work`).
     seconds : float
-        Estimated CPU time of one cold solve of the path's SDP (s): :data:`ESTIMATE_ITERATIONS` iterations of
-        Schur assembly and factorizations at the calibrated rates.
+        Estimated CPU time of one cold solve of the path's SDP (s): ``ESTIMATE_PATH_ITERATIONS["plain"] ln(1 +
+        lmi_size)`` interior-point steps (Schur assembly and factorizations at the calibrated rates,
+        :func:`_step_seconds`).
     path : str
         The request's path (:func:`design_path`): "plain", "rate", "auto", "max", "cost", "hinf", "u_max",
         "switched", "ccl" or "network".
     solves : int
         SDPs the path solves at least (:func:`request_solves`; a decay-rate bisection about 12).
     total_seconds : float
-        Estimated CPU time of the whole request (s): the solves weighed by the path's calibrated
-        :data:`ESTIMATE_SOLVE_WEIGHT`, plus the per-mode work (building the modes, re-checks) and a fixed part.
+        Estimated CPU time of the whole request (s): the path's Newton steps (:data:`ESTIMATE_PATH_ITERATIONS`
+        per solve), the bracket's lower-bound search (:attr:`search_seconds`), the per-mode work (building the
+        modes, re-checks) and a fixed part.
     """
 
     method: str
@@ -258,6 +369,10 @@ class DesignSize:
     #: Entries of the per-block Schur pieces, ``sum_b v_b^2`` (``v_b`` the variables block b touches): the
     #: assembly's work per iteration is the block side times this.
     schur_entries: float = 0.0
+    #: The bracket's lower-bound search (cost, hinf: :func:`lower_bound_work`), part of :attr:`total_seconds`.
+    search_seconds: float = 0.0
+    #: One interior-point step of the path's SDP (:func:`_step_seconds`).
+    step_seconds: float = 0.0
 
     def _dimension(self, over: str = "") -> tuple[str, tuple]:
         """The hint and the field of the dimension that makes this design large (``over``: "memory" or "time")."""
@@ -314,9 +429,15 @@ def _bytes(x: float) -> str:
     return f"{x / 2**30:.3g} GiB" if x >= 2**30 else f"{x / 2**20:.3g} MiB"
 
 
-def _total(path: str, seconds: float, solves: int, n_modes: int) -> float:
-    """The whole request's CPU estimate from one cold solve's (see :data:`ESTIMATE_SOLVE_WEIGHT`)."""
-    return float(min(ESTIMATE_SOLVE_WEIGHT.get(path, 1.0) * solves * seconds
+def _steps(path: str, lmi_size: float, solves: int = 1) -> float:
+    """Newton steps of ``solves`` structural solves of ``path`` on an LMI of total side ``lmi_size``."""
+    return ESTIMATE_PATH_ITERATIONS.get(path, ESTIMATE_PATH_ITERATIONS["plain"]) * solves * math.log1p(lmi_size)
+
+
+def _total(path: str, step: float, solves: int, n_modes: int, lmi_size: float, search_seconds: float = 0.0) -> float:
+    """The whole request's CPU estimate from one interior-point step's (:func:`_step_seconds`): the path's
+    Newton steps (:func:`_steps`), the lower-bound search, the per-mode work and the fixed part."""
+    return float(min(_steps(path, lmi_size, solves) * step + search_seconds
                      + ESTIMATE_SECONDS_PER_MODE * min(n_modes, 10**300) + ESTIMATE_SECONDS_FIXED, 1e300))
 
 
@@ -330,8 +451,10 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     The one estimate behind the library's refusal (:func:`solver.design`, :func:`solver.analyze`) and the
     service's limits (``NCS_MAX_LMI_SIZE``, ``NCS_WORKER_MEMORY_MB``, ``NCS_JOB_TIME_LIMIT``), for every path:
     plain, a given rate, ``decay_rate="auto"``/``"max"`` (a bisection), the cost, H-infinity and input-limited
-    designs (their lifted blocks of side ``2n + eta (n + m)``, ``2n + eta (p_w + p_z)``; the input blocks
-    ``n + 1``), switched, ccl, and a network (:func:`network_design_size`; ``n_drop`` is then the network's).
+    designs (their blocks as the IPM builds them, docs/design.md §3.6: compact lifted blocks of side
+    ``2n + min(eta (n + m), n + min(eta, J) m)`` (cost) and ``2n + eta p_w + min(eta p_z, n + min(eta, J) m + (eta - 1)
+    p_w)`` (hinf) merged into groups; the input blocks ``n + 1``; the bracket's lower-bound search), switched, ccl,
+    and a network (:func:`network_design_size`; ``n_drop`` is then the network's).
     ``n_drop`` is the interval length of a design for a channel too (:func:`solver.design_for_channel`).
 
     Parameters
@@ -385,15 +508,34 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
         sides = [(k, S + 1)]
         lmi = k * (S + 1)
     elif path in ("cost", "hinf", "u_max"):
-        p = 2 * sym + J * m * n + 2  # W, Z (trace objective), the gains, gamma / g and t
-        per = {"cost": n + m, "hinf": int(n_disturbances) + (n + m if n_outputs is None else int(n_outputs)),
-               "u_max": 0}[path]
-        blocks = [(2 * n + eta * per, sym + min(eta, J) * m * n + 2, count) for eta, count in lengths]
-        blocks += [(2 * n, sym + sym, 1), (n + 1, sym + 1, 1)]  # Z (or the ball) and x0
+        # solver/ipm/performance_blocks.py: the compact lifted blocks, of side 2n + min(eta (n + m), n + g m) for the
+        # cost and 2n + eta p_w + min(eta p_z, n + g m + (eta - 1) p_w) for hinf (g = min(eta, J) gains; the tail
+        # rows reduced to the triangular factor of their nonzero columns, docs/design.md §8.3.1), the lengths whose
+        # sides are within MERGE_RATIO of their group's smallest in one group padded to its largest side, every
+        # block touching W, the gains and the scalars; u_max: the stability blocks (2n) and the ball (n); the cost:
+        # the Z block (2n); then the input blocks (n + 1)
+        from .ipm.performance_blocks import MERGE_RATIO
+
+        pw = int(n_disturbances)
+        pz = n + m if n_outputs is None else int(n_outputs)
+        side = {"cost": lambda e: 2 * n + min(e * (n + m), n + min(e, J) * m),
+                "hinf": lambda e: 2 * n + e * pw + min(e * pz, n + min(e, J) * m + (e - 1) * pw),
+                "u_max": lambda e: 2 * n}[path]
+        p = sym + J * m * n + (sym + 1 if path == "cost" else 2)  # W, the gains, t; Z (cost), g or tau
+        v = sym + J * m * n + 2
+        groups = []  # [largest side, smallest side, count]
+        for eta, count in lengths:
+            k_e = side(eta)
+            if groups and k_e <= MERGE_RATIO * groups[-1][1]:
+                groups[-1][0], groups[-1][2] = max(groups[-1][0], k_e), groups[-1][2] + count
+            else:
+                groups.append([k_e, k_e, count])
+        blocks = [(k_g, v, count) for k_g, _, count in groups]
+        blocks += {"cost": [(2 * n, sym + sym, 1)], "hinf": [], "u_max": [(n, sym + 1, 1)]}[path]
         if u_max is not None and u_max is not False:
             blocks.append((n + 1, sym + n + 1, J * m))
-        sides = [(side, count) for side, _, count in blocks]
-        lmi = sum(side * count for side, count in sides)
+        sides = [(side_b, count) for side_b, _, count in blocks]
+        lmi = sum(side_b * count for side_b, count in sides)
     else:
         p = sym + J * m * n + 1
         blocks = [(k, sym + min(eta, J) * m * n + 1, count) for eta, count in lengths]
@@ -405,9 +547,17 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
     structured = 8 * (pieces + p * p + 30 * sum(count * side * side for side, _, count in blocks))
     memory = structured if str(solver).upper() in ("AUTO", "IPM") else max(
         CVXPY_MEMORY_FACTOR * structured + CVXPY_MEMORY_FIXED, conic)
+    search_seconds = 0.0
+    if path in ("cost", "hinf"):  # the bracket's lower-bound search (solver/brackets.py lower_bound)
+        flops, search_memory = lower_bound_work(path, n, S, N, n_disturbances,
+                                                n + m if n_outputs is None else n_outputs)
+        search_seconds = flops / ESTIMATE_SEARCH_FLOPS_PER_SECOND[path] + ESTIMATE_SEARCH_SECONDS[path]
+        memory = max(memory, search_memory)
     memory = float(min(memory, 10**300))  # per-sample counts can be astronomical
-    seconds = _solve_seconds(blocks, p)
-    total = _total(path, seconds, solves, S)
+    step = _step_seconds(blocks, p)
+    lmi = min(lmi, 10**300)
+    seconds = float(min(_steps("plain", lmi) * step, 1e300))
+    total = _total(path, step, solves, S, lmi, search_seconds)
     channel_seconds = channel_memory = 0.0
     if channel_size:
         from .workload import channel_estimate
@@ -419,6 +569,7 @@ def design_size(method: str, n_states: int, n_inputs: int, n_plants: int, n_drop
                                                                                         else sym),
                       gain_variables=J * m * n, path=path, solves=solves, n_drop=N, total_seconds=total,
                       schur_entries=float(min(pieces, 1e300)), channel_size=int(channel_size),
+                      search_seconds=search_seconds, step_seconds=step,
                       channel_seconds=channel_seconds, channel_memory=channel_memory)
 
 
@@ -486,10 +637,11 @@ def network_design_size(network, n_states: int, n_inputs: int, n_plants: int,
     if product.size * n * N <= MAX_LMI_ROWS:  # the analysis re-check's node SDP (above it analyze refuses, skipped)
         memory = max(memory, node_sdp_memory(product.succ, n * N))
     memory = float(min(memory, 10**300))
-    seconds = _solve_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
-    return DesignSize("network", E, 2 * k * E + k * V, p, memory, seconds,
-                      nodes=int(network.nodes), state_size=k, path=path, solves=solves,
-                      total_seconds=_total(path, seconds, solves, E))
+    step = _step_seconds([(2 * k, touched, E), (2 * k, 2 * sym, V), (k, sym, V)], p)
+    lmi = 2 * k * E + k * V
+    return DesignSize("network", E, lmi, p, memory, float(min(_steps("plain", lmi) * step, 1e300)),
+                      nodes=int(network.nodes), state_size=k, path=path, solves=solves, step_seconds=step,
+                      total_seconds=_total(path, step, solves, E, lmi))
 
 
 def network_performance_size(network, n_states: int, n_inputs: int, n_plants: int,
@@ -557,9 +709,10 @@ def network_performance_size(network, n_states: int, n_inputs: int, n_plants: in
     else:
         memory = clarabel
     memory = float(min(memory, 10**300))
-    seconds = _solve_seconds(blocks, p_vars)
-    return DesignSize("network", E, lmi, p_vars, memory, seconds, nodes=int(network.nodes), state_size=k,
-                      path="network", solves=1, total_seconds=_total("network", seconds, 1, E))
+    step = _step_seconds(blocks, p_vars)
+    return DesignSize("network", E, lmi, p_vars, memory, float(min(_steps("plain", lmi) * step, 1e300)),
+                      nodes=int(network.nodes), state_size=k, path="network", solves=1, step_seconds=step,
+                      total_seconds=_total("network", step, 1, E, lmi))
 
 
 def check_solver(solver: str) -> str:

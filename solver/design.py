@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from .compiled import check_solver, clarabel_fits, design_size, request_solves, resolve_solver
+from .compiled import check_solver, clarabel_fits, design_size, request_solves, resolve_solver, time_left
 from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
@@ -459,7 +459,7 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
     Gains that stabilize the network stabilize every run it admits, so a proof that none stabilizes the
     bounded-drops runs (in the sense of that proof) carries over; the converse direction would be wrong.
     """
-    remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    remaining = time_left(time_limit, start)
     if remaining is not None and remaining <= 0:
         return res
     try:
@@ -489,7 +489,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
     notes: list = []
 
     def left():
-        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+        return time_left(time_limit, start, floor=1e-3)
 
     def recheck(gains, rate):
         """Plain stability: the network analysis must accept the gains (its own certificate is kept)."""
@@ -689,7 +689,7 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
                 or u_max is not None:
             return res
-        remaining = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        remaining = time_left(time_limit, start)
         if remaining is not None and remaining <= 0:
             return res
         try:
@@ -746,7 +746,7 @@ def _limited_auto(family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin
     start = time.perf_counter()
 
     def left():
-        return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
+        return time_left(time_limit, start, floor=1e-3)
 
     def out_of_time():
         return time_limit is not None and time.perf_counter() - start >= time_limit
@@ -922,8 +922,7 @@ def _best(method: str, modes: ModeSet, options: DesignOptions, decay_rate, rate_
             first.method = "switched"
             return first
         if first is not None and first.outcome == "stabilized":
-            rest = options if options.time_limit is None else replace(
-                options, time_limit=max(options.time_limit - (time.perf_counter() - start), 1e-9))
+            rest = replace(options, time_limit=time_left(options.time_limit, start, floor=1e-9))
             return _smallest_rate("switched", modes, rest, rate_tol, upper=first, user_limit=options.time_limit)
     return _run(method, modes, options, decay_rate, rate_tol)
 
@@ -995,7 +994,7 @@ def _auto_rate(method: str, modes: ModeSet, options: DesignOptions) -> DesignRes
         how = (f"{open_loop:.6g}^{AUTO_OPEN_LOOP_SPEEDUP:g}: the plant is stable without control (open-loop spectral "
                f"radius {open_loop:.6g} per sample), so settling {AUTO_OPEN_LOOP_SPEEDUP:g}x faster than its own, no "
                f"faster")
-    remaining = None if options.time_limit is None else options.time_limit - (time.perf_counter() - start)
+    remaining = time_left(options.time_limit, start)
     if remaining is not None and remaining <= 0:
         return best
     try:
@@ -1106,7 +1105,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
 
     def attempt(lam):
         nonlocal timed_out
-        remaining = None if limit is None else limit - (time.perf_counter() - start)
+        remaining = time_left(limit, start)
         if remaining is not None and remaining <= 0:
             timed_out = True
             return None
@@ -1242,30 +1241,51 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     """
     from .compiled import DesignSdpSolution, SolveInfo
     from .methods.common import run_one_shot
-    from .rate_search import path_search, path_steps_solves
+    from .rate_search import _closing_high, path_rates, path_search, path_steps_solves
 
     path, his = path_search(modes, settling, tol_width, done, options.time_limit)
     if not his:
         return None
     coef, active = modes.scheme_coef()
-    M = modes.free @ path.W
-    if coef.size:
-        M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], path.Y)
 
     def info(t):
         return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
                          iterations=path.iterations)
 
-    plain = replace(options, sign_only=False, warm_start=None)
-    for hi in his:  # the iterate's margin at hi: the blocks' smallest eigenvalue
+    def recheck(W, Y, X, hi):  # the iterate's margin at hi: the blocks' smallest eigenvalue
+        M = modes.free @ W
+        if coef.size:
+            M = M + np.einsum("sjnm,jmk->snk", coef * np.asarray(active, dtype=float)[:, :, None, None], Y)
         c = hi ** (-modes.eta.astype(float))
-        blocks = np.block([[np.broadcast_to(path.W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
-                           [c[:, None, None] * M, np.broadcast_to(path.W, M.shape)]])
+        blocks = np.block([[np.broadcast_to(W, M.shape), np.swapaxes(c[:, None, None] * M, 1, 2)],
+                           [c[:, None, None] * M, np.broadcast_to(W, M.shape)]])
         t_hi = float(np.linalg.eigvalsh(blocks)[:, 0].min())
-        sol_hi = DesignSdpSolution(t=t_hi, W=path.W, Y=path.Y, S=None, duals=path.X_hi, info=info(t_hi))
-        res_hi = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol_hi)
-        if res_hi.outcome == "stabilized":
-            break
+        # (no multipliers for the re-check: at a rate the iterate itself certifies in closed form no Farkas
+        # certificate can pass, and its re-check cost more than the paper example's Newton steps)
+        sol = DesignSdpSolution(t=t_hi, W=W, Y=Y, S=None, duals=None, info=info(t_hi))
+        res = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol)
+        sol.duals = X  # the probes' model and warm start (when the path leaves the bracket open)
+        return sol, res
+
+    plain = replace(options, sign_only=False, warm_start=None)
+    # the last certifying iterate first, then earlier ones (better centred: the paper example's last one is
+    # certified 1e-7 above its re-check's resolution), each at the rates above its own that still close the bracket
+    tries = [(his, path.W, path.Y, path.X_hi)]
+    if 0.0 < path.lo < his[-1]:  # the largest rate that still closes the bracket with the path's lower end
+        top = _closing_high(path.lo, 1.0, done)
+        if his[-1] < top < 1.0:
+            tries[0] = (his + [top], path.W, path.Y, path.X_hi)
+    for rate, W, Y, X in path.earlier:
+        ups = [h for h in path_rates(rate, settling, tol_width) if path.lo <= 0.0 or done(path.lo, h)]
+        tries.append((ups, W, Y, X))
+    for rates, W, Y, X in tries:
+        for hi in rates:
+            sol_hi, res_hi = recheck(W, Y, X, hi)
+            if res_hi.outcome == "stabilized":
+                break
+        else:
+            continue
+        break
     else:
         return None
     res_hi.sdp = sol_hi

@@ -241,8 +241,12 @@ class Performance(_Open):
 
     kind: str = Field(description="`cost`: worst-case `sum_k x'Qx + u'Ru` (w = 0) from `x0`, or its mean over "
                                   "initial states of covariance I; `hinf`: worst-case l2 gain from w to z, x(0) = 0.")
-    upper: float | None = Field(None, description="Certified upper bound (a re-checked quadratic certificate); null "
-                                                  "when none passed the float64 re-check (`message` says why).")
+    upper: float | None = Field(None, description="Certified upper bound (a re-checked quadratic certificate; for the "
+                                                  "cost the smaller of its bound and the prefix tree's certified bound "
+                                                  "on it, docs/design.md §8.4); null when none passed the float64 "
+                                                  "re-check (`message` says why).")
+    certificate_upper: float | None = Field(None, description="The quadratic certificate's own bound (`x0'Px`, "
+                                                              "`trace P` or gamma): what the design's SDP minimizes.")
     lower: float | None = Field(None, description="The value of the worst allowed periodic pattern searched (exact "
                                                   "cost; H-infinity norm by a frequency sweep, a lower bound).")
     lower_infinite: bool | None = Field(None, description="True when a periodic pattern is unstable (infinite cost).")

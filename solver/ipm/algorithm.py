@@ -67,7 +67,9 @@ class IPMOptions:
     #: The max-t form's data may change between iterations (the rate-following path, docs/design.md §3.2.2):
     #: ``retarget(y, X, S, upper, t, primal_residual)`` is called at every iterate before the stopping rules
     #: and returns None (go on), ``"stop"`` (status ``"stopped"``, this iterate returned) or new data
-    #: ``(C, op, adj, schur, y, X)`` (the next iteration starts from them; ``C + op(y)`` positive definite).
+    #: ``(C, op, adj, schur, y, X)`` (the next iteration starts from them; ``C + op(y)`` positive definite),
+    #: or ``(C, op, adj, schur, y, X, S)``: the slacks ``S`` (positive definite) are kept and the new data's dual
+    #: residual ``S - C - op(y)`` is carried and removed by the Newton steps, as in an infeasible start.
     retarget: object | None = None
 
 
@@ -407,9 +409,16 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 best, status = (score, it, y, X, rp, gap, pobj), "stopped"
                 break
             if new is not None:  # another problem of the same shape: its residuals and steps from the next iterate
-                C, op, adj, schur, y, X = new
+                C, op, adj, schur, y, X = new[:6]
                 Cf = [c.reshape(-1) for c in C]
                 S = [c + d for c, d in zip(C, op(y))]
+                if len(new) > 6 and new[6] is not None:
+                    # the slacks kept (still centred with X): the new data's dual residual E = S - C - A(y) is
+                    # carried as in the infeasible start, and the next Newton step aims at the new data's
+                    # central path from there (the tangent predictor and the corrector in one step)
+                    E = [s_keep - s for s_keep, s in zip(new[6], S)]
+                    S = list(new[6])
+                    E_prev = None
                 best = None
                 continue
         if rp < o.feas_tol and gap < o.gap_tol and E is None:
@@ -441,7 +450,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             break
         if it == o.max_iter:
             break
-        if E is not None and it >= ONE_PHASE_GIVE_UP:
+        if E is not None and slack_start is not None and it >= ONE_PHASE_GIVE_UP:
             # the dual residual not dropped yet: most likely no interior (docs/design.md §8.3.2); the two phases run
             status = "max_iterations"
             break

@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
-from ..compiled import SolveInfo, resolve_solver
+from ..compiled import SolveInfo, resolve_solver, time_left
 from ..errors import SolverFailed
 from ..lyapunov import Certificate, certify, recheck_common, recheck_lifted, recheck_switched
 from ..network import ModeSet, spectral_radii
@@ -59,7 +59,7 @@ class RunClock:
         return time.perf_counter() - self.start
 
     def remaining(self, time_limit: float | None) -> float | None:
-        return None if time_limit is None else time_limit - self.elapsed
+        return time_left(time_limit, self.start)
 
     def timings(self) -> dict:
         total = self.elapsed

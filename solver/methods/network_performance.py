@@ -34,7 +34,7 @@ import scipy.linalg
 from ..brackets import (NetworkPerformance, _allowance, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         period_system)
 from ..certificates import uncontrollable_mode
-from ..compiled import cp
+from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import check_channel, check_weights, lift_modes
 from ..network import ModeSet
@@ -407,11 +407,6 @@ def _solve_clarabel(problem, time_limit: float | None, what: str) -> float:
     return time.perf_counter() - start
 
 
-def _left(time_limit: float | None, start: float) -> float | None:
-    """What is left of ``time_limit`` (s) since ``start`` (perf_counter), for the next solve (at least 1 ms)."""
-    return None if time_limit is None else max(time_limit - (time.perf_counter() - start), 1e-3)
-
-
 def solve(ch: Channels, kind: str, x0=None, time_limit: float | None = None, u_max=None):
     """The design SDP (Clarabel): ``(W, Y, Z, value, status, seconds)``; ``W`` None without an answer.
 
@@ -635,7 +630,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
             break
         try:
             W, Y, Z, value, status, seconds = (solve_ipm if name == "IPM" else solve)(
-                ch, objective, x0_s, _left(time_limit, start), u_s)
+                ch, objective, x0_s, time_left(time_limit, start, floor=1e-3), u_s)
             why = f"the network {objective} SDP gave no node matrices ({status})"
         except SolverFailed as err:
             W, status, seconds, value, why = None, str(err.status or err), 0.0, np.nan, str(err)
@@ -674,7 +669,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         history += plain.history
         why = "; ".join(failures) if failures else "no certified answer"
         if plain.outcome == "stabilized":
-            perf = bracket(ch_user, plain.gains, objective, x0=x0, time_limit=_left(time_limit, start))
+            perf = bracket(ch_user, plain.gains, objective, x0=x0, time_limit=time_left(time_limit, start, floor=1e-3))
             base.update(method=plain.method, solver=plain.solver)
             outcome = "stabilized" if perf.verified else "not_converged"  # not without the bracket asked for
             res = DesignResult(outcome=outcome, gains=plain.gains, certificate=plain.certificate, history=history,
@@ -748,7 +743,7 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
         gains = scale.plain.gains_back(gains)
         P0 = scale.quadratic_back(P0, objective)
         X = scale.quadratic_back(X)
-    perf = bracket(ch_user, gains, objective, P0=P0, x0=x0, time_limit=_left(time_limit, start))
+    perf = bracket(ch_user, gains, objective, P0=P0, x0=x0, time_limit=time_left(time_limit, start, floor=1e-3))
     inv, inv_reason = None, ""
     if kothare:
         inv, inv_reason = check_invariant_nodes(X, prob, gains, u_max, ch_user.history, x0)
@@ -757,7 +752,7 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
         cert = network_lmi.recheck_network(prob, perf.certificate, gains, source=f"network_{objective}")
         cert = cert if cert.verified else None
     if cert is None:
-        cert = network_lmi.node_analysis(prob, gains, None, _left(time_limit, start))
+        cert = network_lmi.node_analysis(prob, gains, None, time_left(time_limit, start, floor=1e-3))
     good = cert is not None and perf.verified and (not kothare or inv is not None)
     return dict(gains=gains, perf=perf, cert=cert, inv=inv, inv_reason=inv_reason, good=good)
 
@@ -783,7 +778,7 @@ def _stability_design(family, network, u_max, x0, plant_switching: str, scaling:
     input-limited one (:func:`run_limits`) with ``u_max``: the fallback of :func:`run` when its SDP certifies
     nothing.  Its "not_certified" is a re-checked Farkas certificate of the network LMI (section 11.1), which every
     solution of the performance SDPs solves at ``t = 0`` (each transition block's leading ``2k x 2k`` part)."""
-    left = _left(time_limit, start)
+    left = time_left(time_limit, start, floor=1e-3)
     if u_max is not None:
         return run_limits(family, network, u_max, x0=x0, plant_switching=plant_switching, scaling=scaling,
                           time_limit=left, solver=solver)
@@ -944,7 +939,8 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
     cert = None
     if inv is not None:
         cert = network_lmi.recheck_network(prob, inv, gains, decay_rate, source="network_limits")
-        cert = cert if cert.verified else network_lmi.node_analysis(prob, gains, decay_rate, _left(time_limit, start))
+        if not cert.verified:
+            cert = network_lmi.node_analysis(prob, gains, decay_rate, time_left(time_limit, start, floor=1e-3))
     timings["total"] = time.perf_counter() - start
     timings["setup"] = max(timings["total"] - seconds, 0.0)
     if cert is None:
@@ -955,7 +951,7 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
 
             proof_start = time.perf_counter()
             proof, proof_why = prove_network_limits(family, network, u_max, x0, decay_rate, STRICT, LIMIT_SLACK,
-                                                    plant_switching, solver, _left(time_limit, start))
+                                                    plant_switching, solver, time_left(time_limit, start, floor=1e-3))
             timings["solves"] += 1
             timings["total"] = time.perf_counter() - start
             timings["setup"] = max(timings["total"] - seconds - (time.perf_counter() - proof_start), 0.0)

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from .. import compiled
-from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block
+from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_left
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
@@ -240,7 +240,7 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
                                    f"(primal residual {sol.raw.primal_residual:.1e}, gap {sol.raw.gap:.1e})",
                                    status=sol.status)
             return info, None, None, {"ipm": sol}
-        time_limit = None if time_limit is None else time_limit - (time.perf_counter() - start)
+        time_limit = time_left(time_limit, start)
         start = time.perf_counter()
     problem, Wv, Yv, extra = build(lifted, "stability" if objective == "stability" else objective, x0, u_max,
                                    rate, cap=cap, trace_weight=trace_weight)
@@ -277,7 +277,7 @@ def _solve_in_answer_coordinates(prob, lifted: Lifted, objective: str, x0, u_max
     from ..ipm.performance_blocks import recentre
 
     def left():
-        return None if time_limit is None else time_limit - (time.perf_counter() - start)
+        return time_left(time_limit, start)
 
     sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=SWITCH_GAP, feas_tol=SWITCH_FEAS, time_limit=left()))
     if sol.status != "optimal" or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
@@ -332,7 +332,7 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     x = np.concatenate([np.eye(len(lam)).ravel()] + [y.ravel() for y in Ys]
                        + [[RECENTRE_BACK, 0.0]])
     y0 = coordinates_of(prob2.lmi, x)
-    left = None if time_limit is None else time_limit - (time.perf_counter() - start)
+    left = time_left(time_limit, start)
     sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left),
                                  y_start=y0)
     if not np.isfinite(sol2.value) or sol2.value * lam[0] > sol.value:
@@ -553,7 +553,7 @@ def _score(c: dict, u_max) -> tuple:
     perf = c["performance"]
     verified = perf is not None and perf.verified
     return (c["cert"] is not None, u_max is None or c["invariant"] is not None, verified or perf is None,
-            -perf.upper if verified else 0.0)
+            -perf.certificate_upper if verified else 0.0)
 
 
 def _good(c: dict | None, u_max) -> bool:
@@ -665,7 +665,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
             # suspension, Q = I: equal to 2e-10 with gains 1e-4 apart), the refinement's gains are the Riccati ones
             if c is not None and _score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
                     not _score(best, u_max)[2] or best["performance"] is None or
-                    c["performance"].upper <= best["performance"].upper * (1 + 1e-8)):
+                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8)):
                 best = c
                 best["refined"] = True
     if best is None:

@@ -78,8 +78,8 @@ def test_simulation_and_trace_steps_are_capped(db_url):
 
 def test_a_design_over_the_estimated_memory_or_time_is_a_422_before_any_job(db_url):
     # The library's estimate (solver.compiled.design_size) against the service's budgets: a 4-state, 3-mode
-    # cart-pole at n_drop = 100 needs ~136 MiB of solver memory; at n_drop = 60 with decay_rate "max" ~2.4 s
-    # (bench/size_calibration.py), one plain solve ~0.4 s.
+    # cart-pole at n_drop = 100 needs ~140 MiB of solver memory; at n_drop = 60 with decay_rate "max" ~1.3 s
+    # (bench/size_calibration.py), one plain solve ~0.5 s: a job time limit between the two refuses the first.
     from solver.compiled import design_size
 
     from tests.solver.cartpole import cartpole
@@ -87,20 +87,24 @@ def test_a_design_over_the_estimated_memory_or_time_is_a_422_before_any_job(db_u
     fam = cartpole()
     plant = {"kind": "discrete", "F": fam.F.tolist(), "G": fam.G.tolist(), "sampling_period": 0.02}
     assert 100 * 2**20 < design_size("lmi", 4, 1, 3, 100).memory < 200 * 2**20
+    best = design_size("lmi", 4, 1, 3, 60, decay_rate="max").total_seconds
+    plain = design_size("lmi", 4, 1, 3, 60, decay_rate=None).total_seconds
+    limit = float(f"{(best * plain) ** 0.5:.2g}")
+    assert plain < limit < best
     with running_client(db_url, run_dispatcher=False, worker_memory_mb=100, max_n_drop=1000,
-                        max_lmi_size=10**6, job_time_limit=1) as c:
+                        max_lmi_size=10**6, job_time_limit=limit) as c:
         problem = assert_problem(c.post("/v1/designs", json={"plant": plant, "n_drop": 100}), 422, "/n_drop")
         assert "NCS_WORKER_MEMORY_MB" in problem["detail"] and "MiB of solver memory" in problem["detail"]
         problem = assert_problem(c.post("/v1/designs", json={"plant": plant, "n_drop": 60,
                                                              "options": {"decay_rate": "max"}}), 422, "/n_drop")
-        assert "NCS_JOB_TIME_LIMIT" in problem["detail"] and "limit of 1 s" in problem["detail"]
+        assert "NCS_JOB_TIME_LIMIT" in problem["detail"] and f"limit of {limit:g} s" in problem["detail"]
         assert c.get("/v1/designs").json()["items"] == []
 
 
 def test_the_service_estimates_the_whole_request_as_the_library(db_url):
-    # One estimate for every path (solver.compiled.design_size): a cost design's lifted blocks and its weighed
-    # solves make it ~25 times the plain one at n_drop = 20, and the job time limit between the two refuses
-    # only the cost design, with the library's message.
+    # One estimate for every path (solver.compiled.design_size): a cost design's larger blocks, its Newton steps and
+    # its bracket's lower-bound search make it ~7 times the plain one at n_drop = 20, and the job time limit between
+    # the two refuses only the cost design, with the library's message.
     from solver import InvalidInput
     from solver.design import request_size
 

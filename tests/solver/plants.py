@@ -33,8 +33,9 @@ def pendulum_ct(M: float = 0.5, m: float = 0.2, b: float = 0.1, l: float = 0.3, 
     return A, B
 
 
-def bus_ct() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    m1, m2, k1, k2, b1, b2 = 2500.0, 320.0, 80000.0, 500000.0, 350.0, 15020.0
+def bus_ct(m1: float = 2500.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B_u, B_w)``: the actuator force's and the road's input columns; ``m1`` the body mass (kg)."""
+    m2, k1, k2, b1, b2 = 320.0, 80000.0, 500000.0, 350.0, 15020.0
     A = np.array([[0, 1, 0, 0],
                   [-b1 * b2 / (m1 * m2), 0, (b1 / m1) * (b1 / m1 + b1 / m2 + b2 / m2) - k1 / m1, -b1 / m1],
                   [b2 / m2, 0, -(b1 / m1 + b1 / m2 + b2 / m2), 1],

@@ -1,8 +1,10 @@
+import time
+
 import numpy as np
 import pytest
 
 from solver import InvalidInput, PlantFamily, SolverFailed, analyze, design
-from solver.compiled import problem_cache
+from solver.compiled import problem_cache, time_left
 
 from .paper_data import EQ23_GAINS, EQ24_GAINS, theorem1_holds
 
@@ -211,6 +213,16 @@ def test_time_limit_ends_in_not_converged_not_an_exception(method):
     res = design(PlantFamily.paper_example(0.1), n_drop=3, method=method, time_limit=1e-9)
     assert res.outcome == "not_converged" and "time limit reached" in res.message
     assert "-1" not in res.message
+
+
+def test_time_left_keeps_the_sign_out_of_time_and_floors_only_when_asked():
+    # a start 2 s back against a 1 s limit: at least 1 s over, whatever the clock does meanwhile
+    start = time.perf_counter()
+    long_ago = start - 2.0
+    assert time_left(None, long_ago) is None and time_left(None, long_ago, floor=1e-3) is None
+    assert time_left(1.0, long_ago) <= -1.0  # out of time: callers test <= 0
+    assert time_left(1.0, long_ago, floor=1e-3) == 1e-3
+    assert 0.0 < time_left(100.0, start) <= 100.0 and 0.0 < time_left(100.0, start, floor=1e-3) <= 100.0
 
 
 def test_callback_sees_every_iteration_and_can_stop():

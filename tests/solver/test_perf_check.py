@@ -31,6 +31,7 @@ def test_the_harness_reports_a_disagreement(monkeypatch):
             res.solver = "IPM"
             if res.performance is not None and res.performance.upper is not None:
                 res.performance.upper *= 1 + 1e-3
+                res.performance.certificate_upper *= 1 + 1e-3
             else:
                 res.outcome = "flipped"
         return res

@@ -199,3 +199,49 @@ def test_pruned_raise_cache_gives_the_same_multipliers(seed):
         full = _raise(X2.copy(), Xb, up, new, c2, above, n)
         pruned = _raise(X2.copy(), Xb, up, new, c2, kept, n)
         np.testing.assert_array_equal(full, pruned)
+
+
+def _margin_by_clarabel(modes, lam):
+    """``max t`` of the congruent rate SDP at ``lam`` (docs/design.md §3.2) written out in cvxpy, on Clarabel."""
+    import cvxpy as cp
+
+    coef, active = modes.scheme_coef()
+    S, n = modes.n_modes, modes.n_states
+    J, m = coef.shape[1], coef.shape[3]
+    W = cp.Variable((n, n), symmetric=True)
+    Y = [cp.Variable((m, n)) for _ in range(J)]
+    t = cp.Variable()
+    cons = [cp.trace(W) == n]
+    for s in range(S):
+        c = lam ** (-float(modes.eta[s]))
+        M = modes.free[s] @ W + sum(coef[s, j] @ Y[j] for j in range(J) if active[s, j])
+        B = cp.bmat([[W, c * M.T], [c * M, W]])
+        cons.append(0.5 * (B + B.T) - t * np.eye(2 * n) >> 0)
+    cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    return float(t.value)
+
+
+def test_a_change_of_rate_that_keeps_the_slacks_converges_to_the_new_rates_optimum():
+    # paper example: from lambda = 1 to 0.36 in one move (every c_s changes by far more than KEEP_FROM: the slacks
+    # are kept and the new data's dual residual is carried by the Newton steps); the iteration then converges to the
+    # optimum of the SDP at 0.36, the margin an independent cvxpy/Clarabel solve of the written-out SDP finds
+    from solver.ipm import rate_path
+    from solver.ipm.rate_path import follow_rate
+
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    coef, active = modes.scheme_coef()
+    assert float(np.max(np.abs((1 / 0.36) ** modes.eta - 1))) >= rate_path.KEEP_FROM
+    calls = {"n": 0}
+
+    def aim(lam, t, upper, rp, q, lo, hi, W, M):
+        calls["n"] += 1
+        return 0.36 if lam == 1.0 and calls["n"] >= 4 else None
+
+    path = follow_rate(modes.free, coef, active, modes.eta, lambda lo, hi: False, aim, max_iter=40)
+    lams = [r[1] for r in path.rates]
+    k = lams.index(0.36)
+    assert path.rates[k][2] == path.rates[k - 1][2]  # y kept: the margin t is not shifted by the move
+    t_star = _margin_by_clarabel(modes, 0.36)
+    _, lam, t, upper, rp = path.rates[-1]
+    assert lam == 0.36 and rp < 1e-8
+    assert t == pytest.approx(t_star, abs=1e-6) and upper == pytest.approx(t_star, abs=1e-6)

@@ -76,32 +76,68 @@ def test_the_whole_request_picks_its_path_and_counts_its_solves():
 
 @pytest.mark.parametrize("objective, extra", [
     ("cost", {}),
-    ("hinf", {"disturbance": np.ones((2, 3))}),
-    ("stability", {"u_max": [2.0]}),
+    ("hinf", {"disturbance": "ones"}),
+    ("stability", {"u_max": "ones"}),
 ])
-def test_the_performance_estimate_counts_the_lifted_blocks(objective, extra):
+@pytest.mark.parametrize("fam, N", [(PlantFamily.paper_example(0.1), 3), (pendulum(), 5)])
+def test_the_performance_estimate_counts_the_blocks_the_ipm_solves(objective, extra, fam, N):
+    # design_size models the IPM's compact, merged groups (solver/ipm/performance_blocks.py) from the sizes alone:
+    # the sides and counts, summed, and the variables equal the built problem's
     from solver.methods.performance import block_sides, prepare
     from solver.ipm.performance_blocks import performance_problem
 
-    fam, N = PlantFamily.paper_example(0.1), 3
+    extra = {key: np.ones((fam.n_states, 1)) if key == "disturbance" else np.ones(fam.n_inputs) for key in extra}
     modes = ModeSet.from_family(fam, N)
     lifted, x0, u_max = prepare(modes, "lmi", objective, None, None, extra.get("disturbance"), None,
                                 extra.get("u_max"), None)
     size = request_size("lmi", fam, N, objective=objective, **extra)
-    n, m = fam.n_states, fam.n_inputs
-    inputs = N * m if "u_max" in extra else 0
-    # the lifted blocks, the Z (or ball) block of side 2n, the x0 block n + 1, the input blocks n + 1
-    assert size.lmi_size == sum(block_sides(lifted, objective)) + 2 * n + (n + 1) + inputs * (n + 1)
+    compact = performance_problem(lifted, objective, x0, u_max)
+    assert size.lmi_size == sum(g.C.shape[0] * g.C.shape[1] for g in compact.lmi.groups_spec)
+    assert size.n_variables == len(compact.lmi.b)
     # the lifted form's blocks (the IPM's compact, merged groups are no larger: docs/design.md §8.3.1)
     prob = performance_problem(lifted, objective, x0, u_max, compact=False, merge=False)
     lifted_groups = [g for g in prob.lmi.groups_spec if g.name.startswith(("cost_eta", "hinf_eta", "stability"))]
     assert sum(g.C.shape[0] * g.C.shape[1] for g in lifted_groups) == sum(block_sides(lifted, objective))
-    compact = performance_problem(lifted, objective, x0, u_max)
     kinds = ("cost", "hinf", "stability")
     assert sum(g.C.shape[0] * g.C.shape[1] for g in compact.lmi.groups_spec if g.name.startswith(kinds)) <= \
         sum(block_sides(lifted, objective))
+    inputs = N * fam.n_inputs if "u_max" in extra else 0
     assert sum(g.C.shape[0] for g in prob.lmi.groups_spec if g.name == "input") == inputs
-    assert size.n_variables == 2 * (n * (n + 1) // 2) + N * m * n + 2
+
+
+PATH_REQUESTS = {"plain": {"decay_rate": None}, "rate": {"decay_rate": 0.9}, "auto": {"decay_rate": "auto"},
+                 "max": {"decay_rate": "max"},
+                 "cost": {"objective": "cost"}, "hinf": {"objective": "hinf"}, "u_max": {"u_max": [1.0]},
+                 "switched": {"method": "switched", "decay_rate": None}, "ccl": {"method": "ccl"}}
+
+
+@pytest.mark.parametrize("path", sorted(PATH_REQUESTS))
+def test_every_path_s_estimate_is_finite_positive_and_grows_with_n(path):
+    # bench/size_calibration.py measures the error; here only what holds whatever the constants: every path's time
+    # and memory are finite and positive, and more states never cost less (r = 5, m = 2, n_drop = 10, n = 2..60)
+    kw = dict(PATH_REQUESTS[path])
+    method = kw.pop("method", "lmi")
+    last = None
+    for n in (2, 4, 8, 12, 20, 30, 45, 60):
+        size = design_size(method, n, 2, 5, 10 if method != "switched" else 3, **kw)
+        assert size.path == path
+        for value in (size.total_seconds, size.seconds, size.memory, size.step_seconds):
+            assert np.isfinite(value) and value > 0, (path, n, size)
+        assert size.total_seconds > size.search_seconds
+        if last is not None:
+            assert size.total_seconds > last.total_seconds and size.memory >= last.memory, (path, n)
+        last = size
+
+
+def test_the_lower_bound_search_is_counted_for_the_brackets_only():
+    from solver.compiled import lower_bound_work
+
+    for path in ("cost", "hinf"):
+        size = design_size("lmi", 8, 2, 5, 10, objective=path)
+        flops, memory = lower_bound_work(path, 8, size.n_modes, 10, 1, 10)
+        assert size.search_seconds > 0 and flops > 0 and memory > 0 and size.memory >= memory
+    assert design_size("lmi", 8, 2, 5, 10, u_max=[1.0]).search_seconds == 0.0
+    assert design_size("lmi", 8, 2, 5, 10).search_seconds == 0.0
 
 
 def _nothing_built(monkeypatch):
@@ -166,3 +202,14 @@ def test_a_design_for_a_channel_counts_its_analysis_and_names_the_channel(monkey
     with pytest.raises(InvalidInput) as err:
         design_for_channel(fam, ch, 1e-4, per="sample", max_memory=(plain.memory + both.channel_memory) / 2)
     assert err.value.field == ("channel",) and f"operator of size up to {size}" in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("path", sorted(PATH_REQUESTS))
+def test_astronomical_per_sample_counts_are_refused_not_raised(path):
+    # per-sample switching over 1000 samples: 3^1000 loop modes, beyond a float; the estimate saturates and refuses
+    kw = dict(PATH_REQUESTS[path])
+    method = kw.pop("method", "lmi")
+    size = design_size(method, 4, 1, 3, 1000, "per_sample", **kw)
+    assert size.total_seconds >= 1e290 and size.memory >= 1e290
+    with pytest.raises(InvalidInput):
+        size.check()

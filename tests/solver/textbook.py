@@ -1,4 +1,5 @@
-"""Textbook plants from the Control Tutorials for MATLAB and Simulink (CTMS), as a new user would enter them.
+"""Textbook plants from the Control Tutorials for MATLAB and Simulink (CTMS), as a new user would enter them
+(continuous-time matrices from tests/solver/plants.py, discretized by ``PlantFamily.from_continuous``).
 
 * ``pendulum``: the inverted pendulum on a cart (M = 0.5 kg, m = 0.2 kg, b = 0.1 N s/m, I = 0.006 kg m^2,
   l = 0.3 m to the centre of mass); states x (m), x' (m/s), phi (rad), phi' (rad/s); input the force F (N).
@@ -13,16 +14,13 @@ from __future__ import annotations
 
 from solver import PlantFamily
 
+from .plants import bus_ct, pendulum_ct
 
-def pendulum_matrices(length: float = 0.3, M: float = 0.5, m: float = 0.2, b: float = 0.1, inertia: float = 0.006,
-                      g: float = 9.8):
-    p = inertia * (M + m) + M * m * length**2
-    A = [[0, 1, 0, 0],
-         [0, -(inertia + m * length**2) * b / p, (m**2 * g * length**2) / p, 0],
-         [0, 0, 0, 1],
-         [0, -(m * length * b) / p, m * g * length * (M + m) / p, 0]]
-    B = [[0], [(inertia + m * length**2) / p], [0], [m * length / p]]
-    return A, B
+
+def pendulum_matrices(length: float = 0.3):
+    """The continuous-time ``(A, B)`` as nested lists (what a user types), pole length ``length`` (m)."""
+    A, B = pendulum_ct(l=length)
+    return A.tolist(), B.tolist()
 
 
 def pendulum(sampling_period: float = 0.01, lengths=(0.3, 0.35)) -> PlantFamily:
@@ -38,14 +36,10 @@ def pendulum_plant_json(sampling_period: float = 0.01, lengths=(0.3, 0.35)) -> d
             "sampling_period": sampling_period}
 
 
-def quarter_car_matrices(M1: float = 2500.0, M2: float = 320.0, K1: float = 80000.0, K2: float = 500000.0,
-                         b1: float = 350.0, b2: float = 15020.0):
-    A = [[0, 1, 0, 0],
-         [-(b1 * b2) / (M1 * M2), 0, (b1 / M1) * ((b1 / M1) + (b1 / M2) + (b2 / M2)) - K1 / M1, -(b1 / M1)],
-         [b2 / M2, 0, -((b1 / M1) + (b1 / M2) + (b2 / M2)), 1],
-         [K2 / M2, 0, -((K1 / M1) + (K1 / M2) + (K2 / M2)), 0]]
-    B = [[0], [1 / M1], [0], [(1 / M1) + (1 / M2)]]
-    return A, B
+def quarter_car_matrices(M1: float = 2500.0):
+    """The continuous-time ``(A, B)`` (actuator force only) as nested lists, body mass ``M1`` (kg)."""
+    A, B, _ = bus_ct(m1=M1)
+    return A.tolist(), B.tolist()
 
 
 def quarter_car(sampling_period: float = 0.01, loads=(2500.0, 3500.0)) -> PlantFamily:
