@@ -296,6 +296,8 @@ def recheck_tree_bound(data: list[dict], P: np.ndarray, bound: float, depth: int
     n = np.asarray(P).shape[0]
     Pq = frac(P)
     Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    if not _psd_exact(Pq):  # without P >= 0, <P, Sigma_d> < 0 and a divergent sequence passes (A = 2, P = -1)
+        return False, None
     modes = []
     for d in data:
         A, Sq = frac(d["A"]), frac(d["S"])
@@ -1094,12 +1096,15 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
             live = live[np.argsort(-up[live], kind="stable")[:beam]]
         pruned[live] = False
         if np.any(pruned):  # every continuation of a node not kept is covered by its own certified value
-            dropped = max(dropped, float(np.max(cert[pruned])))
+            # (np.max of a NaN is NaN, and Python's max(dropped, nan) is dropped: a NaN must make the level infinite)
+            worst = float(np.max(cert[pruned]))
+            dropped = max(dropped, worst if np.isfinite(worst) else np.inf)
         history.append((live // S, live % S))
         Sig, c, allow = Sig2[live], c2[live], allow2[live]
         depth = len(history)
         # depth d: every admissible sequence passes a node valued here or a node dropped above
-        level = max(dropped, float(np.max(cert[live])) if live.size else -np.inf)
+        top = float(np.max(cert[live])) if live.size else -np.inf
+        level = max(dropped, top if not np.isnan(top) else np.inf)
         if not np.isfinite(level):
             level = np.inf
         if level < tree:
