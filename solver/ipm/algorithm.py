@@ -418,7 +418,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                     # central path from there (the tangent predictor and the corrector in one step)
                     E = [s_keep - s for s_keep, s in zip(new[6], S)]
                     S = list(new[6])
-                    E_prev = None
+                else:  # the slacks recomputed from the new data: no residual (one left by an earlier move is stale)
+                    E = None
+                E_prev = None
                 best = None
                 continue
         if rp < o.feas_tol and gap < o.gap_tol and E is None:
