@@ -85,7 +85,7 @@ class Performance:
     verified : bool
         Whether ``certificate`` passed the float64 re-check.
     gap : float or None
-        ``(upper - lower) / upper``.
+        ``max(0, (upper - lower) / upper)`` (0: closed to the witness's rounding).
     x0 : ndarray or None
     patterns : int
         Periodic patterns evaluated for the lower bound.
@@ -116,7 +116,9 @@ class Performance:
         if self.certificate_upper is None:
             self.certificate_upper = self.upper
         if self.gap is None and self.upper is not None and self.lower is not None and self.upper > 0:
-            self.gap = float((self.upper - self.lower) / self.upper) if np.isfinite(self.lower) else None
+            # >= 0: a witnessed value (float Lyapunov solves) may pass a closed certified end by rounding (bracket()
+            # refuses both beyond 1e-6 relative)
+            self.gap = max(0.0, float((self.upper - self.lower) / self.upper)) if np.isfinite(self.lower) else None
 
     def to_dict(self) -> dict:
         def num(v):
@@ -239,7 +241,9 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     worst = -np.inf
     for d in data:
         APA = d["A"].T @ P @ d["A"]
-        size = np.linalg.norm(APA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
+        # |A|'|P||A| bounds the rounding of forming A'P A (Higham, ch. 3), which ||A'P A|| need not
+        absA = np.abs(d["A"])
+        size = np.linalg.norm(absA.T @ np.abs(P) @ absA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
         worst = max(worst, np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size)
     return bool(worst < -_allowance(P.shape[0])), float(worst)
 

@@ -282,17 +282,26 @@ def _solve_in_answer_coordinates(prob, lifted: Lifted, objective: str, x0, u_max
     sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=SWITCH_GAP, feas_tol=SWITCH_FEAS, time_limit=left()))
     if sol.status != "optimal" or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
         return sol  # converged already, or stopped short of SWITCH_GAP (its iterate, if any, is the proposal)
-    sol.status = "inaccurate"  # the first stage's answer, should the second give none
     lam, U = np.linalg.eigh(sol.W)
-    if not lam[0] > 0:
-        return sol
-    T = (U * np.sqrt(lam)) @ U.T
-    prob2 = ipm.performance_problem(lifted, objective, x0, u_max, limit_slack=LIMIT_SLACK, coordinates=T, **build)
-    y0, X0 = recentre(prob, sol, prob2, T)
-    sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
-                                 y_start=y0, x_start=X0)
-    if not np.isfinite(sol2.value):
-        return sol
+    sol2 = None
+    if lam[0] > 0:
+        T = (U * np.sqrt(lam)) @ U.T
+        prob2 = ipm.performance_problem(lifted, objective, x0, u_max, limit_slack=LIMIT_SLACK, coordinates=T, **build)
+        y0, X0 = recentre(prob, sol, prob2, T)
+        sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
+                                     y_start=y0, x_start=X0)
+    if sol2 is None or not np.isfinite(sol2.value):
+        # no answer in the new coordinates: the first stage's iterate goes on as built to IPM_TOL (its gap may be
+        # up to SWITCH_GAP, a loose bound the re-checks would certify)
+        y0, X0 = recentre(prob, sol, prob, np.eye(sol.W.shape[0]))
+        rest = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
+                                     y_start=y0, x_start=X0)
+        if not np.isfinite(rest.value):
+            # an attained but loose value: a proposal for the re-checks (and for Clarabel under AUTO), not an optimum
+            sol.status = rest.status if rest.status not in ("optimal", "inaccurate") else "numerical_error"
+            return sol
+        rest.raw.iterations += sol.raw.iterations
+        return rest
     sol2.W = T @ sol2.W @ T.T
     sol2.W = 0.5 * (sol2.W + sol2.W.T)
     sol2.Y = [y @ T.T for y in sol2.Y]

@@ -380,3 +380,27 @@ def test_two_stage_solve_matches_the_one_stage_solve_and_clarabel():
                 assert info.objective == pytest.approx(clarabel.objective, rel=1e-6), (seed, objective)
                 compared += 1
     assert compared >= 1
+
+
+def test_a_second_stage_without_answer_continues_the_first_to_the_optimum(monkeypatch):
+    """When the solve in the answer's coordinates gives nothing finite, the first stage's iterate goes on as built
+    (docs/design.md §8.3.2) and reaches the same optimum, instead of returning the first stage's loose value."""
+    from bench.cases import random_family
+
+    fam = random_family(4, 2, 1, seed=1, spread=0.02)
+    lifted = lift_modes(ModeSet.from_family(fam, 3), None, None, None, cost=True)
+    reference = perf.solve(lifted, "cost", None, None, None, "IPM")[0]
+    real, calls = ipm.solve_performance, []
+
+    def second_fails(prob, options, **start):
+        sol = real(prob, options, **start)
+        calls.append(prob)
+        if len(calls) == 2:  # the stage in the answer's coordinates
+            sol.value = float("nan")
+        return sol
+
+    monkeypatch.setattr(ipm, "solve_performance", second_fails)
+    info, W, Y, extra = perf.solve(lifted, "cost", None, None, None, "IPM")
+    assert len(calls) == 3 and calls[2] is calls[0]  # the first problem, continued
+    assert extra["ipm"].raw.gap <= 1e-6 and extra["ipm"].raw.primal_residual <= 1e-6
+    assert info.objective == pytest.approx(reference.objective, rel=1e-6)
