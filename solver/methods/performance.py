@@ -280,7 +280,8 @@ def _solve_in_answer_coordinates(prob, lifted: Lifted, objective: str, x0, u_max
         return time_left(time_limit, start)
 
     sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=SWITCH_GAP, feas_tol=SWITCH_FEAS, time_limit=left()))
-    if sol.status != "optimal" or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
+    switch = sol.status == "optimal" or sol.status == "stalled" and sol.raw.gap <= SWITCH_GAP and np.isfinite(sol.value)
+    if not switch or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
         return sol  # converged already, or stopped short of SWITCH_GAP (its iterate, if any, is the proposal)
     lam, U = np.linalg.eigh(sol.W)
     sol2 = None
