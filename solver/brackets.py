@@ -469,7 +469,9 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
         worst = min(worst, worst_here)  # the closest to passing, for the message
         if ok:
             return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), ""
-        if P0.shape[0] <= EXACT_COST_MAX_N and check_cost_exact(P, data):
+        if (worst_here < 0 or factor == 1.0) and P0.shape[0] <= EXACT_COST_MAX_N and check_cost_exact(P, data):
+            # (where float64 sees the inequality hold within its allowance, and for P0 itself: a caller's P lifted
+            # on purpose, whose slack float64 may not even see)
             return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), "exact re-check of P"
     return None, None, ("no multiple of the solver's P passes the float64 re-check "
                         f"(worst relative eigenvalue {worst:.3g})")
@@ -523,6 +525,42 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     return bool(worst < -_allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))), float(worst)
 
 
+def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
+    """Exact re-check of the bounded-real certificate: ``P >= 0`` and
+    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the float64
+    numbers (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
+    relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4)."""
+    from fractions import Fraction
+
+    P = np.asarray(P, dtype=np.float64)
+    if P.ndim != 2 or not np.all(np.isfinite(P)) or not np.isfinite(g):
+        return False
+
+    def frac(M):
+        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+    def mul(X, Y):
+        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
+
+    n = P.shape[0]
+    Pq = frac(P)
+    Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    if not _psd_exact(Pq):
+        return False
+    gq = Fraction(float(g))
+    for d in data:
+        AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
+        k = len(AB[0]) - n
+        ABt, CDt = [list(col) for col in zip(*AB)], [list(col) for col in zip(*CD)]
+        M = mul(mul(ABt, Pq), AB)
+        CC = mul(CDt, CD)
+        neg = [[-(M[i][j] + CC[i][j]) + (Pq[i][j] if i < n and j < n else 0) + (gq if i == j and i >= n else 0)
+                for j in range(n + k)] for i in range(n + k)]
+        if not _psd_exact(neg):
+            return False
+    return True
+
+
 def certify_hinf(P0: np.ndarray, data: list[dict]):
     """Smallest ``gamma`` that ``c P0`` (c near 1) certifies, re-checked by :func:`check_hinf`.
 
@@ -545,16 +583,38 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
         for bump in (1e-10, 1e-8, 1e-6):
             gb = max(g, 0.0) * (1 + bump) + bump * float(np.max(np.linalg.norm(P, 2, axis=(-2, -1)))) * 1e-3 + 1e-300
             ok, worst = check_hinf(P, gb, data)
+            exact = False
+            if not ok and (worst < 0 or (c == 1.0 and bump == 1e-10)) and not nodes and \
+                    P.shape[0] <= EXACT_COST_MAX_N and \
+                    max(d["B"].shape[1] + d["C"].shape[0] for d in data) <= 4 * EXACT_COST_MAX_N:
+                ok = exact = check_hinf_exact(P, gb, data)  # the float64 allowance cannot decide (§8.4): exactly
             if ok:
                 if best[1] is None or np.sqrt(gb) < best[1]:
                     best = (P, float(np.sqrt(gb)))
+                    how = "exact re-check of P" if exact else ""
                 break
             reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
         if best[0] is not None and c > 1:
             break
     if best[0] is None:
         return None, None, reason
-    return best[0], best[1], ""
+    return best[0], best[1], how
+
+
+def bounded_real_riccati(d: dict, gamma: float) -> np.ndarray | None:
+    """The stabilizing solution of the bounded-real Riccati equation of one LTI loop at level ``gamma``:
+    ``X = A'XA + C'C + (A'XB + C'D)(g I - D'D - B'XB)^{-1}(B'XA + D'C)``, ``g = gamma^2`` (None when scipy
+    finds none).  For ``gamma`` above the loop's l2 gain it is the least P of the bounded-real inequality, so
+    ``gamma (1 + delta)`` gives a certificate within ``delta`` of the gain (docs/design.md §8.5)."""
+    A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            X = scipy.linalg.solve_discrete_are(A, B, C.T @ C, D.T @ D - gamma ** 2 * np.eye(B.shape[1]), s=C.T @ D)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    X = _sym(X)
+    return X if np.all(np.isfinite(X)) and np.linalg.eigvalsh(X)[0] > 0 else None
 
 
 def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.ndarray,
@@ -1409,6 +1469,18 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P)
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
+    if kind == "hinf" and len(data) == 1 and lower is not None and np.isfinite(lower) and lower > 0 and (
+            upper is None or upper > lower * (1 + 1e-7)):
+        # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real
+        # Riccati solution a hair above it is the least certificate there (§8.5); the SDP's P can be 1e-3 off
+        for delta in (1e-8, 1e-7, 1e-6, 1e-5, 3e-5, 1e-4):
+            X = bounded_real_riccati(data[0], lower * (1 + delta))
+            if X is None:
+                continue
+            Pc, gc, how = certify_hinf(X, data)
+            if Pc is not None and (upper is None or gc < upper):
+                P, upper, reason = Pc, gc, how or "bounded-real Riccati solution"
+                break
     quadratic, tree = upper, ""
     if P is not None and found.bound is not None and found.bound < upper:
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
