@@ -1466,6 +1466,19 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
         reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+    if P is None and kind == "cost" and len(data) == 1 and data[0]["A"].shape[0] <= EXACT_COST_MAX_N and \
+            np.all(np.isfinite(data[0]["A"])) and np.max(np.abs(np.linalg.eigvals(data[0]["A"]))) < 1:
+        # one LTI loop whose P spans too much for the LMI and the float64 re-check (§8.5): its own cost matrix,
+        # lifted along itself, through the exact re-check
+        try:
+            X = lyapunov(data[0]["A"], _sym(data[0]["S"]))
+            for eps in (1e-12, 1e-10, 1e-8, 1e-6):
+                Pc, uc, how = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
+                if Pc is not None:
+                    P, upper, reason = Pc, uc, how or "the loop's Lyapunov solution"
+                    break
+        except np.linalg.LinAlgError:
+            pass
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P)
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
