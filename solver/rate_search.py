@@ -167,29 +167,29 @@ def network_margin_model(prob, sdp, rate: float):
 
 
 def model_root(model, rate: float, lo: float, hi: float) -> float | None:
-    """The root of ``m(lambda)`` in ``(lo, hi)`` (a 1-D monotone equation, solved by bisection on ln lambda).
+    """The root of ``m(lambda)`` in ``(lo, hi)`` (a 1-D monotone equation, solved by Brent's method on ln lambda).
 
     None when the model does not decrease with lambda (no root to aim at) or has no root in the interval.
     """
     t0, q, eta = model
     if not np.any(q < 0):
         return None
-    # the blocks' terms summed per interval length (a few distinct eta): plain floats in the bisection below
+    # the blocks' terms summed per interval length (a few distinct eta): plain floats in the root search below
     # (numpy calls per evaluation cost more than the paper example's interior-point iterations)
     powers, inverse = np.unique(np.asarray(eta, dtype=float), return_inverse=True)
     terms = list(zip(powers.tolist(), np.bincount(inverse.ravel(), weights=q, minlength=powers.size).tolist()))
     t0, log_rate = float(t0), math.log(rate)
 
-    def m(lam):
-        d = log_rate - math.log(lam)
+    def m(u):  # the model at lambda = exp(u): the end points' signs and the root search use this one function
+        d = log_rate - u
         return t0 + sum(w * (math.exp(min(e * d, 700.0)) - 1.0) for e, w in terms)
 
-    a, b = max(lo, 1e-12), hi
-    ma, mb = m(a), m(b)
+    ua, ub = math.log(max(lo, 1e-12)), math.log(hi)
+    ma, mb = m(ua), m(ub)
     if not (ma < 0.0 < mb) and not (ma > 0.0 > mb):
         return None
-    # Brent's method on ln lambda (to 1e-12 as the bisection it replaces; ~10 evaluations instead of ~45)
-    return math.exp(brentq(lambda u: m(math.exp(u)), math.log(a), math.log(b), xtol=1e-12))
+    # Brent's method (to 1e-12 in ln lambda; ~10 evaluations where a bisection took ~45)
+    return math.exp(brentq(m, ua, ub, xtol=1e-12))
 
 
 def next_rate(lo: float, hi: float, t_lo: float | None, t_hi: float | None, model, done, midpoint,

@@ -7,6 +7,7 @@ adjoint, Schur complement) comes from a :class:`solver.ipm.model.BlockLMI`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -57,6 +58,9 @@ class IPMOptions:
     max_iter: int = 100
     step: float = 0.98
     time_limit: float | None = None
+    #: Iteration cap of the objective's solve after phase 1 (None: ``max_iter``), e.g. a first stage that only
+    #: has to give a shape (docs/design.md §8.3.3).
+    objective_max_iter: int | None = None
     dense: bool | None = None
     threads: int | None = 1
     sign_only: bool = False
@@ -414,7 +418,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                     # central path from there (the tangent predictor and the corrector in one step)
                     E = [s_keep - s for s_keep, s in zip(new[6], S)]
                     S = list(new[6])
-                    E_prev = None
+                else:  # the slacks recomputed from the new data: no residual (one left by an earlier move is stale)
+                    E = None
+                E_prev = None
                 best = None
                 continue
         if rp < o.feas_tol and gap < o.gap_tol and E is None:
@@ -781,6 +787,10 @@ SLACK_START = 10.0
 ONE_PHASE_GIVE_UP = 40
 
 
+#: Phase 1 of the two phases stops at these tolerances at most, whatever the objective's (its own stop is ``t > 0``).
+PHASE1_TOL = 1e-8
+
+
 def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: float):
     """``min <c, V>`` from ``V = V0`` by the infeasible start (:func:`_ipm_core`'s ``slack_start``): the problem in the
     objective form, its ``(core, offset)``."""
@@ -795,7 +805,7 @@ def _one_phase(problem: GroupedLMI, objective: dict, o: IPMOptions, t_start: flo
 
 def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
                   options: IPMOptions | None = None, one_phase: bool = True,
-                  y_start: np.ndarray | None = None) -> GroupedSolution:
+                  y_start: np.ndarray | None = None, x_start: list | None = None) -> GroupedSolution:
     """Solve a :class:`GroupedLMI` in one phase, else in two (docs/design.md, §7 "Objectives", §8.3.2).
 
     With an objective, first in one phase: ``min <c, V>`` from the infeasible start (every slack ``s I``, the
@@ -823,6 +833,9 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
     y_start : ndarray, optional
         A strictly feasible point in ``problem``'s coordinates (``t`` = 0): only the objective runs, from there
         (phase 2's start and multipliers), and ``phase1_iterations`` is 0.
+    x_start : list of ndarray, optional
+        With ``y_start``: the multipliers to start from (one positive definite array per group, e.g. a previous
+        solve's carried over by a congruence, docs/design.md §8.3.2) instead of phase 2's.
 
     Returns
     -------
@@ -839,7 +852,8 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
             op2, adj2, schur2 = two.ops(o.dense)
             offset = _offset(two, objective)
             core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
-                              x_start=_x_start(adj2, two.b, two.C), offset=offset)
+                              x_start=_x_start(adj2, two.b, two.C) if x_start is None else list(x_start),
+                              offset=offset)
             _add_timings(timings, core2.timings)
             out = _objective_answer(two, core2, offset, names, 0)
             out.update(t=float("nan"), t_upper=float("nan"))
@@ -853,7 +867,12 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
                 return _grouped_solution(problem, out, timings, t_start)
             done = core2.iterations  # no answer: the two phases (the attempt's iterations and time count)
         op, adj, schur = problem.ops(o.dense)
-        core = _ipm_core(problem.C, problem.b, op, adj, schur, o, t_start, phase1=objective is not None)
+        o1 = o
+        if objective is not None and (o.gap_tol > PHASE1_TOL or o.feas_tol > PHASE1_TOL):
+            # a loose objective tolerance (a first stage, docs/design.md §8.3.2) is not phase 1's: stopped "optimal"
+            # at gap 1e-2 before t > 0, phase 1 would call a problem with an interior "no_interior"
+            o1 = dataclasses.replace(o, gap_tol=min(o.gap_tol, PHASE1_TOL), feas_tol=min(o.feas_tol, PHASE1_TOL))
+        core = _ipm_core(problem.C, problem.b, op, adj, schur, o1, t_start, phase1=objective is not None)
         t = float(problem.full(core.y)[-1])
         it1 = core.iterations
         _add_timings(timings, core.timings)
@@ -870,7 +889,8 @@ def solve_grouped(problem: GroupedLMI, objective: dict | None = None,
             op2, adj2, schur2 = two.ops(o.dense)
             offset = _offset(two, objective)
             xst = _x_start(adj2, two.b, two.C)
-            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o, t_start, feasible_start=True,
+            o2 = o if o.objective_max_iter is None else dataclasses.replace(o, max_iter=o.objective_max_iter)
+            core2 = _ipm_core(two.C, two.b, op2, adj2, schur2, o2, t_start, feasible_start=True,
                               x_start=xst, offset=offset)
             _add_timings(timings, core2.timings)
             out.update(_objective_answer(two, core2, offset, names, it1, done + it1))

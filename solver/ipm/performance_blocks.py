@@ -39,7 +39,7 @@ import numpy as np
 from .algorithm import GroupedSolution, IPMOptions, solve_grouped
 from .model import BlockGroup, GroupedLMI
 
-__all__ = ["PerformanceProblem", "PerformanceSolution", "performance_problem", "solve_performance"]
+__all__ = ["PerformanceProblem", "PerformanceSolution", "performance_problem", "recentre", "solve_performance"]
 
 
 @dataclass
@@ -85,14 +85,18 @@ def _stack(items: list, nb: int, k: int, cols: int) -> np.ndarray:
     return out
 
 
-def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool, compact: bool = True):
+def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, kothare: bool, compact: bool = True,
+                   coordinates: np.ndarray | None = None):
     """The per-mode cost (``kind="cost"``), H-infinity or stability blocks of modes ``s_list`` (one side).
 
     ``compact``: the tail rows (cost or output rows) replaced by the triangular factor of their coefficient
     matrix (exact, docs/design.md §8.3.1): side ``2n + min(eta (n+m), n + eta m)`` for the cost instead of
-    ``2n + eta (n + m)``.
+    ``2n + eta (n + m)``.  ``coordinates``: ``T`` of the state coordinates ``x = T z`` (applied after the
+    factorization, so that the blocks are the congruent images of the untransformed ones, docs/design.md §8.3.2).
     """
     lms = [lifted.lifted[s] for s in s_list]
+    Tc = np.eye(n) if coordinates is None else np.asarray(coordinates, dtype=np.float64)
+    Ti = np.eye(n) if coordinates is None else np.linalg.inv(Tc)
     nb = len(lms)
     tails = []
     for s, lm in zip(s_list, lms):
@@ -131,18 +135,20 @@ def _lifted_blocks(lifted, kind: str, s_list, n: int, JM: int, M, scale, c, koth
     LY = np.zeros((nb, k, JM))
     C = np.zeros((nb, k, k))
     for b, (s, lm) in enumerate(zip(s_list, lms)):
-        Lf[b, a0:a0 + n] = c[s] * lm.state.free
+        # x = T z: A_s -> T^-1 A_s T, gains K -> K T (Y -> Y T^-1 W-side), tail rows -> rows T, B -> T^-1 B
+        Lf[b, a0:a0 + n] = c[s] * (Ti @ lm.state.free @ Tc)
         if JM:
-            LY[b, a0:a0 + n] = c[s] * _scheme(lm.state, M, scale)
+            LY[b, a0:a0 + n] = c[s] * (Ti @ _scheme(lm.state, M, scale))
         if tails[b] is not None:
             free, Ys, D = tails[b]
-            Lf[b, a0 + n:] = free
+            Lf[b, a0 + n:] = free @ Tc
             if JM:
                 LY[b, a0 + n:] = Ys
         if kind == "hinf":
-            C[b, a0:a0 + n, n:a0] = lm.B
+            B = Ti @ lm.B
+            C[b, a0:a0 + n, n:a0] = B
             C[b, a0 + n:, n:a0] = D
-            C[b, n:a0, a0:] = np.vstack([lm.B, D]).T
+            C[b, n:a0, a0:] = np.vstack([B, D]).T
     R = np.broadcast_to(np.eye(n, k), (nb, n, k))
     Lb = np.zeros((1, k, n))
     Lb[0, a0:a0 + n] = np.eye(n)
@@ -217,7 +223,7 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
                         c: np.ndarray | None = None, cap: float | None = None, radius: float | None = None,
                         limit_slack: float = 0.0, trace_weight: np.ndarray | None = None,
                         compact: bool = True, merge: bool = True, tie_weight: float | None = None,
-                        metric: np.ndarray | None = None) -> PerformanceProblem:
+                        metric: np.ndarray | None = None, coordinates: np.ndarray | None = None) -> PerformanceProblem:
     """The SDP of one performance design (the blocks of :func:`solver.methods.performance.build`).
 
     Parameters
@@ -255,6 +261,10 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     merge : bool
         The per-mode blocks of every interval length in one group ``cost`` / ``hinf``, each padded to the largest
         side with an identity (:func:`_merge_groups`); False: one group per length (``cost_eta{e}``).
+    coordinates : ndarray, shape (n, n), optional
+        Cost and hinf: the same SDP in the state coordinates ``x = T z`` (docs/design.md §8.3.2, the recentred
+        stage): its variables are ``W' = T^-1 W T^-T``, ``Y' = Y T^-T``, ``Z' = T' Z T`` and every block is the
+        congruent image of the untransformed one (:func:`recentre`).
     """
     modes = lifted.modes
     n, m, J = modes.n_states, modes.n_inputs, modes.n_free_gains
@@ -284,7 +294,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
                 by_side.setdefault(lm.eta, []).append(s)
         parts = []
         for eta, s_list in sorted(by_side.items()):
-            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare, compact)
+            C, terms, sc = _lifted_blocks(lifted, kind, s_list, n, JM, M, scale, cs, kothare, compact,
+                                          None if kind == "stability" else coordinates)
             name = "stability" if kind == "stability" else f"{kind}_eta{eta}"
             parts.append((C, terms, sc))
             group_modes[name] = s_list
@@ -327,6 +338,13 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
         scalars = ["g"]
     else:
         scalars = [] if limits else ["tau"]
+    if coordinates is not None and objective in ("cost", "hinf"):
+        Ti = np.linalg.inv(coordinates)
+        x0 = None if x0 is None else Ti @ x0
+        if objective == "cost":
+            tw = np.ones(n) if trace_weight is None else np.asarray(trace_weight, dtype=np.float64)
+            tw = np.diag(tw) if tw.ndim == 1 else tw
+            trace_weight = Ti @ tw @ Ti.T  # <Wt, P> = <T^-1 Wt T^-T, T' P T>
     if x0 is not None:
         level_var = objective == "cost" and not kothare
         D = {"gamma": _bordered(n, 1.0, np.zeros(n))} if level_var else {}
@@ -366,7 +384,8 @@ def performance_problem(lifted, objective: str, x0: np.ndarray | None, u_max: np
     V0 = [np.zeros(sh) for _, sh, _ in matrices] + [np.zeros((1, 1)) for _ in scalars]
     lmi = GroupedLMI(matrices, scalars, groups, V0)
     if objective == "cost":
-        obj = {"Z": np.eye(n) if trace_weight is None else np.diag(trace_weight)} if use_Z else {"gamma": 1.0}
+        weight = np.eye(n) if trace_weight is None else np.asarray(trace_weight, dtype=np.float64)
+        obj = {"Z": np.diag(weight) if weight.ndim == 1 else weight} if use_Z else {"gamma": 1.0}
         if tie_weight is not None:
             obj = {"gamma": 1.0, "Z": float(tie_weight) * obj["Z"]}
     elif objective == "hinf":
@@ -407,10 +426,12 @@ class PerformanceSolution:
 
 
 def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = None,
-                      y_start: np.ndarray | None = None) -> PerformanceSolution:
+                      y_start: np.ndarray | None = None, x_start: list | None = None) -> PerformanceSolution:
     """Solve a :class:`PerformanceProblem` (in one phase, else phase 1 and then the objective; only the objective
-    from ``y_start``, a strictly feasible point, when given) and map the answer back."""
-    sol = solve_grouped(problem.lmi, problem.objective, options, one_phase=problem.one_phase, y_start=y_start)
+    from ``y_start``, a strictly feasible point, when given, with multipliers ``x_start`` when given) and map the
+    answer back."""
+    sol = solve_grouped(problem.lmi, problem.objective, options, one_phase=problem.one_phase, y_start=y_start,
+                        x_start=x_start)
     W = sol.V["W"]
     W = 0.5 * (W + W.T)
     J = len(problem.gain_scale)
@@ -420,3 +441,76 @@ def solve_performance(problem: PerformanceProblem, options: IPMOptions | None = 
     scalars = {k: v for k, v in sol.V.items() if k not in ("W", "Y")}
     return PerformanceSolution(status=sol.status, W=W, Y=Y, scalars=scalars, value=sol.value, raw=sol,
                                problem=problem)
+
+
+def _congruence(problem: PerformanceProblem, name: str, C: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``D_b`` (nb, k, k) of group ``name`` with ``S_b = D_b S'_b D_b'`` between the problem in the user's state
+    coordinates and the one in ``x = T z`` (:func:`performance_problem`'s ``coordinates``): ``T`` on the rows of
+    ``W`` and ``A_s W``, ``T^-T`` on ``Z``'s, the identity elsewhere (``[[1, x0'], [x0, W]]``, the input blocks and
+    padding included)."""
+    nb, k, _ = C.shape
+    n = T.shape[0]
+    D = np.broadcast_to(np.eye(k), (nb, k, k)).copy()
+    grp = next(g for g in problem.lmi.groups_spec if g.name == name)
+    if name == "Z":
+        D[:, :n, :n] = np.linalg.inv(T).T
+        D[:, n:, n:] = T
+        return D
+    if name == "cap":
+        return D
+    if name in ("x0", "input"):
+        D[:, 1:, 1:] = T
+        return D
+    if name.startswith(("cost", "hinf")):
+        Lw = np.broadcast_to(grp.terms["W"][1][0], (nb, k, n))  # the selector of A_s W's rows
+        for b in range(nb):
+            a0 = int(np.argmax(Lw[b, :, 0]))
+            D[b, :n, :n] = T
+            D[b, a0:a0 + n, a0:a0 + n] = T
+        return D
+    raise ValueError(f"no congruence for group {name!r}")
+
+
+def recentre(first: PerformanceProblem, sol: "PerformanceSolution", second: PerformanceProblem,
+             T: np.ndarray) -> tuple[np.ndarray, list]:
+    """The start of ``second`` (``first`` in the state coordinates ``x = T z``) at ``sol``'s iterate: ``(y, X)``.
+
+    The variables map as ``W' = T^-1 W T^-T``, ``Y' = Y T^-T``, ``Z' = T' Z T`` (scalars unchanged) and each block's
+    multipliers as ``X'_b = D_b' X_b D_b`` (:func:`_congruence`), so ``<X', S'> = <X, S>`` block by block: the same
+    iterate of the same problem, in coordinates where the answer's ``W`` is about ``I`` (docs/design.md §8.3.2).
+    """
+    lmi1, lmi2 = first.lmi, second.lmi
+    Ti = np.linalg.inv(T)
+    V = sol.raw.V
+    parts = []
+    for nm, sh in zip(lmi2.names, lmi2.shapes):
+        v = np.asarray(V[nm], dtype=np.float64).reshape(sh)
+        if nm == "W":
+            v = Ti @ v @ Ti.T
+            v = 0.5 * (v + v.T)
+        elif nm == "Y":
+            v = v @ Ti.T
+        elif nm == "Z":
+            v = T.T @ v @ T
+            v = 0.5 * (v + v.T)
+        parts.append(v.ravel())
+    if lmi2.with_t:
+        parts.append(np.zeros(1))
+    y = coordinates_of(lmi2, np.concatenate(parts))
+    X = []
+    for g1, C in zip(lmi1.groups_spec, lmi1.C):
+        D = _congruence(first, g1.name, C, T)
+        Xg = sol.raw.X[g1.name]
+        Xn = D.transpose(0, 2, 1) @ Xg @ D
+        X.append(0.5 * (Xn + Xn.transpose(0, 2, 1)))
+    return y, X
+
+
+def coordinates_of(lmi: GroupedLMI, x: np.ndarray) -> np.ndarray:
+    """The solver's coordinates ``y`` of the full variable vector ``x`` (``x = T y``, x in T's range): the normal
+    equations on the sparse basis (``T' T`` is diagonal for these bases: each full entry is one coordinate; a dense
+    least-squares solve took 2.4 s at n = 30)."""
+    import scipy.sparse.linalg
+
+    T = lmi.T.tocsc()
+    return np.asarray(scipy.sparse.linalg.spsolve((T.T @ T).tocsc(), T.T @ x), dtype=np.float64).reshape(-1)

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .algorithm import IPMOptions, _chol, _eigvalsh, _inv, _ipm_core
+from .algorithm import IPMOptions, _cholesky, _eigvalsh, _inv, _ipm_core
 from .blas import blas_threads, heap_reuse
 from .problems import _check_data, _gain_L, _gain_scale, lmi_problem
 from .schur import dense_ops
@@ -103,7 +103,7 @@ def certified_rate(W: np.ndarray, M: np.ndarray, eta: np.ndarray) -> float:
     """
     # (the gufuncs without numpy.linalg's wrappers: this runs at every iterate of the path)
     with np.errstate(invalid="ignore"):
-        L = _chol(0.5 * (W + W.T))
+        L = _cholesky(0.5 * (W + W.T)[None])[0]
     if not np.isfinite(L[-1, -1]):  # not positive definite (a failed factor is NaNs)
         return math.inf
     Li = _inv(L)
@@ -234,7 +234,6 @@ KEEP_EARLIER = 4
 #: Newton step remove the new data's dual residual (docs/design.md §3.2.2); smaller ones shift the slacks by ``t``.
 #: Measured (path Newton steps; all moves / none / from 0.1): the 21 test families 680 / 578 / 573, paper 35 / 24 /
 #: 25, n = 8 48 / 48 / 45, n = 20 63 / 69 (no closed bracket: rp stalled at 5e-8) / 65, n = 50 42 / 44 / 44.
-KEEP_SLACKS = True
 KEEP_FROM = 0.1
 
 
@@ -286,6 +285,10 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
     out = RatePathResult(status="max_iterations")
     st = {"lam": float(lam0), "it": 0, "above": []}
     st["prob"], st["c"], op, adj, schur = fam.at(lam0)
+    st["op"] = op
+
+    def op_now(y):
+        return st["op"](y)
 
     def wrap(op, adj, schur):
         return [st["prob"].C], (lambda y: [op(y)]), (lambda U: adj(U[0])), (lambda X, G: schur(X[0], G[0]))
@@ -320,7 +323,9 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         if new is None or not np.isfinite(new) or new <= 0.0 or abs(math.log(new / lam)) < 1e-12:
             return None
         prob2, c2, op2, adj2, schur2 = fam.at(new)
-        if KEEP_SLACKS and float(np.max(np.abs(c2 / c - 1.0))) >= KEEP_FROM:
+        # a residual left by an earlier large move (S is not C + A(y) yet): keep the slacks, carry the new data's
+        pending = not np.allclose(S[0], st["prob"].C + op_now(y), rtol=0.0, atol=1e-12 * float(np.abs(S[0]).max()))
+        if (pending or float(np.max(np.abs(c2 / c - 1.0))) >= KEEP_FROM):
             # the iterate stays as it is, centred: the new data's dual residual is carried by the iteration
             # (IPMOptions.retarget) and the next Newton step aims at the new rate's central path
             # (the multipliers as in the other branch: A^*(X) and <C, X> unchanged, the primal residual kept)
@@ -334,7 +339,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             if rp < 1e-6:
                 st["above"].append((lam, c, Xb.copy()))
             st["above"] = _prune_above(st["above"], out.hi)
-            st["lam"], st["prob"], st["c"] = float(new), prob2, c2
+            st["lam"], st["prob"], st["c"], st["op"] = float(new), prob2, c2, op2
             out.retargets += 1
             st["moved"] = True
             C2, o2, a2, s2 = wrap(op2, adj2, schur2)
@@ -356,7 +361,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         if rp < 1e-6:
             st["above"].append((lam, c, Xb.copy()))
         st["above"] = _prune_above(st["above"], out.hi)
-        st["lam"], st["prob"], st["c"] = float(new), prob2, c2
+        st["lam"], st["prob"], st["c"], st["op"] = float(new), prob2, c2, op2
         out.retargets += 1
         st["moved"] = True
         C2, o2, a2, s2 = wrap(op2, adj2, schur2)

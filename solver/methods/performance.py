@@ -62,6 +62,17 @@ MAX_RADIUS = 1e3
 RECENTRE_GAP = 1e-1
 RECENTRE_FEAS = 1e-6
 RECENTRE_BACK = 0.9
+#: ... and its objective's solve (after phase 1) stops after this many iterations (docs/design.md §8.3.3: from x0 its
+#: free tau runs off to -8e11 in 100 iterations at n = 12; the final tau is the same to 1e-8 after 10, 20, 30 or 100:
+#: n = 8 / 12 / 20 take 93 / 98 / 91 iterations in all instead of 113 / 142 / 152, 94 / 98 / 126 with x0 instead of
+#: 119 / 179 / 177).
+RECENTRE_ITER = 10
+#: Cost and hinf SDPs switch to the state coordinates of their iterate's W at this relative gap and primal residual
+#: (docs/design.md §8.3.2): by then W has its answer's shape (n = 12: the switch at 1e-1, 1e-2 or 1e-3 gives the
+#: same answer in 11, 7 and 7 more iterations), and in the original coordinates the multipliers' size (~P^2,
+#: 1e5) let the rounding of the Newton step's ``X dS S^-1`` floor the primal residual at 1e-6..1e-5.
+SWITCH_GAP = 1e-2
+SWITCH_FEAS = 1e-6
 
 
 def _blkdiag(*blocks):
@@ -197,8 +208,9 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
         if radius is not None:
             sol = _solve_recentred(prob, lifted, x0, u_max, c, radius, time_limit, start)
         else:
-            sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL,
-                                                             time_limit=time_limit))
+            sol = _solve_in_answer_coordinates(prob, lifted, objective, x0, u_max, time_limit, start,
+                                               cap=None if tie_weight is not None else cap, tie_weight=tie_weight,
+                                               trace_weight=trace_weight)
         status = _ipm_status(sol.status)
         # the constants' size without the radius cap (radius^2 ~ 1e7 would hide t* = -0.9 of the paper motor)
         scale = max([1.0] + [float(np.abs(C).max()) for g, C in zip(prob.lmi.groups_spec, prob.lmi.C)
@@ -253,6 +265,56 @@ def similar(lifted: Lifted, T: np.ndarray) -> Lifted:
     return Lifted(modes=lifted.modes, lifted=out)
 
 
+def _solve_in_answer_coordinates(prob, lifted: Lifted, objective: str, x0, u_max, time_limit, start, **build):
+    """A cost or hinf SDP on the IPM, its last iterations in the state coordinates of its answer (docs/design.md
+    §8.3.2): solved as built until the relative gap is below :data:`SWITCH_GAP` (primal residual
+    :data:`SWITCH_FEAS`); then, with ``W_1 = T T'`` (``T = W_1^{1/2}``) that iterate's W, the same SDP in the
+    coordinates ``x = T z`` (:func:`solver.ipm.performance_problem`'s ``coordinates``, where ``W_1`` is ``I``) from
+    the same iterate carried over exactly (:func:`solver.ipm.performance_blocks.recentre`: variables and multipliers
+    by congruence), to :data:`IPM_TOL`.  The answer is mapped back (``W = T W' T'``, ``Y = Y' T'``) and kept when
+    it is finite; otherwise the first stage's."""
+    from .. import ipm
+    from ..ipm.performance_blocks import recentre
+
+    def left():
+        return time_left(time_limit, start)
+
+    sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=SWITCH_GAP, feas_tol=SWITCH_FEAS, time_limit=left()))
+    switch = sol.status == "optimal" or sol.status == "stalled" and sol.raw.gap <= SWITCH_GAP and np.isfinite(sol.value)
+    if not switch or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
+        return sol  # converged already, or stopped short of SWITCH_GAP (its iterate, if any, is the proposal)
+    lam, U = np.linalg.eigh(sol.W)
+    sol2 = None
+    if lam[0] > 0:
+        T = (U * np.sqrt(lam)) @ U.T
+        prob2 = ipm.performance_problem(lifted, objective, x0, u_max, limit_slack=LIMIT_SLACK, coordinates=T, **build)
+        y0, X0 = recentre(prob, sol, prob2, T)
+        sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
+                                     y_start=y0, x_start=X0)
+    if sol2 is None or not np.isfinite(sol2.value):
+        # no answer in the new coordinates: the first stage's iterate goes on as built to IPM_TOL (its gap may be
+        # up to SWITCH_GAP, a loose bound the re-checks would certify)
+        y0, X0 = recentre(prob, sol, prob, np.eye(sol.W.shape[0]))
+        rest = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left()),
+                                     y_start=y0, x_start=X0)
+        if not np.isfinite(rest.value):
+            # an attained but loose value: a proposal for the re-checks (and for Clarabel under AUTO), not an optimum
+            sol.status = rest.status if rest.status not in ("optimal", "inaccurate") else "numerical_error"
+            return sol
+        rest.raw.iterations += sol.raw.iterations
+        return rest
+    sol2.W = T @ sol2.W @ T.T
+    sol2.W = 0.5 * (sol2.W + sol2.W.T)
+    sol2.Y = [y @ T.T for y in sol2.Y]
+    if "Z" in sol2.scalars:
+        Ti = np.linalg.inv(T)
+        sol2.scalars["Z"] = Ti.T @ sol2.scalars["Z"] @ Ti
+    sol2.raw.iterations += sol.raw.iterations
+    sol2.raw.timings = {k: v + sol.raw.timings.get(k, 0.0) for k, v in sol2.raw.timings.items()}
+    sol2.problem = prob
+    return sol2
+
+
 def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_limit, start):
     """The input-limited design's max-tau SDP in two stages (docs/design.md §8.3.3): to ``RECENTRE_GAP`` as
     built; then the same SDP in the coordinates ``x = W_1^{1/2} z`` of the ellipsoid ``W_1`` found (there
@@ -261,12 +323,14 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     from .. import ipm
 
     sol = ipm.solve_performance(prob, ipm.IPMOptions(gap_tol=RECENTRE_GAP, feas_tol=RECENTRE_FEAS,
-                                                     time_limit=time_limit))
+                                                     time_limit=time_limit, objective_max_iter=RECENTRE_ITER))
     if not np.isfinite(sol.value) or sol.raw.gap <= IPM_TOL and sol.raw.primal_residual <= IPM_TOL:
         return sol
     lam, U = np.linalg.eigh(sol.W)
     if not lam[0] > 0:
         return sol
+    from ..ipm.performance_blocks import coordinates_of
+
     T, Ti = (U * np.sqrt(lam)) @ U.T, (U / np.sqrt(lam)) @ U.T
     prob2 = ipm.performance_problem(similar(lifted, T), "stability", None if x0 is None else Ti @ x0, u_max, c=c,
                                     radius=radius / np.sqrt(lam[0]), limit_slack=LIMIT_SLACK,
@@ -277,7 +341,7 @@ def _solve_recentred(prob, lifted: Lifted, x0, u_max, c, radius: float, time_lim
     Ys = [y @ Ti * g for y, g in zip(sol.Y, prob2.gain_scale)]
     x = np.concatenate([np.eye(len(lam)).ravel()] + [y.ravel() for y in Ys]
                        + [[RECENTRE_BACK, 0.0]])
-    y0 = np.linalg.lstsq(prob2.lmi.T.toarray(), x, rcond=None)[0]
+    y0 = coordinates_of(prob2.lmi, x)
     left = time_left(time_limit, start)
     sol2 = ipm.solve_performance(prob2, ipm.IPMOptions(gap_tol=IPM_TOL, feas_tol=IPM_TOL, time_limit=left),
                                  y_start=y0)

@@ -13,6 +13,7 @@ import pytest
 
 from app.client import Client
 from solver import PlantFamily, export_sdpa
+from solver.compiled import design_size
 
 from ..solver.test_codegen import CBuffer, build
 from ..solver.test_sdpa import resolve
@@ -157,15 +158,18 @@ def test_cli_codegen_and_export_sdpa(tmp_path):
 
 def test_default_limits_admit_the_measured_lmi_case(module_db):
     """The plain lmi design at n = 60, r = 5, n_drop = 10 (measured in 44 s of CPU: README) passes the default
-    limits; n = 61 is refused naming the field; the default decay_rate="auto" (about 12 SDPs) at n = 60 is
-    refused up front by the job time limit (the tests' 120 s) rather than killed by it."""
+    limits; n = 61 is refused naming the field; the default decay_rate="auto" (a rate search, several SDPs) at
+    n = 60 is refused up front by a job time limit between the two designs' estimates rather than killed by it."""
     rng = np.random.default_rng(0)
+    plain, auto = (design_size("lmi", 60, 2, 5, 10, decay_rate=rate).total_seconds for rate in (None, "auto"))
+    assert plain < auto
+    limit = (plain * auto) ** 0.5
 
     def body(n, **options):
         return {"plant": {"kind": "discrete", "F": (0.1 * rng.standard_normal((5, n, n))).tolist(),
                           "G": rng.standard_normal((5, n, 2)).tolist()}, "n_drop": 10, "options": options}
 
-    with running_client(module_db, run_dispatcher=False) as c:
+    with running_client(module_db, run_dispatcher=False, job_time_limit=limit) as c:
         assert c.post("/v1/designs", json=body(60, decay_rate=None)).status_code == 202
         assert_problem(c.post("/v1/designs", json=body(61, decay_rate=None)), 422, "/plant/F")
         problem = assert_problem(c.post("/v1/designs", json=body(60)), 422, "/n_drop")

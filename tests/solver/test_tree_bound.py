@@ -135,3 +135,10 @@ def test_the_refusal_of_a_contradiction_still_works(monkeypatch):
     monkeypatch.setattr(brackets, "lower_bound", inflated)
     perf = brackets.bracket(lifted, np.asarray(res.gains, float), "cost", P0=res.performance.certificate)
     assert perf.upper is None and not perf.verified and "refused" in perf.message
+
+
+def test_the_exact_recheck_refuses_an_indefinite_p():
+    """``P - A' P A >= S`` alone proves nothing when P is not positive semidefinite: A = 2, P = -1, S = 1 satisfy it,
+    every sequence diverges, and ``c_1 + <P, Sigma_1> = 1 - 4 = -3`` would pass any bound >= -3."""
+    data = [{"A": np.array([[2.0]]), "S": np.array([[1.0]])}]
+    assert recheck_tree_bound(data, np.array([[-1.0]]), 0.0, 1) == (False, None)
