@@ -329,6 +329,118 @@ def recheck_tree_bound(data: list[dict], P: np.ndarray, bound: float, depth: int
     return bool(worst <= Fraction(float(bound))), worst
 
 
+#: Largest state dimension for which :func:`check_cost_exact` is tried when the float64 re-check cannot decide.
+EXACT_COST_MAX_N = 8
+
+
+def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
+    """Exact re-check of the cost certificate: ``P >= 0`` and ``P - A_s' P A_s - S_s >= 0`` for every mode.
+
+    In rational arithmetic on the float64 numbers (``fractions.Fraction``, the data taken as exact as in
+    :func:`recheck_tree_bound`), so no rounding allowance: it decides where :func:`check_cost`'s relative
+    allowance cannot, i.e. where the slack the certificate needs is tiny beside ``|P|`` in some direction (a
+    nearly unreachable unstable mode: ``P`` spans 1e11, docs/design.md §8.5).  ``O(n^3)`` rational products
+    per mode: small n only (:data:`EXACT_COST_MAX_N`).
+    """
+    from fractions import Fraction
+
+    P = np.asarray(P, dtype=np.float64)
+    if not np.all(np.isfinite(P)) or any(not np.all(np.isfinite(d["A"])) or not np.all(np.isfinite(d["S"]))
+                                         for d in data):
+        return False
+    n = P.shape[0]
+
+    def frac(M):
+        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+    def mul(X, Y):
+        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
+
+    Pq = frac(P)
+    Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    if not _psd_exact(Pq):
+        return False
+    for d in data:
+        A, Sq = frac(d["A"]), frac(d["S"])
+        APA = mul(mul([list(col) for col in zip(*A)], Pq), A)
+        if not _psd_exact([[Pq[i][j] - APA[i][j] - (Sq[i][j] + Sq[j][i]) / 2 for j in range(n)] for i in range(n)]):
+            return False
+    return True
+
+
+def _lyapunov_once(A: np.ndarray, S: np.ndarray, method: str) -> np.ndarray | None:
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            P = scipy.linalg.solve_discrete_lyapunov(A.T, S, method=method)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    P = 0.5 * (P + P.T)
+    return P if np.all(np.isfinite(P)) else None
+
+
+#: :func:`lyapunov` keeps scipy's answer when its condition number is at most this (and its residual tiny).
+LYAPUNOV_CONDITION = 1e6
+
+
+def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np.ndarray:
+    """``P = A' P A + S`` (n x n, A stable, S >= 0), solved in coordinates where the loop is a contraction.
+
+    Far from normal loops (a nearly unreachable unstable mode needs gains ~1e5) make both of scipy's methods
+    lose everything (the Kronecker form returned an indefinite P with a residual of 1e-10; the bilinear form
+    is off by 1e-3): the equation is ill-conditioned in the user's coordinates.  With ``P = L L'`` and
+    ``z = L' x`` the loop ``L' A L^-T`` is a contraction (``A' P A < P``), where the equation is well
+    conditioned; so the answer is re-solved in the coordinates of a positive definite approximation (``hint``,
+    else the better of scipy's two answers by residual), twice (docs/design.md §8.5).  Without one (S
+    singular) the plain answer of least residual; ``LinAlgError`` when there is none.
+    """
+    best = None
+    plain = _lyapunov_once(A, S, "direct" if A.shape[0] < 10 else "bilinear")  # scipy's own choice
+    if hint is None and plain is not None:
+        # the common case costs one solve: a well conditioned positive definite answer with a small residual
+        eig = np.linalg.eigvalsh(plain)
+        APA = A.T @ plain @ A
+        residual = np.linalg.norm(APA - plain + S) / max(np.linalg.norm(APA) + np.linalg.norm(plain) +
+                                                         np.linalg.norm(S), 1e-300)
+        if eig[0] > 0 and eig[-1] <= LYAPUNOV_CONDITION * eig[0] and residual <= 1e-13:
+            return plain
+    firsts = [hint] if hint is not None else []
+    firsts += [plain if A.shape[0] < 10 else _lyapunov_once(A, S, "direct"),
+               _lyapunov_once(A, S, "bilinear") if A.shape[0] < 10 else plain]
+    for P in firsts:
+        if P is None:
+            continue
+        for _ in range(3):  # the first candidate itself, then two re-solves in its coordinates
+            try:
+                L = np.linalg.cholesky(0.5 * (P + P.T))
+            except np.linalg.LinAlgError:
+                break
+            APA = A.T @ P @ A
+            residual = np.linalg.norm(APA - P + S) / max(np.linalg.norm(APA) + np.linalg.norm(P) + np.linalg.norm(S),
+                                                         1e-300)
+            if best is None or residual < best[0]:
+                best = (residual, P)
+            At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T  # L' A L^-T
+            St = scipy.linalg.solve_triangular(L, scipy.linalg.solve_triangular(L, S, lower=True).T, lower=True)
+            Pt = _lyapunov_once(At, 0.5 * (St + St.T), "direct" if A.shape[0] < 10 else "bilinear")
+            if Pt is None:
+                break
+            P = L @ Pt @ L.T
+            P = 0.5 * (P + P.T)
+    if best is None:  # no positive definite approximation (S singular): the plain answer of least residual
+        for P in firsts[len(firsts) - 2:]:
+            if P is None:
+                continue
+            APA = A.T @ P @ A
+            residual = np.linalg.norm(APA - P + S) / max(np.linalg.norm(APA) + np.linalg.norm(P) + np.linalg.norm(S),
+                                                         1e-300)
+            if best is None or residual < best[0]:
+                best = (residual, P)
+    if best is None:
+        raise np.linalg.LinAlgError("no Lyapunov solution")
+    return best[1]
+
+
 def _trace(P, weight):
     """``trace P`` or ``sum_i weight_i P_ii`` (a trace in other coordinates, :mod:`solver.scaling`)."""
     return float(np.trace(P)) if weight is None else float(np.sum(weight * np.diagonal(P)))
@@ -339,7 +451,9 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
 
     ``c P0`` certifies when ``c (P0 - A' P0 A) >= S``: ``c`` is the largest generalized eigenvalue of
     ``(S_s, P0 - A_s' P0 A_s)`` (a shrink when P0 has slack, a small growth when the solver left it a
-    hair infeasible).  Returns ``(P or None, bound or None, reason)``.
+    hair infeasible); P0 itself is tried too.  A factor passes :func:`check_cost` or, for n up to
+    :data:`EXACT_COST_MAX_N`, :func:`check_cost_exact`.  Returns ``(P or None, bound or None, reason)``
+    (``reason`` names the exact re-check when that is what passed).
     """
     P0 = _sym(P0)
     c = 1.0
@@ -350,11 +464,21 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
     except (np.linalg.LinAlgError, ValueError):
         c = 1.0  # P0 - A'P0A not positive definite: only P0 itself can still pass
     worst = np.inf
-    for bump in (1e-12, 1e-10, 1e-8, 1e-6, 1e-4):
-        P = c * (1 + bump) * P0
-        ok, worst = check_cost(P, data)
+    # Smallest factor first, P0 itself among them: c comes from a float64 eigenvalue problem that is off where P0
+    # spans 1e9 and more (a nearly unreachable unstable mode), and a multiple adds slack only along
+    # P0 - A'P0A, which is S where P0 is tight; where the float64 allowance cannot decide (n small), the exact
+    # re-check does (docs/design.md §8.5: the Riccati refinement's P, lifted along itself, passes only there)
+    factors = sorted([c * (1 + bump) for bump in (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)] + [1.0])
+    for factor in factors:
+        P = factor * P0
+        ok, worst_here = check_cost(P, data)
+        worst = min(worst, worst_here)  # the closest to passing, for the message
         if ok:
             return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), ""
+        if (worst_here < 0 or factor == 1.0) and P0.shape[0] <= EXACT_COST_MAX_N and check_cost_exact(P, data):
+            # (where float64 sees the inequality hold within its allowance, and for P0 itself: a caller's P lifted
+            # on purpose, whose slack float64 may not even see)
+            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), "exact re-check of P"
     return None, None, ("no multiple of the solver's P passes the float64 re-check "
                         f"(worst relative eigenvalue {worst:.3g})")
 
@@ -407,6 +531,42 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     return bool(worst < -_allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))), float(worst)
 
 
+def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
+    """Exact re-check of the bounded-real certificate: ``P >= 0`` and
+    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the float64
+    numbers (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
+    relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4)."""
+    from fractions import Fraction
+
+    P = np.asarray(P, dtype=np.float64)
+    if P.ndim != 2 or not np.all(np.isfinite(P)) or not np.isfinite(g):
+        return False
+
+    def frac(M):
+        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+    def mul(X, Y):
+        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
+
+    n = P.shape[0]
+    Pq = frac(P)
+    Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    if not _psd_exact(Pq):
+        return False
+    gq = Fraction(float(g))
+    for d in data:
+        AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
+        k = len(AB[0]) - n
+        ABt, CDt = [list(col) for col in zip(*AB)], [list(col) for col in zip(*CD)]
+        M = mul(mul(ABt, Pq), AB)
+        CC = mul(CDt, CD)
+        neg = [[-(M[i][j] + CC[i][j]) + (Pq[i][j] if i < n and j < n else 0) + (gq if i == j and i >= n else 0)
+                for j in range(n + k)] for i in range(n + k)]
+        if not _psd_exact(neg):
+            return False
+    return True
+
+
 def certify_hinf(P0: np.ndarray, data: list[dict]):
     """Smallest ``gamma`` that ``c P0`` (c near 1) certifies, re-checked by :func:`check_hinf`.
 
@@ -429,16 +589,38 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
         for bump in (1e-10, 1e-8, 1e-6):
             gb = max(g, 0.0) * (1 + bump) + bump * float(np.max(np.linalg.norm(P, 2, axis=(-2, -1)))) * 1e-3 + 1e-300
             ok, worst = check_hinf(P, gb, data)
+            exact = False
+            if not ok and (worst < 0 or (c == 1.0 and bump == 1e-10)) and not nodes and \
+                    P.shape[0] <= EXACT_COST_MAX_N and \
+                    max(d["B"].shape[1] + d["C"].shape[0] for d in data) <= 4 * EXACT_COST_MAX_N:
+                ok = exact = check_hinf_exact(P, gb, data)  # the float64 allowance cannot decide (§8.4): exactly
             if ok:
                 if best[1] is None or np.sqrt(gb) < best[1]:
                     best = (P, float(np.sqrt(gb)))
+                    how = "exact re-check of P" if exact else ""
                 break
             reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
         if best[0] is not None and c > 1:
             break
     if best[0] is None:
         return None, None, reason
-    return best[0], best[1], ""
+    return best[0], best[1], how
+
+
+def bounded_real_riccati(d: dict, gamma: float) -> np.ndarray | None:
+    """The stabilizing solution of the bounded-real Riccati equation of one LTI loop at level ``gamma``:
+    ``X = A'XA + C'C + (A'XB + C'D)(g I - D'D - B'XB)^{-1}(B'XA + D'C)``, ``g = gamma^2`` (None when scipy
+    finds none).  For ``gamma`` above the loop's l2 gain it is the least P of the bounded-real inequality, so
+    ``gamma (1 + delta)`` gives a certificate within ``delta`` of the gain (docs/design.md §8.5)."""
+    A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            X = scipy.linalg.solve_discrete_are(A, B, C.T @ C, D.T @ D - gamma ** 2 * np.eye(B.shape[1]), s=C.T @ D)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    X = _sym(X)
+    return X if np.all(np.isfinite(X)) and np.linalg.eigvalsh(X)[0] > 0 else None
 
 
 def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.ndarray,
@@ -680,7 +862,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
 
     Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling, sweeps through
     Gram matrices; H-infinity patterns whose cheap upper bound cannot beat the best sweep are skipped); the
-    ``REFINED`` best are then re-evaluated one by one (``scipy.linalg.solve_discrete_lyapunov``; sweep plus
+    ``REFINED`` best are then re-evaluated one by one (:func:`lyapunov`; sweep plus
     bounded refinement), and the value reported is the re-evaluated one of the witness.  ``deep`` (cost): the
     two-run search of :func:`run_patterns` beyond ``max_length``, stopped at ``stop`` (the certified upper bound).
     ``max_length`` None: the longest length whose patterns (all of them, every shorter one too) fit in
@@ -731,7 +913,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             best, witness = -np.inf, None
             for i in _top(approx, REFINED):
                 sys = period_system(data, pats[i])
-                Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+                Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
                 value = float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0)
                 if value > best:
                     best, witness = value, pats[i]
@@ -796,7 +978,7 @@ def _tails(data: list[dict], seqs: list) -> list:
         seen.add(seq)
         sys = period_system(data, seq)
         if np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
-            out.append((seq, scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])))
+            out.append((seq, lyapunov(sys["Phi"], sys["L"].T @ sys["L"])))
     return out
 
 
@@ -816,7 +998,7 @@ def run_patterns(data: list[dict], short: list, values: np.ndarray, x0: np.ndarr
     exhaustive length.  ``a`` and ``b`` range over the modes of the best short patterns (``short``, valued by
     ``values``; every mode when there are at most ``max_modes``); each run's cost is accumulated by powers, every pattern valued by doubling in one stack, and
     the search stops once a value reaches ``stop`` (the certified upper bound: nothing can exceed it).  The
-    winner is re-evaluated on its own (:func:`period_system`, ``scipy.linalg.solve_discrete_lyapunov``), and
+    winner is re-evaluated on its own (:func:`period_system`, :func:`lyapunov`), and
     that value is returned.  ``(None, None)`` when nothing was found.
     """
     from . import periodic
@@ -863,7 +1045,7 @@ def run_patterns(data: list[dict], short: list, values: np.ndarray, x0: np.ndarr
     sys = period_system(data, arg)  # the winner on its own
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
         return None, None
-    Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+    Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
     return float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0), arg
 
 
@@ -905,7 +1087,7 @@ def _moment(n: int, x0: np.ndarray | None, weight: np.ndarray | None) -> np.ndar
 
 def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
     """``<P_prefix + Phi' P_tail Phi, M>``: the exact cost of ``prefix`` then ``tail`` repeated forever
-    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, ``solve_discrete_lyapunov``);
+    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, :func:`lyapunov`);
     ``inf`` when the tail is unstable."""
     n = data[0]["A"].shape[0]
     T, Pp = np.eye(n), np.zeros((n, n))
@@ -915,7 +1097,7 @@ def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
     sys = period_system(data, tail)
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
         return np.inf
-    Pt = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
+    Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
     return float(np.sum(_sym(Pp + T.T @ Pt @ T) * M))
 
 
@@ -1315,9 +1497,34 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
         reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+    if P is None and kind == "cost" and len(data) == 1 and data[0]["A"].shape[0] <= EXACT_COST_MAX_N and \
+            np.all(np.isfinite(data[0]["A"])) and np.max(np.abs(np.linalg.eigvals(data[0]["A"]))) < 1:
+        # one LTI loop whose P spans too much for the LMI and the float64 re-check (§8.5): its own cost matrix,
+        # lifted along itself, through the exact re-check
+        try:
+            X = lyapunov(data[0]["A"], _sym(data[0]["S"]))
+            for eps in (1e-12, 1e-10, 1e-8, 1e-6):
+                Pc, uc, how = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
+                if Pc is not None:
+                    P, upper, reason = Pc, uc, how or "the loop's Lyapunov solution"
+                    break
+        except np.linalg.LinAlgError:
+            pass
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P)
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
+    if kind == "hinf" and len(data) == 1 and lower is not None and np.isfinite(lower) and lower > 0 and (
+            upper is None or upper > lower * (1 + 1e-7)):
+        # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real
+        # Riccati solution a hair above it is the least certificate there (§8.5); the SDP's P can be 1e-3 off
+        for delta in (1e-8, 1e-7, 1e-6, 1e-5, 3e-5, 1e-4):
+            X = bounded_real_riccati(data[0], lower * (1 + delta))
+            if X is None:
+                continue
+            Pc, gc, how = certify_hinf(X, data)
+            if Pc is not None and (upper is None or gc < upper):
+                P, upper, reason = Pc, gc, how or "bounded-real Riccati solution"
+                break
     quadratic, tree = upper, ""
     if P is not None and found.bound is not None and found.bound < upper:
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
@@ -1329,7 +1536,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         reason = f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     if P is not None:
-        message = f"{what} certified <= {upper:.6g} ({tree or 'float64 re-check of P'})"
+        message = f"{what} certified <= {upper:.6g} ({tree or reason or 'float64 re-check of P'})"
     else:
         message = f"no certified upper bound: {reason}"
     if lower is not None:

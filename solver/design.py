@@ -686,6 +686,9 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
             res.objective = objective
         if u_max is not None and res.outcome != "stabilized" and _SOLVER_FAILED.match(res.message or ""):
             res.message = _input_limit_message(u_max, x0, res.message)
+        if u_max is not None and objective == "stability" and res.outcome == "not_converged":
+            return _limited_plain_fallback(res, family, modes, x0, u_max, solver, margin, time_limit, start,
+                                           rate, scaling)
         if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
                 or u_max is not None:
             return res
@@ -718,6 +721,43 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
                          f"{plain.performance.message}")
         return plain
+
+
+def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin,
+                            time_limit, start, rate, scaling) -> DesignResult:
+    """An input-limited design whose SDP certified nothing: the plain design's gains and invariant ellipsoid.
+
+    The plain design's reduced certificate X (``A_s' X A_s < X`` for every interval map, §3 and §5) makes every
+    sublevel set of ``x' X x`` invariant at packet times, so :func:`solver.brackets.check_invariant` (float64
+    re-check) scales it until every buffered input meets its limit (docs/design.md §8.2, "Input limits"); with
+    x0 the set must contain it.  Without such a set ``res`` (not_converged) is returned with the reason.
+    """
+    from .brackets import check_invariant
+
+    remaining = time_left(time_limit, start)
+    if remaining is not None and remaining <= 0:
+        return res
+    try:
+        plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=rate,
+                       time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
+                       scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
+    except (SolverFailed, InvalidInput):
+        return res
+    cert = plain.certificate
+    if plain.outcome != "stabilized" or cert is None or getattr(cert, "X", None) is None:
+        return res
+    X = np.asarray(cert.X, dtype=np.float64)
+    if plain.scaling and plain.scaling.get("certificate") == "scaled":  # x = T x~: X = T^-1 X~ T^-1
+        t = np.asarray(plain.scaling["state"], dtype=np.float64)
+        X = X / t[:, None] / t[None, :]
+    invariant, why = check_invariant(X, modes.closed_loops(plain.gains), plain.gains, u_max, x0)
+    if invariant is None:
+        res.message += f"; the plain design's gains stabilize, but their ellipsoid is not re-checked: {why}"
+        return res
+    plain.invariant_set = invariant
+    plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; inputs within u_max from "
+                     f"every state of its invariant set (re-checked)")
+    return plain
 
 
 #: ``decay_rate="auto"`` with ``u_max``: the limited rate search stops when its bracket is within this relative

@@ -33,7 +33,7 @@ from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_le
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..brackets import bracket, check_cost, check_invariant, check_x0, solve_sdp
+from ..brackets import EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, lyapunov, check_invariant, check_x0, solve_sdp
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
@@ -576,6 +576,39 @@ HEWER_STEPS = 60
 EPS_STEPS = (1e-14, 1e-13, 1e-12, 1e-11, 1e-10, 1e-9)
 
 
+def _refined_lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray, steps: int = 2) -> np.ndarray:
+    """:func:`solver.brackets.lyapunov` plus iterative refinement: ``P <- P + lyapunov(A, r)`` with the residual
+    ``r = A' P A - P + S`` evaluated exactly (``fractions.Fraction``) and rounded once; small n only."""
+    from fractions import Fraction
+
+    def frac(M):
+        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+    n = A.shape[0]
+    Aq, Sq = frac(A), frac(S)
+    P = lyapunov(A, S, hint)
+    for _ in range(steps):
+        Pq = frac(P)
+        AP = [[sum(Aq[k][i] * Pq[k][j] for k in range(n)) for j in range(n)] for i in range(n)]  # A' P
+        r = np.array([[float(sum(AP[i][k] * Aq[k][j] for k in range(n)) - Pq[i][j] + Sq[i][j]) for j in range(n)]
+                      for i in range(n)])
+        r = 0.5 * (r + r.T)
+        if not np.any(r):
+            break
+        correction = lyapunov(A, r, P) if np.all(np.linalg.eigvalsh(r) >= 0) else _plain_lyapunov(A, r, P)
+        P = 0.5 * ((P + correction) + (P + correction).T)
+    return P
+
+
+def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np.ndarray:
+    """``X = A' X A + r`` for an indefinite r, in the coordinates where ``coordinates`` (> 0) is I."""
+    L = np.linalg.cholesky(0.5 * (coordinates + coordinates.T))
+    At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T
+    rt = scipy.linalg.solve_triangular(L, scipy.linalg.solve_triangular(L, r, lower=True).T, lower=True)
+    Xt = scipy.linalg.solve_discrete_lyapunov(At.T, 0.5 * (rt + rt.T))
+    return L @ Xt @ L.T
+
+
 def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
     """Hewer's (Newton-Kleinman) iteration from a stabilizing ``u = K x`` to the LQR gain of ``(F, G, Q, R)``.
 
@@ -587,30 +620,50 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
     like any other: the caller's float64 re-checks certify it.
     """
+    if not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
+        return None
+    K_prev, last, P = K, None, None  # last: the trace of the last P (in exact arithmetic it decreases)
     for _ in range(HEWER_STEPS):
         A = F + G @ K
         if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
-            return None
-        P = scipy.linalg.solve_discrete_lyapunov(A.T, Q + K.T @ R @ K)
-        P = 0.5 * (P + P.T)
+            K = K_prev  # rounding broke the iteration (ill-conditioned Lyapunov equations): keep the last stable one
+            break
+        P = lyapunov(A, Q + K.T @ R @ K, P)  # the previous P's coordinates (docs/design.md §8.5)
+        if last is not None and not np.trace(P) <= last * (1 + 1e-12):
+            K = K_prev  # a rise is rounding too (P_k decreases monotonically in exact arithmetic)
+            break
+        last = float(np.trace(P))
         K_next = -np.linalg.solve(R + G.T @ P @ G, G.T @ P @ F)
         step = np.linalg.norm(K_next - K)
-        K = K_next
+        K_prev, K = K, K_next
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
     A = F + G @ K
     if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
         return None
     S = Q + K.T @ R @ K
-    P = scipy.linalg.solve_discrete_lyapunov(A.T, S)
+    P = lyapunov(A, S, P)
     size = 2 * np.linalg.norm(P, 2) + np.linalg.norm(S, 2)
     data = [{"A": A, "S": S}]
+    found = None
     for step in EPS_STEPS:
-        Pe = scipy.linalg.solve_discrete_lyapunov(A.T, S + step * size * np.eye(S.shape[0]))
-        Pe = 0.5 * (Pe + Pe.T)
+        Pe = lyapunov(A, S + step * size * np.eye(S.shape[0]), P)
         if check_cost(Pe, data)[0]:
+            found = Pe
             break
-    return K, Pe
+    if S.shape[0] <= EXACT_COST_MAX_N:
+        # the float64 re-check's allowance is relative to |P|: where P spans 1e11 (a nearly unreachable unstable
+        # mode) the lift it needs raises trace P by 1e-3 and more; a lift along P itself (slack eps P, relative
+        # in every direction) raises it by about eps / (1 - |loop|^2) and passes the exact re-check (§8.5).
+        # Its residual must be below eps P in every direction: two steps of iterative refinement with the
+        # residual computed exactly (rational arithmetic on the float64 numbers) get there
+        for step in EPS_STEPS + (1e-8, 1e-7):
+            Pl = _refined_lyapunov(A, S + step * P, P)
+            if check_cost_exact(Pl, data):
+                if found is None or np.trace(Pl) < np.trace(found):
+                    found = Pl
+                break
+    return K, (Pe if found is None else found)
 
 
 def _one_lti_loop(lifted: Lifted) -> bool:
@@ -666,18 +719,52 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
             failures.append(str(err))
     candidates = [c for c in candidates if c is not None]
     best = max(candidates, key=lambda c: _score(c, u_max)) if candidates else None
-    if best is not None and objective == "cost" and u_max is None and _one_lti_loop(lifted):
-        refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, best["gains"][0])
-        if refined is not None:
-            c = _evaluate(lifted, objective, x0, u_max, options, clock, best["info"], None, None, None,
-                          trace_weight, gains=refined[0][None], P0=refined[1])
+    if objective == "cost" and u_max is None and _one_lti_loop(lifted):
+        starts = [] if best is None else [(best["gains"][0], best["info"], True)]
+        if not _good(best, u_max):
+            # no certified SDP answer (a nearly unreachable unstable mode in mixed coordinates: P spans 1e11, the
+            # SDP in W = P^-1 is beyond float64): Hewer's iteration needs only a stabilizing gain, and the plain
+            # design's is one (docs/design.md §8.5)
+            try:  # the Riccati solver's own answer (QZ, backward stable) first: a proposal like any other
+                P_are = scipy.linalg.solve_discrete_are(modes.F[0], modes.G[0], lifted.Q, lifted.R)
+                K_are = -np.linalg.solve(lifted.R + modes.G[0].T @ P_are @ modes.G[0],
+                                         modes.G[0].T @ P_are @ modes.F[0])
+                if np.all(np.isfinite(K_are)):
+                    starts.append((K_are, info if info is not None else SolveInfo(
+                        status="riccati", solver="scipy", solve_time=0.0, wall_time=0.0, objective=float("nan"),
+                        iterations=0), "the Riccati solver's (scipy.linalg.solve_discrete_are)"))
+            except (np.linalg.LinAlgError, ValueError):
+                pass
+            try:
+                base = lmi.run(modes, options)
+            except SolverFailed:
+                base = None
+            if base is not None and base.outcome == "stabilized" and base.gains is not None:
+                starts.append((base.gains[0], info if info is not None else SolveInfo(
+                    status=base.solver_status, solver=base.solver, solve_time=0.0, wall_time=0.0,
+                    objective=float("nan"), iterations=0), "the plain design's"))
+        for start_gains, start_info, origin in starts:
+            try:
+                refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains)
+            except (np.linalg.LinAlgError, ValueError):
+                refined = None
+            try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
+                c = None if refined is None else _evaluate(lifted, objective, x0, u_max, options, clock, start_info,
+                                                           None, None, None, trace_weight, gains=refined[0][None],
+                                                           P0=refined[1])
+            except SolverFailed:
+                c = None
+            if c is None:
+                continue
             # kept unless its bound is clearly worse: the SDP's own bound is flat at the optimum (the bus
             # suspension, Q = I: equal to 2e-10 with gains 1e-4 apart), the refinement's gains are the Riccati ones
-            if c is not None and _score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
+            if best is None or (_score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
                     not _score(best, u_max)[2] or best["performance"] is None or
-                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8)):
+                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8))):
                 best = c
-                best["refined"] = True
+                best["refined"] = origin
+            if _good(best, u_max):
+                break
     if best is None:
         reason = f"the {objective} SDP " + ("failed (" + "; ".join(failures) + ")" if failures else
                                             f"ended with status {info.status!r}" if info is not None else "failed")
@@ -713,7 +800,8 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         if u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
     if best.get("refined"):
-        message += "; gains refined to the Riccati solution (Hewer's iteration from the SDP's gains)"
+        origin = "the SDP's" if best["refined"] is True else best["refined"]
+        message += f"; gains refined to the Riccati solution (Hewer's iteration from {origin} gains)"
     if performance is not None:
         message += f"; {performance.message}"
     res = finish(modes, "lmi", outcome, gains, cert, A, clock, info.solver, info.status, message, [record], options)
