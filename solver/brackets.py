@@ -379,6 +379,12 @@ def _lyapunov_once(A: np.ndarray, S: np.ndarray, method: str) -> np.ndarray | No
     return P if np.all(np.isfinite(P)) else None
 
 
+def _lyapunov_residual(A: np.ndarray, P: np.ndarray, S: np.ndarray) -> float:
+    """``||A' P A - P + S||_F`` relative to the size of its terms."""
+    APA = A.T @ P @ A
+    return float(np.linalg.norm(APA - P + S) / max(np.linalg.norm(APA) + np.linalg.norm(P) + np.linalg.norm(S), 1e-300))
+
+
 #: :func:`lyapunov` keeps scipy's answer when its condition number is at most this (and its residual tiny).
 LYAPUNOV_CONDITION = 1e6
 
@@ -399,10 +405,7 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
     if hint is None and plain is not None:
         # the common case costs one solve: a well conditioned positive definite answer with a small residual
         eig = np.linalg.eigvalsh(plain)
-        APA = A.T @ plain @ A
-        residual = np.linalg.norm(APA - plain + S) / max(np.linalg.norm(APA) + np.linalg.norm(plain) +
-                                                         np.linalg.norm(S), 1e-300)
-        if eig[0] > 0 and eig[-1] <= LYAPUNOV_CONDITION * eig[0] and residual <= 1e-13:
+        if eig[0] > 0 and eig[-1] <= LYAPUNOV_CONDITION * eig[0] and _lyapunov_residual(A, plain, S) <= 1e-13:
             return plain
     firsts = [hint] if hint is not None else []
     firsts += [plain if A.shape[0] < 10 else _lyapunov_once(A, S, "direct"),
@@ -415,9 +418,7 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
                 L = np.linalg.cholesky(0.5 * (P + P.T))
             except np.linalg.LinAlgError:
                 break
-            APA = A.T @ P @ A
-            residual = np.linalg.norm(APA - P + S) / max(np.linalg.norm(APA) + np.linalg.norm(P) + np.linalg.norm(S),
-                                                         1e-300)
+            residual = _lyapunov_residual(A, P, S)
             if best is None or residual < best[0]:
                 best = (residual, P)
             At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T  # L' A L^-T
@@ -431,9 +432,7 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
         for P in firsts[len(firsts) - 2:]:
             if P is None:
                 continue
-            APA = A.T @ P @ A
-            residual = np.linalg.norm(APA - P + S) / max(np.linalg.norm(APA) + np.linalg.norm(P) + np.linalg.norm(S),
-                                                         1e-300)
+            residual = _lyapunov_residual(A, P, S)
             if best is None or residual < best[0]:
                 best = (residual, P)
     if best is None:

@@ -692,16 +692,8 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         if res.outcome in ("stabilized", "infeasible", "marginal") or objective not in ("cost", "hinf") \
                 or u_max is not None:
             return res
-        remaining = time_left(time_limit, start)
-        if remaining is not None and remaining <= 0:
-            return res
-        try:
-            plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=None,
-                           time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
-                           scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
-        except (SolverFailed, InvalidInput):  # InvalidInput: the size guard (the performance design ran anyway)
-            return res
-        if plain.outcome != "stabilized":
+        plain = _plain_design(family, modes, solver, margin, None, time_limit, start, scaling)
+        if plain is None or plain.outcome != "stabilized":
             return res
         try:
             if scale is None:
@@ -723,6 +715,21 @@ def _performance_design(family: PlantFamily, modes: ModeSet, method, objective, 
         return plain
 
 
+def _plain_design(family: PlantFamily, modes: ModeSet, solver, margin, rate, time_limit, start,
+                  scaling) -> DesignResult | None:
+    """The plain ``lmi`` design of a performance design's fallback in what is left of ``time_limit``; None when no
+    time is left or it raised (``InvalidInput``: the size guard, which the performance design passed anyway)."""
+    remaining = time_left(time_limit, start)
+    if remaining is not None and remaining <= 0:
+        return None
+    try:
+        return design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=rate,
+                      time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
+                      scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
+    except (SolverFailed, InvalidInput):
+        return None
+
+
 def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeSet, x0, u_max, solver, margin,
                             time_limit, start, rate, scaling) -> DesignResult:
     """An input-limited design whose SDP certified nothing: the plain design's gains and invariant ellipsoid.
@@ -734,14 +741,8 @@ def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeS
     """
     from .brackets import check_invariant
 
-    remaining = time_left(time_limit, start)
-    if remaining is not None and remaining <= 0:
-        return res
-    try:
-        plain = design(family, modes.n_drop, "lmi", solver=solver, margin=margin, decay_rate=rate,
-                       time_limit=remaining, plant_switching=modes.plant_switching, scheme=modes.scheme,
-                       scaling=scaling, max_modes=max(MAX_MODES, modes.n_modes))
-    except (SolverFailed, InvalidInput):
+    plain = _plain_design(family, modes, solver, margin, rate, time_limit, start, scaling)
+    if plain is None:
         return res
     cert = plain.certificate
     if plain.outcome != "stabilized" or cert is None or getattr(cert, "X", None) is None:

@@ -325,32 +325,8 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         prob2, c2, op2, adj2, schur2 = fam.at(new)
         # a residual left by an earlier large move (S is not C + A(y) yet): keep the slacks, carry the new data's
         pending = not np.allclose(S[0], st["prob"].C + op_now(y), rtol=0.0, atol=1e-12 * float(np.abs(S[0]).max()))
-        if (pending or float(np.max(np.abs(c2 / c - 1.0))) >= KEEP_FROM):
-            # the iterate stays as it is, centred: the new data's dual residual is carried by the iteration
-            # (IPMOptions.retarget) and the next Newton step aims at the new rate's central path
-            # (the multipliers as in the other branch: A^*(X) and <C, X> unchanged, the primal residual kept)
-            X2 = Xb.copy()
-            ratio = (c / c2)[:, None, None]
-            X2[:, n:, :n] *= ratio
-            X2[:, :n, n:] *= ratio
-            up = ratio[:, 0, 0] > 1.0
-            if up.any():
-                X2 = _raise(X2, Xb, up, new, c2, st["above"], n)
-            if rp < 1e-6:
-                st["above"].append((lam, c, Xb.copy()))
-            st["above"] = _prune_above(st["above"], out.hi)
-            st["lam"], st["prob"], st["c"], st["op"] = float(new), prob2, c2, op2
-            out.retargets += 1
-            st["moved"] = True
-            C2, o2, a2, s2 = wrap(op2, adj2, schur2)
-            return C2, o2, a2, s2, np.array(y, dtype=np.float64), [X2], [S[0]]
-        # the slacks keep their smallest eigenvalue (t moves with the blocks'), the multipliers' off-diagonal
-        # blocks scale by c / c' (A^*(X) and <C, X> unchanged) when that keeps them positive definite
-        y2 = np.array(y, dtype=np.float64)
-        lmin_old = float(_eigvalsh(S[0])[:, 0].min())
-        y2[-1] = 0.0
-        B2 = prob2.C + op2(y2)
-        y2[-1] = float(_eigvalsh(B2)[:, 0].min()) - lmin_old
+        # the multipliers' off-diagonal blocks scale by c / c' (A^*(X) and <C, X> unchanged) when that keeps them
+        # positive definite, else combined with an earlier iterate's from above (_raise)
         ratio = (c / c2)[:, None, None]
         X2 = Xb.copy()
         X2[:, n:, :n] *= ratio
@@ -365,6 +341,17 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         out.retargets += 1
         st["moved"] = True
         C2, o2, a2, s2 = wrap(op2, adj2, schur2)
+        if pending or float(np.max(np.abs(c2 / c - 1.0))) >= KEEP_FROM:
+            # the iterate stays as it is, centred: the new data's dual residual is carried by the iteration
+            # (IPMOptions.retarget) and the next Newton step aims at the new rate's central path (the primal
+            # residual kept)
+            return C2, o2, a2, s2, np.array(y, dtype=np.float64), [X2], [S[0]]
+        # the slacks keep their smallest eigenvalue (t moves with the blocks')
+        y2 = np.array(y, dtype=np.float64)
+        lmin_old = float(_eigvalsh(S[0])[:, 0].min())
+        y2[-1] = 0.0
+        B2 = prob2.C + op2(y2)
+        y2[-1] = float(_eigvalsh(B2)[:, 0].min()) - lmin_old
         return C2, o2, a2, s2, y2, [X2]
 
     o = IPMOptions(max_iter=max_iter, time_limit=time_limit, retarget=retarget, gap_tol=0.0, feas_tol=0.0)
