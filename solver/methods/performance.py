@@ -33,7 +33,8 @@ from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_le
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..brackets import EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, lyapunov, check_invariant, check_x0, solve_sdp
+from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_invariant, check_x0, lyapunov,
+                        solve_sdp)
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
