@@ -37,7 +37,7 @@ from .blas import blas_threads, heap_reuse
 from .problems import _check_data, _gain_L, _gain_scale, lmi_problem
 from .schur import dense_ops
 
-__all__ = ["RatePathResult", "follow_rate", "certified_rate"]
+__all__ = ["RatePathResult", "follow_rate", "certified_rate", "refuted_rate"]
 
 
 @dataclass
@@ -112,6 +112,46 @@ def certified_rate(W: np.ndarray, M: np.ndarray, eta: np.ndarray) -> float:
     if not np.all(np.isfinite(sig2)):
         return math.inf
     return float(np.max(np.maximum(sig2, 0.0) ** (0.5 / eta)))
+
+
+def refuted_rate(X: np.ndarray, eta: np.ndarray, lam: float) -> float:
+    """The largest rate the multipliers ``X`` of rate ``lam`` carry to: the dual counterpart of :func:`certified_rate`.
+
+    At rate ``lambda'`` the multipliers with their off-diagonal blocks scaled by ``r_s = c_s / c'_s =
+    (lambda' / lam)^eta_s`` keep ``A^*(X)`` and ``<C, X>`` (docs/design.md §3.2.2); the block ``[[X11, r X12],
+    [r X21, X22]]`` stays positive semidefinite iff ``r sigma_max(L22^-1 X21 L11^-T) <= 1`` (``X_ii = L_ii
+    L_ii^T``).  So multipliers whose dual bound ``<C, X>`` is negative at ``lam`` refute every rate up to
+    ``lam min_s sigma_s^(-1/eta_s)`` (and every rate below ``lam``, where ``r_s <= 1``), with the same primal
+    residual.
+
+    Parameters
+    ----------
+    X : ndarray, shape (S, 2n, 2n)
+        The multipliers at rate ``lam`` (the block order of :func:`solver.ipm.problems.lmi_problem`).
+    eta : ndarray, shape (S,)
+        Interval lengths.
+    lam : float
+
+    Returns
+    -------
+    float
+        ``lam`` when some diagonal block is not positive definite (no room to scale); inf when every
+        off-diagonal block vanishes.
+    """
+    n = X.shape[1] // 2
+    with np.errstate(invalid="ignore"):
+        L1 = _cholesky(0.5 * (X[:, :n, :n] + np.swapaxes(X[:, :n, :n], 1, 2)))
+        L2 = _cholesky(0.5 * (X[:, n:, n:] + np.swapaxes(X[:, n:, n:], 1, 2)))
+    if not (np.all(np.isfinite(L1[:, -1, -1])) and np.all(np.isfinite(L2[:, -1, -1]))):
+        return float(lam)
+    K = _inv(L2) @ X[:, n:, :n] @ np.swapaxes(_inv(L1), 1, 2)
+    sig2 = _eigvalsh(K @ np.swapaxes(K, 1, 2))[:, -1]
+    if not np.all(np.isfinite(sig2)):
+        return float(lam)
+    eta = np.asarray(eta, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        room = np.where(sig2 > 0.0, np.maximum(sig2, 1e-300) ** (-0.5 / eta), math.inf)
+    return float(lam * np.min(room))
 
 
 @dataclass

@@ -12,7 +12,7 @@ import pytest
 
 from bench.cases import random_family
 from solver import PlantFamily
-from solver.ipm.rate_path import certified_rate
+from solver.ipm.rate_path import certified_rate, refuted_rate
 from solver.methods.common import DesignOptions
 from solver.network import ModeSet
 
@@ -39,6 +39,31 @@ def test_certified_rate_is_where_the_blocks_turn_indefinite(seed):
     assert _blocks_min_eig(W, M, eta, lam * (1 + 1e-6)) > -1e-12
     assert _blocks_min_eig(W, M, eta, lam * (1 - 1e-3)) < 0
     assert certified_rate(-W, M, eta) == np.inf  # W not positive definite: no rate
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_refuted_rate_is_where_the_scaled_multipliers_turn_indefinite(seed):
+    rng = np.random.default_rng(seed)
+    n, S, lam = 3, 4, 0.7
+    G = rng.standard_normal((S, 2 * n, 2 * n))
+    X = G @ np.swapaxes(G, 1, 2) + 0.1 * np.eye(2 * n)
+    eta = rng.integers(1, 4, S).astype(float)
+
+    def min_eig(new):
+        r = ((new / lam) ** eta)[:, None, None]
+        Z = X.copy()
+        Z[:, n:, :n] *= r
+        Z[:, :n, n:] *= r
+        return float(np.linalg.eigvalsh(Z)[:, 0].min())
+
+    top = refuted_rate(X, eta, lam)
+    assert lam < top < np.inf  # positive definite multipliers carry above their own rate
+    assert min_eig(top * (1 - 1e-7)) > -1e-10
+    assert min_eig(top * (1 + 1e-3)) < 0
+    assert min_eig(0.5 * lam) > 0  # and to every rate below
+    Z = X.copy()
+    Z[0, :n, :n] = -np.eye(n)
+    assert refuted_rate(Z, eta, lam) == lam  # a diagonal block not positive definite: no room
 
 
 def _bracket(modes, strategy, tol=1e-3):
