@@ -37,6 +37,32 @@ def gamma(k: int) -> float:
     return k * U / (1.0 - k * U)
 
 
+
+def _extended() -> float | None:
+    """The unit roundoff of ``np.longdouble`` when it is a binary format with at least a 64-bit significand and
+    rounds to nearest now (x87 extended, IEEE quad), else None (float64 only: MSVC, and the double-double
+    ``long double`` of POWER, whose rounding the standard model does not describe)."""
+    info = np.finfo(np.longdouble)
+    if info.nmant not in (63, 112):
+        return None
+    one, u = np.longdouble(1), np.longdouble(2) ** -(info.nmant + 1)
+    # the precision the arithmetic runs at (an x87 control word set to 53 bits would round these away)
+    if not (one + 2 * u != one and one + u == one and (one + 3 * u) - one == 4 * u):
+        return None
+    return float(u)
+
+
+def _to_float64(X: np.ndarray, dX: np.ndarray, u: float) -> tuple:
+    """``X`` (a product computed at unit roundoff ``u``, error bound ``dX``) rounded to float64, and a float64 bound
+    of its error: ``dX`` plus the rounding, rounded up."""
+    X64 = X.astype(np.float64)
+    if X.dtype == np.float64:
+        return X64, dX
+    d = dX + np.abs(X - X64.astype(X.dtype))  # exact difference of two nearby numbers at the wider precision
+    d = d * (1 + 4 * u)  # (the sum above rounded)
+    return X64, d.astype(np.float64) * (1 + 2 * U)  # the conversion rounds to nearest
+
+
 #: Largest side for which an inconclusive floating-point bound is retried in exact arithmetic (Bareiss on
 #: the dyadic entries, about 0.1 s at side 40).
 EXACT_MAX_SIDE = 40
@@ -209,22 +235,31 @@ def interval_data(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndar
     n, m = F.shape[1], G.shape[2]
     N, J = gain_map.shape
     S = len(plants)
-    tails = np.empty((S, n, n))
-    dtails = np.empty((S, n, n))
-    cq = np.zeros((S, N, n, m))  # cq[s, k]: the product of the interval after sample k, times G of sample k
-    dq = np.zeros((S, N, n, m))
-    g = gamma(n + 2)
+    # The products in extended precision where there is one: their a-priori bound grows like the products of
+    # |F| (n = 50, |F|'s spectral radius 6 against 1.1: 1e-7 against an actual error of 2e-15, and the Farkas
+    # re-check of a refuted rate 5e-4 below the root failed by that alone, docs/design.md §3.2.2); rounded to
+    # float64 at the end, the conversion's error added to the bound
+    ext = _extended()
+    dt, u = (np.longdouble, ext) if ext is not None else (np.float64, U)
+    Fx, Gx = F.astype(dt), G.astype(dt)
+    tails = np.empty((S, n, n), dtype=dt)
+    dtails = np.empty((S, n, n), dtype=dt)
+    cq = np.zeros((S, N, n, m), dtype=dt)  # cq[s, k]: the product of the interval after sample k, times G of sample k
+    dq = np.zeros((S, N, n, m), dtype=dt)
+    g = dt((n + 2) * u / (1.0 - (n + 2) * u))  # gamma(n + 2) at the products' unit roundoff
     memo: dict = {}  # interval suffix seq[k:] -> (cq[k], dq[k], tail, dtail): modes share suffixes
     for s, seq in enumerate(plants):
-        tail, dtail = np.eye(n), np.zeros((n, n))
+        tail, dtail = np.eye(n, dtype=dt), np.zeros((n, n), dtype=dt)
         for k in range(len(seq) - 1, -1, -1):
             key = tuple(seq[k:])
             if key not in memo:
-                Gk, Fk = G[seq[k]], F[seq[k]]
+                Gk, Fk = Gx[seq[k]], Fx[seq[k]]
                 memo[key] = (tail @ Gk, dtail @ np.abs(Gk) + g * (np.abs(tail) @ np.abs(Gk)),
                              tail @ Fk, dtail @ np.abs(Fk) + g * (np.abs(tail) @ np.abs(Fk)))
             cq[s, k], dq[s, k], tail, dtail = memo[key]
         tails[s], dtails[s] = tail, dtail
+    tails, dtails = _to_float64(tails, dtails, u)
+    cq, dq = _to_float64(cq, dq, u)
     c = (np.ones(S) if scale is None else np.asarray(scale, dtype=np.float64))[:, None, None]
     free = c * tails
     dfree = np.abs(c) * dtails * (1 + 4 * U) + 8 * U * np.abs(free)

@@ -1182,7 +1182,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
     tol_width = float(np.log1p(tol) if settling else -np.log1p(-tol))  # done(lo, hi) <=> measure gap <= this
 
     lo, lo_proven, lo_proof, lo_margin = 0.0, True, "infeasible", None
-    path = None
+    path = path_model = None
     if strategy == "path":
         if method == "lmi" and upper is None and resolve_solver(options.solver, "lmi", modes.n_modes) == "IPM":
             try:
@@ -1192,6 +1192,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         strategy = "model"  # without a closed bracket from the path: today's search (never worse)
     if path is not None:
         best, hi, lo, lo_proof, lo_margin = path["best"], path["hi"], path["lo"], path["lo_proof"], path["lo_margin"]
+        path_model = path["model"]  # the model at hi of the iterate that certified it (not of the re-check)
         lo_proven = lo_proof == "infeasible" or lo == 0.0
         search.extend(path["search"])
         for key in totals:
@@ -1217,6 +1218,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
         if strategy == "model" and stalls < 3:
             sdp = getattr(best, "sdp", None)
             model = None if sdp is None else margin_model(modes, sdp, hi)
+            if path_model is not None and best is path["best"]:
+                model = path_model
             # the settling bisection's midpoint is for the bisection's steps; next to hi = 1 it lands at 1 - 1e-5
             mid, how = next_rate(max(lo, MIN_RATE if settling else 0.0), hi, t_lo, t_hi, model, done,
                                  lambda a, b: 0.5 * (a + b), from_above, previous, measure, model_lo,
@@ -1281,8 +1284,8 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     from there while ``not done(lo, hi)``.  None when no certified rate passes: the caller runs today's search.
     """
     from .compiled import DesignSdpSolution, SolveInfo
-    from .methods.common import run_one_shot
-    from .rate_search import _closing_high, path_rates, path_search, path_steps_solves
+    from .methods.common import RunClock, certify_gains, run_one_shot
+    from .rate_search import _closing_high, path_rates, path_search, path_steps_solves, rebase_model
 
     path, his = path_search(modes, settling, tol_width, done, options.time_limit)
     if not his:
@@ -1292,6 +1295,23 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     def info(t):
         return SolveInfo(status="optimal_inaccurate", solver="IPM", solve_time=0.0, wall_time=0.0, objective=t,
                          iterations=path.iterations)
+
+    def passes(W, Y, t_hi, at_hi):
+        # the float64 re-check alone first (run_one_shot's, on the same candidate): a rate it fails at would also
+        # run the structural infeasibility proof, which cannot hold where the iterate certifies the rate in closed
+        # form (paper example: three failing rates, 1.5 ms of its 11)
+        if not t_hi > 0.0:
+            return False
+        try:
+            theta = np.linalg.solve(W, np.swapaxes(Y, 1, 2)).swapaxes(1, 2)
+            candidate = np.linalg.inv(W)
+        except np.linalg.LinAlgError:
+            return False
+        if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(candidate))):
+            return False
+        cert, _ = certify_gains(modes, modes.expand(theta), at_hi, RunClock(), candidate=candidate,
+                                candidate_kind="reduced", candidate_source="lmi")
+        return cert is not None
 
     def recheck(W, Y, X, hi):  # the iterate's margin at hi: the blocks' smallest eigenvalue
         M = modes.free @ W
@@ -1304,40 +1324,51 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
         # (no multipliers for the re-check: at a rate the iterate itself certifies in closed form no Farkas
         # certificate can pass, and its re-check cost more than the paper example's Newton steps)
         sol = DesignSdpSolution(t=t_hi, W=W, Y=Y, S=None, duals=None, info=info(t_hi))
-        res = run_one_shot(modes, "lmi", replace(plain, decay_rate=hi), lambda *a, **k: sol)
+        at_hi = replace(plain, decay_rate=hi)
+        if not passes(W, Y, t_hi, at_hi):
+            return sol, None
+        res = run_one_shot(modes, "lmi", at_hi, lambda *a, **k: sol)
         sol.duals = X  # the probes' model and warm start (when the path leaves the bracket open)
         return sol, res
 
     plain = replace(options, sign_only=False, warm_start=None)
     # the last certifying iterate first, then earlier ones (better centred: the paper example's last one is
     # certified 1e-7 above its re-check's resolution), each at the rates above its own that still close the bracket
-    tries = [(his, path.W, path.Y, path.X_hi)]
+    tries = [(his, path.W, path.Y, path.X_hi, path.hi_at)]
     if 0.0 < path.lo < his[-1]:  # the largest rate that still closes the bracket with the path's lower end
         top = _closing_high(path.lo, 1.0, done)
         if his[-1] < top < 1.0:
-            tries[0] = (his + [top], path.W, path.Y, path.X_hi)
-    for rate, W, Y, X in path.earlier:
+            tries[0] = (his + [top], path.W, path.Y, path.X_hi, path.hi_at)
+    for rate, W, Y, X, at in path.earlier:
         ups = [h for h in path_rates(rate, settling, tol_width) if path.lo <= 0.0 or done(path.lo, h)]
-        tries.append((ups, W, Y, X))
-    for rates, W, Y, X in tries:
+        tries.append((ups, W, Y, X, at))
+    for rates, W, Y, X, at in tries:
         for hi in rates:
             sol_hi, res_hi = recheck(W, Y, X, hi)
-            if res_hi.outcome == "stabilized":
+            if res_hi is not None and res_hi.outcome == "stabilized":
                 break
         else:
             continue
         break
     else:
         return None
+    # the probes' first model (when the bracket is still open): the iterate's own, made at its own rate (its
+    # multipliers' scale, its margin t), rebased to hi; the re-check's margin at hi, the blocks' smallest
+    # eigenvalue next to the rate the iterate certifies, put its Newton root within the tolerance of hi and the
+    # first probe was always "close" (docs/design.md §3.2.2)
+    model = None
+    if at is not None:
+        own = margin_model(modes, DesignSdpSolution(t=at[1], W=W, Y=Y, S=None, duals=X, info=info(at[1])), at[0])
+        model = None if own is None else rebase_model(own, at[0], hi)
     res_hi.sdp = sol_hi
     search = [{"decay_rate": hi, "outcome": res_hi.outcome, "step": "path",
                "proof": None if res_hi.certificate is None else res_hi.certificate.kind,
                "iterations": path.iterations, "solves": path_steps_solves(path)}]  # the path's Newton steps
-    out = {"best": res_hi, "hi": hi, "lo": 0.0, "lo_proof": None, "lo_margin": None, "search": search,
+    out = {"best": res_hi, "hi": hi, "lo": 0.0, "lo_proof": None, "lo_margin": None, "search": search, "model": model,
            "totals": {"setup": 0.0, "solver": path.seconds, "solves": path_steps_solves(path)}}
     if path.duals is None or not 0.0 < path.lo < hi:
         return out
-    t_lo = next((r[3] for r in reversed(path.rates) if r[1] == path.lo), -1.0)
+    t_lo = path.lo_at[2] if path.lo_at is not None else -1.0  # the dual bound: <C, X> is kept by the scaling
     sol_lo = DesignSdpSolution(t=t_lo, W=None, Y=None, S=None, duals=path.duals, info=info(t_lo))
     res_lo = run_one_shot(modes, "lmi", replace(plain, decay_rate=path.lo), lambda *a, **k: sol_lo)
     # a lower end whose multipliers fail the re-check proves nothing: the probes go on from the certified end

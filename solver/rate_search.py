@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 __all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search", "rate_measure",
-           "rate_shift"]
+           "rate_shift", "rebase_model"]
 
 #: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
 MIN_RATE = 1e-4
@@ -164,6 +164,17 @@ def network_margin_model(prob, sdp, rate: float):
     if not np.all(np.isfinite(q)):
         return None
     return float(sdp.t), q, prob.length.astype(float)
+
+
+def rebase_model(model, rate: float, new: float):
+    """The model of :func:`margin_model` made at ``rate``, written at ``new``: the same function of lambda.
+
+    ``t0 + sum_b q_b ((rate / lambda)^eta_b - 1) = t0' + sum_b q'_b ((new / lambda)^eta_b - 1)`` with
+    ``q'_b = q_b (rate / new)^eta_b`` and ``t0' = m(new)``.
+    """
+    t0, q, eta = model
+    r = (float(rate) / float(new)) ** np.asarray(eta, dtype=float)
+    return float(t0 + np.sum(q * (r - 1.0))), q * r, eta
 
 
 def model_root(model, rate: float, lo: float, hi: float) -> float | None:

@@ -55,11 +55,19 @@ class RatePathResult:
     W, Y : ndarray or None
         The primal iterate of ``hi`` in the design's coordinates: ``W`` (n, n), ``Y`` (J, m, n).
     X_hi : ndarray or None, shape (S, 2n, 2n)
-        The multipliers of that iterate (a warm start for a nearby rate).
+        The multipliers of that iterate, at its own rate (a warm start for a nearby rate).
+    hi_at : tuple or None
+        ``(lambda, t)``: that iterate's own rate and margin (its multipliers' scale and the margin model's
+        ``t0``, :func:`solver.rate_search.margin_model`).
     duals : ndarray or None, shape (S, 2n, 2n)
-        The multipliers of ``lo`` (at rate ``lo``, ``sum_b tr = 1``).
+        The multipliers of ``lo`` (at rate ``lo``, ``sum_b tr = 1``): the refuting iterate's, their off-diagonal
+        blocks scaled from its own rate to ``lo`` (:func:`refuted_rate`).
+    lo_at : tuple or None
+        ``(lambda, t, upper)``: the refuting iterate's own rate, margin and dual bound (``upper < 0``).
+    refutes : list of tuple
+        ``(iteration, lambda, refuted_rate)`` of every iterate that passed the sign rule.
     earlier : list of tuple
-        ``(rate, W, Y, X)`` of the iterates that certified the upper end before the last one (at most
+        ``(rate, W, Y, X, (lambda, t))`` of the iterates that certified the upper end before the last one (at most
         ``KEEP_EARLIER``, the latest first; ``Y`` in the design's coordinates): less converged, better centred,
         for the re-check when the last one's margin is below its resolution (the paper example's).
     iterations : int
@@ -77,7 +85,10 @@ class RatePathResult:
     W: np.ndarray | None = None
     Y: np.ndarray | None = None
     X_hi: np.ndarray | None = None
+    hi_at: tuple | None = None
     duals: np.ndarray | None = None
+    lo_at: tuple | None = None
+    refutes: list = field(default_factory=list)
     earlier: list = field(default_factory=list)
     iterations: int = 0
     retargets: int = 0
@@ -268,6 +279,12 @@ def _raise(X2, Xb, up, new, c2, above, n):
     return X2
 
 
+#: The sign rule of a refuted rate: ``<C, X> < 0``, primal residual below ``feas_tol`` and ``t >= SIGN_T <C, X>``
+#: (the probes' rule, :attr:`IPMOptions.sign_only`).
+SIGN_T = 16.0
+#: The lower end is this share (in ``ln lambda``) of the way from the refuting iterate's rate to its
+#: :func:`refuted_rate` (below it every scaled block keeps room).
+REFUTE_SHARE = 0.9
 #: :attr:`RatePathResult.earlier`: how many earlier certifying iterates are kept for the re-check.
 KEEP_EARLIER = 4
 #: A change of rate that changes some ``c_s`` by at least ``KEEP_FROM`` (relative) keeps the slacks and lets the next
@@ -333,6 +350,22 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
     def wrap(op, adj, schur):
         return [st["prob"].C], (lambda y: [op(y)]), (lambda U: adj(U[0])), (lambda X, G: schur(X[0], G[0]))
 
+    def refute(lam, t, upper, rp, Xb):
+        # the sign rule at lam; the multipliers, their off-diagonal blocks scaled, refute every rate up to
+        # refuted_rate (A^*(X) and <C, X> unchanged): the lower end is taken REFUTE_SHARE of the way there (in
+        # ln lambda), where every block keeps room, with the multipliers scaled to it
+        if not (upper < 0.0 and rp < feas_tol and t >= SIGN_T * upper):
+            return
+        top = min(refuted_rate(Xb, fam.eta, lam), 1.0)
+        new = lam * (top / lam) ** REFUTE_SHARE if top > lam else lam
+        out.refutes.append((st["it"], lam, top))
+        if new > out.lo:
+            r = ((new / lam) ** fam.eta)[:, None, None]
+            Z = Xb.copy()
+            Z[:, n:, :n] *= r
+            Z[:, :n, n:] *= r
+            out.lo, out.duals, out.lo_at = new, Z, (lam, t, upper)
+
     def retarget(y, X, S, upper, t, rp):
         st["it"] += 1
         lam, c = st["lam"], st["c"]
@@ -342,8 +375,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             # multipliers may refute the new one
             st["moved"] = False
             out.rates.append((st["it"], lam, float(t), float(upper), float(rp)))
-            if upper < 0.0 and rp < feas_tol and t >= 2.0 * upper and lam > out.lo:
-                out.lo, out.duals = lam, Xb.copy()
+            refute(lam, float(t), float(upper), float(rp), Xb)
             return "stop" if done(out.lo, out.hi) else None
         W, Y = fam.variables(y)
         M = fam.M(W, Y)
@@ -351,10 +383,9 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
         cert = certified_rate(W, M, fam.eta)
         if cert < out.hi:
             if out.W is not None:
-                out.earlier = [(out.hi, out.W, out.Y, out.X_hi)] + out.earlier[:KEEP_EARLIER - 1]
-            out.hi, out.W, out.Y, out.X_hi = cert, W, Y, Xb.copy()
-        if upper < 0.0 and rp < feas_tol and t >= 2.0 * upper and lam > out.lo:
-            out.lo, out.duals = lam, Xb.copy()
+                out.earlier = [(out.hi, out.W, out.Y, out.X_hi, out.hi_at)] + out.earlier[:KEEP_EARLIER - 1]
+            out.hi, out.W, out.Y, out.X_hi, out.hi_at = cert, W, Y, Xb.copy(), (lam, float(t))
+        refute(lam, float(t), float(upper), float(rp), Xb)
         if done(out.lo, out.hi):
             return "stop"
         trX = float(np.trace(Xb, axis1=1, axis2=2).sum())
@@ -408,6 +439,6 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
 
     if out.Y is not None:
         out.Y = unscaled(out.Y)
-    out.earlier = [(r, W, unscaled(Y), X) for r, W, Y, X in out.earlier]
+    out.earlier = [(r, W, unscaled(Y), X, at) for r, W, Y, X, at in out.earlier]
     out.seconds = time.perf_counter() - start
     return out

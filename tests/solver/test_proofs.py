@@ -380,6 +380,31 @@ def test_rebuilt_interval_data_match_the_mode_set_within_their_error_bounds(sche
     assert np.allclose(free, modes.free, rtol=1e-14, atol=0) and np.allclose(coef, ref_coef, rtol=1e-13, atol=1e-300)
 
 
+def test_interval_data_bounds_hold_exactly_and_do_not_grow_with_abs_products():
+    # long intervals of plants whose |F| has a much larger spectral radius than F (rotations: 1.05 against
+    # ~2.4): the a-priori float64 bound grew like |F|^10 (1.3e-12 of the entries against an actual error of
+    # ~1e-16; at n = 50 1e-7, and the Farkas re-check of the rate path's refuted rate failed by it alone,
+    # docs/design.md §3.2.2). The bounds must still contain the exact products (fractions) and, with an extended
+    # precision, stay within a few ulps of the entries
+    from solver.certificates import U, _extended
+
+    rng = np.random.default_rng(3)
+    F = np.stack([1.05 * np.linalg.qr(rng.standard_normal((6, 6)))[0] for _ in range(2)])
+    modes = ModeSet.from_family(PlantFamily(F=F, G=rng.standard_normal((2, 6, 1))), 10)
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map)
+    for s in (9, 19):  # the longest interval of each plant
+        P = [[Fraction(int(i == j)) for j in range(6)] for i in range(6)]
+        for p in modes.plants[s]:
+            P = fmul(fr(F[p]), P)
+        for i in range(6):
+            for j in range(6):
+                assert abs(Fraction(free[s, i, j]) - P[i][j]) <= Fraction(dfree[s, i, j])
+    assert np.allclose(free, modes.free, rtol=1e-12, atol=1e-14)
+    if _extended() is not None:
+        assert dfree.max() <= 64 * U * np.abs(free).max()
+        assert dcoef.max() <= 64 * U * np.abs(coef).max()
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_best_decay_rate_of_random_families_matches_an_independent_bisection(seed):
     rng = np.random.default_rng(seed)

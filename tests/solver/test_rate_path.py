@@ -270,3 +270,120 @@ def test_a_change_of_rate_that_keeps_the_slacks_converges_to_the_new_rates_optim
     _, lam, t, upper, rp = path.rates[-1]
     assert lam == 0.36 and rp < 1e-8
     assert t == pytest.approx(t_star, abs=1e-6) and upper == pytest.approx(t_star, abs=1e-6)
+
+
+_path_search = sys.modules["solver.rate_search"].path_search
+
+
+def _path_of(monkeypatch, modes, tol=1e-3, max_iter=None):
+    """``_path_bracket``'s result and the path it re-checked (the path captured on its way)."""
+    rate_search = sys.modules["solver.rate_search"]
+    if max_iter is not None:
+        monkeypatch.setattr(rate_search, "PATH_MAX_ITER", max_iter)
+    seen = {}
+    inner = rate_search.path_search
+
+    def keep(*a, **k):
+        seen["path"], his = inner(*a, **k)
+        return seen["path"], his
+
+    monkeypatch.setattr(rate_search, "path_search", keep)
+    width = -np.log1p(-tol)
+    out = design_module._path_bracket(modes, DesignOptions(), False, width,
+                                      lambda lo, hi: rate_search.rate_done(lo, hi, tol, False))
+    return out, seen["path"]
+
+
+def _exact_negative_farkas(modes, Z, rate):
+    """Own exact check (fractions) that multipliers ``Z`` (S, 2n, 2n) at ``rate`` contradict the design LMIs for
+    n = 2: every ``Z_s`` positive semidefinite (Sylvester on the principal minors) and ``Q = sum_s (Z11 + Z22 +
+    Z21^T free_s + free_s^T Z21)`` negative definite, ``free_s`` the exact interval product times
+    ``fl(rate^-eta_s)``."""
+    from fractions import Fraction
+    from itertools import combinations
+
+    def det(M):
+        M = [row[:] for row in M]
+        k, d = len(M), Fraction(1)
+        for i in range(k):
+            p = next((r for r in range(i, k) if M[r][i] != 0), None)
+            if p is None:
+                return Fraction(0)
+            if p != i:
+                M[i], M[p], d = M[p], M[i], -d
+            d *= M[i][i]
+            for r in range(i + 1, k):
+                f = M[r][i] / M[i][i]
+                M[r] = [a - f * b for a, b in zip(M[r], M[i])]
+        return d
+
+    n = modes.n_states
+    assert n == 2
+    Q = [[Fraction(0)] * n for _ in range(n)]
+    for s, seq in enumerate(modes.plants):
+        Zs = [[Fraction(float(x)) for x in row] for row in 0.5 * (Z[s] + Z[s].T)]
+        for k in range(1, 2 * n + 1):  # positive semidefinite: every principal minor >= 0
+            for idx in combinations(range(2 * n), k):
+                assert det([[Zs[i][j] for j in idx] for i in idx]) >= 0
+        P = [[Fraction(int(i == j)) for j in range(n)] for i in range(n)]
+        for p in seq:
+            Fp = [[Fraction(float(x)) for x in row] for row in modes.F[p]]
+            P = [[sum(Fp[i][k] * P[k][j] for k in range(n)) for j in range(n)] for i in range(n)]
+        c = Fraction(float(rate ** -float(modes.eta[s])))
+        for i in range(n):
+            for j in range(n):
+                Q[i][j] += Zs[i][j] + Zs[n + i][n + j] + c * sum(
+                    Zs[n + k][i] * P[k][j] + P[k][i] * Zs[n + k][j] for k in range(n))
+    return Q[0][0] < 0 and det([[-x for x in row] for row in Q]) > 0
+
+
+def test_the_path_refutes_up_to_the_scaled_multipliers_rate(monkeypatch):
+    # paper example: the refuting iterate's multipliers, their off-diagonal blocks scaled (refuted_rate), give the
+    # lower end above that iterate's own rate; the scaled multipliers are re-checked here in exact arithmetic
+    # (positive semidefinite, the adjoint on W negative definite), and the bracket holds the bisection's rate
+    from solver.ipm.rate_path import REFUTE_SHARE
+
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    out, path = _path_of(monkeypatch, modes)
+    own, t, upper = path.lo_at
+    assert upper < 0 and own < path.lo and out["lo"] == path.lo and out["lo_proof"] == "infeasible"
+    assert path.lo <= refuted_rate(path.duals, modes.eta.astype(float), path.lo) * (1 + 1e-12)
+    eta = modes.eta.astype(float)
+    assert any(it_lam == own and path.lo == pytest.approx(own * (top / own) ** REFUTE_SHARE, rel=1e-12)
+               for _, it_lam, top in path.refutes)
+    assert _exact_negative_farkas(modes, path.duals, path.lo)
+    # the multipliers at the iterate's own rate (scaled back) have the same dual bound <C, X>
+    r = ((own / path.lo) ** eta)[:, None, None]
+    back = path.duals.copy()
+    back[:, 2:, :2] *= r
+    back[:, :2, 2:] *= r
+    assert np.linalg.eigvalsh(back)[:, 0].min() > 0
+    res_b, br_b = _bracket(modes, "bisection")
+    assert path.lo <= br_b["upper"] and out["hi"] - path.lo <= 1e-3 * out["hi"]
+
+
+@pytest.mark.parametrize("name,fam,n_drop", _SHORT, ids=[f[0] for f in _SHORT])
+def test_the_probes_after_a_stopped_path_use_the_certifying_iterates_model(monkeypatch, name, fam, n_drop):
+    # the path stopped at 8 steps: the probes' first model is the iterate's own (its rate, its margin t, its
+    # multipliers), rebased to the certified end; before, it was the re-check's (margin ~0 at hi: Newton root
+    # within the tolerance of hi, and the first probe was always "close")
+    from solver.rate_search import model_root, rate_done
+
+    modes = ModeSet.from_family(fam, n_drop)
+    out, path = _path_of(monkeypatch, modes, max_iter=8)
+    hi, model = out["hi"], out["model"]
+    lam0, t0 = path.hi_at
+    coef, active = modes.scheme_coef()
+    # own reference: m(lambda) = t0 + sum_b q_b ((lam0 / lambda)^eta_b - 1), q_b = 2 c_b <X21_b, M_b> at lam0
+    M = modes.free @ path.W + np.einsum("sjnm,jmk->snk", coef * active[:, :, None, None], path.Y)
+    n = modes.n_states
+    q = 2 * lam0 ** -modes.eta * np.einsum("bij,bij->b", path.X_hi[:, n:, :n], M)
+    for lam in (0.5 * hi, 0.9 * hi, hi, min(1.0, 1.1 * hi)):
+        ref = t0 + np.sum(q * ((lam0 / lam) ** modes.eta - 1))
+        got = model[0] + np.sum(model[1] * ((hi / lam) ** model[2] - 1))
+        assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
+    root = model_root(model, hi, 1e-12, hi)
+    assert root is None or not rate_done(root, hi, 1e-3, False)
+    monkeypatch.setattr(sys.modules["solver.rate_search"], "path_search", _path_search)
+    res_p, _ = _bracket(modes, "path")
+    assert res_p.rate_search[0]["step"] == "path" and res_p.rate_search[1]["step"] != "close"
