@@ -39,6 +39,9 @@ def test_certified_rate_is_where_the_blocks_turn_indefinite(seed):
     assert _blocks_min_eig(W, M, eta, lam * (1 + 1e-6)) > -1e-12
     assert _blocks_min_eig(W, M, eta, lam * (1 - 1e-3)) < 0
     assert certified_rate(-W, M, eta) == np.inf  # W not positive definite: no rate
+    # only a rate below a given one: the same rate when it is, inf when it is not
+    assert certified_rate(W, M, eta, below=lam * (1 + 1e-6)) == lam
+    assert certified_rate(W, M, eta, below=lam * (1 - 1e-6)) == np.inf
 
 
 @pytest.mark.parametrize("seed", range(5))
