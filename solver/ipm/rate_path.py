@@ -11,7 +11,8 @@ interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda be
   ``[[W, c M^T], [c M, W]]`` is positive semidefinite iff ``c sigma_max <= 1``); the smallest seen is the
   bracket's upper end;
 * the **dual** iterate at lambda is a Farkas candidate for lambda once ``<C, X> < 0`` with the primal residual
-  below ``feas_tol`` (the sign rule of :attr:`IPMOptions.sign_only`); the largest such lambda is the lower end.
+  below ``feas_tol`` (a sign rule, ``SIGN_T``), and with its off-diagonal blocks scaled, for every rate up to
+  :func:`refuted_rate`; the lower end is ``REFUTE_SHARE`` of the way there, with the multipliers scaled to it.
 
 At a large change of rate (``KEEP_FROM``) the slacks stay as they are and the iteration carries the new data's dual
 residual ``S - C' - A'(y)`` (:attr:`IPMOptions.retarget`), which the next Newton step removes while it moves towards
@@ -49,7 +50,8 @@ class RatePathResult:
     status : str
         ``"stopped"`` (``done(lo, hi)`` held) or the interior-point status where the path ended otherwise.
     lo : float
-        The largest rate whose multipliers passed the sign rule (0: none).
+        The lower end: the largest of ``REFUTE_SHARE`` of the way (in ``ln lambda``) from the rate of an iterate whose
+        multipliers passed the sign rule to its :func:`refuted_rate` (0: none).
     hi : float
         The smallest rate certified by a primal iterate, :func:`certified_rate` (inf: none).
     W, Y : ndarray or None
