@@ -1299,7 +1299,7 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
     def passes(W, Y, t_hi, at_hi):
         # the float64 re-check alone first (run_one_shot's, on the same candidate): a rate it fails at would also
         # run the structural infeasibility proof, which cannot hold where the iterate certifies the rate in closed
-        # form (paper example: three failing rates, 1.5 ms of its 11)
+        # form (paper example: three failing rates before the one that passes)
         if not t_hi > 0.0:
             return False
         try:
