@@ -316,6 +316,11 @@ KEEP_EARLIER = 4
 #: Measured (path Newton steps; all moves / none / from 0.1): the 21 test families 680 / 578 / 573, paper 35 / 24 /
 #: 25, n = 8 48 / 48 / 45, n = 20 63 / 69 (no closed bracket: rp stalled at 5e-8) / 65, n = 50 42 / 44 / 44.
 KEEP_FROM = 0.1
+#: At a large move down in rate the multipliers are blended with ``I / N`` by this share (docs/design.md §3.2.2).
+#: Measured (path Newton steps, paper / n = 8 / 12 / 20 / 30 / 50; 0 against 0.65): 25 / 43 / 68 / 63 / 60 / 44
+#: against 25 / 44 / 47 / 54 / 48 / 44, the 21 test families 369 against 370; 0.5: 24 / 42 / 47 / 61 / 58, families
+#: 399; 0.8: 25 / 45 / 68 / 56 / 44.
+BLEND_LARGE = 0.65
 
 
 def _prune_above(above: list, hi: float) -> list:
@@ -442,6 +447,11 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             # the iterate stays as it is, centred: the new data's dual residual is carried by the iteration
             # (IPMOptions.retarget) and the next Newton step aims at the new rate's central path (the primal
             # residual kept)
+            if BLEND_LARGE > 0.0 and not up.any():
+                # down in rate (the first move from lambda = 1): the multipliers of a near-optimum are badly centred
+                # for the new data (X_b S_b ~ 0), blended with I / N as the probes' warm starts are (sum tr X = 1
+                # kept; the primal residual and the dual bound change); up in rate _raise's residual is kept
+                X2 = (1.0 - BLEND_LARGE) * X2 + BLEND_LARGE * np.eye(X2.shape[1]) / (X2.shape[0] * X2.shape[1])
             return C2, o2, a2, s2, np.array(y, dtype=np.float64), [X2], [S[0]]
         # the slacks keep their smallest eigenvalue (t moves with the blocks')
         y2 = np.array(y, dtype=np.float64)
