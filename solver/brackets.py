@@ -1486,16 +1486,20 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     """
     data = lifted.numeric(gains)
     P = upper = None
-    reason = ""
+    reason, how = "", ""  # why nothing passed so far; what certified the accepted P (certify_* name it)
     certify = (lambda Pc: certify_cost(Pc, data, x0, weight)) if kind == "cost" else (lambda Pc: certify_hinf(Pc, data))
     if P0 is not None and np.all(np.isfinite(P0)):
-        P, upper, reason = certify(P0)
+        P, upper, why = certify(P0)
+        reason, how = (why, "") if P is None else ("", why)
     if P is None:
         try:
             P, upper, why = fixed_gain_cost(data, x0, solver, weight) if kind == "cost" else fixed_gain_hinf(data, solver)
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
-        reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+        if P is None:
+            reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+        else:
+            how = why
     if P is None and kind == "cost" and len(data) == 1 and data[0]["A"].shape[0] <= EXACT_COST_MAX_N and \
             np.all(np.isfinite(data[0]["A"])) and np.max(np.abs(np.linalg.eigvals(data[0]["A"]))) < 1:
         # one LTI loop whose P spans too much for the LMI and the float64 re-check (§8.5): its own cost matrix,
@@ -1503,9 +1507,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         try:
             X = lyapunov(data[0]["A"], _sym(data[0]["S"]))
             for eps in (1e-12, 1e-10, 1e-8, 1e-6):
-                Pc, uc, how = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
+                Pc, uc, why = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
                 if Pc is not None:
-                    P, upper, reason = Pc, uc, how or "the loop's Lyapunov solution"
+                    P, upper, how = Pc, uc, why or "the loop's Lyapunov solution"
                     break
         except np.linalg.LinAlgError:
             pass
@@ -1520,9 +1524,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
             X = bounded_real_riccati(data[0], lower * (1 + delta))
             if X is None:
                 continue
-            Pc, gc, how = certify_hinf(X, data)
+            Pc, gc, why = certify_hinf(X, data)
             if Pc is not None and (upper is None or gc < upper):
-                P, upper, reason = Pc, gc, how or "bounded-real Riccati solution"
+                P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
                 break
     quadratic, tree = upper, ""
     if P is not None and found.bound is not None and found.bound < upper:
@@ -1535,7 +1539,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         reason = f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     if P is not None:
-        message = f"{what} certified <= {upper:.6g} ({tree or reason or 'float64 re-check of P'})"
+        message = f"{what} certified <= {upper:.6g} ({tree or how or 'float64 re-check of P'})"
     else:
         message = f"no certified upper bound: {reason}"
     if lower is not None:

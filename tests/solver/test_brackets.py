@@ -482,3 +482,19 @@ def test_no_certified_bracket_is_not_stabilized(monkeypatch):
     monkeypatch.setattr(network_performance, "bracket", unverified(network_performance.bracket))
     res = design(fam, network=Network.weakly_hard(1, 3, 3), objective="cost")
     assert res.outcome == "not_converged" and res.gains is not None and "no certified cost bound" in res.message
+
+
+def test_a_certified_bound_names_what_certified_it_not_an_earlier_failure():
+    """A candidate P that fails its re-check, then the fixed-gain LMI's P that passes: the message's reason for the
+    certified level is the re-check that passed, not the first candidate's failure (docs/design.md §8.4)."""
+    F, G = np.array([[1.1, 0.2], [0.0, 0.8]]), np.array([[1.0], [0.5]])
+    fam = PlantFamily(F=F[None], G=G[None], sampling_period=0.1)
+    E = np.ones((2, 1))
+    gains = np.array([[[-0.8, -0.3]]])  # stabilizing: spectral radius of F + G K below 1
+    assert np.max(np.abs(np.linalg.eigvals(F + G @ gains[0]))) < 1
+    lifted = lift_modes(ModeSet.from_family(fam, 1), None, E, None)
+    perf = bracket(lifted, gains, "hinf", P0=1e-6 * np.eye(2))  # A'PA - P + C'C >= C'C: not negative definite
+    assert perf.verified
+    certified = perf.message.split("; worst periodic pattern")[0]
+    assert certified.startswith("l2 gain certified <= ")
+    assert "not negative definite" not in certified and "fixed-gain LMI:" not in certified, perf.message
