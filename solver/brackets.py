@@ -387,6 +387,9 @@ def _lyapunov_residual(A: np.ndarray, P: np.ndarray, S: np.ndarray) -> float:
 
 #: :func:`lyapunov` keeps scipy's answer when its condition number is at most this (and its residual tiny).
 LYAPUNOV_CONDITION = 1e6
+#: :func:`lyapunov` tries scipy's Kronecker form beside the bilinear one up to this n (scipy's own switch is 10): an
+#: ``n^2 x n^2`` solve, O(n^6) flops and n^4 memory (n = 60: ~1 s and 100 MB per call, in every Hewer step).
+KRONECKER_MAX_N = 20
 
 
 def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np.ndarray:
@@ -400,20 +403,21 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
     else the better of scipy's two answers by residual), twice (docs/design.md §8.5).  Without one (S
     singular) the plain answer of least residual; ``LinAlgError`` when there is none.
     """
-    best = None
-    plain = _lyapunov_once(A, S, "direct" if A.shape[0] < 10 else "bilinear")  # scipy's own choice
+    best, n = None, A.shape[0]
+    plain = _lyapunov_once(A, S, "direct" if n < 10 else "bilinear")  # scipy's own choice
     if hint is None and plain is not None:
         # the common case costs one solve: a well conditioned positive definite answer with a small residual
         eig = np.linalg.eigvalsh(plain)
         if eig[0] > 0 and eig[-1] <= LYAPUNOV_CONDITION * eig[0] and _lyapunov_residual(A, plain, S) <= 1e-13:
             return plain
-    firsts = [hint] if hint is not None else []
-    firsts += [plain if A.shape[0] < 10 else _lyapunov_once(A, S, "direct"),
-               _lyapunov_once(A, S, "bilinear") if A.shape[0] < 10 else plain]
+    # scipy's two methods (the Kronecker form only while it is cheap, KRONECKER_MAX_N)
+    plains = [plain, _lyapunov_once(A, S, "bilinear")] if n < 10 else \
+        [_lyapunov_once(A, S, "direct"), plain] if n <= KRONECKER_MAX_N else [plain]
+    firsts = ([hint] if hint is not None else []) + plains
     for P in firsts:
         if P is None:
             continue
-        for _ in range(3):  # the first candidate itself, then two re-solves in its coordinates
+        for step in range(3):  # the first candidate itself, then two re-solves in its coordinates
             try:
                 L = np.linalg.cholesky(0.5 * (P + P.T))
             except np.linalg.LinAlgError:
@@ -421,15 +425,17 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
             residual = _lyapunov_residual(A, P, S)
             if best is None or residual < best[0]:
                 best = (residual, P)
+            if step == 2:  # (a third re-solve would never be looked at)
+                break
             At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T  # L' A L^-T
             St = scipy.linalg.solve_triangular(L, scipy.linalg.solve_triangular(L, S, lower=True).T, lower=True)
-            Pt = _lyapunov_once(At, 0.5 * (St + St.T), "direct" if A.shape[0] < 10 else "bilinear")
+            Pt = _lyapunov_once(At, 0.5 * (St + St.T), "direct" if n < 10 else "bilinear")
             if Pt is None:
                 break
             P = L @ Pt @ L.T
             P = 0.5 * (P + P.T)
     if best is None:  # no positive definite approximation (S singular): the plain answer of least residual
-        for P in firsts[len(firsts) - 2:]:
+        for P in plains:
             if P is None:
                 continue
             residual = _lyapunov_residual(A, P, S)

@@ -316,3 +316,28 @@ def test_cost_design_stabilizes_whenever_the_plain_design_does_on_a_nearly_unrea
         assert perf.verified and perf.lower <= perf.upper
         if x0 is None:  # a bound on these gains' cost, never below the optimum (to the loop's rounding, 1e-6)
             assert perf.upper >= reference * (1 - 1e-6)
+
+
+def test_lyapunov_of_a_larger_loop_skips_the_kronecker_form(monkeypatch):
+    """``brackets.lyapunov`` beyond scipy's own switch (n >= 10): the Kronecker form is an n^2 x n^2 solve (n = 60:
+    ~1 s and 100 MB per call, called in every Hewer step of the Riccati refinement), so it is tried only up to
+    ``KRONECKER_MAX_N``; the answer still matches the Kronecker system solved here (independent of solver/)."""
+    from solver import brackets
+
+    n = 24  # above KRONECKER_MAX_N (576 x 576 for the reference below)
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(n, n))
+    A *= 0.9 / np.max(np.abs(np.linalg.eigvals(A)))
+    S = np.diag(np.r_[1.0, np.zeros(n - 1)])  # singular weight: an ill-conditioned P, the refining path
+    ref = np.linalg.solve(np.eye(n * n) - np.kron(A.T, A.T), S.reshape(-1)).reshape(n, n)
+    real, calls = scipy.linalg.solve_discrete_lyapunov, []
+
+    def recording(a, q, method=None):
+        calls.append((a.shape[0], method))
+        return real(a, q, method=method)
+
+    monkeypatch.setattr(brackets.scipy.linalg, "solve_discrete_lyapunov", recording)
+    for hint in (None, ref + 1e-3 * np.eye(n)):
+        X = brackets.lyapunov(A, S, hint)
+        assert np.allclose(X, ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref)))
+    assert calls and all(method != "direct" for _, method in calls), calls
