@@ -632,7 +632,9 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
                     x0: np.ndarray | None = None):
     """Largest ``{x : x' (c X) x <= 1}`` in which every buffered input meets the limits, re-checked.
 
-    Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe): then the set is invariant at
+    Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe with the allowance sized by
+    ``|A_s|' |X| |A_s|``; where that cannot decide and n <= :data:`EXACT_COST_MAX_N`, in exact arithmetic on the
+    returned matrix, :func:`check_cost_exact`): then the set is invariant at
     packet times and every input ``K_q x(i_m)`` has ``|(K_q)_j x| <= sqrt((K_q)_j X^{-1} (K_q)_j') / sqrt(c)``.
     ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``.
     """
@@ -640,11 +642,16 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     eigX = np.linalg.eigvalsh(X)
     if eigX[0] <= 0:
         return None, "the candidate ellipsoid matrix is not positive definite"
+    undecided = []  # modes float64 cannot decide: re-checked in exact arithmetic on the final matrix (small n)
     for s, As in enumerate(A):
         APA = As.T @ X @ As
-        size = np.linalg.norm(APA, 2) + eigX[-1]
+        # the product's rounding is relative to |A|'|X||A|, not to A'XA (far-from-normal loops: 1e6 apart)
+        absA = np.abs(As)
+        size = np.linalg.norm(absA.T @ np.abs(X) @ absA, 2) + eigX[-1]
         if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -_allowance(X.shape[0]):
-            return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
+            if X.shape[0] > EXACT_COST_MAX_N:
+                return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
+            undecided.append(s)
     rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
     need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
@@ -654,6 +661,8 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     Xc = c * X
     if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
         Xc = c * (1 + 1e-9) * X  # rounding of the solve
+    if undecided and not check_cost_exact(Xc, [{"A": A[s], "S": np.zeros_like(Xc)} for s in undecided]):
+        return None, f"the ellipsoid is not shown invariant for mode {undecided[0]} (float64 and exact re-checks)"
     if x0 is not None and x0 @ Xc @ x0 > 1:
         return None, f"x0 lies outside the certified set (x0' X x0 = {x0 @ Xc @ x0:.6g} > 1)"
     return Xc, ""

@@ -498,3 +498,32 @@ def test_a_certified_bound_names_what_certified_it_not_an_earlier_failure():
     certified = perf.message.split("; worst periodic pattern")[0]
     assert certified.startswith("l2 gain certified <= ")
     assert "not negative definite" not in certified and "fixed-gain LMI:" not in certified, perf.message
+
+
+def test_invariance_of_a_far_from_normal_loop_is_decided_exactly_where_float64_cannot(monkeypatch):
+    # A = T diag(1 - 1e-8, 0.5, 0.3) T^-1 with T spanning 1e3, X = T^-T T^-1: A'XA - X <= 0 holds with a margin of
+    # 1e-8 in X's metric, far below the rounding of A'XA, which is relative to |A|'|X||A| (1e6 times |A'XA| here)
+    import solver.brackets as brackets
+    from fractions import Fraction
+
+    rng = np.random.default_rng(0)
+    T = np.eye(3) + 1e3 * np.triu(rng.standard_normal((3, 3)), 1)
+    Ti = np.linalg.inv(T)
+    A = T @ np.diag([1 - 1e-8, 0.5, 0.3]) @ Ti
+    X = 0.5 * (Ti.T @ Ti + (Ti.T @ Ti).T)
+    K = np.array([[[1.0, 0.0, 0.0]]])
+    Xc, reason = brackets.check_invariant(X, A[None], K, np.array([1.0]))
+    assert Xc is not None, reason
+    # reference: the leading principal minors of Xc - A'XcA in exact rationals (Sylvester, on the float64 numbers)
+    q = [[Fraction(float(v)) for v in row] for row in Xc]
+    a = [[Fraction(float(v)) for v in row] for row in A]
+    D = [[q[i][j] - sum(a[k][i] * q[k][l] * a[l][j] for k in range(3) for l in range(3)) for j in range(3)]
+         for i in range(3)]
+    assert D[0][0] >= 0 and D[0][0] * D[1][1] - D[0][1] * D[1][0] >= 0
+    # (a semidefinite 3x3 needs every principal minor >= 0; the full determinant and the other 2x2 minors)
+    det = (D[0][0] * (D[1][1] * D[2][2] - D[1][2] * D[2][1]) - D[0][1] * (D[1][0] * D[2][2] - D[1][2] * D[2][0])
+           + D[0][2] * (D[1][0] * D[2][1] - D[1][1] * D[2][0]))
+    assert det >= 0 and D[1][1] * D[2][2] - D[1][2] ** 2 >= 0 and D[0][0] * D[2][2] - D[0][2] ** 2 >= 0
+    # float64 alone cannot decide it: without the exact re-check the set is not shown invariant
+    monkeypatch.setattr(brackets, "EXACT_COST_MAX_N", 0)
+    assert brackets.check_invariant(X, A[None], K, np.array([1.0]))[0] is None
