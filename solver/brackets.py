@@ -451,6 +451,23 @@ def _trace(P, weight):
     return float(np.trace(P)) if weight is None else float(np.sum(weight * np.diagonal(P)))
 
 
+def _upper_value(P, weight, x0) -> float:
+    """The certified bound of ``P``: ``trace P`` (weighted) or ``x0' P x0``, rounded upwards.
+
+    The float64 sum of k products is within ``k eps`` of the sum of the absolute terms (Higham, Accuracy and
+    Stability, §3.1), so that much is added: the reported number is never below the exact value of ``P``'s."""
+    eps = np.finfo(float).eps
+    if x0 is None:
+        value = _trace(P, weight)
+        terms = _trace(np.abs(P), None if weight is None else np.abs(weight))
+        k = P.shape[0]
+    else:
+        value = float(x0 @ P @ x0)
+        terms = float(np.abs(x0) @ np.abs(P) @ np.abs(x0))
+        k = 2 * P.shape[0]
+    return float(np.nextafter(value + 1.01 * (k + 1) * eps * terms, np.inf))
+
+
 def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight: np.ndarray | None = None):
     """Smallest multiple ``c P0`` that passes :func:`check_cost`, and its bound.
 
@@ -479,11 +496,11 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
         ok, worst_here = check_cost(P, data)
         worst = min(worst, worst_here)  # the closest to passing, for the message
         if ok:
-            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), ""
+            return P, _upper_value(P, weight, x0), ""
         if (worst_here < 0 or factor == 1.0) and P0.shape[0] <= EXACT_COST_MAX_N and check_cost_exact(P, data):
             # (where float64 sees the inequality hold within its allowance, and for P0 itself: a caller's P lifted
             # on purpose, whose slack float64 may not even see)
-            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), "exact re-check of P"
+            return P, _upper_value(P, weight, x0), "exact re-check of P"
     return None, None, ("no multiple of the solver's P passes the float64 re-check "
                         f"(worst relative eigenvalue {worst:.3g})")
 
@@ -601,7 +618,7 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
                 ok = exact = check_hinf_exact(P, gb, data)  # the float64 allowance cannot decide (§8.4): exactly
             if ok:
                 if best[1] is None or np.sqrt(gb) < best[1]:
-                    best = (P, float(np.sqrt(gb)))
+                    best = (P, float(np.nextafter(np.sqrt(gb), np.inf)))  # sqrt rounds to nearest: never below
                     how = "exact re-check of P" if exact else ""
                 break
             reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"

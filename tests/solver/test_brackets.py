@@ -527,3 +527,31 @@ def test_invariance_of_a_far_from_normal_loop_is_decided_exactly_where_float64_c
     # float64 alone cannot decide it: without the exact re-check the set is not shown invariant
     monkeypatch.setattr(brackets, "EXACT_COST_MAX_N", 0)
     assert brackets.check_invariant(X, A[None], K, np.array([1.0]))[0] is None
+
+
+def test_a_certified_cost_bound_is_never_below_its_certificates_exact_value():
+    # the reported number is trace P or x0' P x0 of the certified P, rounded upwards (a float64 sum may round down)
+    from fractions import Fraction
+
+    from solver.brackets import certify_cost
+
+    below = 0
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        n = 4
+        A = 0.3 * rng.standard_normal((n, n))
+        S = np.eye(n) + 0.1 * np.diag(rng.uniform(size=n))
+        P0 = scipy.linalg.solve_discrete_lyapunov(A.T, S) * (1 + 1e-6)
+        x0 = rng.standard_normal(n) * np.array([1e-3, 1.0, 1e3, 1.0])
+        for start in (None, x0):
+            P, bound, _ = certify_cost(P0, [{"A": A, "S": S}], start)
+            assert P is not None
+            q = [[Fraction(float(v)) for v in row] for row in P]
+            if start is None:
+                exact = sum(q[i][i] for i in range(n))
+            else:
+                xq = [Fraction(float(v)) for v in start]
+                exact = sum(xq[i] * q[i][j] * xq[j] for i in range(n) for j in range(n))
+            assert Fraction(bound) >= exact
+            below += Fraction(float(np.trace(P)) if start is None else float(start @ P @ start)) < exact
+    assert below > 0  # the plain float64 value was below the exact one somewhere: the rounding matters
