@@ -910,6 +910,9 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             good = ~bad
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
     note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
+    # the certificate as coordinates for the witnesses' Lyapunov equations (small n: each costs a few more solves)
+    hint = certificate if certificate is not None and certificate.ndim == 2 and \
+        certificate.shape[-1] <= EXACT_COST_MAX_N else None
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
             first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
@@ -919,7 +922,10 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             best, witness = -np.inf, None
             for i in _top(approx, REFINED):
                 sys = period_system(data, pats[i])
-                Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
+                # the certificate (S_s + A_s' P A_s <= P for every mode, so Phi' P Phi < P over the period) is the
+                # coordinates where the period's equation is well conditioned: without it a loop whose P spans
+                # 1e10 got a witness twice its cost, above the certificate, and the bracket was refused (§8.5)
+                Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)
                 value = float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0)
                 if value > best:
                     best, witness = value, pats[i]
@@ -930,7 +936,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                     best, witness = value, runs
                     note = f"witness from the two-run search (runs up to {RUN_LENGTH})"
             if deep and certificate is not None and best < stop:
-                tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []))
+                tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []), hint)
                 found = prefix_search(data, tails, certificate, _moment(data[0]["A"].shape[0], x0, weight),
                                       floor=best, budget=budget)
                 bound = found.bound
@@ -974,8 +980,9 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
 
 
-def _tails(data: list[dict], seqs: list) -> list:
-    """``(pattern, P_T)`` of the stable patterns among ``seqs`` (``P_T`` its periodic cost from its start)."""
+def _tails(data: list[dict], seqs: list, hint: np.ndarray | None = None) -> list:
+    """``(pattern, P_T)`` of the stable patterns among ``seqs`` (``P_T`` its periodic cost from its start;
+    ``hint`` the certificate, coordinates for :func:`lyapunov`)."""
     out, seen = [], set()
     for seq in seqs:
         seq = tuple(seq)
@@ -984,7 +991,7 @@ def _tails(data: list[dict], seqs: list) -> list:
         seen.add(seq)
         sys = period_system(data, seq)
         if np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
-            out.append((seq, lyapunov(sys["Phi"], sys["L"].T @ sys["L"])))
+            out.append((seq, lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)))
     return out
 
 
@@ -1091,10 +1098,10 @@ def _moment(n: int, x0: np.ndarray | None, weight: np.ndarray | None) -> np.ndar
     return np.eye(n) if weight is None else np.diag(np.asarray(weight, dtype=float))
 
 
-def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
+def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray, hint: np.ndarray | None = None) -> float:
     """``<P_prefix + Phi' P_tail Phi, M>``: the exact cost of ``prefix`` then ``tail`` repeated forever
-    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, :func:`lyapunov`);
-    ``inf`` when the tail is unstable."""
+    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, :func:`lyapunov` in the coordinates of
+    ``hint``, the certificate); ``inf`` when the tail is unstable."""
     n = data[0]["A"].shape[0]
     T, Pp = np.eye(n), np.zeros((n, n))
     for s in prefix:
@@ -1103,7 +1110,7 @@ def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
     sys = period_system(data, tail)
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
         return np.inf
-    Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
+    Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)
     return float(np.sum(_sym(Pp + T.T @ Pt @ T) * M))
 
 
@@ -1314,7 +1321,7 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
     for _, prefix, tail in sorted(candidates, key=lambda e: -e[0])[:4]:
         if tail is None:
             prefix, tail = _cycle(prefix)
-        value = sequence_cost(data, prefix, tail, M)
+        value = sequence_cost(data, prefix, tail, M, P if P.shape[0] <= EXACT_COST_MAX_N else None)
         if np.isfinite(value) and value > floor and (found.value is None or value > found.value):
             found.value, found.prefix, found.tail = value, tuple(prefix), tuple(tail)
     return found

@@ -620,7 +620,7 @@ def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np
     return L @ Xt @ L.T
 
 
-def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
+def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None):
     """Hewer's (Newton-Kleinman) iteration from a stabilizing ``u = K x`` to the LQR gain of ``(F, G, Q, R)``.
 
     ``K <- -(R + G' P G)^{-1} G' P F`` with ``P = (F + G K)' P (F + G K) + Q + K' R K``: every iterate
@@ -629,7 +629,9 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     the smallest ``eps`` among ``EPS_STEPS`` times ``2 |P| + |S|`` whose P passes :func:`check_cost`: the
     re-check's inequality is strict, and the Riccati solution meets it with equality where ``S`` is singular,
     e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
-    like any other: the caller's float64 re-checks certify it.
+    like any other: the caller's float64 re-checks certify it.  ``loop``: ``K -> (A, S)``, the float64 loop and
+    cost matrix of the caller's re-check (its rounding, not ``F + G K``'s, is what an exact re-check of P sees where
+    P spans 1e11, docs/design.md §8.5).
     """
     if not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
         return None
@@ -649,10 +651,9 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         K_prev, K = K, K_next
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
-    A = F + G @ K
+    A, S = (F + G @ K, Q + K.T @ R @ K) if loop is None else loop(K)
     if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
         return None
-    S = Q + K.T @ R @ K
     P = lyapunov(A, S, P)
     size = 2 * np.linalg.norm(P, 2) + np.linalg.norm(S, 2)
     data = [{"A": A, "S": S}]
@@ -853,7 +854,8 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                     objective=float("nan"), iterations=0), "the plain design's"))
         for start_gains, start_info, origin in starts:
             try:
-                refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains)
+                refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains,
+                                         loop=lambda K: (lambda d: (d["A"], d["S"]))(lifted.numeric(K[None])[0]))
             except (np.linalg.LinAlgError, ValueError):
                 refined = None
             try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
