@@ -589,12 +589,15 @@ def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     return True
 
 
-def certify_hinf(P0: np.ndarray, data: list[dict]):
+def certify_hinf(P0: np.ndarray, data: list[dict], level: float | None = None):
     """Smallest ``gamma`` that ``c P0`` (c near 1) certifies, re-checked by :func:`check_hinf`.
 
     For fixed P the smallest ``g = gamma^2`` is ``max_s lambda_max(N22 - N21 N11^{-1} N12)`` of the
     bounded-real matrix at g = 0 (needs ``N11 < 0``).  ``P0`` one matrix, or one per network node (V, k, k),
-    each ``data`` entry then naming its ``src`` and ``dst`` node.  Returns ``(P or None, gamma or None, reason)``.
+    each ``data`` entry then naming its ``src`` and ``dst`` node.  ``level``: the gamma P0 was made for (a
+    Riccati solution), used for P0 itself when float64 cannot form that Schur complement (N11 not negative
+    definite to float64: P spanning 1e12 and more) and the exact re-check decides (docs/design.md §8.5).
+    Returns ``(P or None, gamma or None, reason)``.
     """
     P0 = _sym(np.asarray(P0, dtype=np.float64))
     if not np.all(np.isfinite(P0)):
@@ -602,12 +605,14 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
     nodes = P0.ndim == 3
     best = (None, None)
     reason = "the state block A'PA - P + C'C of the solver's P is not negative definite"
-    for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-4, 1 + 1e-2):
+    for c in (1.0, 1 + 1e-8, 1 + 1e-6, 1 + 1e-5, 1 + 1e-4, 1 + 1e-3, 1 + 1e-2):
         P = c * P0
         try:
             g = brl_level(((P[d["src"]], P[d["dst"]], d) if nodes else (P, None, d)) for d in data)
         except np.linalg.LinAlgError:
-            continue
+            if level is None or c != 1.0 or nodes or P.shape[0] > EXACT_COST_MAX_N:
+                continue
+            g = float(level) ** 2  # the Riccati solution's own level, for the exact re-check below
         for bump in (1e-10, 1e-8, 1e-6):
             gb = max(g, 0.0) * (1 + bump) + bump * float(np.max(np.linalg.norm(P, 2, axis=(-2, -1)))) * 1e-3 + 1e-300
             ok, worst = check_hinf(P, gb, data)
@@ -629,16 +634,18 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
     return best[0], best[1], how
 
 
-def bounded_real_riccati(d: dict, gamma: float) -> np.ndarray | None:
+def bounded_real_riccati(d: dict, gamma: float, lift: np.ndarray | None = None) -> np.ndarray | None:
     """The stabilizing solution of the bounded-real Riccati equation of one LTI loop at level ``gamma``:
     ``X = A'XA + C'C + (A'XB + C'D)(g I - D'D - B'XB)^{-1}(B'XA + D'C)``, ``g = gamma^2`` (None when scipy
     finds none).  For ``gamma`` above the loop's l2 gain it is the least P of the bounded-real inequality, so
-    ``gamma (1 + delta)`` gives a certificate within ``delta`` of the gain (docs/design.md §8.5)."""
+    ``gamma (1 + delta)`` gives a certificate within ``delta`` of the gain (docs/design.md §8.5).  ``lift`` (n, n)
+    is added to ``C'C`` (slack in the state block)."""
     A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+    Q = C.T @ C if lift is None else C.T @ C + _sym(lift)
     try:
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            X = scipy.linalg.solve_discrete_are(A, B, C.T @ C, D.T @ D - gamma ** 2 * np.eye(B.shape[1]), s=C.T @ D)
+            X = scipy.linalg.solve_discrete_are(A, B, Q, D.T @ D - gamma ** 2 * np.eye(B.shape[1]), s=C.T @ D)
     except (np.linalg.LinAlgError, ValueError):
         return None
     X = _sym(X)
@@ -935,6 +942,9 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             good = ~bad
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
     note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
+    # the certificate as coordinates for the witnesses' Lyapunov equations (small n: each costs a few more solves)
+    hint = certificate if certificate is not None and certificate.ndim == 2 and \
+        certificate.shape[-1] <= EXACT_COST_MAX_N else None
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
             first = int(np.flatnonzero(np.isinf(approx) & unstable)[0])
@@ -944,7 +954,10 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             best, witness = -np.inf, None
             for i in _top(approx, REFINED):
                 sys = period_system(data, pats[i])
-                Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
+                # the certificate (S_s + A_s' P A_s <= P for every mode, so Phi' P Phi < P over the period) is the
+                # coordinates where the period's equation is well conditioned: without it a loop whose P spans
+                # 1e10 got a witness twice its cost, above the certificate, and the bracket was refused (§8.5)
+                Pp = lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)
                 value = float(_trace(Pp, weight) if x0 is None else x0 @ Pp @ x0)
                 if value > best:
                     best, witness = value, pats[i]
@@ -955,7 +968,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                     best, witness = value, runs
                     note = f"witness from the two-run search (runs up to {RUN_LENGTH})"
             if deep and certificate is not None and best < stop:
-                tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []))
+                tails = _tails(data, [pats[i] for i in _top(approx, TAILS)] + ([runs] if runs else []), hint)
                 found = prefix_search(data, tails, certificate, _moment(data[0]["A"].shape[0], x0, weight),
                                       floor=best, budget=budget)
                 bound = found.bound
@@ -999,8 +1012,9 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
 
 
-def _tails(data: list[dict], seqs: list) -> list:
-    """``(pattern, P_T)`` of the stable patterns among ``seqs`` (``P_T`` its periodic cost from its start)."""
+def _tails(data: list[dict], seqs: list, hint: np.ndarray | None = None) -> list:
+    """``(pattern, P_T)`` of the stable patterns among ``seqs`` (``P_T`` its periodic cost from its start;
+    ``hint`` the certificate, coordinates for :func:`lyapunov`)."""
     out, seen = [], set()
     for seq in seqs:
         seq = tuple(seq)
@@ -1009,7 +1023,7 @@ def _tails(data: list[dict], seqs: list) -> list:
         seen.add(seq)
         sys = period_system(data, seq)
         if np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
-            out.append((seq, lyapunov(sys["Phi"], sys["L"].T @ sys["L"])))
+            out.append((seq, lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)))
     return out
 
 
@@ -1116,10 +1130,10 @@ def _moment(n: int, x0: np.ndarray | None, weight: np.ndarray | None) -> np.ndar
     return np.eye(n) if weight is None else np.diag(np.asarray(weight, dtype=float))
 
 
-def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
+def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray, hint: np.ndarray | None = None) -> float:
     """``<P_prefix + Phi' P_tail Phi, M>``: the exact cost of ``prefix`` then ``tail`` repeated forever
-    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, :func:`lyapunov`);
-    ``inf`` when the tail is unstable."""
+    (``Phi`` the prefix's transition, ``P_tail`` the tail's periodic cost, :func:`lyapunov` in the coordinates of
+    ``hint``, the certificate); ``inf`` when the tail is unstable."""
     n = data[0]["A"].shape[0]
     T, Pp = np.eye(n), np.zeros((n, n))
     for s in prefix:
@@ -1128,7 +1142,7 @@ def sequence_cost(data: list[dict], prefix, tail, M: np.ndarray) -> float:
     sys = period_system(data, tail)
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
         return np.inf
-    Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
+    Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"], hint)
     return float(np.sum(_sym(Pp + T.T @ Pt @ T) * M))
 
 
@@ -1339,7 +1353,7 @@ def prefix_search(data: list[dict], tails: list, P: np.ndarray, M: np.ndarray, f
     for _, prefix, tail in sorted(candidates, key=lambda e: -e[0])[:4]:
         if tail is None:
             prefix, tail = _cycle(prefix)
-        value = sequence_cost(data, prefix, tail, M)
+        value = sequence_cost(data, prefix, tail, M, P if P.shape[0] <= EXACT_COST_MAX_N else None)
         if np.isfinite(value) and value > floor and (found.value is None or value > found.value):
             found.value, found.prefix, found.tail = value, tuple(prefix), tuple(tail)
     return found
@@ -1552,11 +1566,20 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
             upper is None or upper > lower * (1 + 1e-7)):
         # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real
         # Riccati solution a hair above it is the least certificate there (§8.5); the SDP's P can be 1e-3 off
+        small = data[0]["A"].shape[0] <= EXACT_COST_MAX_N
         for delta in (1e-8, 1e-7, 1e-6, 1e-5, 3e-5, 1e-4):
             X = bounded_real_riccati(data[0], lower * (1 + delta))
             if X is None:
                 continue
-            Pc, gc, why = certify_hinf(X, data)
+            Pc, gc, why = certify_hinf(X, data, lower * (1 + delta))
+            # the Riccati solution is tight in the state block; where P spans 1e11 its float64 rounding (1e-5
+            # absolute) needs slack there: the equation with C'C + eps X (exact re-check, small n only, §8.5)
+            for eps in (1e-7, 1e-6, 1e-5, 1e-4) if Pc is None and small else ():
+                Xl = bounded_real_riccati(data[0], lower * (1 + delta), lift=eps * X)
+                if Xl is not None:
+                    Pc, gc, why = certify_hinf(Xl, data, lower * (1 + delta))
+                    if Pc is not None:
+                        break
             if Pc is not None and (upper is None or gc < upper):
                 P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
                 break

@@ -14,7 +14,7 @@ from .errors import InvalidInput, SolverFailed
 from .methods import ccl, lmi, switched
 from .methods.common import NEGATIVE, DesignOptions, proof_outcome
 from .ipm import blas_threads
-from .lyapunov import recheck_common, recheck_lifted, recheck_switched
+from .lyapunov import recheck_common, recheck_lifted, recheck_lifted_exact, recheck_switched
 from .network import MAX_MODES, PLANT_SWITCHING, SCHEMES, ModeSet, check_n_drop, mode_count
 from .plant import PlantFamily
 from .rate_search import (MIN_RATE, carry_multipliers, margin_model, model_root, network_margin_model, next_rate,
@@ -1474,6 +1474,10 @@ def _unscale(res: DesignResult, scale: Scaling, modes: ModeSet) -> DesignResult:
         original = recheck_lifted(scale.quadratic_back(cert.X), A, modes.n_drop, cert.source, rho=rho)
     else:
         original = recheck_common(scale.quadratic_back(cert.P), A, modes.n_drop, cert.source)
+    if not original.verified and cert.exact and cert.X is not None and rho is None:
+        # a margin only the exact re-check confirmed: the same exact re-check on the user's numbers (§8.5)
+        original = recheck_lifted_exact(scale.quadratic_back(cert.X), A, modes.F, modes.G, res.gains, modes.plants,
+                                        modes.n_drop, cert.source)
     if original.verified:
         original.decay_rate = cert.decay_rate
         res.certificate = original
