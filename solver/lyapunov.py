@@ -60,7 +60,7 @@ class Certificate:
     margin : float
         ``decrease / lambda_max`` of the re-checked matrix.
     verified : bool
-        True iff the float64 re-check passed.
+        True iff the float64 re-check passed (or, ``exact``, the exact one).
     source : str
         What produced P (``"lmi"``, ``"switched"``, ``"ccl_iterate"``, ``"theorem1_lmi"``, ``"switched_lmi"``).
     decay_rate : float or None
@@ -80,6 +80,8 @@ class Certificate:
     source: str
     decay_rate: float | None = None
     worst_mode: int | None = field(default=None)
+    #: True when ``verified`` comes from the exact re-check (:func:`recheck_lifted_exact`), not the float64 one.
+    exact: bool = False
 
     def to_dict(self) -> dict:
         mats = self.P if self.kind == "switched" else self.P[None]
@@ -93,6 +95,7 @@ class Certificate:
             "condition_number": float(max(np.linalg.cond(M) for M in mats)),
             "decay_rate": self.decay_rate,
             "worst_mode": self.worst_mode,
+            "exact": self.exact,
             "P": self.P.tolist(),
             "X": None if self.X is None else self.X.tolist(),
         }
@@ -172,6 +175,32 @@ def recheck_lifted(X: np.ndarray, A: np.ndarray, n_drop: int, source: str,
     """
     rho = np.ones(A.shape[0]) if rho is None else np.asarray(rho, dtype=float)
     cert = recheck_common_reduced(X, A, rho, source)
+    if cert.verified and n_drop > 1:
+        cert.P = lift(cert.X, A, n_drop)
+    return cert
+
+
+#: Largest state dimension for which :func:`recheck_lifted_exact` is tried (as ``brackets.EXACT_COST_MAX_N``).
+EXACT_MAX_N = 8
+
+
+def recheck_lifted_exact(X: np.ndarray, A: np.ndarray, F: np.ndarray, G: np.ndarray, gains: np.ndarray, plants,
+                         n_drop: int, source: str) -> Certificate:
+    """The re-check of :func:`recheck_lifted` (no decay rate) decided exactly where float64 cannot.
+
+    ``X > 0`` and ``X - A_s' X A_s > 0`` in exact arithmetic on the float64 numbers, ``A_s`` the interval maps
+    computed exactly from ``F`` (r, n, n), ``G`` (r, n, m) and ``gains`` (n_drop, m, n) along ``plants[s]``
+    (:func:`solver.exact.lyapunov_decrease`): no rounding allowance, so a relative margin far below
+    :data:`RECHECK_TOL` (1e-11 where X spans 1e11: a nearly unreachable unstable mode, docs/design.md §8.5) is
+    decided.  ``A`` (S, n, n), the float64 loops, give ``margin`` and ``decrease`` as estimates (for the
+    message); ``verified`` is the exact verdict and ``exact`` is set.  Small n only (:data:`EXACT_MAX_N`).
+    """
+    from .exact import lyapunov_decrease
+
+    X = _sym(np.asarray(X, dtype=np.float64))
+    cert = recheck_common_reduced(X, A, np.ones(A.shape[0]), source)
+    cert.exact = True
+    cert.verified = bool(X.shape[0] <= EXACT_MAX_N and lyapunov_decrease(X, F, G, gains, plants))
     if cert.verified and n_drop > 1:
         cert.P = lift(cert.X, A, n_drop)
     return cert

@@ -449,8 +449,9 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             # residual kept)
             if BLEND_LARGE > 0.0 and not up.any():
                 # down in rate (the first move from lambda = 1): the multipliers of a near-optimum are badly centred
-                # for the new data (X_b S_b ~ 0), blended with I / N as the probes' warm starts are (sum tr X = 1
-                # kept; the primal residual and the dual bound change); up in rate _raise's residual is kept
+                # for the new data (X_b S_b ~ 0), blended with I / N as the probes' warm starts are (I / N is primal
+                # feasible at every rate: the residual shrinks by 1 - BLEND_LARGE, the dual bound changes); up in
+                # rate _raise's multipliers are kept
                 X2 = (1.0 - BLEND_LARGE) * X2 + BLEND_LARGE * np.eye(X2.shape[1]) / (X2.shape[0] * X2.shape[1])
             return C2, o2, a2, s2, np.array(y, dtype=np.float64), [X2], [S[0]]
         # the slacks keep their smallest eigenvalue (t moves with the blocks')

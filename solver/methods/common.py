@@ -11,7 +11,8 @@ import numpy as np
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
 from ..compiled import SolveInfo, resolve_solver, time_left
 from ..errors import SolverFailed
-from ..lyapunov import Certificate, certify, recheck_common, recheck_lifted, recheck_switched
+from ..lyapunov import (EXACT_MAX_N, RECHECK_TOL, Certificate, certify, recheck_common, recheck_lifted,
+                        recheck_lifted_exact, recheck_switched)
 from ..network import ModeSet, spectral_radii
 from ..result import DesignResult, IterationRecord
 
@@ -27,8 +28,9 @@ class DesignOptions:
     callback: Callable | None = None
     ccl_start: str = "feasibility"
     decay_rate: float | None = None
-    #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only).
-    sign_only: bool = False
+    #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only); a float in (0, 1]:
+    #: stops at the first margin at least that share of the dual bound (:attr:`solver.ipm.IPMOptions.sign_only`).
+    sign_only: bool | float = False
     #: The rate search's warm start for the lmi SDP on the IPM (a :class:`solver.ipm.WarmStart`).
     warm_start: object | None = None
     #: The memory budget (bytes) of the ``"AUTO"`` fallback to Clarabel (:func:`solver.compiled.clarabel_fits`).
@@ -81,6 +83,7 @@ def certify_gains(
     candidate: np.ndarray | None = None,
     candidate_kind: str = "reduced",
     candidate_source: str = "",
+    exact: bool = False,
 ) -> tuple[Certificate | None, np.ndarray]:
     """Find a float64-verified certificate for ``gains``.
 
@@ -89,6 +92,8 @@ def certify_gains(
     (``"augmented"``) or mode-dependent ``P_s`` (``"switched"``).  With a
     decay rate the candidate must also prove it.  Without a rate, and if the
     candidate fails, fixed-gain LMIs (common, then switched) are solved.
+    ``exact``: a reduced candidate whose float64 margin is below what float64 can confirm is re-checked exactly
+    (:func:`solver.lyapunov.recheck_lifted_exact`; no decay rate, n <= ``EXACT_MAX_N``, docs/design.md §8.5).
 
     Returns ``(certificate or None, A)`` with ``A`` the closed loops (S, n, n).
     """
@@ -105,6 +110,13 @@ def certify_gains(
         if cert.verified:
             cert.decay_rate = options.decay_rate
             return cert, A
+        if exact and candidate_kind == "reduced" and options.decay_rate is None and modes.F is not None and \
+                modes.n_states <= EXACT_MAX_N and cert.min_eig_P > 0 and cert.margin > -RECHECK_TOL:
+            # float64 cannot decide a relative margin this small (a performance certificate spanning 1e11): the
+            # same inequality in exact arithmetic on the float64 numbers, the loops rebuilt exactly from F, G, K
+            cert = recheck_lifted_exact(candidate, A, modes.F, modes.G, gains, modes.plants, n_drop, candidate_source)
+            if cert.verified:
+                return cert, A
     if options.decay_rate is not None or np.max(spectral_radii(A)) >= 1.0:
         return None, A  # a rate is the candidate's to prove; an unstable mode has no certificate
     kinds = ("common_quadratic",) if modes.plant_switching == "per_interval" and candidate_kind != "switched" else (

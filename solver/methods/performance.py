@@ -23,6 +23,7 @@ balanced ones (:class:`solver.scaling.PerformanceScaling`) and maps the answer b
 from __future__ import annotations
 
 import time
+import warnings
 
 import cvxpy as cp
 import numpy as np
@@ -549,7 +550,10 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
     if objective in ("cost", "hinf"):
         performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight)
     candidate = performance.certificate if performance is not None and performance.verified else Winv
-    cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_source=f"lmi_{objective}")
+    # exact: the performance certificate, re-checked exactly there, may hold a relative stability margin (1e-11
+    # where P spans 1e11) that float64 cannot confirm; decided in exact arithmetic for small n (§8.5)
+    cert, A = certify_gains(modes, gains, options, clock, candidate=candidate, candidate_source=f"lmi_{objective}",
+                            exact=candidate is not Winv and modes.n_modes <= EXACT_MODES)
     if cert is None and candidate is not Winv:
         cert, A = certify_gains(modes, gains, options, clock, candidate=Winv, candidate_source=f"lmi_{objective}")
     invariant, inv_reason = None, ""
@@ -557,6 +561,10 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
         invariant, inv_reason = check_invariant(Winv, A, gains, u_max, x0)
     return {"info": info, "gains": gains, "performance": performance, "cert": cert, "A": A,
             "invariant": invariant, "inv_reason": inv_reason}
+
+
+#: Modes at most for the exact stability re-check of a performance certificate (each costs an exact n x n product).
+EXACT_MODES = 64
 
 
 def _score(c: dict, u_max) -> tuple:
@@ -575,6 +583,8 @@ def _good(c: dict | None, u_max) -> bool:
 HEWER_STEPS = 60
 #: Relative lifts of the refined cost matrix tried in turn (the smallest that passes the re-check is kept).
 EPS_STEPS = (1e-14, 1e-13, 1e-12, 1e-11, 1e-10, 1e-9)
+#: Slack off P's largest direction, in units of P's largest entry's rounding, tried in turn (§8.5).
+SLACK_STEPS = (1 / 16, 1 / 4, 1.0, 4.0, 16.0, 64.0)
 
 
 def _refined_lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray, steps: int = 2) -> np.ndarray:
@@ -610,7 +620,7 @@ def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np
     return L @ Xt @ L.T
 
 
-def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
+def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None):
     """Hewer's (Newton-Kleinman) iteration from a stabilizing ``u = K x`` to the LQR gain of ``(F, G, Q, R)``.
 
     ``K <- -(R + G' P G)^{-1} G' P F`` with ``P = (F + G K)' P (F + G K) + Q + K' R K``: every iterate
@@ -619,7 +629,9 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     the smallest ``eps`` among ``EPS_STEPS`` times ``2 |P| + |S|`` whose P passes :func:`check_cost`: the
     re-check's inequality is strict, and the Riccati solution meets it with equality where ``S`` is singular,
     e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
-    like any other: the caller's float64 re-checks certify it.
+    like any other: the caller's float64 re-checks certify it.  ``loop``: ``K -> (A, S)``, the float64 loop and
+    cost matrix of the caller's re-check (its rounding, not ``F + G K``'s, is what an exact re-check of P sees where
+    P spans 1e11, docs/design.md §8.5).
     """
     if not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
         return None
@@ -639,10 +651,9 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         K_prev, K = K, K_next
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
-    A = F + G @ K
+    A, S = (F + G @ K, Q + K.T @ R @ K) if loop is None else loop(K)
     if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
         return None
-    S = Q + K.T @ R @ K
     P = lyapunov(A, S, P)
     size = 2 * np.linalg.norm(P, 2) + np.linalg.norm(S, 2)
     data = [{"A": A, "S": S}]
@@ -658,18 +669,111 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         # in every direction) raises it by about eps / (1 - |loop|^2) and passes the exact re-check (§8.5).
         # Its residual must be below eps P in every direction: two steps of iterative refinement with the
         # residual computed exactly (rational arithmetic on the float64 numbers) get there
+        lifted = None
         for step in EPS_STEPS + (1e-8, 1e-7):
             Pl = _refined_lyapunov(A, S + step * P, P)
             if check_cost_exact(Pl, data):
-                if found is None or np.trace(Pl) < np.trace(found):
-                    found = Pl
+                lifted = Pl
                 break
+        if lifted is None:
+            # P's own float64 rounding (1e-5 absolute where its largest eigenvalue is 1e11) needs slack of that
+            # size in P's small directions, which a lift along P does not give: slack k u max|P| off P's largest
+            # direction, smallest k first (hold-out: 1e-6 .. 1e-4 above the Riccati cost, §8.5)
+            w, V = np.linalg.eigh(P)
+            off = np.eye(S.shape[0]) - np.outer(V[:, -1], V[:, -1])
+            unit = 2.0 ** -52 * float(np.max(np.abs(P)))
+            for k in SLACK_STEPS:
+                for step in (1e-10, 1e-8):
+                    Pl = _refined_lyapunov(A, S + step * P + k * unit * off, P)
+                    if check_cost_exact(Pl, data):
+                        lifted = Pl
+                        break
+                if lifted is not None:
+                    break
+        if lifted is not None and (found is None or np.trace(lifted) < np.trace(found)):
+            found = lifted
     return K, (Pe if found is None else found)
 
 
 def _one_lti_loop(lifted: Lifted) -> bool:
     modes = lifted.modes
     return len(lifted.lifted) == 1 and modes.n_drop == 1 and modes.F is not None and lifted.Q is not None
+
+
+#: Largest state dimension of the game-Riccati refinement (hinf, one LTI loop): its certificates need the exact
+#: re-checks of §8.4, small n only (as ``brackets.EXACT_COST_MAX_N``).
+GAME_MAX_N = EXACT_COST_MAX_N
+#: Relative width at which the bisection on the game Riccati equation's solvability stops, and the relative steps
+#: above its upper end at which gains are taken (the first whose certified level is within GAME_CLOSE of the
+#: bisection's end is kept; gains grow without bound at the optimum, a step above it gives a margin).
+GAME_TOL = 1e-10
+GAME_STEPS = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3)
+GAME_CLOSE = 1e-6
+
+
+def _one_hinf_loop(lifted: Lifted) -> bool:
+    modes = lifted.modes
+    return len(lifted.lifted) == 1 and modes.n_drop == 1 and lifted.has_disturbance and \
+        modes.n_states <= GAME_MAX_N
+
+
+def game_gains(F: np.ndarray, G: np.ndarray, E: np.ndarray, C: np.ndarray, Du: np.ndarray, Dw: np.ndarray,
+               gamma: float):
+    """The state-feedback H-infinity game Riccati equation of ``x+ = F x + G u + E w``, ``z = C x + Du u + Dw w``
+    at level ``gamma`` (docs/design.md §8.5).
+
+    ``X = F'XF + C'C - (F'XB + C'D)(D'D - diag(0, g I) + B'XB)^{-1}(B'XF + D'C)``, ``B = [G E]``, ``D = [Du Dw]``,
+    ``g = gamma^2``.  Solvable (a stabilizing solution with ``X >= 0``, ``Du'Du + G'XG > 0`` and
+    ``g I - Dw'Dw - E'XE > 0`` on the saddle's blocks) iff some static gain reaches an l2 gain below ``gamma``;
+    the minimizer's saddle strategy ``u = K x`` is such a gain, and X solves its closed loop's bounded-real
+    equation at gamma (a certificate candidate).  Shapes: F (n, n), G (n, m), E (n, p), C (q, n), Du (q, m),
+    Dw (q, p).  Returns ``(K (m, n), X (n, n))`` or None (not solvable, or scipy found no solution).
+    """
+    n, m = G.shape
+    B = np.hstack([G, E])
+    D = np.hstack([Du, Dw])
+    R = D.T @ D
+    R[m:, m:] -= gamma ** 2 * np.eye(E.shape[1])
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            X = scipy.linalg.solve_discrete_are(F, B, C.T @ C, R, s=C.T @ D)
+            X = 0.5 * (X + X.T)
+            if not np.all(np.isfinite(X)) or np.linalg.eigvalsh(X)[0] < -1e-9 * max(np.abs(X).max(), 1e-300):
+                return None
+            H = R + B.T @ X @ B
+            if np.linalg.eigvalsh(0.5 * (H[:m, :m] + H[:m, :m].T))[0] <= 0 or \
+                    np.linalg.eigvalsh(0.5 * (H[m:, m:] + H[m:, m:].T))[-1] >= 0:
+                return None
+            KL = -np.linalg.solve(H, B.T @ X @ F + D.T @ C)
+            K = KL[:m]
+            if not (np.max(np.abs(np.linalg.eigvals(F + B @ KL))) < 1 and
+                    np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1) or not np.all(np.isfinite(K)):
+                return None
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    return K, X
+
+
+def game_level(F, G, E, C, Du, Dw, upper: float | None = None) -> float | None:
+    """Bisection (on log gamma, to :data:`GAME_TOL`) for the least level at which :func:`game_gains` is solvable:
+    the upper end found (None when nothing up to 1e15 is).  ``upper``: a level known to be reached (a start)."""
+    hi = upper if upper is not None and np.isfinite(upper) and upper > 0 else 1.0
+    while game_gains(F, G, E, C, Du, Dw, hi) is None:
+        hi *= 8.0
+        if hi > 1e15:
+            return None
+    floor = float(np.linalg.norm(Dw, 2)) if Dw.size else 0.0  # the feedthrough: no gain goes below it
+    lo = max(floor, hi * 1e-8)
+    while lo > floor and game_gains(F, G, E, C, Du, Dw, lo) is not None:
+        hi, lo = lo, max(floor, lo * 1e-8)
+    while hi > lo * (1 + GAME_TOL) and hi - lo > 1e-300:
+        mid = np.sqrt(lo * hi) if lo > 0 else 0.5 * hi
+        if game_gains(F, G, E, C, Du, Dw, mid) is None:
+            lo = mid
+        else:
+            hi = mid
+    return hi
 
 
 def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray | None,
@@ -695,12 +799,20 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                                        options.time_limit, solver_weight)
     except SolverFailed as err:
         Wv, failures = None, [str(err)]
-    if info is not None and info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+    infeasible = info is not None and info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE)
+    game = objective == "hinf" and u_max is None and _one_hinf_loop(lifted)
+    if infeasible and not game:
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP is reported infeasible by "
                           f"{info.solver} ({info.status})", info, x0, u_max)
+    if infeasible:  # one LTI loop: the game Riccati equation below decides, not the IPM's verdict (§8.5)
+        Wv, failures = None, [f"the hinf SDP is reported infeasible by {info.solver} ({info.status})"]
     if Wv is not None:
-        candidates.append(_evaluate(lifted, objective, x0, u_max, options, clock, info, Wv, Yv, extra, trace_weight))
-    if name == "AUTO" and not _good(candidates[-1] if candidates else None, u_max) and (
+        try:  # the stability re-check's own LMI may fail: that loses this candidate, not the run (Clarabel, Riccati)
+            candidates.append(_evaluate(lifted, objective, x0, u_max, options, clock, info, Wv, Yv, extra,
+                                        trace_weight))
+        except SolverFailed as err:
+            failures.append(f"the re-check of the SDP's gains: {err}")
+    if name == "AUTO" and not infeasible and not _good(candidates[-1] if candidates else None, u_max) and (
             info is None or info.solver == "IPM") and \
             compiled.clarabel_fits("lmi", modes.n_states, modes.n_inputs, modes.n_plants, modes.n_drop,
                                    modes.plant_switching, modes.scheme, max_memory=options.max_memory,
@@ -746,7 +858,8 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                     objective=float("nan"), iterations=0), "the plain design's"))
         for start_gains, start_info, origin in starts:
             try:
-                refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains)
+                refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains,
+                                         loop=lambda K: (lambda d: (d["A"], d["S"]))(lifted.numeric(K[None])[0]))
             except (np.linalg.LinAlgError, ValueError):
                 refined = None
             try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
@@ -759,13 +872,22 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                 continue
             # kept unless its bound is clearly worse: the SDP's own bound is flat at the optimum (the bus
             # suspension, Q = I: equal to 2e-10 with gains 1e-4 apart), the refinement's gains are the Riccati ones
-            if best is None or (_score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
-                    not _score(best, u_max)[2] or best["performance"] is None or
-                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8))):
+            # (bounds compared only between equal scores: a better score wins whatever the bound, as in max above,
+            # and an unverified bracket has no bound to compare)
+            if best is None or _score(c, u_max)[:3] > _score(best, u_max)[:3] or (
+                    _score(c, u_max)[:3] == _score(best, u_max)[:3] and (
+                        not _score(best, u_max)[2] or best["performance"] is None or
+                        c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8))):
                 best = c
                 best["refined"] = origin
-            if _good(best, u_max):
-                break
+            if _good(best, u_max) and (origin is True or modes.n_states > EXACT_COST_MAX_N):
+                break  # (small n, no SDP answer: every start, the best certified bound wins; §8.5)
+    if game:
+        c = _game_refine(lifted, options, clock, info, best, trace_weight)
+        if c is not None:
+            best = c
+    if best is None and infeasible:
+        return _no_design(lifted, options, clock, objective, failures[0], info, x0, u_max)
     if best is None:
         reason = f"the {objective} SDP " + ("failed (" + "; ".join(failures) + ")" if failures else
                                             f"ended with status {info.status!r}" if info is not None else "failed")
@@ -798,9 +920,17 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     else:
         outcome = "stabilized"
         message = f"stabilized; {cert.kind} certificate re-checked (relative margin {cert.margin:.3g}){rate_txt}"
+        if cert.exact:
+            message = (f"stabilized; {cert.kind} certificate re-checked exactly (float64 relative margin "
+                       f"{cert.margin:.3g}, below what float64 confirms)")
         if u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
-    if best.get("refined"):
+    if best.get("refined") == "game":
+        message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
+                     f"{best['game_step']:g}), its least solvable level by bisection {best['game_bisection']:.9g}")
+        if failures and infeasible:
+            message += f" ({failures[0]})"
+    elif best.get("refined"):
         origin = "the SDP's" if best["refined"] is True else best["refined"]
         message += f"; gains refined to the Riccati solution (Hewer's iteration from {origin} gains)"
     if performance is not None:
@@ -810,6 +940,52 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     res.performance = performance
     res.invariant_set = invariant
     return res
+
+
+def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, best: dict | None,
+                 trace_weight) -> dict | None:
+    """hinf, one LTI loop (one mode, ``n_drop = 1``): the gains of the game Riccati equation a hair above its least
+    solvable level (:func:`game_level`), re-checked like any proposal (docs/design.md §8.5).
+
+    Returns the candidate when it beats ``best`` (certified first, then a certified level smaller by more than
+    1e-9 relative), else None.  Each step of :data:`GAME_STEPS` is tried until a certified level is within
+    :data:`GAME_CLOSE` of the bisection's end.
+    """
+    lm = lifted.lifted[0]
+    F, G = lm.state.free, lm.state.coef[0]
+    E, C, Du, Dw = lm.B, lm.output.free, lm.output.coef[0], lm.D
+    have = best is not None and _good(best, None)
+    try:
+        level = game_level(F, G, E, C, Du, Dw, best["performance"].certificate_upper if have else None)
+    except (np.linalg.LinAlgError, ValueError):
+        level = None
+    if level is None:
+        return None
+    start = info if info is not None else SolveInfo(status="riccati", solver="scipy", solve_time=0.0, wall_time=0.0,
+                                                    objective=float("nan"), iterations=0)
+    found = None
+    for step in GAME_STEPS:
+        if have and level * (1 + step) >= best["performance"].certificate_upper:
+            break  # nothing better to find above the certified level
+        out = game_gains(F, G, E, C, Du, Dw, level * (1 + step))
+        if out is None:
+            continue
+        try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
+            c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
+                          gains=out[0][None], P0=out[1])
+        except SolverFailed:
+            c = None
+        if c is None or not _good(c, None):
+            continue
+        if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
+            found = c
+            found.update(refined="game", game_level=level * (1 + step), game_step=step, game_bisection=level)
+        if found["performance"].certificate_upper <= level * (1 + GAME_CLOSE):
+            break
+    if found is None or (have and not found["performance"].certificate_upper <
+                         best["performance"].certificate_upper * (1 - 1e-9)):
+        return None
+    return found
 
 
 def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objective: str, reason: str,
