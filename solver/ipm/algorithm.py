@@ -129,6 +129,9 @@ STALL_GAP = 1e-6
 STALL_FAST = 3
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
 REFINE_STEPS = 4
+#: ... of the predictor's (only its step lengths and ``dX dS`` enter the corrector, whose own refinement keeps
+#: ``adj(dX) = r_p``).
+PREDICTOR_REFINE = 0
 #: ... until the direction's error in ``adj(dX) = r_p`` is below this fraction of ``|r_p|``.
 REFINE_TO = 0.1
 _potrf = scipy.linalg.lapack.dpotrf
@@ -486,10 +489,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             break
         tim["factorization"] += perf() - t1
 
-        def direction(h, RcG):
+        def direction(h, RcG, steps=REFINE_STEPS):
             dy = solve(h)
             ne_prev, best_dir = math.inf, None
-            for refine in range(REFINE_STEPS + 1):
+            for refine in range(steps + 1):
                 dS = op(dy)
                 if E is not None:  # aim at S + dS = C + A(y + dy)
                     dS = [ds - e for ds, e in zip(dS, E)]
@@ -497,7 +500,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 for x, ds, g, rc in zip(X, dS, G, RcG):
                     W = rc - x @ ds @ g
                     dX.append(0.5 * (W + W.transpose(0, 2, 1)))
-                if refine == REFINE_STEPS or not fixed_dead:  # grouped problems only (the plain LMI does not need it)
+                if refine == steps or not fixed_dead:  # grouped problems only (the plain LMI does not need it)
                     break
                 # Iterative refinement on the exact operator: the step must give adj(dX) = r_p; near the optimum
                 # the Schur complement is ill-conditioned and its rounding left the primal residual growing again
@@ -526,7 +529,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         XEG = None if E is None else [x @ e @ g for x, e, g in zip(X, E, G)]
         hb = b if E is None else b + adj([0.5 * (w + w.transpose(0, 2, 1)) for w in XEG])
         hb = np.where(dead, 0.0, hb) if anydead else hb
-        dy, dS, dX = direction(hb, [-x for x in X])
+        dy, dS, dX = direction(hb, [-x for x in X], PREDICTOR_REFINE)
         t3 = perf()
         ap, ad = step_lengths(dX, dS, 1.0, 0.1)
         tim["line_search"] += perf() - t3
