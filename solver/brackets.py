@@ -903,7 +903,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             bad = ~(periodic.spectral_radius(sys["Phi"]) < 1)
             unstable[pos] = bad
             good = ~bad
-            systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+            systems.append((pos[good], sys if good.all() else {key: v[good] for key, v in sys.items()}))
     note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
     if kind == "cost":
         if np.any(np.isinf(approx) & unstable):
@@ -1453,7 +1453,8 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     from . import periodic
 
     omega = np.linspace(0.0, np.pi, SWEEP)
-    bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems if pos.size]
+    systems = [(pos, periodic.gram_form(sys)) for pos, sys in systems if pos.size]
+    bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems]
     entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
                      key=lambda e: -e[0])
     best, start = -np.inf, 0

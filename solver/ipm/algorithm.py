@@ -127,6 +127,10 @@ STALL_SCORE = 1e-4
 #: did not halve (docs/design.md §8.3.2).
 STALL_GAP = 1e-6
 STALL_FAST = 3
+#: ... and one whose best score is below STALL_TIGHT at the first iteration that does not halve it (docs/design.md
+#: §8.3.2: the second stage's last 2-3 iterations at n = 12 / 20 only raised the primal residual or took the gap
+#: from 7e-9 to 4e-9).
+STALL_TIGHT = 1e-7
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
 REFINE_STEPS = 4
 #: ... of the predictor's (only its step lengths and ``dX dS`` enter the corrector, whose own refinement keeps
@@ -446,6 +450,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 and it - prog[1] >= STALL_FAST:
             # converged (gap) and the score no longer halving: the rounding floor (n = 12, n_drop = 10 cost SDP: the
             # primal residual from 5e-6 up to 4e-4 in one step at mu ~ 4e-9, and no better iterate in 8 more)
+            status = "stalled"
+            break
+        if E is None and offset is not None and best[0] < STALL_TIGHT and it > prog[1]:
             status = "stalled"
             break
         if E is None and it - best[1] >= 8 and best[0] < (STALL_SCORE if fixed_dead else 1e-6):
