@@ -387,6 +387,9 @@ def _lyapunov_residual(A: np.ndarray, P: np.ndarray, S: np.ndarray) -> float:
 
 #: :func:`lyapunov` keeps scipy's answer when its condition number is at most this (and its residual tiny).
 LYAPUNOV_CONDITION = 1e6
+#: :func:`lyapunov` tries scipy's Kronecker form beside the bilinear one up to this n (scipy's own switch is 10): an
+#: ``n^2 x n^2`` solve, O(n^6) flops and n^4 memory (n = 60: ~1 s and 100 MB per call, in every Hewer step).
+KRONECKER_MAX_N = 20
 
 
 def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np.ndarray:
@@ -400,20 +403,21 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
     else the better of scipy's two answers by residual), twice (docs/design.md §8.5).  Without one (S
     singular) the plain answer of least residual; ``LinAlgError`` when there is none.
     """
-    best = None
-    plain = _lyapunov_once(A, S, "direct" if A.shape[0] < 10 else "bilinear")  # scipy's own choice
+    best, n = None, A.shape[0]
+    plain = _lyapunov_once(A, S, "direct" if n < 10 else "bilinear")  # scipy's own choice
     if hint is None and plain is not None:
         # the common case costs one solve: a well conditioned positive definite answer with a small residual
         eig = np.linalg.eigvalsh(plain)
         if eig[0] > 0 and eig[-1] <= LYAPUNOV_CONDITION * eig[0] and _lyapunov_residual(A, plain, S) <= 1e-13:
             return plain
-    firsts = [hint] if hint is not None else []
-    firsts += [plain if A.shape[0] < 10 else _lyapunov_once(A, S, "direct"),
-               _lyapunov_once(A, S, "bilinear") if A.shape[0] < 10 else plain]
+    # scipy's two methods (the Kronecker form only while it is cheap, KRONECKER_MAX_N)
+    plains = [plain, _lyapunov_once(A, S, "bilinear")] if n < 10 else \
+        [_lyapunov_once(A, S, "direct"), plain] if n <= KRONECKER_MAX_N else [plain]
+    firsts = ([hint] if hint is not None else []) + plains
     for P in firsts:
         if P is None:
             continue
-        for _ in range(3):  # the first candidate itself, then two re-solves in its coordinates
+        for step in range(3):  # the first candidate itself, then two re-solves in its coordinates
             try:
                 L = np.linalg.cholesky(0.5 * (P + P.T))
             except np.linalg.LinAlgError:
@@ -421,15 +425,17 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
             residual = _lyapunov_residual(A, P, S)
             if best is None or residual < best[0]:
                 best = (residual, P)
+            if step == 2:  # (a third re-solve would never be looked at)
+                break
             At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T  # L' A L^-T
             St = scipy.linalg.solve_triangular(L, scipy.linalg.solve_triangular(L, S, lower=True).T, lower=True)
-            Pt = _lyapunov_once(At, 0.5 * (St + St.T), "direct" if A.shape[0] < 10 else "bilinear")
+            Pt = _lyapunov_once(At, 0.5 * (St + St.T), "direct" if n < 10 else "bilinear")
             if Pt is None:
                 break
             P = L @ Pt @ L.T
             P = 0.5 * (P + P.T)
     if best is None:  # no positive definite approximation (S singular): the plain answer of least residual
-        for P in firsts[len(firsts) - 2:]:
+        for P in plains:
             if P is None:
                 continue
             residual = _lyapunov_residual(A, P, S)
@@ -443,6 +449,23 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
 def _trace(P, weight):
     """``trace P`` or ``sum_i weight_i P_ii`` (a trace in other coordinates, :mod:`solver.scaling`)."""
     return float(np.trace(P)) if weight is None else float(np.sum(weight * np.diagonal(P)))
+
+
+def _upper_value(P, weight, x0) -> float:
+    """The certified bound of ``P``: ``trace P`` (weighted) or ``x0' P x0``, rounded upwards.
+
+    The float64 sum of k products is within ``k eps`` of the sum of the absolute terms (Higham, Accuracy and
+    Stability, §3.1), so that much is added: the reported number is never below the exact value of ``P``'s."""
+    eps = np.finfo(float).eps
+    if x0 is None:
+        value = _trace(P, weight)
+        terms = _trace(np.abs(P), None if weight is None else np.abs(weight))
+        k = P.shape[0]
+    else:
+        value = float(x0 @ P @ x0)
+        terms = float(np.abs(x0) @ np.abs(P) @ np.abs(x0))
+        k = 2 * P.shape[0]
+    return float(np.nextafter(value + 1.01 * (k + 1) * eps * terms, np.inf))
 
 
 def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight: np.ndarray | None = None):
@@ -473,11 +496,11 @@ def certify_cost(P0: np.ndarray, data: list[dict], x0: np.ndarray | None, weight
         ok, worst_here = check_cost(P, data)
         worst = min(worst, worst_here)  # the closest to passing, for the message
         if ok:
-            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), ""
+            return P, _upper_value(P, weight, x0), ""
         if (worst_here < 0 or factor == 1.0) and P0.shape[0] <= EXACT_COST_MAX_N and check_cost_exact(P, data):
             # (where float64 sees the inequality hold within its allowance, and for P0 itself: a caller's P lifted
             # on purpose, whose slack float64 may not even see)
-            return P, float(_trace(P, weight) if x0 is None else x0 @ P @ x0), "exact re-check of P"
+            return P, _upper_value(P, weight, x0), "exact re-check of P"
     return None, None, ("no multiple of the solver's P passes the float64 re-check "
                         f"(worst relative eigenvalue {worst:.3g})")
 
@@ -595,7 +618,7 @@ def certify_hinf(P0: np.ndarray, data: list[dict]):
                 ok = exact = check_hinf_exact(P, gb, data)  # the float64 allowance cannot decide (§8.4): exactly
             if ok:
                 if best[1] is None or np.sqrt(gb) < best[1]:
-                    best = (P, float(np.sqrt(gb)))
+                    best = (P, float(np.nextafter(np.sqrt(gb), np.inf)))  # sqrt rounds to nearest: never below
                     how = "exact re-check of P" if exact else ""
                 break
             reason = f"the bounded-real re-check fails (worst relative eigenvalue {worst:.3g})"
@@ -626,7 +649,9 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
                     x0: np.ndarray | None = None):
     """Largest ``{x : x' (c X) x <= 1}`` in which every buffered input meets the limits, re-checked.
 
-    Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe): then the set is invariant at
+    Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe with the allowance sized by
+    ``|A_s|' |X| |A_s|``; where that cannot decide and n <= :data:`EXACT_COST_MAX_N`, in exact arithmetic on the
+    returned matrix, :func:`check_cost_exact`): then the set is invariant at
     packet times and every input ``K_q x(i_m)`` has ``|(K_q)_j x| <= sqrt((K_q)_j X^{-1} (K_q)_j') / sqrt(c)``.
     ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``.
     """
@@ -634,11 +659,16 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     eigX = np.linalg.eigvalsh(X)
     if eigX[0] <= 0:
         return None, "the candidate ellipsoid matrix is not positive definite"
+    undecided = []  # modes float64 cannot decide: re-checked in exact arithmetic on the final matrix (small n)
     for s, As in enumerate(A):
         APA = As.T @ X @ As
-        size = np.linalg.norm(APA, 2) + eigX[-1]
+        # the product's rounding is relative to |A|'|X||A|, not to A'XA (far-from-normal loops: 1e6 apart)
+        absA = np.abs(As)
+        size = np.linalg.norm(absA.T @ np.abs(X) @ absA, 2) + eigX[-1]
         if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -_allowance(X.shape[0]):
-            return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
+            if X.shape[0] > EXACT_COST_MAX_N:
+                return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
+            undecided.append(s)
     rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
     need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
@@ -648,6 +678,8 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     Xc = c * X
     if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
         Xc = c * (1 + 1e-9) * X  # rounding of the solve
+    if undecided and not check_cost_exact(Xc, [{"A": A[s], "S": np.zeros_like(Xc)} for s in undecided]):
+        return None, f"the ellipsoid is not shown invariant for mode {undecided[0]} (float64 and exact re-checks)"
     if x0 is not None and x0 @ Xc @ x0 > 1:
         return None, f"x0 lies outside the certified set (x0' X x0 = {x0 @ Xc @ x0:.6g} > 1)"
     return Xc, ""
@@ -1489,16 +1521,20 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     """
     data = lifted.numeric(gains)
     P = upper = None
-    reason = ""
+    reason, how = "", ""  # why nothing passed so far; what certified the accepted P (certify_* name it)
     certify = (lambda Pc: certify_cost(Pc, data, x0, weight)) if kind == "cost" else (lambda Pc: certify_hinf(Pc, data))
     if P0 is not None and np.all(np.isfinite(P0)):
-        P, upper, reason = certify(P0)
+        P, upper, why = certify(P0)
+        reason, how = (why, "") if P is None else ("", why)
     if P is None:
         try:
             P, upper, why = fixed_gain_cost(data, x0, solver, weight) if kind == "cost" else fixed_gain_hinf(data, solver)
         except SolverFailed as err:
             P, upper, why = None, None, str(err)
-        reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+        if P is None:
+            reason = why if not reason else f"{reason}; fixed-gain LMI: {why}"
+        else:
+            how = why
     if P is None and kind == "cost" and len(data) == 1 and data[0]["A"].shape[0] <= EXACT_COST_MAX_N and \
             np.all(np.isfinite(data[0]["A"])) and np.max(np.abs(np.linalg.eigvals(data[0]["A"]))) < 1:
         # one LTI loop whose P spans too much for the LMI and the float64 re-check (§8.5): its own cost matrix,
@@ -1506,9 +1542,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         try:
             X = lyapunov(data[0]["A"], _sym(data[0]["S"]))
             for eps in (1e-12, 1e-10, 1e-8, 1e-6):
-                Pc, uc, how = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
+                Pc, uc, why = certify_cost(lyapunov(data[0]["A"], _sym(data[0]["S"]) + eps * X, X), data, x0, weight)
                 if Pc is not None:
-                    P, upper, reason = Pc, uc, how or "the loop's Lyapunov solution"
+                    P, upper, how = Pc, uc, why or "the loop's Lyapunov solution"
                     break
         except np.linalg.LinAlgError:
             pass
@@ -1523,9 +1559,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
             X = bounded_real_riccati(data[0], lower * (1 + delta))
             if X is None:
                 continue
-            Pc, gc, how = certify_hinf(X, data)
+            Pc, gc, why = certify_hinf(X, data)
             if Pc is not None and (upper is None or gc < upper):
-                P, upper, reason = Pc, gc, how or "bounded-real Riccati solution"
+                P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
                 break
     quadratic, tree = upper, ""
     if P is not None and found.bound is not None and found.bound < upper:
@@ -1538,7 +1574,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         reason = f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     if P is not None:
-        message = f"{what} certified <= {upper:.6g} ({tree or reason or 'float64 re-check of P'})"
+        message = f"{what} certified <= {upper:.6g} ({tree or how or 'float64 re-check of P'})"
     else:
         message = f"no certified upper bound: {reason}"
     if lower is not None:

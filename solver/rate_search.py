@@ -27,8 +27,8 @@ import math
 import numpy as np
 from scipy.optimize import brentq
 
-__all__ = ["margin_model", "model_root", "network_margin_model", "next_rate", "path_search", "rate_measure",
-           "rate_shift"]
+__all__ = ["carry_multipliers", "margin_model", "model_root", "network_margin_model", "next_rate", "path_search",
+           "rate_measure", "rate_shift"]
 
 #: Rates below this are not searched (``c_s = lambda^(-eta_s)`` would overflow the conditioning).
 MIN_RATE = 1e-4
@@ -78,6 +78,41 @@ def rate_midpoint(lo: float, hi: float, settling: bool) -> float:
         s_hi, s_lo = -math.log(min(hi, 1 - 1e-9)), -math.log(max(lo, MIN_RATE))
         return math.exp(-math.sqrt(s_hi * s_lo))
     return 0.5 * (lo + hi)
+
+
+def carry_multipliers(X: np.ndarray, eta: np.ndarray, lam: float, new: float) -> np.ndarray | None:
+    """The multipliers ``X`` of rate ``lam`` carried to rate ``new`` (docs/design.md §3.2.1, "Probes start warm").
+
+    The off-diagonal blocks are multiplied by ``c_s / c'_s = (new / lam)^eta_s``, which keeps ``A^*(X)`` and
+    ``<C, X>`` (§3.2.2): a primal-feasible ``X`` at ``lam`` stays primal feasible at ``new``, so a warm start
+    blended with ``I / N`` (primal feasible at every rate) starts with the old solve's residual instead of the
+    change of data's (0.03-0.1 measured: the sign rule's ``1e-8`` then took most of a refuted probe's iterations).
+
+    Parameters
+    ----------
+    X : ndarray, shape (S, 2n, 2n)
+        The multipliers of rate ``lam`` (:func:`solver.ipm.problems.lmi_problem`'s block order).
+    eta : ndarray, shape (S,)
+    lam, new : float
+
+    Returns
+    -------
+    ndarray or None
+        None when a scaled block is not positive semidefinite (up in rate, beyond
+        :func:`solver.ipm.rate_path.refuted_rate`): the caller keeps ``X`` as it is.
+    """
+    X = np.array(X, dtype=np.float64)
+    if X.ndim != 3 or X.shape[1] != X.shape[2] or X.shape[1] % 2 or X.shape[0] != np.size(eta):
+        return None
+    n = X.shape[1] // 2
+    r = (float(new) / float(lam)) ** np.asarray(eta, dtype=np.float64)
+    X[:, n:, :n] *= r[:, None, None]
+    X[:, :n, n:] *= r[:, None, None]
+    if np.any(r > 1.0):
+        floor = 1e-12 * float(np.abs(X).max())
+        if float(np.linalg.eigvalsh(X[r > 1.0])[:, 0].min()) < -floor:
+            return None
+    return X
 
 
 #: :func:`next_rate` raises a rate to certify to the tolerance's end above ``lo`` when it lies below that end

@@ -373,7 +373,8 @@ class DesignResult(_Open):
                                                                 "for stability, not sufficient).")
     history: list[IterationRecord] | None = Field(None, description="One record per solver iteration.")
     iterations: int | None = Field(None, description="Iterations after the start (0 for one-shot methods).")
-    solver: str | None = Field(None, description="Conic solver used (`IPM`, `CLARABEL`, `SCS`).")
+    solver: str | None = Field(None, description="Solver that produced the gains: `IPM`, `CLARABEL`, `SCS`, or "
+                               "`scipy` (the one-mode Riccati refinement, solver_status `riccati`).")
     solver_status: str | None = Field(None, description="Status of the last conic solve.")
     timings: Timings | None = Field(None, description="Where the time went (s).")
     message: str | None = Field(None, description="The outcome in words.")

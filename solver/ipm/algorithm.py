@@ -50,7 +50,9 @@ class IPMOptions:
         status ``"feasible"`` at the first iterate with ``t > 0`` and ``t`` at least half the upper bound
         ``<C, X>`` (primal residual below 1e-6), ``"infeasible"`` at the first with ``<C, X> < 0``, the
         lower bound within half of it and the primal residual below ``feas_tol`` (the multipliers then are
-        a Farkas candidate, re-checked by the caller).
+        a Farkas candidate, re-checked by the caller).  A float ``r`` in (0, 1] instead of True: ``t`` at least
+        ``r`` times the upper bound for ``"feasible"`` (``decay_rate="auto"``'s final design: a margin within
+        ``1 - r`` of the optimum, docs/design.md §3.5).
     """
 
     gap_tol: float = 1e-8
@@ -63,7 +65,7 @@ class IPMOptions:
     objective_max_iter: int | None = None
     dense: bool | None = None
     threads: int | None = 1
-    sign_only: bool = False
+    sign_only: bool | float = False
     #: The max-t form's data may change between iterations (the rate-following path, docs/design.md §3.2.2):
     #: ``retarget(y, X, S, upper, t, primal_residual)`` is called at every iterate before the stopping rules
     #: and returns None (go on), ``"stop"`` (status ``"stopped"``, this iterate returned) or new data
@@ -455,7 +457,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             status = "feasible"
             break
         if o.sign_only and offset is None:
-            if dobj > 0.0 and rp < 1e-6 and dobj >= 0.5 * pobj:
+            if dobj > 0.0 and rp < 1e-6 and dobj >= (0.5 if o.sign_only is True else o.sign_only) * pobj:
                 best, status = (score, it, y, X, rp, gap, pobj), "feasible"
                 break
             if pobj < 0.0 and rp < o.feas_tol and dobj >= 2.0 * pobj:

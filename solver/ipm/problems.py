@@ -349,7 +349,7 @@ def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> L
 
 # ----------------------------------------------------------------------------- the design methods' hook
 def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None,
-                 sign_only: bool = False, start: WarmStart | None = None):
+                 sign_only: bool | float = False, start: WarmStart | None = None):
     """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
 
     The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.

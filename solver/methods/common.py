@@ -27,8 +27,9 @@ class DesignOptions:
     callback: Callable | None = None
     ccl_start: str = "feasibility"
     decay_rate: float | None = None
-    #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only).
-    sign_only: bool = False
+    #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only); a float in (0, 1]:
+    #: stops at the first margin at least that share of the dual bound (:attr:`solver.ipm.IPMOptions.sign_only`).
+    sign_only: bool | float = False
     #: The rate search's warm start for the lmi SDP on the IPM (a :class:`solver.ipm.WarmStart`).
     warm_start: object | None = None
     #: The memory budget (bytes) of the ``"AUTO"`` fallback to Clarabel (:func:`solver.compiled.clarabel_fits`).

@@ -77,7 +77,7 @@ def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
 
 
 def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
-              clock=None, sign_only: bool = False, start=None) -> DesignSdpSolution:
+              clock=None, sign_only: bool | float = False, start=None) -> DesignSdpSolution:
     """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
 
     Parameters
@@ -105,7 +105,7 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
 
 
 def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | None,
-            sign_only: bool = False, start=None) -> DesignSdpSolution:
+            sign_only: bool | float = False, start=None) -> DesignSdpSolution:
     """The congruent SDP of ``kind`` ("lmi" or "switched") solved by :func:`solver.ipm.design_solve`."""
     values = plant_values(modes, scale)
     S, n, m, J = modes.n_modes, modes.n_states, modes.n_inputs, modes.n_free_gains

@@ -699,7 +699,11 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         return _no_design(lifted, options, clock, objective, f"the {objective} SDP is reported infeasible by "
                           f"{info.solver} ({info.status})", info, x0, u_max)
     if Wv is not None:
-        candidates.append(_evaluate(lifted, objective, x0, u_max, options, clock, info, Wv, Yv, extra, trace_weight))
+        try:  # the stability re-check's own LMI may fail: that loses this candidate, not the run (Clarabel, Riccati)
+            candidates.append(_evaluate(lifted, objective, x0, u_max, options, clock, info, Wv, Yv, extra,
+                                        trace_weight))
+        except SolverFailed as err:
+            failures.append(f"the re-check of the SDP's gains: {err}")
     if name == "AUTO" and not _good(candidates[-1] if candidates else None, u_max) and (
             info is None or info.solver == "IPM") and \
             compiled.clarabel_fits("lmi", modes.n_states, modes.n_inputs, modes.n_plants, modes.n_drop,
@@ -759,9 +763,12 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                 continue
             # kept unless its bound is clearly worse: the SDP's own bound is flat at the optimum (the bus
             # suspension, Q = I: equal to 2e-10 with gains 1e-4 apart), the refinement's gains are the Riccati ones
-            if best is None or (_score(c, u_max)[:3] >= _score(best, u_max)[:3] and (
-                    not _score(best, u_max)[2] or best["performance"] is None or
-                    c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8))):
+            # (bounds compared only between equal scores: a better score wins whatever the bound, as in max above,
+            # and an unverified bracket has no bound to compare)
+            if best is None or _score(c, u_max)[:3] > _score(best, u_max)[:3] or (
+                    _score(c, u_max)[:3] == _score(best, u_max)[:3] and (
+                        not _score(best, u_max)[2] or best["performance"] is None or
+                        c["performance"].certificate_upper <= best["performance"].certificate_upper * (1 + 1e-8))):
                 best = c
                 best["refined"] = origin
             if _good(best, u_max):

@@ -482,3 +482,76 @@ def test_no_certified_bracket_is_not_stabilized(monkeypatch):
     monkeypatch.setattr(network_performance, "bracket", unverified(network_performance.bracket))
     res = design(fam, network=Network.weakly_hard(1, 3, 3), objective="cost")
     assert res.outcome == "not_converged" and res.gains is not None and "no certified cost bound" in res.message
+
+
+def test_a_certified_bound_names_what_certified_it_not_an_earlier_failure():
+    """A candidate P that fails its re-check, then the fixed-gain LMI's P that passes: the message's reason for the
+    certified level is the re-check that passed, not the first candidate's failure (docs/design.md §8.4)."""
+    F, G = np.array([[1.1, 0.2], [0.0, 0.8]]), np.array([[1.0], [0.5]])
+    fam = PlantFamily(F=F[None], G=G[None], sampling_period=0.1)
+    E = np.ones((2, 1))
+    gains = np.array([[[-0.8, -0.3]]])  # stabilizing: spectral radius of F + G K below 1
+    assert np.max(np.abs(np.linalg.eigvals(F + G @ gains[0]))) < 1
+    lifted = lift_modes(ModeSet.from_family(fam, 1), None, E, None)
+    perf = bracket(lifted, gains, "hinf", P0=1e-6 * np.eye(2))  # A'PA - P + C'C >= C'C: not negative definite
+    assert perf.verified
+    certified = perf.message.split("; worst periodic pattern")[0]
+    assert certified.startswith("l2 gain certified <= ")
+    assert "not negative definite" not in certified and "fixed-gain LMI:" not in certified, perf.message
+
+
+def test_invariance_of_a_far_from_normal_loop_is_decided_exactly_where_float64_cannot(monkeypatch):
+    # A = T diag(1 - 1e-8, 0.5, 0.3) T^-1 with T spanning 1e3, X = T^-T T^-1: A'XA - X <= 0 holds with a margin of
+    # 1e-8 in X's metric, far below the rounding of A'XA, which is relative to |A|'|X||A| (1e6 times |A'XA| here)
+    import solver.brackets as brackets
+    from fractions import Fraction
+
+    rng = np.random.default_rng(0)
+    T = np.eye(3) + 1e3 * np.triu(rng.standard_normal((3, 3)), 1)
+    Ti = np.linalg.inv(T)
+    A = T @ np.diag([1 - 1e-8, 0.5, 0.3]) @ Ti
+    X = 0.5 * (Ti.T @ Ti + (Ti.T @ Ti).T)
+    K = np.array([[[1.0, 0.0, 0.0]]])
+    Xc, reason = brackets.check_invariant(X, A[None], K, np.array([1.0]))
+    assert Xc is not None, reason
+    # reference: the leading principal minors of Xc - A'XcA in exact rationals (Sylvester, on the float64 numbers)
+    q = [[Fraction(float(v)) for v in row] for row in Xc]
+    a = [[Fraction(float(v)) for v in row] for row in A]
+    D = [[q[i][j] - sum(a[k][i] * q[k][l] * a[l][j] for k in range(3) for l in range(3)) for j in range(3)]
+         for i in range(3)]
+    assert D[0][0] >= 0 and D[0][0] * D[1][1] - D[0][1] * D[1][0] >= 0
+    # (a semidefinite 3x3 needs every principal minor >= 0; the full determinant and the other 2x2 minors)
+    det = (D[0][0] * (D[1][1] * D[2][2] - D[1][2] * D[2][1]) - D[0][1] * (D[1][0] * D[2][2] - D[1][2] * D[2][0])
+           + D[0][2] * (D[1][0] * D[2][1] - D[1][1] * D[2][0]))
+    assert det >= 0 and D[1][1] * D[2][2] - D[1][2] ** 2 >= 0 and D[0][0] * D[2][2] - D[0][2] ** 2 >= 0
+    # float64 alone cannot decide it: without the exact re-check the set is not shown invariant
+    monkeypatch.setattr(brackets, "EXACT_COST_MAX_N", 0)
+    assert brackets.check_invariant(X, A[None], K, np.array([1.0]))[0] is None
+
+
+def test_a_certified_cost_bound_is_never_below_its_certificates_exact_value():
+    # the reported number is trace P or x0' P x0 of the certified P, rounded upwards (a float64 sum may round down)
+    from fractions import Fraction
+
+    from solver.brackets import certify_cost
+
+    below = 0
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        n = 4
+        A = 0.3 * rng.standard_normal((n, n))
+        S = np.eye(n) + 0.1 * np.diag(rng.uniform(size=n))
+        P0 = scipy.linalg.solve_discrete_lyapunov(A.T, S) * (1 + 1e-6)
+        x0 = rng.standard_normal(n) * np.array([1e-3, 1.0, 1e3, 1.0])
+        for start in (None, x0):
+            P, bound, _ = certify_cost(P0, [{"A": A, "S": S}], start)
+            assert P is not None
+            q = [[Fraction(float(v)) for v in row] for row in P]
+            if start is None:
+                exact = sum(q[i][i] for i in range(n))
+            else:
+                xq = [Fraction(float(v)) for v in start]
+                exact = sum(xq[i] * q[i][j] * xq[j] for i in range(n) for j in range(n))
+            assert Fraction(bound) >= exact
+            below += Fraction(float(np.trace(P)) if start is None else float(start @ P @ start)) < exact
+    assert below > 0  # the plain float64 value was below the exact one somewhere: the rounding matters

@@ -316,3 +316,86 @@ def test_cost_design_stabilizes_whenever_the_plain_design_does_on_a_nearly_unrea
         assert perf.verified and perf.lower <= perf.upper
         if x0 is None:  # a bound on these gains' cost, never below the optimum (to the loop's rounding, 1e-6)
             assert perf.upper >= reference * (1 - 1e-6)
+
+
+def test_lyapunov_of_a_larger_loop_skips_the_kronecker_form(monkeypatch):
+    """``brackets.lyapunov`` beyond scipy's own switch (n >= 10): the Kronecker form is an n^2 x n^2 solve (n = 60:
+    ~1 s and 100 MB per call, called in every Hewer step of the Riccati refinement), so it is tried only up to
+    ``KRONECKER_MAX_N``; the answer still matches the Kronecker system solved here (independent of solver/)."""
+    from solver import brackets
+
+    n = 24  # above KRONECKER_MAX_N (576 x 576 for the reference below)
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(n, n))
+    A *= 0.9 / np.max(np.abs(np.linalg.eigvals(A)))
+    S = np.diag(np.r_[1.0, np.zeros(n - 1)])  # singular weight: an ill-conditioned P, the refining path
+    ref = np.linalg.solve(np.eye(n * n) - np.kron(A.T, A.T), S.reshape(-1)).reshape(n, n)
+    real, calls = scipy.linalg.solve_discrete_lyapunov, []
+
+    def recording(a, q, method=None):
+        calls.append((a.shape[0], method))
+        return real(a, q, method=method)
+
+    monkeypatch.setattr(brackets.scipy.linalg, "solve_discrete_lyapunov", recording)
+    for hint in (None, ref + 1e-3 * np.eye(n)):
+        X = brackets.lyapunov(A, S, hint)
+        assert np.allclose(X, ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref)))
+    assert calls and all(method != "direct" for _, method in calls), calls
+
+
+def _loop_cost_mp(F, G, K, x0, dps: int = 50) -> float:
+    """x0' P x0 of the loop F + G K (Q = I, R = I) in exact-input mpmath at ``dps`` digits (Kronecker form)."""
+    import mpmath as mp
+
+    mp.mp.dps = dps
+    n = F.shape[0]
+    A = mp.matrix(F.tolist()) + mp.matrix(G.tolist()) * mp.matrix(K.tolist())
+    S = mp.eye(n) + mp.matrix(K.tolist()).T * mp.matrix(K.tolist())
+    M = mp.matrix(n * n, n * n)
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for l in range(n):
+                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
+    v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
+    return float(sum(x0[i] * v[i * n + j] * x0[j] for i in range(n) for j in range(n)))
+
+
+def test_a_refined_candidate_without_bracket_beside_one_without_stability_certificate_is_compared():
+    # seed 5, coupling 3e-5, x0 along the cost matrix's least eigenvector (P spans 6e8): the refinement met a best
+    # candidate with a bracket but no stability certificate while its own had the reverse, and comparing their
+    # bounds raised TypeError (None <= float) out of design()
+    F, G = _rotated_unreachable(5, 3e-5)
+    x0 = np.array([0.6214131415991963, -0.47946310771732503, 0.6179355135749156, -0.04600583494262613])
+    res = design(PlantFamily(F=F[None], G=G[None], sampling_period=0.1), 1, decay_rate=None, objective="cost",
+                 x0=x0)
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    true = _loop_cost_mp(F, G, np.asarray(res.gains[0]), x0)  # these gains' own cost from x0
+    assert true * (1 - 1e-9) <= perf.upper <= true * (1 + 1e-6)
+
+
+def test_a_failed_stability_recheck_of_the_sdp_gains_leaves_the_riccati_refinement(monkeypatch):
+    # the stability re-check's LMI raising SolverFailed on the SDP's gains (seen: IPM 'numerical_error' on the
+    # plant above) ended the whole cost design as "not_converged"; the Riccati refinement still certifies
+    from solver.errors import SolverFailed
+    from solver.methods import performance
+
+    F, G = _rotated_unreachable(0, 1.0)  # a well reachable plant
+    n, m = G.shape
+    real, calls = performance.certify_gains, []
+
+    def first_fails(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise SolverFailed("IPM ended with status 'numerical_error' after 16 iterations", status="numerical_error")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(performance, "certify_gains", first_fails)
+    res = design(PlantFamily(F=F[None], G=G[None], sampling_period=0.1), 1, decay_rate=None, objective="cost")
+    assert res.outcome == "stabilized", res.message
+    P = scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m))
+    assert res.performance.verified
+    assert res.performance.upper == pytest.approx(np.trace(P), rel=1e-6)
+    assert res.performance.upper >= np.trace(P) * (1 - 1e-9)
