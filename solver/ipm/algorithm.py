@@ -138,6 +138,10 @@ REFINE_STEPS = 4
 #: ... of the predictor's (only its step lengths and ``dX dS`` enter the corrector, whose own refinement keeps
 #: ``adj(dX) = r_p``).
 PREDICTOR_REFINE = 0
+#: ... in problems whose blocks' sides sum to at least this (``sum_b k_b``; n = 12, n_drop = 10 cost: 2574): small
+#: ones, where the refinement costs little, keep it (a one-mode loop whose P spans 6e8, ``sum_b k_b`` 27, lost its
+#: certified bracket without it: tests/solver/test_performance_scaling.py).
+PREDICTOR_REFINE_FROM = 500
 #: ... until the direction's error in ``adj(dX) = r_p`` is below this fraction of ``|r_p|``.
 REFINE_TO = 0.1
 _potrf = scipy.linalg.lapack.dpotrf
@@ -555,7 +559,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         XEG = None if E is None else [x @ e @ g for x, e, g in zip(X, E, G)]
         hb = b if E is None else b + adj([0.5 * (w + w.transpose(0, 2, 1)) for w in XEG])
         hb = np.where(dead, 0.0, hb) if anydead else hb
-        dy, dS, dX = direction(hb, [-x for x in X], PREDICTOR_REFINE)
+        dy, dS, dX = direction(hb, [-x for x in X], PREDICTOR_REFINE if N >= PREDICTOR_REFINE_FROM else REFINE_STEPS)
         t3 = perf()
         ap, ad = step_lengths(dX, dS, 1.0, 0.1)
         tim["line_search"] += perf() - t3
