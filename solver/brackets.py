@@ -925,22 +925,24 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     systems = []
     for pos, idx in periodic.group_by_length(pats).values():
         sys = periodic.period_stack(arrays, idx, kind)
-        rho = periodic.spectral_radius(sys["Phi"])
-        bad = ~(rho < 1)
-        unstable[pos] = bad
         if kind == "cost":
+            # the Stein sums first: a converged one proves its period stable, eigenvalues only for the rest
+            Pp, good, done = periodic.stein_screened(sys["Phi"], sys["S"])
+            bad = ~good
+            unstable[pos] = bad
             costly = np.any(sys["S"] != 0, axis=(1, 2))
             approx[pos[bad & costly]] = np.inf
-            good = ~bad
             if np.any(good):
-                Pp, done = periodic.stein_doubling(sys["Phi"][good], sys["S"][good])
+                Pp, done = Pp[good], done[good]
                 vals = (np.einsum("i,pii->p", np.ones(Pp.shape[-1]) if weight is None else weight, Pp) if x0 is None
                         else np.einsum("i,pij,j->p", x0, Pp, x0))
                 vals[~done] = np.inf  # radius within rounding of 1: re-evaluated exactly below if it matters
                 approx[pos[good]] = vals
         else:
+            bad = ~(periodic.spectral_radius(sys["Phi"]) < 1)
+            unstable[pos] = bad
             good = ~bad
-            systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+            systems.append((pos[good], sys if good.all() else {key: v[good] for key, v in sys.items()}))
     note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
     # the certificate as coordinates for the witnesses' Lyapunov equations (small n: each costs a few more solves)
     hint = certificate if certificate is not None and certificate.ndim == 2 and \
@@ -1072,10 +1074,10 @@ def run_patterns(data: list[dict], short: list, values: np.ndarray, x0: np.ndarr
             Ai, Si = power[a][ks], cost[a][ks]  # (k, n, n)
             Phi = (power[b][ks][None, :] @ Ai[:, None]).reshape(-1, n, n)  # B^j A^i, (i, j) row-major
             S = (Si[:, None] + np.swapaxes(Ai, 1, 2)[:, None] @ cost[b][ks][None, :] @ Ai[:, None]).reshape(-1, n, n)
-            ok = periodic.spectral_radius(Phi) < 1
+            Pp, ok, done = periodic.stein_screened(Phi, S)
             if not np.any(ok):
                 continue
-            Pp, done = periodic.stein_doubling(Phi[ok], S[ok])
+            Pp, done = Pp[ok], done[ok]
             vals = (np.einsum("i,pii->p", np.ones(n) if weight is None else weight, Pp) if x0 is None
                     else np.einsum("i,pij,j->p", x0, Pp, x0))
             vals[~done] = -np.inf
@@ -1497,7 +1499,8 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     from . import periodic
 
     omega = np.linspace(0.0, np.pi, SWEEP)
-    bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems if pos.size]
+    systems = [(pos, periodic.gram_form(sys)) for pos, sys in systems if pos.size]
+    bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems]
     entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
                      key=lambda e: -e[0])
     best, start = -np.inf, 0

@@ -129,12 +129,24 @@ STALL_SCORE = 1e-4
 #: did not halve (docs/design.md §8.3.2).
 STALL_GAP = 1e-6
 STALL_FAST = 3
+#: ... and one whose best score is below STALL_TIGHT at the first iteration that does not halve it (docs/design.md
+#: §8.3.2: the second stage's last 2-3 iterations at n = 12 / 20 only raised the primal residual or took the gap
+#: from 7e-9 to 4e-9).
+STALL_TIGHT = 1e-7
 #: Iterative-refinement steps of each Newton direction against the exact operator (see ``direction``).
 REFINE_STEPS = 4
+#: ... of the predictor's (only its step lengths and ``dX dS`` enter the corrector, whose own refinement keeps
+#: ``adj(dX) = r_p``).
+PREDICTOR_REFINE = 0
+#: ... in problems whose blocks' sides sum to at least this (``sum_b k_b``; n = 12, n_drop = 10 cost: 2574): small
+#: ones, where the refinement costs little, keep it (a one-mode loop whose P spans 6e8, ``sum_b k_b`` 27, lost its
+#: certified bracket without it: tests/solver/test_performance_scaling.py).
+PREDICTOR_REFINE_FROM = 500
 #: ... until the direction's error in ``adj(dX) = r_p`` is below this fraction of ``|r_p|``.
 REFINE_TO = 0.1
 _potrf = scipy.linalg.lapack.dpotrf
 _potrs = scipy.linalg.lapack.dpotrs
+_trtri = scipy.linalg.lapack.dtrtri
 
 try:  # the gufuncs behind np.linalg, without its per-call wrapper (type checks, errstate): ~5-20 us per call saved
     from numpy.linalg import _umath_linalg as _ul
@@ -191,6 +203,22 @@ def _steps_eig(Li: np.ndarray, dZ: np.ndarray, nb: int, cap: float, rtol: float)
 #: first failed pivot) instead of with the batched gufunc (fewer calls): measured crossover 24-32, side 100
 #: 1.8x faster.
 _CHOL_LOOP_FROM = 32
+
+
+#: Block side from which :func:`_tri_inverse` inverts the Cholesky factors block by block with LAPACK's triangular
+#: inverse (a third of the general inverse's flops) instead of the batched general inverse: sides 46-95 (the cost
+#: and hinf groups of docs/design.md §8.3.1) 2.1-2.4x faster, i.e. ~5 % of an iteration.
+_TRI_INV_FROM = 32
+
+
+def _tri_inverse(L: np.ndarray) -> np.ndarray:
+    """The inverses of a stack of lower-triangular (Cholesky) factors."""
+    if L.shape[1] < _TRI_INV_FROM:
+        return _inv(L)
+    out = np.empty_like(L)
+    for i in range(L.shape[0]):
+        out[i] = _trtri(L[i], lower=1)[0]
+    return out
 
 
 def _not_definite(T: np.ndarray) -> np.ndarray:
@@ -386,7 +414,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             nb = nbs[g]
             if chol[g]:
                 Li.append(None)
-                LSi = _inv(LL[g][nb:])
+                LSi = _tri_inverse(LL[g][nb:])
             else:
                 Li.append(_inv(LL[g]))
                 LSi = Li[g][nb:]
@@ -447,6 +475,9 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             # primal residual from 5e-6 up to 4e-4 in one step at mu ~ 4e-9, and no better iterate in 8 more)
             status = "stalled"
             break
+        if E is None and offset is not None and best[0] < STALL_TIGHT and it > prog[1]:
+            status = "stalled"
+            break
         if E is None and it - best[1] >= 8 and best[0] < (STALL_SCORE if fixed_dead else 1e-6):
             # no progress for 8 iterations near the optimum: rounding floor reached (the best iterate is returned;
             # at n = 12, n_drop = 10 the cost SDP's primal residual creeps up after ~40 iterations for 60 more)
@@ -488,10 +519,10 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             break
         tim["factorization"] += perf() - t1
 
-        def direction(h, RcG):
+        def direction(h, RcG, steps=REFINE_STEPS):
             dy = solve(h)
             ne_prev, best_dir = math.inf, None
-            for refine in range(REFINE_STEPS + 1):
+            for refine in range(steps + 1):
                 dS = op(dy)
                 if E is not None:  # aim at S + dS = C + A(y + dy)
                     dS = [ds - e for ds, e in zip(dS, E)]
@@ -499,7 +530,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
                 for x, ds, g, rc in zip(X, dS, G, RcG):
                     W = rc - x @ ds @ g
                     dX.append(0.5 * (W + W.transpose(0, 2, 1)))
-                if refine == REFINE_STEPS or not fixed_dead:  # grouped problems only (the plain LMI does not need it)
+                if refine == steps or not fixed_dead:  # grouped problems only (the plain LMI does not need it)
                     break
                 # Iterative refinement on the exact operator: the step must give adj(dX) = r_p; near the optimum
                 # the Schur complement is ill-conditioned and its rounding left the primal residual growing again
@@ -528,7 +559,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
         XEG = None if E is None else [x @ e @ g for x, e, g in zip(X, E, G)]
         hb = b if E is None else b + adj([0.5 * (w + w.transpose(0, 2, 1)) for w in XEG])
         hb = np.where(dead, 0.0, hb) if anydead else hb
-        dy, dS, dX = direction(hb, [-x for x in X])
+        dy, dS, dX = direction(hb, [-x for x in X], PREDICTOR_REFINE if N >= PREDICTOR_REFINE_FROM else REFINE_STEPS)
         t3 = perf()
         ap, ad = step_lengths(dX, dS, 1.0, 0.1)
         tim["line_search"] += perf() - t3

@@ -112,3 +112,55 @@ def test_the_reported_lower_bound_is_the_witness_value(motor_data, kind):
         labels[seq] = v
     assert count >= len(pats)  # hinf: the longer patterns grown from the best ones are counted too
     assert value >= max(labels.values()) * (1 - 1e-12)
+
+
+def test_screened_stein_sums_give_the_eigenvalue_screens_verdicts():
+    # stable (down to 1 - 1e-5), marginal and unstable periods: the doubling's verdicts are the eigenvalues' ones, and
+    # the converged sums are scipy's
+    rng = np.random.default_rng(5)
+    radii = (0.1, 0.9, 0.999, 0.99999, 1.0 + 1e-9, 1.001, 1.2, 3.0)
+    Phi, S = [], []
+    for radius in radii:
+        A = rng.standard_normal((5, 5))
+        Phi.append(A * radius / np.max(np.abs(np.linalg.eigvals(A))))
+        L = rng.standard_normal((2, 5))
+        S.append(L.T @ L)
+    Phi, S = np.array(Phi), np.array(S)
+    P, stable, converged = periodic.stein_screened(Phi, S)
+    np.testing.assert_array_equal(stable, periodic.spectral_radius(Phi) < 1)
+    assert converged[:4].all() and not converged[4:].any()
+    for i in range(4):
+        ref = scipy.linalg.solve_discrete_lyapunov(Phi[i].T, S[i])
+        np.testing.assert_allclose(P[i], ref, rtol=1e-7 if i == 3 else 1e-10, atol=0)
+
+
+def test_the_gram_form_gives_the_same_sweeps_and_a_bound(motor_data):
+    _, hinf, gains = motor_data
+    data = hinf.numeric(gains)
+    arrays = periodic.mode_arrays(data)
+    pats = patterns(len(data), 3, 80, rotations=False)
+    omega = np.linspace(0.0, np.pi, 97)
+    for pos, idx in periodic.group_by_length(pats).values():
+        stack = periodic.period_stack(arrays, idx, "hinf")
+        gram = periodic.gram_form(stack)
+        assert "C" not in gram and periodic.gram_form(gram) is gram
+        np.testing.assert_allclose(periodic.sweep_gains(gram, omega), periodic.sweep_gains(stack, omega), rtol=1e-13)
+        fine = np.array([hinf_norm_lower(period_system(data, pats[p])) for p in pos])
+        assert np.all(periodic.gain_upper_bounds(gram) >= fine)
+        # the modal bound from the tall C, D themselves (the formula before the Gram form), within rounding
+        lam, V = np.linalg.eig(stack["Phi"])
+        CV = stack["C"] @ V
+        VB = np.linalg.solve(V, stack["B"].astype(complex))
+        old = (np.linalg.norm(stack["D"], 2, axis=(1, 2)) + np.sum(
+            np.linalg.norm(CV, axis=1) * np.linalg.norm(VB, axis=2) / (1 - np.abs(lam)), axis=1)) * 1.01
+        np.testing.assert_allclose(periodic.gain_upper_bounds(stack), old, rtol=1e-9)
+
+
+def test_triangular_inverses_are_the_inverses():
+    from solver.ipm.algorithm import _tri_inverse
+
+    rng = np.random.default_rng(2)
+    for k in (8, 40):
+        A = rng.standard_normal((3, k, k))
+        L = np.linalg.cholesky(A @ A.transpose(0, 2, 1) + k * np.eye(k))
+        np.testing.assert_allclose(_tri_inverse(L) @ L, np.broadcast_to(np.eye(k), L.shape), atol=1e-13)
