@@ -22,6 +22,7 @@ import itertools
 import time
 import warnings
 from dataclasses import dataclass, field
+from fractions import Fraction
 from typing import NamedTuple
 
 import cvxpy as cp
@@ -97,6 +98,13 @@ class Performance:
         The common quadratic certificate's own bound (``x0' P x0``, ``trace P`` or ``gamma``), what the design's
         SDP minimizes.  ``upper`` is the smaller of it and the prefix tree's certified bound (cost,
         docs/design.md §8.4, "Tree bound"); compare designs or solvers on this field.
+    exact_certificate : list of list of Fraction, or None
+        An exact rational certificate (n x n, user coordinates): one LTI loop (one mode, ``n_drop = 1``, n <= 8)
+        whose float64 certificate cannot reach its cost; P solves ``P = A' P A + S`` exactly for the deployed
+        loop ``A = F + G K``, ``S = Q + K' R K`` (the float64 F, G, K, Q, R taken as exact rationals), verified
+        exactly, and ``certificate_upper`` is its bound rounded up (docs/design.md §8.5).  ``certificate`` then
+        stays a float64 certificate (of a larger bound) when one passed, else it is this P's float64 rounding
+        (the message says which).  JSON: strings ``"p/q"``.
     """
 
     kind: str
@@ -111,6 +119,7 @@ class Performance:
     message: str = ""
     lead: int = 0
     certificate_upper: float | None = None
+    exact_certificate: list | None = None
 
     def __post_init__(self):
         if self.certificate_upper is None:
@@ -138,6 +147,8 @@ class Performance:
             "message": self.message,
             "lead": int(self.lead),
             "certificate_upper": num(self.certificate_upper),
+            "exact_certificate": None if self.exact_certificate is None else
+            [[str(v) for v in row] for row in self.exact_certificate],
         }
 
     @classmethod
@@ -157,7 +168,9 @@ class Performance:
                    verified=bool(data.get("verified")), gap=data.get("gap"),
                    x0=None if x0 is None else np.array(x0, dtype=np.float64), patterns=int(data.get("patterns") or 0),
                    message=data.get("message") or "", lead=int(data.get("lead") or 0),
-                   certificate_upper=data.get("certificate_upper"))
+                   certificate_upper=data.get("certificate_upper"),
+                   exact_certificate=None if data.get("exact_certificate") is None else
+                   [[Fraction(v) for v in row] for row in data["exact_certificate"]])
 
     def __getitem__(self, key: str):
         """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
@@ -210,10 +223,17 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
         data = lifted.numeric(gains)
         ok = check_cost(P, data)[0] if cost else check_hinf(P, (perf.upper * k)**2, data)[0]
         message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
+    exact_P = None
+    if perf.exact_certificate is not None:  # the same congruence, exactly (powers of two)
+        inv = [Fraction(float(v)) for v in np.tile(1.0 / scale.plain.state, len(perf.exact_certificate) //
+                                                       scale.plain.state.size)]
+        exact_P = [[v * inv[i] * inv[j] * Fraction(float(k)) for j, v in enumerate(row)]
+                   for i, row in enumerate(perf.exact_certificate)]
     return Performance(kind=perf.kind, upper=None if perf.upper is None else perf.upper * k,
                        lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
                        verified=perf.verified, x0=x0, patterns=perf.patterns, message=message, lead=perf.lead,
-                       certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k)
+                       certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k,
+                       exact_certificate=exact_P)
 
 
 def check_x0(x0, n: int) -> np.ndarray | None:
@@ -1524,6 +1544,60 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
             best = max(best, float(np.max(vals)))
 
 
+#: :func:`exact_loop_cost` solves exactly where the float64 bound is above the loop's float64 cost by this much.
+EXACT_LOOP_GAP = 1e-8
+
+
+def exact_loop_cost(lifted: Lifted, gains: np.ndarray, data: list[dict], P: np.ndarray | None, upper: float | None,
+                    how: str, x0: np.ndarray | None, weight: np.ndarray | None):
+    """The exact cost certificate of one LTI loop whose float64 certificate cannot reach its cost (docs/design.md §8.5).
+
+    One plant mode, ``n_drop = 1``, n <= :data:`EXACT_COST_MAX_N`: ``P = A' P A + S`` is solved in exact rational
+    arithmetic for ``A = F + G K``, ``S = Q + K' R K`` (the float64 numbers taken as exact,
+    :func:`solver.exact.lyapunov_exact`, verified exactly there), so its bound is the loop's cost itself.  Tried only
+    where float64 falls short: no certificate ``P``, one that needed the exact re-check (``how``), or a bound
+    ``upper`` above the loop's float64 cost by more than :data:`EXACT_LOOP_GAP`.  Returns ``(P exact, bound rounded
+    up, P rounded to float64, bound rounded down)``, else None.
+    """
+    from .exact import lyapunov_exact, rational_down, rational_up
+
+    modes = lifted.modes
+    if len(data) != 1 or getattr(modes, "n_drop", None) != 1 or getattr(modes, "F", None) is None or \
+            modes.F.shape[0] != 1 or lifted.Q is None or lifted.R is None or gains.shape[0] != 1:
+        return None
+    F, G, K = modes.F[0], modes.G[0], gains[0]
+    n = F.shape[0]
+    A, S = data[0]["A"], data[0]["S"]
+    if n > EXACT_COST_MAX_N or A.shape != (n, n) or not np.all(np.isfinite(K)) or \
+            not np.max(np.abs(np.linalg.eigvals(A))) < 1:
+        return None
+    # the bracket's loop must be this one (its float64 rounding): else the exact P would certify another system
+    if not (np.allclose(A, F + G @ K, rtol=0, atol=1e-9 * max(1.0, float(np.max(np.abs(A))))) and np.allclose(
+            S, lifted.Q + K.T @ lifted.R @ K, rtol=0, atol=1e-9 * max(1.0, float(np.max(np.abs(S)))))):
+        return None
+    if P is not None and "exact" not in how:
+        try:
+            estimate = _upper_value(lyapunov(A, _sym(S), P), weight, x0)
+        except np.linalg.LinAlgError:
+            estimate = None
+        if estimate is not None and not upper > estimate * (1 + EXACT_LOOP_GAP):
+            return None
+    Pq = lyapunov_exact(F, G, K, lifted.Q, lifted.R)
+    if Pq is None:
+        return None
+    if x0 is None:
+        w = [Fraction(1)] * n if weight is None else [Fraction(float(v)) for v in weight]
+        value = sum(w[i] * Pq[i][i] for i in range(n))
+    else:
+        xq = [Fraction(float(v)) for v in x0]
+        value = sum(xq[i] * Pq[i][j] * xq[j] for i in range(n) for j in range(n))
+    bound = rational_up(value)
+    # kept even when above ``upper``: a float64 certificate re-checked (exactly) on the loop's float64 rounding
+    # fl(F + G K) certifies that loop, whose cost differs from the deployed one's by up to 3e-5 (hold-out seed 4:
+    # 9.66780e12 against 9.66785e12, the witness 9.66788e12 above the former refused the bracket)
+    return Pq, bound, np.array([[float(v) for v in row] for row in Pq]), rational_down(value)
+
+
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
             x0: np.ndarray | None = None, solver: str = "AUTO", weight: np.ndarray | None = None) -> Performance:
     """The certified bracket of ``kind`` for given gains.
@@ -1562,9 +1636,25 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                     break
         except np.linalg.LinAlgError:
             pass
+    exact_P = exact_lower = None
+    if kind == "cost":
+        rational = exact_loop_cost(lifted, gains, data, P, upper, how, x0, weight)
+        if rational is not None:
+            exact_P, bound, Pf, exact_lower = rational
+            if P is None:
+                P, how = Pf, ("exact rational certificate (P = A'PA + S solved exactly for the loop F + G K; "
+                              "`certificate` is its float64 rounding)")
+            else:
+                how = ("exact rational certificate (P = A'PA + S solved exactly for the loop F + G K; `certificate` "
+                       "is a float64 one for its float64 rounding fl(F + G K))")
+            upper = bound
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P)
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
+    if exact_lower is not None and lower is not None and np.isfinite(lower):
+        # one loop, one allowed pattern: its cost is the exact P's value (the float64 witness of a loop whose P spans
+        # 1e13 is off by more than 1e-6, hold-out seed 9: above the exact bound)
+        lower = exact_lower
     if kind == "hinf" and len(data) == 1 and lower is not None and np.isfinite(lower) and lower > 0 and (
             upper is None or upper > lower * (1 + 1e-7)):
         # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real
@@ -1587,7 +1677,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                 P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
                 break
     quadratic, tree = upper, ""
-    if P is not None and found.bound is not None and found.bound < upper:
+    if P is not None and exact_P is None and found.bound is not None and found.bound < upper:
+        # (not on an exact certificate: the tree values the float64 loop, not the deployed one)
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
         upper = found.bound
         tree = f"{found.tree}; the quadratic certificate alone: {quadratic:.6g}"
@@ -1606,4 +1697,4 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         message += f"; {note}"
     return Performance(kind=kind, upper=upper, lower=lower, witness=witness, certificate=P,
                        verified=P is not None, x0=x0, patterns=count, message=message, lead=lead,
-                       certificate_upper=quadratic)
+                       certificate_upper=quadratic, exact_certificate=exact_P if P is not None else None)

@@ -312,3 +312,115 @@ def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray
         if not positive_definite_integer(Xs * (1 << (2 * s)) - AXA):
             return False
     return True
+
+
+def rational_up(q: Fraction) -> float:
+    """The least float64 number ``>= q`` (``float`` rounds to nearest: one step up when it fell below)."""
+    f = float(q)
+    return f if Fraction(f) >= q else float(np.nextafter(f, np.inf))
+
+
+def rational_down(q: Fraction) -> float:
+    """The largest float64 number ``<= q``."""
+    f = float(q)
+    return f if Fraction(f) <= q else float(np.nextafter(f, -np.inf))
+
+
+def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
+    """The exact solution P of ``P = A' P A + S`` for the loop ``A = F + G K``, ``S = Q + K' R K``.
+
+    F (n, n), G (n, m), K (m, n), Q (n, n), R (m, m): float64 numbers taken as exact dyadic rationals, so A and S
+    are the deployed loop and its stage cost exactly (not their float64 roundings).  The ``n(n+1)/2`` equations
+    in the entries of the symmetric P are solved over the integers (fraction-free Bareiss elimination, then
+    back substitution in Fractions); P is returned as Fractions only after ``P - A' P A - S == 0`` and
+    ``P > 0`` are verified exactly (for ``S >= 0``: P is then the exact cost matrix of the loop, and a
+    certificate of ``x' P x >= x' S x + (A x)' P (A x)``, docs/design.md §8.5).  None when the system is
+    singular (A has eigenvalues ``lambda_i lambda_j = 1``) or P is not positive definite (A not stable).
+    O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).
+    """
+    F, G, K = (np.asarray(M, dtype=np.float64) for M in (F, G, K))
+    n = F.shape[0]
+    Mi, s = closed_loop(F[None], G[None], K[None], (0,))  # A = Mi / 2^s exactly
+    Kq, Qq, Rq = fractions(K), fractions(Q), fractions(R)
+    m = len(Rq)
+    Sq = [[(Qq[i][j] + Qq[j][i]) / 2 + sum(Kq[a][i] * (Rq[a][b] + Rq[b][a]) / 2 * Kq[b][j]
+                                           for a in range(m) for b in range(m)) for j in range(n)] for i in range(n)]
+    den = 1
+    for row in Sq:
+        for v in row:
+            den = den * v.denominator // gcd(den, v.denominator)
+    M = [[int(Mi[i, j]) for j in range(n)] for i in range(n)]
+    four = 1 << (2 * s)
+    pairs = [(i, j) for i in range(n) for j in range(i, n)]
+    index = {p: k for k, p in enumerate(pairs)}
+    N = len(pairs)
+    # equation (i, j): 4^s P_ij - sum_kl M_ki M_lj P_kl = 4^s S_ij, unknowns P_kl (k <= l), times den: integers
+    rows = []
+    for (i, j) in pairs:
+        row = [0] * (N + 1)
+        row[index[(i, j)]] += four
+        for k in range(n):
+            for l in range(n):
+                c = M[k][i] * M[l][j]
+                if c:
+                    row[index[(k, l) if k <= l else (l, k)]] -= c
+        row[N] = four * int(Sq[i][j] * den)
+        rows.append(row)
+    # Bareiss forward elimination (row swaps on zero pivots), every division exact
+    prev = 1
+    for c in range(N):
+        piv = next((r for r in range(c, N) if rows[r][c] != 0), None)
+        if piv is None:
+            return None
+        rows[c], rows[piv] = rows[piv], rows[c]
+        pc = rows[c]
+        for r in range(c + 1, N):
+            rr = rows[r]
+            f = rr[c]
+            rows[r] = [0] * (c + 1) + [(rr[k] * pc[c] - f * pc[k]) // prev for k in range(c + 1, N + 1)]
+        prev = pc[c]
+    x = [Fraction(0)] * N
+    for c in range(N - 1, -1, -1):
+        x[c] = (rows[c][N] - sum(rows[c][k] * x[k] for k in range(c + 1, N))) / Fraction(rows[c][c])
+    P = [[x[index[(i, j) if i <= j else (j, i)]] / den for j in range(n)] for i in range(n)]
+    # the verification (independent of the elimination): the equation exactly, then P > 0 exactly
+    Aq = [[Fraction(M[i][j], 1 << s) for j in range(n)] for i in range(n)]
+    AP = [[sum(Aq[k][i] * P[k][j] for k in range(n)) for j in range(n)] for i in range(n)]  # A' P
+    for i in range(n):
+        for j in range(n):
+            if P[i][j] - sum(AP[i][k] * Aq[k][j] for k in range(n)) - Sq[i][j] != 0:
+                return None
+    pden = 1
+    for row in P:
+        for v in row:
+            pden = pden * v.denominator // gcd(pden, v.denominator)
+    if not positive_definite_integer([[int(v * pden) for v in row] for row in P]):
+        return None
+    return P
+
+
+def riccati_gain_exact(F, G, R, P: list[list[Fraction]]) -> np.ndarray | None:
+    """Hewer's gain update ``K = -(R + G' P G)^{-1} G' P F`` in exact arithmetic, rounded once to float64.
+
+    F (n, n), G (n, m), R (m, m) float64 taken as exact; P (n x n Fractions, e.g. :func:`lyapunov_exact`).  Where
+    P spans 1e13 the float64 products ``G' P F`` cancel to a few digits; here only the final rounding is inexact
+    (docs/design.md §8.5).  Returns (m, n), or None when ``R + G' P G`` is singular.
+    """
+    Fq, Gq, Rq = fractions(F), fractions(G), fractions(R)
+    n, m = len(Fq), len(Rq)
+    GP = [[sum(Gq[k][a] * P[k][j] for k in range(n)) for j in range(n)] for a in range(m)]  # G' P
+    H = [[Rq[a][b] + sum(GP[a][k] * Gq[k][b] for k in range(n)) for b in range(m)] for a in range(m)]
+    rhs = [[-sum(GP[a][k] * Fq[k][j] for k in range(n)) for j in range(n)] for a in range(m)]
+    aug = [H[a][:] + rhs[a][:] for a in range(m)]
+    for c in range(m):  # Gauss-Jordan on [H | -G'PF]
+        piv = next((r for r in range(c, m) if aug[r][c] != 0), None)
+        if piv is None:
+            return None
+        aug[c], aug[piv] = aug[piv], aug[c]
+        pv = aug[c][c]
+        aug[c] = [x / pv for x in aug[c]]
+        for r in range(m):
+            if r != c and aug[r][c] != 0:
+                f = aug[r][c]
+                aug[r] = [x - f * y for x, y in zip(aug[r], aug[c])]
+    return np.array([[float(v) for v in row[m:]] for row in aug])

@@ -257,6 +257,10 @@ class Performance(_Open):
         None, description="P (n x n) of the upper bound: `x'Px` bounds the cost from x (cost), or is the bounded-real "
         "storage (hinf). On a `network`: one P per node matrix (V x k x k, `form` says on which state).")
     verified: bool | None = Field(None, description="Whether `certificate` passed the float64 re-check.")
+    exact_certificate: list[list[str]] | None = Field(
+        None, description="One LTI loop (one mode, n_drop = 1, n <= 8) whose float64 certificate cannot reach its "
+        "cost: P (n x n, strings `p/q`) solving `P = A'PA + S` exactly for the loop F + G K, verified exactly; "
+        "`certificate_upper` is its bound rounded up (docs/design.md §8.5).")
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")

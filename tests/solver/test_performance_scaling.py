@@ -485,3 +485,105 @@ def test_one_mode_hinf_design_reaches_the_game_riccati_level(seed):
     assert perf.verified
     assert sweep * (1 - 1e-9) <= perf.upper <= confirmed * (1 + 1e-4), res.message
     assert sweep >= level * (1 - 1e-5)  # no gain beats the game's level (the reference's own consistency)
+
+
+def _psd_fraction(M) -> bool:
+    """Exact PSD test of a symmetric Fraction matrix: every principal minor >= 0 (Fraction determinants by
+    elimination; independent of solver/)."""
+    from fractions import Fraction
+    from itertools import combinations
+
+    def det(B):
+        B = [row[:] for row in B]
+        d, k = Fraction(1), len(B)
+        for c in range(k):
+            piv = next((r for r in range(c, k) if B[r][c] != 0), None)
+            if piv is None:
+                return Fraction(0)
+            if piv != c:
+                B[c], B[piv], d = B[piv], B[c], -d
+            d *= B[c][c]
+            for r in range(c + 1, k):
+                f = B[r][c] / B[c][c]
+                B[r] = [x - f * y for x, y in zip(B[r], B[c])]
+        return d
+
+    n = len(M)
+    return all(det([[M[i][j] for j in idx] for i in idx]) >= 0
+               for size in range(1, n + 1) for idx in combinations(range(n), size))
+
+
+@pytest.mark.parametrize("seed", [0, 4, 9, 10, 15, 24])
+def test_one_mode_cost_of_a_nearly_unreachable_mode_certified_by_an_exact_rational_p(seed):
+    # hold-out families (P spanning 1e12..1e13) whose float64 certificate could not reach the Riccati cost (main:
+    # +2.2e-3, +5.5e-5, +7.4e-6, +1.7e-4, +1.1e-4, +4.4e-6): Hewer's iteration finished in exact arithmetic and P
+    # solved exactly for the deployed loop F + G K (issue 29; docs/design.md §8.5).  Checked here against a
+    # 50-digit Riccati reference and, exactly, against the loop rebuilt from the returned gains
+    from fractions import Fraction
+
+    F, G = _holdout_unreachable(seed)
+    n, m = G.shape
+    reference = _riccati_trace_mp(F, G)
+    res = design(PlantFamily(F=F[None], G=G[None], sampling_period=0.1), 1, objective="cost")
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and "exact rational certificate" in perf.message
+    assert perf.upper == pytest.approx(reference, rel=1e-6), res.message
+    assert perf.upper >= reference * (1 - 1e-12)  # the cost of float64 gains is never below the optimum
+    # the rational P against the exact loop: P > 0, P - A'PA - (I + K'K) >= 0, and trace P <= upper
+    P = perf.exact_certificate
+    K = [[Fraction(float(v)) for v in row] for row in res.gains[0]]
+    Fq = [[Fraction(float(v)) for v in row] for row in F]
+    Gq = [[Fraction(float(v)) for v in row] for row in G]
+    A = [[Fq[i][j] + sum(Gq[i][a] * K[a][j] for a in range(m)) for j in range(n)] for i in range(n)]
+    D = [[P[i][j] - sum(A[k][i] * P[k][l] * A[l][j] for k in range(n) for l in range(n)) - int(i == j)
+          - sum(K[a][i] * K[a][j] for a in range(m)) for j in range(n)] for i in range(n)]
+    assert all(P[i][j] == P[j][i] for i in range(n) for j in range(n))
+    assert _psd_fraction(D) and _psd_fraction(P) and all(P[i][i] > 0 for i in range(n))
+    trace = sum(P[i][i] for i in range(n))
+    assert Fraction(perf.upper) >= trace and float(trace) == pytest.approx(reference, rel=1e-6)
+    assert perf.lower <= perf.upper
+    # the JSON form carries the same rational P
+    from solver.brackets import Performance
+    assert Performance.from_dict(perf.to_dict()).exact_certificate == P
+
+
+def test_exact_lyapunov_solution_against_closed_form_and_mpmath():
+    # solver.exact.lyapunov_exact: P = A'PA + S exactly for A = F + G K, S = Q + K'RK (docs/design.md §8.5)
+    from fractions import Fraction
+
+    import mpmath as mp
+
+    from solver.exact import lyapunov_exact
+
+    # closed form: K = 0, so A = F = diag(1/2, 1/4), S = I: P = diag(1 / (1 - 1/4), 1 / (1 - 1/16))
+    F = np.diag([0.5, 0.25])
+    G = np.array([[1.0], [1.0]])
+    P = lyapunov_exact(F, G, np.zeros((1, 2)), np.eye(2), np.eye(1))
+    assert P == [[Fraction(4, 3), 0], [0, Fraction(16, 15)]]
+    # a random loop: the 50-digit Kronecker solve agrees to 1e-40
+    rng = np.random.default_rng(5)
+    n, m = 4, 2
+    F = rng.normal(size=(n, n))
+    G = rng.normal(size=(n, m))
+    K = -np.linalg.solve(np.eye(m) + G.T @ scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m)) @ G,
+                         G.T @ scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m)) @ F)
+    Q = np.diag([1.0, 2.0, 0.0, 3.0])
+    P = lyapunov_exact(F, G, K, Q, np.eye(m))
+    mp.mp.dps = 50
+    A = mp.matrix(F.tolist()) + mp.matrix(G.tolist()) * mp.matrix(K.tolist())
+    Km = mp.matrix(K.tolist())
+    S = mp.matrix(Q.tolist()) + Km.T * Km
+    M = mp.matrix(n * n, n * n)
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for l in range(n):
+                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
+    v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
+    for i in range(n):
+        for j in range(n):
+            ex = mp.mpf(P[i][j].numerator) / P[i][j].denominator
+            assert abs(ex - v[i * n + j]) <= mp.mpf("1e-40") * (1 + abs(v[i * n + j]))
+    # an unstable loop has no positive definite solution
+    assert lyapunov_exact(np.diag([1.5, 0.5]), np.zeros((2, 1)), np.zeros((1, 2)), np.eye(2), np.eye(1)) is None
