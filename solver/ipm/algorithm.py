@@ -73,6 +73,9 @@ class IPMOptions:
     #: or ``(C, op, adj, schur, y, X, S)``: the slacks ``S`` (positive definite) are kept and the new data's dual
     #: residual ``S - C - op(y)`` is carried and removed by the Newton steps, as in an infeasible start.
     retarget: object | None = None
+    #: Mehrotra's centring ``sigma = (mu_aff / mu) ** sigma_power``; the hinf design's SDPs take 2 (more centring
+    #: after a short predictor step: the n = 12 hinf SDP 45 + 10 -> 35 + 7 iterations, docs/design.md §7, §8.3.2).
+    sigma_power: float = 3.0
 
 
 @dataclass(kw_only=True)
@@ -570,7 +573,7 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             dxs += float(dxf @ s.reshape(-1))
             dxds += float(dxf @ dsf)
         mu_aff = (XS + ad * xds + ap * dxs + ap * ad * dxds) / N
-        sigma = min(1.0, max(0.0, (mu_aff / mu) ** 3)) if mu > 0 else 0.0
+        sigma = min(1.0, max(0.0, (mu_aff / mu) ** o.sigma_power)) if mu > 0 else 0.0
         # Corrector: R_c = sigma mu I - X S - dX_aff dS_aff.
         RcG = [sigma * mu * g - x - dx @ ds @ g for g, x, dx, ds in zip(G, X, dX, dS)]
         h = adj(RcG if E is None else [r + 0.5 * (w + w.transpose(0, 2, 1)) for r, w in zip(RcG, XEG)]) - r_p
