@@ -326,6 +326,13 @@ def rational_down(q: Fraction) -> float:
     return f if Fraction(f) <= q else float(np.nextafter(f, -np.inf))
 
 
+#: Largest bit length of a numerator or denominator :func:`lyapunov_exact` returns: its decimal string (the JSON
+#: form ``"p/q"``, ``str`` of a Fraction) stays within Python's default limit of 4300 digits (14284 bits), past which
+#: ``str`` raises ValueError.  Float64 data of a wide exponent range reach it (subnormal entries in F or K: 4e4 bits
+#: at n = 8, and 100 s of elimination); typical loops need 500-6000 bits (docs/design.md §8.5).
+EXACT_MAX_BITS = 14000
+
+
 def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     """The exact solution P of ``P = A' P A + S`` for the loop ``A = F + G K``, ``S = Q + K' R K``.
 
@@ -335,7 +342,9 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     back substitution in Fractions); P is returned as Fractions only after ``P - A' P A - S == 0`` and
     ``P > 0`` are verified exactly (for ``S >= 0``: P is then the exact cost matrix of the loop, and a
     certificate of ``x' P x >= x' S x + (A x)' P (A x)``, docs/design.md §8.5).  None when the system is
-    singular (A has eigenvalues ``lambda_i lambda_j = 1``) or P is not positive definite (A not stable).
+    singular (A has eigenvalues ``lambda_i lambda_j = 1``), P is not positive definite (A not stable), or P's
+    numbers exceed :data:`EXACT_MAX_BITS` (then also None before the elimination when Hadamard's bound on the
+    Cramer determinants exceeds four times that: only the time is saved, the result's own size decides).
     O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).
     """
     F, G, K = (np.asarray(M, dtype=np.float64) for M in (F, G, K))
@@ -366,6 +375,10 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
                     row[index[(k, l) if k <= l else (l, k)]] -= c
         row[N] = four * int(Sq[i][j] * den)
         rows.append(row)
+    # Hadamard: every minor of the augmented system has at most N (width + log2(N + 1) / 2) bits
+    width = max(abs(v).bit_length() for row in rows for v in row)
+    if N * (width + (N + 1).bit_length()) + den.bit_length() > 4 * EXACT_MAX_BITS:
+        return None
     # Bareiss forward elimination (row swaps on zero pivots), every division exact
     prev = 1
     for c in range(N):
@@ -396,6 +409,8 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
             pden = pden * v.denominator // gcd(pden, v.denominator)
     if not positive_definite_integer([[int(v * pden) for v in row] for row in P]):
         return None
+    if max(max(v.numerator.bit_length(), v.denominator.bit_length()) for row in P for v in row) > EXACT_MAX_BITS:
+        return None  # (its "p/q" strings would exceed Python's int-to-str limit)
     return P
 
 

@@ -587,3 +587,32 @@ def test_exact_lyapunov_solution_against_closed_form_and_mpmath():
             assert abs(ex - v[i * n + j]) <= mp.mpf("1e-40") * (1 + abs(v[i * n + j]))
     # an unstable loop has no positive definite solution
     assert lyapunov_exact(np.diag([1.5, 0.5]), np.zeros((2, 1)), np.zeros((1, 2)), np.eye(2), np.eye(1)) is None
+
+
+@pytest.mark.parametrize("tiny", [1e-300, 5e-324])
+def test_the_bracket_of_given_gains_with_a_wide_exponent_range_stays_json(tiny):
+    # analyze()/bracket() take the user's gains: a loop of hold-out seed 4 (P spanning 1e13) with three more states
+    # coupled by tiny (subnormal) entries in F and K.  The exact rational P had 26000-bit numbers, and `to_dict`
+    # raised ValueError (Python's 4300-digit int-to-str limit): a 500 in the API.  Now either no exact
+    # certificate or one whose JSON strings parse back to it
+    import json
+    from fractions import Fraction
+
+    from solver.brackets import Performance, bracket
+
+    F, G = _holdout_unreachable(4)
+    n, m = G.shape
+    X = scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m))
+    K0 = -np.linalg.solve(np.eye(m) + G.T @ X @ G, G.T @ X @ F)
+    N = n + 3
+    Fa, Ga, K = np.zeros((N, N)), np.zeros((N, m)), np.zeros((m, N))
+    Fa[:n, :n], Ga[:n], K[:, :n] = F, G, K0
+    for i in range(n, N):
+        Fa[i, i], Fa[i, i - 1], Fa[i, 0] = 0.5, tiny, 0.3
+        K[:, i] = tiny * (i + 1.37)
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=Fa[None], G=Ga[None], sampling_period=0.1), 1))
+    perf = bracket(lifted, K[None], "cost")
+    data = json.loads(json.dumps(perf.to_dict()))
+    if perf.exact_certificate is not None:
+        assert [[Fraction(v) for v in row] for row in data["exact_certificate"]] == perf.exact_certificate
+    assert Performance.from_dict(data).upper == perf.upper
