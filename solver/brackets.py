@@ -84,7 +84,9 @@ class Performance:
     certificate : ndarray, shape (n, n), or None
         P (user coordinates) of the upper bound.
     verified : bool
-        Whether ``certificate`` passed the float64 re-check.
+        Whether ``upper`` is certified: ``certificate`` passed the float64 re-check (or the exact one on its float64
+        numbers), or ``exact_certificate`` is set and passed its exact check; ``certificate`` is then possibly only
+        that P's float64 rounding, which need not pass any re-check (the message says which, docs/design.md §8.5).
     gap : float or None
         ``max(0, (upper - lower) / upper)`` (0: closed to the witness's rounding).
     x0 : ndarray or None
