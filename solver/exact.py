@@ -291,8 +291,8 @@ def positive_definite_integer(B) -> bool:
     return True
 
 
-def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray, plants) -> bool:
-    """Exactly decide ``X > 0`` and ``X - A_s' X A_s > 0`` for every mode, on the float64 numbers.
+def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray, plants, shift: float = 0.0) -> bool:
+    """Exactly decide ``X > 0`` and ``X - A_s' X A_s > shift I`` for every mode, on the float64 numbers.
 
     ``A_s`` is the interval map of mode s (plant sequence ``plants[s]``) computed exactly from the float64 ``F``,
     ``G`` and gains ``K`` (:func:`closed_loop`), and ``X`` (n x n, symmetrized exactly) is taken as exact: the
@@ -306,10 +306,14 @@ def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray
     Xs = Xi + Xi.T  # 2 X, exactly symmetric: value Xs / 2^(t+1)
     if not positive_definite_integer(Xs):
         return False
+    p, q = float(shift).as_integer_ratio()  # shift = p / q exactly, q a power of two
     for seq in plants:
         Ai, s = closed_loop(F, G, K, seq)
         AXA = np.dot(np.dot(Ai.T, Xs), Ai)  # value AXA / 2^(2s+t+1)
-        if not positive_definite_integer(Xs * (1 << (2 * s)) - AXA):
+        D = (Xs * (1 << (2 * s)) - AXA) * q  # value D / (q 2^(2s+t+1)); minus shift I: p 2^(2s+t+1) off the diagonal
+        if p:
+            D = D - p * (1 << (2 * s + t + 1)) * np.eye(D.shape[0], dtype=int).astype(object)
+        if not positive_definite_integer(D):
             return False
     return True
 
