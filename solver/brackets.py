@@ -84,7 +84,9 @@ class Performance:
     certificate : ndarray, shape (n, n), or None
         P (user coordinates) of the upper bound.
     verified : bool
-        Whether ``certificate`` passed the float64 re-check.
+        Whether ``upper`` is certified: ``certificate`` passed the float64 re-check (or the exact one on its float64
+        numbers), or ``exact_certificate`` is set and passed its exact check; ``certificate`` is then possibly only
+        that P's float64 rounding, which need not pass any re-check (the message says which, docs/design.md §8.5).
     gap : float or None
         ``max(0, (upper - lower) / upper)`` (0: closed to the witness's rounding).
     x0 : ndarray or None
@@ -673,12 +675,14 @@ def bounded_real_riccati(d: dict, gamma: float, lift: np.ndarray | None = None) 
 
 
 def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.ndarray,
-                    x0: np.ndarray | None = None):
+                    x0: np.ndarray | None = None, plant: tuple | None = None):
     """Largest ``{x : x' (c X) x <= 1}`` in which every buffered input meets the limits, re-checked.
 
     Needs ``A_s' X A_s - X <= 0`` for every mode (float64, rounding-safe with the allowance sized by
-    ``|A_s|' |X| |A_s|``; where that cannot decide and n <= :data:`EXACT_COST_MAX_N`, in exact arithmetic on the
-    returned matrix, :func:`check_cost_exact`): then the set is invariant at
+    ``|A_s|' |X| |A_s|``; where that cannot decide, n <= :data:`EXACT_COST_MAX_N` and ``plant = (F, G, plants)``
+    (a :class:`solver.network.ModeSet`'s) is given, in exact arithmetic on the returned matrix and the loops rebuilt
+    exactly from F, G and ``gains``, :func:`solver.exact.closed_loop`: the float64 ``A`` is their rounding, and a
+    margin float64 cannot see is one that rounding can flip, docs/design.md §8.5): then the set is invariant at
     packet times and every input ``K_q x(i_m)`` has ``|(K_q)_j x| <= sqrt((K_q)_j X^{-1} (K_q)_j') / sqrt(c)``.
     ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``.
     """
@@ -693,7 +697,7 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
         absA = np.abs(As)
         size = np.linalg.norm(absA.T @ np.abs(X) @ absA, 2) + eigX[-1]
         if np.linalg.eigvalsh(_sym(APA - X))[-1] / size >= -_allowance(X.shape[0]):
-            if X.shape[0] > EXACT_COST_MAX_N:
+            if X.shape[0] > EXACT_COST_MAX_N or plant is None:
                 return None, f"the ellipsoid is not shown invariant for mode {s} (float64 re-check)"
             undecided.append(s)
     rows = gains.reshape(-1, gains.shape[-1])  # every (K_q)_j
@@ -705,11 +709,30 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     Xc = c * X
     if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
         Xc = c * (1 + 1e-9) * X  # rounding of the solve
-    if undecided and not check_cost_exact(Xc, [{"A": A[s], "S": np.zeros_like(Xc)} for s in undecided]):
+    if undecided and not _invariant_exact(Xc, plant, gains, undecided):
         return None, f"the ellipsoid is not shown invariant for mode {undecided[0]} (float64 and exact re-checks)"
     if x0 is not None and x0 @ Xc @ x0 > 1:
         return None, f"x0 lies outside the certified set (x0' X x0 = {x0 @ Xc @ x0:.6g} > 1)"
     return Xc, ""
+
+
+def _invariant_exact(X: np.ndarray, plant: tuple, gains: np.ndarray, modes: list) -> bool:
+    """Exactly ``X - A_s' X A_s >= 0`` for the modes ``modes``, ``A_s`` rebuilt exactly from ``plant = (F, G,
+    plants)`` and ``gains`` (:func:`solver.exact.closed_loop`), ``X`` (n x n float64, symmetrized exactly)."""
+    from .exact import closed_loop
+
+    F, G, plants = plant
+    n = X.shape[0]
+    Xq = [[Fraction(float(v)) for v in row] for row in X]
+    Xq = [[(Xq[i][j] + Xq[j][i]) / 2 for j in range(n)] for i in range(n)]
+    for s in modes:
+        Mi, e = closed_loop(F, G, gains, plants[s])
+        Aq = [[Fraction(int(Mi[i, j]), 1 << e) for j in range(n)] for i in range(n)]
+        XA = [[sum(Xq[i][k] * Aq[k][j] for k in range(n)) for j in range(n)] for i in range(n)]
+        if not _psd_exact([[Xq[i][j] - sum(Aq[k][i] * XA[k][j] for k in range(n)) for j in range(n)]
+                           for i in range(n)]):
+            return False
+    return True
 
 
 # --------------------------------------------------------------- fixed-gain upper bounds (analyze)

@@ -751,7 +751,8 @@ def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeS
     if plain.scaling and plain.scaling.get("certificate") == "scaled":  # x = T x~: X = T^-1 X~ T^-1
         t = np.asarray(plain.scaling["state"], dtype=np.float64)
         X = X / t[:, None] / t[None, :]
-    invariant, why = check_invariant(X, modes.closed_loops(plain.gains), plain.gains, u_max, x0)
+    invariant, why = check_invariant(X, modes.closed_loops(plain.gains), plain.gains, u_max, x0,
+                                     plant=None if modes.F is None else (modes.F, modes.G, modes.plants))
     if invariant is None:
         res.message += f"; the plain design's gains stabilize, but their ellipsoid is not re-checked: {why}"
         return res

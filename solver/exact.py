@@ -291,8 +291,8 @@ def positive_definite_integer(B) -> bool:
     return True
 
 
-def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray, plants) -> bool:
-    """Exactly decide ``X > 0`` and ``X - A_s' X A_s > 0`` for every mode, on the float64 numbers.
+def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray, plants, shift: float = 0.0) -> bool:
+    """Exactly decide ``X > 0`` and ``X - A_s' X A_s > shift I`` for every mode, on the float64 numbers.
 
     ``A_s`` is the interval map of mode s (plant sequence ``plants[s]``) computed exactly from the float64 ``F``,
     ``G`` and gains ``K`` (:func:`closed_loop`), and ``X`` (n x n, symmetrized exactly) is taken as exact: the
@@ -306,10 +306,14 @@ def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray
     Xs = Xi + Xi.T  # 2 X, exactly symmetric: value Xs / 2^(t+1)
     if not positive_definite_integer(Xs):
         return False
+    p, q = float(shift).as_integer_ratio()  # shift = p / q exactly, q a power of two
     for seq in plants:
         Ai, s = closed_loop(F, G, K, seq)
         AXA = np.dot(np.dot(Ai.T, Xs), Ai)  # value AXA / 2^(2s+t+1)
-        if not positive_definite_integer(Xs * (1 << (2 * s)) - AXA):
+        D = (Xs * (1 << (2 * s)) - AXA) * q  # value D / (q 2^(2s+t+1)); minus shift I: p 2^(2s+t+1) off the diagonal
+        if p:
+            D = D - p * (1 << (2 * s + t + 1)) * np.eye(D.shape[0], dtype=int).astype(object)
+        if not positive_definite_integer(D):
             return False
     return True
 
@@ -326,6 +330,13 @@ def rational_down(q: Fraction) -> float:
     return f if Fraction(f) <= q else float(np.nextafter(f, -np.inf))
 
 
+#: Largest bit length of a numerator or denominator :func:`lyapunov_exact` returns: its decimal string (the JSON
+#: form ``"p/q"``, ``str`` of a Fraction) stays within Python's default limit of 4300 digits (14284 bits), past which
+#: ``str`` raises ValueError.  Float64 data of a wide exponent range reach it (subnormal entries in F or K: 4e4 bits
+#: at n = 8, and 100 s of elimination); typical loops need 500-6000 bits (docs/design.md §8.5).
+EXACT_MAX_BITS = 14000
+
+
 def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     """The exact solution P of ``P = A' P A + S`` for the loop ``A = F + G K``, ``S = Q + K' R K``.
 
@@ -335,7 +346,9 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     back substitution in Fractions); P is returned as Fractions only after ``P - A' P A - S == 0`` and
     ``P > 0`` are verified exactly (for ``S >= 0``: P is then the exact cost matrix of the loop, and a
     certificate of ``x' P x >= x' S x + (A x)' P (A x)``, docs/design.md §8.5).  None when the system is
-    singular (A has eigenvalues ``lambda_i lambda_j = 1``) or P is not positive definite (A not stable).
+    singular (A has eigenvalues ``lambda_i lambda_j = 1``), P is not positive definite (A not stable), or P's
+    numbers exceed :data:`EXACT_MAX_BITS` (then also None before the elimination when Hadamard's bound on the
+    Cramer determinants exceeds four times that: only the time is saved, the result's own size decides).
     O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).
     """
     F, G, K = (np.asarray(M, dtype=np.float64) for M in (F, G, K))
@@ -366,6 +379,10 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
                     row[index[(k, l) if k <= l else (l, k)]] -= c
         row[N] = four * int(Sq[i][j] * den)
         rows.append(row)
+    # Hadamard: every minor of the augmented system has at most N (width + log2(N + 1) / 2) bits
+    width = max(abs(v).bit_length() for row in rows for v in row)
+    if N * (width + (N + 1).bit_length()) + den.bit_length() > 4 * EXACT_MAX_BITS:
+        return None
     # Bareiss forward elimination (row swaps on zero pivots), every division exact
     prev = 1
     for c in range(N):
@@ -396,6 +413,8 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
             pden = pden * v.denominator // gcd(pden, v.denominator)
     if not positive_definite_integer([[int(v * pden) for v in row] for row in P]):
         return None
+    if max(max(v.numerator.bit_length(), v.denominator.bit_length()) for row in P for v in row) > EXACT_MAX_BITS:
+        return None  # (its "p/q" strings would exceed Python's int-to-str limit)
     return P
 
 

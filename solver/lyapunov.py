@@ -202,18 +202,28 @@ def recheck_lifted_exact(X: np.ndarray, A: np.ndarray, F: np.ndarray, G: np.ndar
     cert.exact = True
     cert.verified = bool(X.shape[0] <= EXACT_MAX_N and lyapunov_decrease(X, F, G, gains, plants))
     if cert.verified and n_drop > 1:
-        cert.P = lift(cert.X, A, n_drop)
+        # the augmented P needs a decrease mu > 0 (its blocks a_j = mu (N - j) / N); float64 cannot see this one's
+        # (it may compute mu <= 0: P = blkdiag(X, 0, ...) is singular), so mu is one the exact check confirms
+        scale = float(np.max(np.abs(np.linalg.eigvalsh(X))))
+        mu = next((v for v in (max(cert.decrease, 0.0), *(scale * 16.0 ** -k for k in range(4, 20)))
+                   if v > 0 and lyapunov_decrease(X, F, G, gains, plants, shift=v)), None)
+        if mu is None:
+            cert.verified = False
+        else:
+            cert.P = lift(cert.X, A, n_drop, mu=mu)
     return cert
 
 
-def lift(X: np.ndarray, A: np.ndarray, n_drop: int) -> np.ndarray:
+def lift(X: np.ndarray, A: np.ndarray, n_drop: int, mu: float | None = None) -> np.ndarray:
     """Augmented ``P = blkdiag(X, a_1 I, ..., a_{N-1} I)`` from a reduced certificate X.
 
+    ``mu``: a lower bound of the decrease ``lambda_min(X - A_s' X A_s)`` (default: its float64 estimate).
     Returns a matrix even when X certifies nothing; :func:`recheck_common` decides.
     """
     n = A.shape[-1]
     X = _sym(X)
-    mu = float(np.min(np.linalg.eigvalsh(_sym(X - np.swapaxes(A, -1, -2) @ X @ A))[..., 0]))
+    if mu is None:
+        mu = float(np.min(np.linalg.eigvalsh(_sym(X - np.swapaxes(A, -1, -2) @ X @ A))[..., 0]))
     P = np.zeros((n * n_drop, n * n_drop))
     P[:n, :n] = X
     for j in range(1, n_drop):

@@ -256,7 +256,9 @@ class Performance(_Open):
     certificate: Matrix | list[Matrix] | None = Field(
         None, description="P (n x n) of the upper bound: `x'Px` bounds the cost from x (cost), or is the bounded-real "
         "storage (hinf). On a `network`: one P per node matrix (V x k x k, `form` says on which state).")
-    verified: bool | None = Field(None, description="Whether `certificate` passed the float64 re-check.")
+    verified: bool | None = Field(None, description="Whether `upper` is certified: `certificate` passed the float64 "
+                                  "re-check (or the exact one), or `exact_certificate` passed its exact check (then "
+                                  "`certificate` may be only its float64 rounding; `message` says which).")
     exact_certificate: list[list[str]] | None = Field(
         None, description="One LTI loop (one mode, n_drop = 1, n <= 8) whose float64 certificate cannot reach its "
         "cost: P (n x n, strings `p/q`) solving `P = A'PA + S` exactly for the loop F + G K, verified exactly; "

@@ -565,7 +565,8 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
         cert, A = certify_gains(modes, gains, options, clock, candidate=Winv, candidate_source=f"lmi_{objective}")
     invariant, inv_reason = None, ""
     if u_max is not None and cert is not None:
-        invariant, inv_reason = check_invariant(Winv, A, gains, u_max, x0)
+        invariant, inv_reason = check_invariant(Winv, A, gains, u_max, x0,
+                                                plant=None if modes.F is None else (modes.F, modes.G, modes.plants))
     return {"info": info, "gains": gains, "performance": performance, "cert": cert, "A": A,
             "invariant": invariant, "inv_reason": inv_reason}
 

@@ -512,7 +512,9 @@ def test_invariance_of_a_far_from_normal_loop_is_decided_exactly_where_float64_c
     A = T @ np.diag([1 - 1e-8, 0.5, 0.3]) @ Ti
     X = 0.5 * (Ti.T @ Ti + (Ti.T @ Ti).T)
     K = np.array([[[1.0, 0.0, 0.0]]])
-    Xc, reason = brackets.check_invariant(X, A[None], K, np.array([1.0]))
+    # the loop is A itself: F = A, G = 0 (the exact re-check rebuilds F + G K from them)
+    plant = (A[None], np.zeros((1, 3, 1)), ((0,),))
+    Xc, reason = brackets.check_invariant(X, A[None], K, np.array([1.0]), plant=plant)
     assert Xc is not None, reason
     # reference: the leading principal minors of Xc - A'XcA in exact rationals (Sylvester, on the float64 numbers)
     q = [[Fraction(float(v)) for v in row] for row in Xc]
@@ -526,7 +528,27 @@ def test_invariance_of_a_far_from_normal_loop_is_decided_exactly_where_float64_c
     assert det >= 0 and D[1][1] * D[2][2] - D[1][2] ** 2 >= 0 and D[0][0] * D[2][2] - D[0][2] ** 2 >= 0
     # float64 alone cannot decide it: without the exact re-check the set is not shown invariant
     monkeypatch.setattr(brackets, "EXACT_COST_MAX_N", 0)
-    assert brackets.check_invariant(X, A[None], K, np.array([1.0]))[0] is None
+    assert brackets.check_invariant(X, A[None], K, np.array([1.0]), plant=plant)[0] is None
+
+
+def test_invariance_is_decided_on_the_deployed_loop_not_its_float64_rounding():
+    # F + G K = [[0, 1 + 2^-60], [0, 0]] exactly, rounded to [[0, 1], [0, 0]]: X = I meets the rounded loop's
+    # A'XA <= X with equality (float64 cannot decide it, the exact re-check on the rounding passed it), but the
+    # deployed loop maps e2 to (1 + 2^-60) e1, outside {x'Xx <= 1} (checked here in fractions): refused
+    from fractions import Fraction
+
+    from solver.brackets import check_invariant
+
+    F, G = np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[1.0], [0.0]])
+    K = np.array([[[0.0, 2.0 ** -60]]])
+    A = (F + G @ K[0])[None]
+    assert A[0, 0, 1] == 1.0
+    a01 = Fraction(1) + Fraction(0) + Fraction(float(G[0, 0])) * Fraction(float(K[0, 0, 1]))
+    assert a01 ** 2 > 1  # the deployed loop leaves the unit ball along e2
+    Xc, reason = check_invariant(np.eye(2), A, K, np.array([1.0]), plant=(F[None], G[None], ((0,),)))
+    assert Xc is None and "not shown invariant" in reason
+    # without the plant data the undecided mode is refused as before
+    assert check_invariant(np.eye(2), A, K, np.array([1.0]))[0] is None
 
 
 def test_a_certified_cost_bound_is_never_below_its_certificates_exact_value():

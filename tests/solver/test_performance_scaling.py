@@ -587,3 +587,71 @@ def test_exact_lyapunov_solution_against_closed_form_and_mpmath():
             assert abs(ex - v[i * n + j]) <= mp.mpf("1e-40") * (1 + abs(v[i * n + j]))
     # an unstable loop has no positive definite solution
     assert lyapunov_exact(np.diag([1.5, 0.5]), np.zeros((2, 1)), np.zeros((1, 2)), np.eye(2), np.eye(1)) is None
+
+
+@pytest.mark.parametrize("tiny", [1e-300, 5e-324])
+def test_the_bracket_of_given_gains_with_a_wide_exponent_range_stays_json(tiny):
+    # analyze()/bracket() take the user's gains: a loop of hold-out seed 4 (P spanning 1e13) with three more states
+    # coupled by tiny (subnormal) entries in F and K.  The exact rational P had 26000-bit numbers, and `to_dict`
+    # raised ValueError (Python's 4300-digit int-to-str limit): a 500 in the API.  Now either no exact
+    # certificate or one whose JSON strings parse back to it
+    import json
+    from fractions import Fraction
+
+    from solver.brackets import Performance, bracket
+
+    F, G = _holdout_unreachable(4)
+    n, m = G.shape
+    X = scipy.linalg.solve_discrete_are(F, G, np.eye(n), np.eye(m))
+    K0 = -np.linalg.solve(np.eye(m) + G.T @ X @ G, G.T @ X @ F)
+    N = n + 3
+    Fa, Ga, K = np.zeros((N, N)), np.zeros((N, m)), np.zeros((m, N))
+    Fa[:n, :n], Ga[:n], K[:, :n] = F, G, K0
+    for i in range(n, N):
+        Fa[i, i], Fa[i, i - 1], Fa[i, 0] = 0.5, tiny, 0.3
+        K[:, i] = tiny * (i + 1.37)
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=Fa[None], G=Ga[None], sampling_period=0.1), 1))
+    perf = bracket(lifted, K[None], "cost")
+    data = json.loads(json.dumps(perf.to_dict()))
+    if perf.exact_certificate is not None:
+        assert [[Fraction(v) for v in row] for row in data["exact_certificate"]] == perf.exact_certificate
+    assert Performance.from_dict(data).upper == perf.upper
+
+
+def test_an_exactly_rechecked_lifted_certificate_is_positive_definite():
+    # n_drop = 2, loops 0.5 I and 0.25 I, X spanning 1e15 (rotated): the exact re-check confirms X - A'XA > 0 where
+    # float64 computes its smallest eigenvalue as 0; the augmented P = blkdiag(X, a_1 I) was then blkdiag(X, 0), a
+    # singular matrix returned as a verified Theorem 1 certificate.  Now a_1 > 0 from a decrease the exact check
+    # confirms (X - A'XA - mu I > 0 checked here in fractions, Sylvester on the 2 x 2 minors)
+    from fractions import Fraction
+
+    from solver.lyapunov import recheck_lifted_exact
+    from solver.network import ModeSet
+
+    F = np.array([[[0.5, 0.0], [0.0, 0.5]]])
+    G = np.array([[[1.0], [0.0]]])
+    modes = ModeSet.from_family(PlantFamily(F=F, G=G, sampling_period=0.1), 2)
+    K = np.zeros((2, 1, 2))
+    A = modes.closed_loops(K)
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(200):
+        th = rng.uniform(0, np.pi)
+        R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        X = R @ np.diag([10.0 ** rng.uniform(14, 16), 1.0]) @ R.T
+        X = 0.5 * (X + X.T)
+        if np.linalg.eigvalsh(X - A[0].T @ X @ A[0])[0] > 0:
+            continue  # float64 sees the decrease: not the case of this test
+        cert = recheck_lifted_exact(X, A, modes.F, modes.G, K, modes.plants, 2, "test")
+        if not cert.verified:
+            continue
+        checked += 1
+        a1 = cert.P[2, 2]
+        assert a1 > 0 and np.all(cert.P[2:, 2:] == a1 * np.eye(2)) and np.all(cert.P[:2, 2:] == 0)
+        mu = Fraction(2 * float(a1))  # a_1 = mu (N - 1) / N, N = 2
+        q = [[Fraction(float(v)) for v in row] for row in X]
+        for s in range(2):  # the loops are c I exactly (c = 1/2, 1/4): X - A'XA - mu I = (1 - c^2) X - mu I
+            c2 = Fraction(1, 4) if s == 0 else Fraction(1, 16)
+            D = [[(1 - c2) * q[i][j] - (mu if i == j else 0) for j in range(2)] for i in range(2)]
+            assert D[0][0] > 0 and D[0][0] * D[1][1] - D[0][1] * D[1][0] > 0
+    assert checked > 0
