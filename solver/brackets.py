@@ -986,7 +986,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                             f"once, then a period of {len(found.tail)}")
     else:
         skipped = int(np.sum(unstable))
-        _sweep_pruned(systems, approx)
+        _norms_pruned(systems, approx, GROW_BEAM if deep and len(data) > 1 else REFINED)
         best, witness = -np.inf, None
         cands = [(float(approx[i]), pats[i]) for i in _top(approx, REFINED)]
         # grow only where the exhaustive search leaves a gap worth closing: its coarse sweep values are lower bounds
@@ -997,7 +997,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             if grown:
                 cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
         if cands:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
-            fine = [hinf_norm_lower(period_system(data, p)) for _, p in cands]
+            fine = [hinf_norm_peak(period_system(data, p)) for _, p in cands]
             win = int(np.argmax(fine))
             best, witness = fine[win], cands[win][1]
             if len(witness) > max(len(q) for q in pats):
@@ -1471,7 +1471,7 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
             sys = periodic.period_stack(arrays, idx, "hinf")
             good = periodic.spectral_radius(sys["Phi"]) < 1
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-        _sweep_pruned(systems, values)
+        _norms_pruned(systems, values, beam)
         count += len(new)
         work += sum(len(q) for q in new)
         top = _top(values, beam)
@@ -1484,17 +1484,15 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
     return found, count
 
 
-#: The coarse sweep first takes every PRESWEEP-th of its SWEEP points (17 of 97) ...
-PRESWEEP = 6
-#: ... and sweeps all of them only for patterns within this fraction of the best value found so far.
-PRESWEEP_KEEP = 0.8
+def _norms_pruned(systems: list, values: np.ndarray, keep: int = 1) -> None:
+    """H-infinity norms of the stacked patterns into ``values``, skipping those that cannot be among the ``keep`` best.
 
-
-def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
-    """Coarse sweeps (``SWEEP`` points on [0, pi]) into ``coarse``, skipping patterns that cannot win.
-
-    A pattern whose upper bound (:func:`solver.periodic.gain_upper_bounds`) is below the best sweep value
-    already found cannot reach it after refinement either; its entry stays NaN.
+    Patterns are taken by decreasing cheap upper bound (:func:`solver.periodic.gain_upper_bounds`), 64 at a time;
+    a pattern whose bound is below the ``keep``-th best value found so far (the floor) stays NaN.  The others go
+    through the level-set iteration (:func:`solver.periodic.level_set_norms`) started at the floor: one batched
+    pencil eigenvalue problem shows a pattern's norm is below the floor (it keeps the witnessed gain of its start,
+    below the floor), the rest converge to their norm (docs/design.md §8.4).  Where the pencil is ill-conditioned
+    the ``SWEEP``-point sweep values the pattern instead.  Every value is a gain evaluated at a frequency.
     """
     from . import periodic
 
@@ -1503,25 +1501,46 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems]
     entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
                      key=lambda e: -e[0])
-    best, start = -np.inf, 0
-    while start < len(entries) and entries[start][0] > best:
+    found: list = []
+    floor, start = -np.inf, 0
+    while start < len(entries) and entries[start][0] > floor:
         batch = []
-        while start < len(entries) and len(batch) < 64 and entries[start][0] > best:
+        while start < len(entries) and len(batch) < 64 and entries[start][0] > floor:
             batch.append(entries[start])
             start += 1
         for g in sorted({e[1] for e in batch}):
             pos, sys, _ = bounds[g]
             rows = np.array([e[2] for e in batch if e[1] == g])
-            # every PRESWEEP-th point first (a subset of the sweep: values below the full sweep's); the full sweep
-            # only where that comes within PRESWEEP_KEEP of the best so far (n = 12 hinf: 13 of 323 patterns are
-            # within 0.9 of the best; a pattern left out keeps its subset value, still a lower bound)
-            vals = periodic.sweep_gains({k: v[rows] for k, v in sys.items()}, omega[::PRESWEEP])
-            full = vals >= PRESWEEP_KEEP * max(best, float(np.max(vals)))
-            if np.any(full):
-                vals[full] = np.maximum(vals[full], periodic.sweep_gains({k: v[rows[full]] for k, v in sys.items()},
-                                                                         omega))
-            coarse[pos[rows]] = vals
-            best = max(best, float(np.max(vals)))
+            sub = {k: v[rows] for k, v in sys.items()}
+            vals, _, status = periodic.level_set_norms(sub, floor)
+            swept = status == 2
+            if np.any(swept):
+                vals[swept] = np.maximum(vals[swept], periodic.sweep_gains({k: v[swept] for k, v in sub.items()},
+                                                                          omega))
+            values[pos[rows]] = vals
+            found.extend(vals.tolist())
+            if len(found) >= keep:
+                floor = float(np.partition(found, len(found) - keep)[len(found) - keep])
+
+
+def hinf_norm_peak(sys: dict) -> float:
+    """The H-infinity norm of one stable discrete LTI system as a witnessed gain: the level-set iteration
+    (:func:`solver.periodic.level_set_norms`) finds the peak frequency, the gain is evaluated there by an SVD of
+    ``D + C (e^{jw} I - Phi)^{-1} B`` and polished by a bounded scalar search within 1e-3 rad of it (the
+    iteration stops within ~1e-9 of the peak value).  Where the pencil is ill-conditioned: :func:`hinf_norm_lower`
+    (sweep and refinement)."""
+    from . import periodic
+
+    stack = {k: np.asarray(sys[k])[None] for k in ("Phi", "B", "C", "D")}
+    _, omega, status = periodic.level_set_norms(periodic.gram_form(stack))
+    if status[0] == 2:
+        return hinf_norm_lower(sys)
+    w = float(omega[0])
+    best = float(_sigma_max(sys, w)[0])
+    lo, hi = max(w - 1e-3, 0.0), min(w + 1e-3, np.pi)
+    res = scipy.optimize.minimize_scalar(lambda x: -_sigma_max(sys, x)[0], bounds=(lo, hi), method="bounded",
+                                         options={"xatol": 1e-12})
+    return max(best, float(-res.fun))
 
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
