@@ -895,13 +895,13 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
 
     cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per``: the exact cost of
     repeating the pattern from the period's start.  hinf: the H-infinity norm of the period's lifted LTI system
-    (a sweep: a lower bound by construction).  An unstable period gives ``inf`` for the cost (it has a nonzero
+    (gains evaluated at the frequencies the level-set iteration finds: a lower bound by construction).  An unstable period gives ``inf`` for the cost (it has a nonzero
     stage cost) and is skipped for hinf.
 
-    Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling, sweeps through
-    Gram matrices; H-infinity patterns whose cheap upper bound cannot beat the best sweep are skipped); the
-    ``REFINED`` best are then re-evaluated one by one (:func:`lyapunov`; sweep plus
-    bounded refinement), and the value reported is the re-evaluated one of the witness.  ``deep`` (cost): the
+    Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling; H-infinity norms by
+    the level-set iteration, patterns that cannot enter the best ``GROW_BEAM`` skipped); the
+    ``REFINED`` best are then re-evaluated one by one (:func:`lyapunov`; :func:`hinf_norm_peak`), and the value
+    reported is the re-evaluated one of the witness.  ``deep`` (cost): the
     two-run search of :func:`run_patterns` beyond ``max_length``, stopped at ``stop`` (the certified upper bound).
     ``max_length`` None: the longest length whose patterns (all of them, every shorter one too) fit in
     ``max_count``, at least ``PATTERN_LENGTH`` (two modes: length 11 within 4000 patterns).
@@ -1430,11 +1430,11 @@ GROW_ABOVE_GAP = 1e-3
 def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.inf, beam: int = GROW_BEAM,
                   max_length: int = GROW_LENGTH, budget: int | None = None) -> tuple[list, int]:
     """Longer periodic patterns for the H-infinity lower bound, grown from the best ones: ``(value, pattern)``
-    pairs (coarse sweep values) and the number of patterns valued.
+    pairs (witnessed gains) and the number of patterns valued.
 
     Every pattern of the beam (initially ``seeds``, the exhaustive search's best) is extended by every loop mode
     (one per rotation class, repetitions of shorter patterns skipped); the extensions are valued by the stacked
-    coarse sweep, skipping those whose cheap upper bound cannot beat the best sweep (:func:`_sweep_pruned`), and
+    level-set iteration, skipping those that cannot enter the ``beam`` best (:func:`_norms_pruned`), and
     the ``beam`` best become the next beam, until the period reaches ``max_length``, a value reaches ``stop``,
     ``budget`` pattern intervals have been valued (default :data:`GROW_BUDGET` scaled by the state dimension; a
     level's extensions are cut where they would pass it, in the beam's order).
@@ -1523,6 +1523,11 @@ def _norms_pruned(systems: list, values: np.ndarray, keep: int = 1) -> None:
                 floor = float(np.partition(found, len(found) - keep)[len(found) - keep])
 
 
+#: The level-set tolerance of the witnesses' own valuation (:func:`hinf_norm_peak`): the search's 1e-10 stopped
+#: 1.4e-10 below the peak of a resonance of radius 1 - 1e-5 (the golden-section refinement's value).
+PEAK_TOL = 1e-14
+
+
 def hinf_norm_peak(sys: dict) -> float:
     """The H-infinity norm of one stable discrete LTI system as a witnessed gain: the level-set iteration
     (:func:`solver.periodic.level_set_norms`) finds the peak frequency, the gain is evaluated there by an SVD of
@@ -1532,14 +1537,14 @@ def hinf_norm_peak(sys: dict) -> float:
     from . import periodic
 
     stack = {k: np.asarray(sys[k])[None] for k in ("Phi", "B", "C", "D")}
-    _, omega, status = periodic.level_set_norms(periodic.gram_form(stack))
+    _, omega, status = periodic.level_set_norms(periodic.gram_form(stack), tol=PEAK_TOL)
     if status[0] == 2:
         return hinf_norm_lower(sys)
     w = float(omega[0])
     best = float(_sigma_max(sys, w)[0])
-    lo, hi = max(w - 1e-3, 0.0), min(w + 1e-3, np.pi)
+    lo, hi = max(w - 1e-7, 0.0), min(w + 1e-7, np.pi)
     res = scipy.optimize.minimize_scalar(lambda x: -_sigma_max(sys, x)[0], bounds=(lo, hi), method="bounded",
-                                         options={"xatol": 1e-12})
+                                         options={"xatol": 1e-14})
     return max(best, float(-res.fun))
 
 

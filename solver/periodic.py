@@ -290,7 +290,7 @@ PENCIL_COND = 1e10
 FLAT = 1e-4
 
 
-def level_set_norms(sys: dict, floor: float = -np.inf, max_iter: int = 40):
+def level_set_norms(sys: dict, floor: float = -np.inf, max_iter: int = 40, tol: float = LEVEL_TOL):
     """H-infinity norms of a stack of stable discrete systems by the level-set (symplectic pencil) iteration of
     Boyd-Balakrishnan / Bruinsma-Steinbuch (docs/design.md §8.4), all systems at once.
 
@@ -328,7 +328,7 @@ def level_set_norms(sys: dict, floor: float = -np.inf, max_iter: int = 40):
         if not live.size:
             break
         above = value[live] > floor
-        level = np.where(above, value[live], floor) * (1 + 2 * LEVEL_TOL)
+        level = np.where(above, value[live], floor) * (1 + 2 * tol)
         R = level[:, None, None] ** 2 * I_w - DtD[live]
         r_eig = np.abs(np.linalg.eigvalsh(R))
         bad = ~(np.min(r_eig, axis=1) * PENCIL_COND > np.max(r_eig, axis=1))
