@@ -938,13 +938,13 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
 
     cost: ``trace P_per`` (or ``x0' P_per x0``) with ``P_per = Phi' P_per Phi + S_per``: the exact cost of
     repeating the pattern from the period's start.  hinf: the H-infinity norm of the period's lifted LTI system
-    (a sweep: a lower bound by construction).  An unstable period gives ``inf`` for the cost (it has a nonzero
+    (gains evaluated at the frequencies the level-set iteration finds: a lower bound by construction).  An unstable period gives ``inf`` for the cost (it has a nonzero
     stage cost) and is skipped for hinf.
 
-    Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling, sweeps through
-    Gram matrices; H-infinity patterns whose cheap upper bound cannot beat the best sweep are skipped); the
-    ``REFINED`` best are then re-evaluated one by one (:func:`lyapunov`; sweep plus
-    bounded refinement), and the value reported is the re-evaluated one of the witness.  ``deep`` (cost): the
+    Every pattern is valued in stacks (:mod:`solver.periodic`: Stein equations by doubling; H-infinity norms by
+    the level-set iteration, patterns that cannot enter the best ``GROW_BEAM`` skipped); the
+    ``REFINED`` best are then re-evaluated one by one (:func:`lyapunov`; :func:`hinf_norm_peak`), and the value
+    reported is the re-evaluated one of the witness.  ``deep`` (cost): the
     two-run search of :func:`run_patterns` beyond ``max_length``, stopped at ``stop`` (the certified upper bound).
     ``max_length`` None: the longest length whose patterns (all of them, every shorter one too) fit in
     ``max_count``, at least ``PATTERN_LENGTH`` (two modes: length 11 within 4000 patterns).
@@ -1029,7 +1029,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                             f"once, then a period of {len(found.tail)}")
     else:
         skipped = int(np.sum(unstable))
-        _sweep_pruned(systems, approx)
+        _norms_pruned(systems, approx, GROW_BEAM if deep and len(data) > 1 else REFINED)
         best, witness = -np.inf, None
         cands = [(float(approx[i]), pats[i]) for i in _top(approx, REFINED)]
         # grow only where the exhaustive search leaves a gap worth closing: its coarse sweep values are lower bounds
@@ -1040,7 +1040,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             if grown:
                 cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
         if cands:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
-            fine = [hinf_norm_lower(period_system(data, p)) for _, p in cands]
+            fine = [hinf_norm_peak(period_system(data, p)) for _, p in cands]
             win = int(np.argmax(fine))
             best, witness = fine[win], cands[win][1]
             if len(witness) > max(len(q) for q in pats):
@@ -1473,11 +1473,11 @@ GROW_ABOVE_GAP = 1e-3
 def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.inf, beam: int = GROW_BEAM,
                   max_length: int = GROW_LENGTH, budget: int | None = None) -> tuple[list, int]:
     """Longer periodic patterns for the H-infinity lower bound, grown from the best ones: ``(value, pattern)``
-    pairs (coarse sweep values) and the number of patterns valued.
+    pairs (witnessed gains) and the number of patterns valued.
 
     Every pattern of the beam (initially ``seeds``, the exhaustive search's best) is extended by every loop mode
     (one per rotation class, repetitions of shorter patterns skipped); the extensions are valued by the stacked
-    coarse sweep, skipping those whose cheap upper bound cannot beat the best sweep (:func:`_sweep_pruned`), and
+    level-set iteration, skipping those that cannot enter the ``beam`` best (:func:`_norms_pruned`), and
     the ``beam`` best become the next beam, until the period reaches ``max_length``, a value reaches ``stop``,
     ``budget`` pattern intervals have been valued (default :data:`GROW_BUDGET` scaled by the state dimension; a
     level's extensions are cut where they would pass it, in the beam's order).
@@ -1514,7 +1514,7 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
             sys = periodic.period_stack(arrays, idx, "hinf")
             good = periodic.spectral_radius(sys["Phi"]) < 1
             systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
-        _sweep_pruned(systems, values)
+        _norms_pruned(systems, values, beam)
         count += len(new)
         work += sum(len(q) for q in new)
         top = _top(values, beam)
@@ -1527,17 +1527,15 @@ def grow_patterns(data: list[dict], seeds: list, start: int, stop: float = np.in
     return found, count
 
 
-#: The coarse sweep first takes every PRESWEEP-th of its SWEEP points (17 of 97) ...
-PRESWEEP = 6
-#: ... and sweeps all of them only for patterns within this fraction of the best value found so far.
-PRESWEEP_KEEP = 0.8
+def _norms_pruned(systems: list, values: np.ndarray, keep: int = 1) -> None:
+    """H-infinity norms of the stacked patterns into ``values``, skipping those that cannot be among the ``keep`` best.
 
-
-def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
-    """Coarse sweeps (``SWEEP`` points on [0, pi]) into ``coarse``, skipping patterns that cannot win.
-
-    A pattern whose upper bound (:func:`solver.periodic.gain_upper_bounds`) is below the best sweep value
-    already found cannot reach it after refinement either; its entry stays NaN.
+    Patterns are taken by decreasing cheap upper bound (:func:`solver.periodic.gain_upper_bounds`), 64 at a time;
+    a pattern whose bound is below the ``keep``-th best value found so far (the floor) stays NaN.  The others go
+    through the level-set iteration (:func:`solver.periodic.level_set_norms`) started at the floor: one batched
+    pencil eigenvalue problem shows a pattern's norm is below the floor (it keeps the witnessed gain of its start,
+    below the floor), the rest converge to their norm (docs/design.md §8.4).  Where the pencil is ill-conditioned
+    the ``SWEEP``-point sweep values the pattern instead.  Every value is a gain evaluated at a frequency.
     """
     from . import periodic
 
@@ -1546,25 +1544,51 @@ def _sweep_pruned(systems: list, coarse: np.ndarray) -> None:
     bounds = [(pos, sys, periodic.gain_upper_bounds(sys)) for pos, sys in systems]
     entries = sorted(((float(ub[i]), g, i) for g, (_, _, ub) in enumerate(bounds) for i in range(ub.size)),
                      key=lambda e: -e[0])
-    best, start = -np.inf, 0
-    while start < len(entries) and entries[start][0] > best:
+    found: list = []
+    floor, start = -np.inf, 0
+    while start < len(entries) and entries[start][0] > floor:
         batch = []
-        while start < len(entries) and len(batch) < 64 and entries[start][0] > best:
+        while start < len(entries) and len(batch) < 64 and entries[start][0] > floor:
             batch.append(entries[start])
             start += 1
         for g in sorted({e[1] for e in batch}):
             pos, sys, _ = bounds[g]
             rows = np.array([e[2] for e in batch if e[1] == g])
-            # every PRESWEEP-th point first (a subset of the sweep: values below the full sweep's); the full sweep
-            # only where that comes within PRESWEEP_KEEP of the best so far (n = 12 hinf: 13 of 323 patterns are
-            # within 0.9 of the best; a pattern left out keeps its subset value, still a lower bound)
-            vals = periodic.sweep_gains({k: v[rows] for k, v in sys.items()}, omega[::PRESWEEP])
-            full = vals >= PRESWEEP_KEEP * max(best, float(np.max(vals)))
-            if np.any(full):
-                vals[full] = np.maximum(vals[full], periodic.sweep_gains({k: v[rows[full]] for k, v in sys.items()},
-                                                                         omega))
-            coarse[pos[rows]] = vals
-            best = max(best, float(np.max(vals)))
+            sub = {k: v[rows] for k, v in sys.items()}
+            vals, _, status = periodic.level_set_norms(sub, floor)
+            swept = status == 2
+            if np.any(swept):
+                vals[swept] = np.maximum(vals[swept], periodic.sweep_gains({k: v[swept] for k, v in sub.items()},
+                                                                          omega))
+            values[pos[rows]] = vals
+            found.extend(vals.tolist())
+            if len(found) >= keep:
+                floor = float(np.partition(found, len(found) - keep)[len(found) - keep])
+
+
+#: The level-set tolerance of the witnesses' own valuation (:func:`hinf_norm_peak`): the search's 1e-10 stopped
+#: 1.4e-10 below the peak of a resonance of radius 1 - 1e-5 (the golden-section refinement's value).
+PEAK_TOL = 1e-14
+
+
+def hinf_norm_peak(sys: dict) -> float:
+    """The H-infinity norm of one stable discrete LTI system as a witnessed gain: the level-set iteration
+    (:func:`solver.periodic.level_set_norms`) finds the peak frequency, the gain is evaluated there by an SVD of
+    ``D + C (e^{jw} I - Phi)^{-1} B`` and polished by a bounded scalar search within 1e-3 rad of it (the
+    iteration stops within ~1e-9 of the peak value).  Where the pencil is ill-conditioned: :func:`hinf_norm_lower`
+    (sweep and refinement)."""
+    from . import periodic
+
+    stack = {k: np.asarray(sys[k])[None] for k in ("Phi", "B", "C", "D")}
+    _, omega, status = periodic.level_set_norms(periodic.gram_form(stack), tol=PEAK_TOL)
+    if status[0] == 2:
+        return hinf_norm_lower(sys)
+    w = float(omega[0])
+    best = float(_sigma_max(sys, w)[0])
+    lo, hi = max(w - 1e-7, 0.0), min(w + 1e-7, np.pi)
+    res = scipy.optimize.minimize_scalar(lambda x: -_sigma_max(sys, x)[0], bounds=(lo, hi), method="bounded",
+                                         options={"xatol": 1e-14})
+    return max(best, float(-res.fun))
 
 
 #: :func:`exact_loop_cost` solves exactly where the float64 bound is above the loop's float64 cost by this much.

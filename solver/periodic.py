@@ -18,6 +18,7 @@ The callers (:func:`solver.brackets.lower_bound`) re-evaluate the winning patter
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 #: Patterns (times frequencies) per stacked step: bounds the memory of the batched arrays.
 CHUNK = 4096
@@ -259,3 +260,129 @@ def refined_peaks(sys: dict, points: int, peaks: int = 3, tol: float = 1e-12) ->
         fa, fb = np.where(left, f_fresh, fb), np.where(left, fa, f_fresh)
         a, b = a_new, b_new
     return np.maximum(best, np.max(np.maximum(fa, fb), axis=1))
+
+
+def gram_gains(sys: dict, rows: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``sigma_max(H_p(e^{j w}))`` for the pairs ``(rows[i], omega[i])`` of a :func:`gram_form` stack, shape (K,)."""
+    rows = np.asarray(rows, dtype=int)
+    out = np.empty(rows.size)
+    n = sys["Phi"].shape[1]
+    eye = np.eye(n)
+    step = max(1, CHUNK // 4)
+    for lo in range(0, rows.size, step):
+        r, w = rows[lo:lo + step], np.asarray(omega[lo:lo + step], dtype=float)
+        X = np.linalg.solve(np.exp(1j * w)[:, None, None] * eye - sys["Phi"][r], sys["B"][r].astype(complex))
+        Xh = np.conj(np.swapaxes(X, 1, 2))
+        cross = Xh @ sys["CtD"][r]
+        G = sys["DtD"][r] + cross + np.conj(np.swapaxes(cross, 1, 2)) + Xh @ sys["CtC"][r] @ X
+        out[lo:lo + step] = np.sqrt(np.maximum(np.linalg.eigvalsh(G)[:, -1], 0.0))
+    return out
+
+
+#: Level-set search (:func:`level_set_norms`): relative gap between a level and the gain it was raised from ...
+LEVEL_TOL = 1e-10
+#: ... a pencil eigenvalue counts as on the unit circle when ``||z| - 1|`` is below this (a near-tangent one
+#: only costs an evaluation: every crossing is confirmed by the gain at its interval's midpoint) ...
+CIRCLE_TOL = 1e-6
+#: ... and a pencil whose Cayley form or ``gamma^2 I - D'D`` is this ill-conditioned goes to the sweep instead.
+PENCIL_COND = 1e10
+#: ... and both of its Cayley forms (poles at z = 1, -1) when the gains there are within this of the level.
+FLAT = 1e-4
+
+
+def level_set_norms(sys: dict, floor: float = -np.inf, max_iter: int = 40, tol: float = LEVEL_TOL):
+    """H-infinity norms of a stack of stable discrete systems by the level-set (symplectic pencil) iteration of
+    Boyd-Balakrishnan / Bruinsma-Steinbuch (docs/design.md §8.4), all systems at once.
+
+    For a level ``g`` with ``R = g^2 I - D'D`` invertible, ``g`` is a singular value of ``H(e^{jw})`` exactly when
+    ``z = e^{jw}`` is an eigenvalue of the pencil ``M - z N``, ``M = [[A_g, B R^-1 B'], [0, I]]``,
+    ``N = [[I, 0], [C'C + C'D R^-1 D'C, A_g']]``, ``A_g = A + B R^-1 D'C`` (eliminate the input from
+    ``(g^2 I - H~ H) u = 0``).  Its Cayley form ``(M + N)^-1 (M - N)`` (``z = (1 + s) / (1 - s)``; ``M + N`` is
+    invertible because the level is above the gain at ``z = -1``) is one batched ``eigvals`` of side 2n.
+    Each system starts from the largest gain at ``w = 0``, ``pi`` and its slowest pole's angle; the gains at the
+    midpoints between consecutive unit-circle eigenvalues at the level ``max(gain, floor) (1 + 2 LEVEL_TOL)``
+    raise it (quadratic convergence to the peak) until no crossing is left.
+
+    ``sys``: a :func:`gram_form` stack.  Returns ``(value, omega, status)``: ``value`` (P,) is always a gain
+    evaluated at ``omega`` (a witnessed lower bound); status 0: converged (the norm is at most
+    ``value (1 + 2 LEVEL_TOL)``), 1: not above ``floor`` (the norm is at most ``floor (1 + 2 LEVEL_TOL)``),
+    2: the pencil was ill-conditioned or the iteration did not settle (the caller sweeps instead).
+    """
+    Phi, B, DtD, CtD, CtC = sys["Phi"], sys["B"], sys["DtD"], sys["CtD"], sys["CtC"]
+    P, n = Phi.shape[:2]
+    w = B.shape[2]
+    lam = np.linalg.eigvals(Phi)
+    slow = np.abs(np.angle(lam[np.arange(P), np.argmax(np.abs(lam) + 1e-3 * (np.abs(lam.imag) > 0), axis=1)]))
+    start = np.stack([np.zeros(P), np.full(P, np.pi), slow], axis=1)
+    gains = gram_gains(sys, np.repeat(np.arange(P), 3), start.ravel()).reshape(P, 3)
+    arg = np.argmax(gains, axis=1)
+    value, omega = gains[np.arange(P), arg], start[np.arange(P), arg]
+    # the Cayley form's pole z = -c (M + c N is singular where the level is a gain at z = -c) where the gain is
+    # further below the levels: a peak at w = 0 next to a pole at z = 1 made it 1e14-conditioned
+    cay = np.where(gains[:, 0] <= gains[:, 1], -1.0, 1.0)
+    ends = gains[:, :2]
+    status = np.full(P, -1)
+    I_n, I_w = np.eye(n), np.eye(w)
+    for _ in range(max_iter):
+        live = np.flatnonzero(status < 0)
+        if not live.size:
+            break
+        above = value[live] > floor
+        level = np.where(above, value[live], floor) * (1 + 2 * tol)
+        R = level[:, None, None] ** 2 * I_w - DtD[live]
+        r_eig = np.abs(np.linalg.eigvalsh(R))
+        bad = ~(np.min(r_eig, axis=1) * PENCIL_COND > np.max(r_eig, axis=1))
+        Bl = B[live]
+        RDc = np.linalg.solve(R, np.swapaxes(CtD[live], 1, 2))
+        Ag = Phi[live] + Bl @ RDc
+        G = Bl @ np.linalg.solve(R, np.swapaxes(Bl, 1, 2))
+        Q = CtC[live] + CtD[live] @ RDc
+        Agt = np.swapaxes(Ag, 1, 2)
+        c = cay[live][:, None, None]
+        plus = np.block([[Ag + c * I_n, G], [c * Q, c * Agt + I_n]])
+        minus = np.block([[Ag - c * I_n, G], [-c * Q, I_n - c * Agt]])
+        with np.errstate(all="ignore"):
+            try:
+                X = np.linalg.solve(plus, minus)
+            except np.linalg.LinAlgError:
+                X = np.full(plus.shape, np.nan)
+            bad |= ~np.all(np.isfinite(X), axis=(1, 2))
+            X[bad] = 0.0
+            s = np.linalg.eigvals(X).astype(complex)
+            z = cay[live][:, None] * (1 + s) / (1 - s)
+            # both z = +-1 within 1e-4 of the level (a flat response): the Cayley form is ill-conditioned at either
+            # pole, so the pencil itself goes through QZ (scipy.linalg.eigvals(M, N), one system at a time)
+            for i in np.flatnonzero(~bad & (np.min(ends[live], axis=1) > level * (1 - FLAT))):
+                Mi = np.block([[Ag[i], G[i]], [np.zeros((n, n)), I_n]])
+                Ni = np.block([[I_n, np.zeros((n, n))], [Q[i], Agt[i]]])
+                try:
+                    z[i] = scipy.linalg.eigvals(Mi, Ni)
+                except (np.linalg.LinAlgError, ValueError):
+                    bad[i] = True
+            on = np.abs(np.abs(z) - 1) < CIRCLE_TOL
+        status[live[bad]] = 2
+        ang = np.where(on, np.abs(np.angle(z)), np.nan)
+        ang[bad] = np.nan
+        # 0 and pi close the list (the gains there are below the level): a crossing lost to rounding (a pair near
+        # z = 1 pushed 1e-6 off the circle) still leaves an interval whose midpoint is above the level
+        some = np.any(np.isfinite(ang), axis=1)[:, None]
+        ang = np.sort(np.concatenate([ang, np.where(some, 0.0, np.nan), np.where(some, np.pi, np.nan)], axis=1),
+                      axis=1)  # NaN last
+        mids = 0.5 * (ang[:, 1:] + ang[:, :-1])
+        rows, cols = np.nonzero(np.isfinite(mids))
+        new = np.full(live.size, -np.inf)
+        where = np.zeros(live.size)
+        if rows.size:
+            g = gram_gains(sys, live[rows], mids[rows, cols])
+            order = np.lexsort((g, rows))  # per row, its largest gain last
+            last = np.r_[rows[order][1:] != rows[order][:-1], True]
+            new[rows[order][last]] = g[order][last]
+            where[rows[order][last]] = mids[rows, cols][order][last]
+        rise = (new > level) & ~bad
+        idx = live[rise]
+        value[idx], omega[idx] = new[rise], where[rise]
+        done = ~rise & ~bad
+        status[live[done & above]] = 0
+        status[live[done & ~above]] = 1
+    status[status < 0] = 2
+    return value, omega, status
