@@ -372,7 +372,7 @@ def test_auto_final_design_keeps_95_percent_of_the_optimal_margin(monkeypatch):
 
 
 def test_auto_bracket_on_the_bench_family_matches_bisection(monkeypatch):
-    """The bench's n = 8 row (docs/design.md §3.2.2, "What bounds `"auto"`"): with the carried warm starts, the 1/4
+    """The bench's n = 8 row (docs/design.md §3.2.2, "What bounds `"auto"`"): with the carried warm starts, the
     margin share and the 95 % final stop, "auto"'s fastest certified rate lies within its settling tolerance of the
     bisection's, each proven lower end below the other's certified rate, and the final design is certified at
     lambda*^(1/1.5)."""
