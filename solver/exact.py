@@ -244,18 +244,26 @@ def uncontrollable_part(F, G) -> list[list[Fraction]]:
     T = [[cols[j][i] for j in range(n)] for i in range(n)]
     # solve T X = F T exactly (Gauss-Jordan on [T | F T])
     FT = [[sum(Fq[i][l] * T[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
-    aug = [T[i][:] + FT[i][:] for i in range(n)]
-    for col in range(n):
-        piv = next(r for r in range(col, n) if aug[r][col] != 0)
-        aug[col], aug[piv] = aug[piv], aug[col]
-        pv = aug[col][col]
-        aug[col] = [x / pv for x in aug[col]]
-        for r in range(n):
-            if r != col and aug[r][col] != 0:
-                f = aug[r][col]
-                aug[r] = [x - f * y for x, y in zip(aug[r], aug[col])]
+    aug = _gauss_jordan([T[i][:] + FT[i][:] for i in range(n)])  # T is invertible (a basis)
     X = [row[n:] for row in aug]
     return [row[k:] for row in X[k:]]
+
+
+def _gauss_jordan(aug: list) -> list | None:
+    """Reduce ``[H | B]`` (k rows of Fractions) to ``[I | H^-1 B]`` exactly; None when H is singular."""
+    k = len(aug)
+    for c in range(k):
+        piv = next((r for r in range(c, k) if aug[r][c] != 0), None)
+        if piv is None:
+            return None
+        aug[c], aug[piv] = aug[piv], aug[c]
+        pv = aug[c][c]
+        aug[c] = [x / pv for x in aug[c]]
+        for r in range(k):
+            if r != c and aug[r][c] != 0:
+                f = aug[r][c]
+                aug[r] = [x - f * y for x, y in zip(aug[r], aug[c])]
+    return aug
 
 
 def positive_definite_shifted(M, shift: float) -> bool:
@@ -430,16 +438,7 @@ def riccati_gain_exact(F, G, R, P: list[list[Fraction]]) -> np.ndarray | None:
     GP = [[sum(Gq[k][a] * P[k][j] for k in range(n)) for j in range(n)] for a in range(m)]  # G' P
     H = [[Rq[a][b] + sum(GP[a][k] * Gq[k][b] for k in range(n)) for b in range(m)] for a in range(m)]
     rhs = [[-sum(GP[a][k] * Fq[k][j] for k in range(n)) for j in range(n)] for a in range(m)]
-    aug = [H[a][:] + rhs[a][:] for a in range(m)]
-    for c in range(m):  # Gauss-Jordan on [H | -G'PF]
-        piv = next((r for r in range(c, m) if aug[r][c] != 0), None)
-        if piv is None:
-            return None
-        aug[c], aug[piv] = aug[piv], aug[c]
-        pv = aug[c][c]
-        aug[c] = [x / pv for x in aug[c]]
-        for r in range(m):
-            if r != c and aug[r][c] != 0:
-                f = aug[r][c]
-                aug[r] = [x - f * y for x, y in zip(aug[r], aug[c])]
+    aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(m)])  # [H | -G'PF] -> [I | K]
+    if aug is None:
+        return None
     return np.array([[float(v) for v in row[m:]] for row in aug])

@@ -138,6 +138,25 @@ def _rotated_unreachable(seed: int, coupling: float) -> tuple[np.ndarray, np.nda
     return V @ A @ V.T, V @ B
 
 
+def _lyapunov_mp(A, S):
+    """The solution P of ``A' P A - P + S = 0`` (mpmath matrices, the working precision's digits), Kronecker form."""
+    import mpmath as mp
+
+    n = A.rows
+    M = mp.matrix(n * n, n * n)
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for l in range(n):
+                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
+    v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
+    P = mp.matrix(n, n)
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = v[i * n + j]
+    return P
+
+
 def _riccati_trace_mp(F, G, dps: int = 50) -> float:
     """trace of the DARE solution (Q = I, R = I) to ~dps digits: Hewer's iteration in mpmath from scipy's gain,
     each Lyapunov equation solved in Kronecker form at ``dps`` digits (independent of solver/)."""
@@ -150,19 +169,7 @@ def _riccati_trace_mp(F, G, dps: int = 50) -> float:
     Fm, Gm = mp.matrix(F.tolist()), mp.matrix(G.tolist())
     trace = None
     for _ in range(30):
-        A = Fm + Gm * K
-        S = mp.eye(n) + K.T * K
-        M = mp.matrix(n * n, n * n)
-        for i in range(n):
-            for j in range(n):
-                for k in range(n):
-                    for l in range(n):
-                        M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
-        v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
-        P = mp.matrix(n, n)
-        for i in range(n):
-            for j in range(n):
-                P[i, j] = v[i * n + j]
+        P = _lyapunov_mp(Fm + Gm * K, mp.eye(n) + K.T * K)
         K = -(mp.inverse(mp.eye(m) + Gm.T * P * Gm) * (Gm.T * P * Fm))
         new = sum(P[i, i] for i in range(n))
         if trace is not None and abs(new - trace) <= mp.mpf(10) ** (20 - dps) * abs(new):
@@ -202,14 +209,8 @@ def test_lyapunov_keeps_accuracy_on_a_far_from_normal_loop():
     import mpmath as mp
 
     mp.mp.dps = 40
-    M = mp.matrix(n * n, n * n)
-    for i in range(n):
-        for j in range(n):
-            for k in range(n):
-                for l in range(n):
-                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - mp.mpf(A[k, i]) * mp.mpf(A[l, j])
-    v = mp.lu_solve(M, mp.matrix([mp.mpf(S[i, j]) for i in range(n) for j in range(n)]))
-    ref = np.array([[float(v[i * n + j]) for j in range(n)] for i in range(n)])
+    Pm = _lyapunov_mp(mp.matrix(A.tolist()), mp.matrix(S.tolist()))
+    ref = np.array([[float(Pm[i, j]) for j in range(n)] for i in range(n)])
     assert np.trace(X) == pytest.approx(np.trace(ref), rel=1e-7)
     # the exact re-check: the solution lifted by 1e-6 along itself passes, shrunk by 1e-6 it fails
     data = [{"A": A, "S": S}]
@@ -350,15 +351,8 @@ def _loop_cost_mp(F, G, K, x0, dps: int = 50) -> float:
     mp.mp.dps = dps
     n = F.shape[0]
     A = mp.matrix(F.tolist()) + mp.matrix(G.tolist()) * mp.matrix(K.tolist())
-    S = mp.eye(n) + mp.matrix(K.tolist()).T * mp.matrix(K.tolist())
-    M = mp.matrix(n * n, n * n)
-    for i in range(n):
-        for j in range(n):
-            for k in range(n):
-                for l in range(n):
-                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
-    v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
-    return float(sum(x0[i] * v[i * n + j] * x0[j] for i in range(n) for j in range(n)))
+    P = _lyapunov_mp(A, mp.eye(n) + mp.matrix(K.tolist()).T * mp.matrix(K.tolist()))
+    return float(sum(x0[i] * P[i, j] * x0[j] for i in range(n) for j in range(n)))
 
 
 def test_a_refined_candidate_without_bracket_beside_one_without_stability_certificate_is_compared():
@@ -577,17 +571,11 @@ def test_exact_lyapunov_solution_against_closed_form_and_mpmath():
     A = mp.matrix(F.tolist()) + mp.matrix(G.tolist()) * mp.matrix(K.tolist())
     Km = mp.matrix(K.tolist())
     S = mp.matrix(Q.tolist()) + Km.T * Km
-    M = mp.matrix(n * n, n * n)
-    for i in range(n):
-        for j in range(n):
-            for k in range(n):
-                for l in range(n):
-                    M[i * n + j, k * n + l] = (1 if (i == k and j == l) else 0) - A[k, i] * A[l, j]
-    v = mp.lu_solve(M, mp.matrix([S[i, j] for i in range(n) for j in range(n)]))
+    Pm = _lyapunov_mp(A, S)
     for i in range(n):
         for j in range(n):
             ex = mp.mpf(P[i][j].numerator) / P[i][j].denominator
-            assert abs(ex - v[i * n + j]) <= mp.mpf("1e-40") * (1 + abs(v[i * n + j]))
+            assert abs(ex - Pm[i, j]) <= mp.mpf("1e-40") * (1 + abs(Pm[i, j]))
     # an unstable loop has no positive definite solution
     assert lyapunov_exact(np.diag([1.5, 0.5]), np.zeros((2, 1)), np.zeros((1, 2)), np.eye(2), np.eye(1)) is None
 
