@@ -171,22 +171,22 @@ def time_left(time_limit: float | None, start: float, floor: float | None = None
 #: steps and the rest on the whole request), 45 designs, 2026-11-27, the 2-core development machine loaded by other
 #: jobs, one BLAS thread; refit after a change to the IPM or the search (``python -m bench size``).
 ESTIMATE_FLOPS_PER_SECOND = 2e10
-ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND = 2.87e9
-ESTIMATE_BLOCK_FLOPS_PER_SIDE = 2.17e6
-ESTIMATE_SECONDS_PER_BLOCK = 5.45e-5
-ESTIMATE_SECONDS_PER_STEP = 1.6e-6
-ESTIMATE_SECONDS_PER_MODE = 2.34e-6
-ESTIMATE_SECONDS_FIXED = 6.89e-6
+ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND = 3.64e9
+ESTIMATE_BLOCK_FLOPS_PER_SIDE = 4.71e6
+ESTIMATE_SECONDS_PER_BLOCK = 3.72e-5
+ESTIMATE_SECONDS_PER_STEP = 7.7e-7
+ESTIMATE_SECONDS_PER_MODE = 4.93e-6
+ESTIMATE_SECONDS_FIXED = 5.66e-6
 #: Newton steps per structural solve (:func:`request_solves`) and unit of ``ln(1 + nu)``, per path
 #: (:func:`design_path`; "plain" is one cold solve): a bisection's probes stop early and the rate path moves between
 #: steps (``"auto"``, ``"max"``: 12 structural solves, 60-110 steps measured); a performance design runs a phase 1,
 #: a phase 2 and (u_max: three runs, 110-190 steps) a tie-break stage on its own blocks.
-ESTIMATE_PATH_ITERATIONS = {"plain": 3.62, "rate": 3.62, "auto": 1.07, "max": 0.81, "cost": 4.74, "hinf": 6.33,
-                            "u_max": 19.0, "switched": 2.98, "ccl": 23.4, "network": 74.7}
+ESTIMATE_PATH_ITERATIONS = {"plain": 3.96, "rate": 3.96, "auto": 0.907, "max": 0.621, "cost": 4.06, "hinf": 5.36,
+                            "u_max": 17.1, "switched": 2.82, "ccl": 34.0, "network": 56.8}
 #: The lower-bound search of a bracket (solver/brackets.py ``lower_bound``): its flops
 #: (:func:`lower_bound_work`) at this rate, plus a fixed part per kind (the scalar searches, the re-evaluations).
-ESTIMATE_SEARCH_FLOPS_PER_SECOND = {"cost": 5.38e9, "hinf": 1.29e10}
-ESTIMATE_SEARCH_SECONDS = {"cost": 0.09, "hinf": 0.647}
+ESTIMATE_SEARCH_FLOPS_PER_SECOND = {"cost": 6.63e10, "hinf": 1.39e11}
+ESTIMATE_SEARCH_SECONDS = {"cost": 0.098, "hinf": 0.0187}
 #: Paths :func:`design_size` knows (the keys of :data:`ESTIMATE_PATH_ITERATIONS`).
 DESIGN_PATHS = tuple(ESTIMATE_PATH_ITERATIONS)
 
