@@ -440,9 +440,10 @@ EXACT_COST_MAX_N = 8
 def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
     """Exact re-check of the cost certificate: ``P >= 0`` and ``P - A_s' P A_s - S_s >= 0`` for every mode.
 
-    In rational arithmetic on the float64 numbers (``fractions.Fraction``, the data taken as exact as in
-    :func:`recheck_tree_bound`), so no rounding allowance: it decides where :func:`check_cost`'s relative
-    allowance cannot, i.e. where the slack the certificate needs is tiny beside ``|P|`` in some direction (a
+    In rational arithmetic (``fractions.Fraction``) on the deployed loop, rebuilt from the float64 F, G, K, Q, R
+    the data carry (``d["plant"]``, :meth:`solver.lifting.Lifted.numeric`); without them on the float64 data less
+    the bound of their distance to it (docs/design.md §8.4, "Loop data").  So no rounding allowance: it decides
+    where :func:`check_cost`'s relative allowance cannot, i.e. where the slack the certificate needs is tiny beside ``|P|`` in some direction (a
     nearly unreachable unstable mode: ``P`` spans 1e11, docs/design.md §8.5).  ``O(n^3)`` rational products
     per mode: small n only (:data:`EXACT_COST_MAX_N`).
     """
@@ -664,8 +665,8 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
 
 def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     """Exact re-check of the bounded-real certificate: ``P >= 0`` and
-    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the float64
-    numbers (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
+    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the deployed
+    loop (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
     relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4)."""
     from fractions import Fraction
 
