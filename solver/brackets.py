@@ -335,21 +335,24 @@ def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     """Float64 re-check of ``P > 0`` and ``A_s' P A_s - P + S_s <= 0`` for all modes.
 
     Returns ``(passed, worst)``: ``worst`` is the largest eigenvalue of the inequality's left side
-    relative to the size of its terms, plus the distance of the float64 loop data to the deployed loop's
-    (``dA``, ``dS`` of :meth:`solver.lifting.Lifted.numeric`, relative to the same size: docs/design.md §8.4);
-    passing needs it below minus the rounding allowance (rounding cannot flip it).
+    relative to the size of its terms (on the float64 data: where it is negative but passing fails, the exact
+    re-check decides); passing needs it plus the distance of the float64 loop data to the deployed loop's (``dA``,
+    ``dS`` of :meth:`solver.lifting.Lifted.numeric`, relative to the same size: docs/design.md §8.4, "Loop data")
+    below minus the rounding allowance (rounding cannot flip it).
     """
     P = _sym(P)
     if np.linalg.eigvalsh(P)[0] <= 0:
         return False, np.inf
-    worst = -np.inf
+    worst, passed = -np.inf, True
     for d in data:
         APA = d["A"].T @ P @ d["A"]
         # |A|'|P||A| bounds the rounding of forming A'P A (Higham, ch. 3), which ||A'P A|| need not
         absA = np.abs(d["A"])
         size = np.linalg.norm(absA.T @ np.abs(P) @ absA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
-        worst = max(worst, (np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] + _data_error(P, d)) / size)
-    return bool(worst < -_allowance(P.shape[0])), float(worst)
+        value = np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size
+        worst = max(worst, value)
+        passed = passed and value + _data_error(P, d) / size < -_allowance(P.shape[0])
+    return bool(passed), float(worst)
 
 
 def _psd_exact(M: list) -> bool:
@@ -653,14 +656,18 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     nodes = P if P.ndim == 3 else P[None]
     if not np.all(np.isfinite(nodes)) or np.linalg.eigvalsh(nodes)[:, 0].min() <= 0:
         return False, np.inf
-    worst = -np.inf
+    worst, passed = -np.inf, True
+    allow = _allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))
     for d in data:
         Pv, Pw = (nodes[d["src"]], nodes[d["dst"]]) if P.ndim == 3 else (P, P)
         M, AB, CD = _brl(Pv, d, g, Pw)
         size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(Pw, 2) + np.linalg.norm(CD, 2) ** 2 \
             + np.linalg.norm(Pv, 2) + g
-        worst = max(worst, (np.linalg.eigvalsh(M)[-1] + _data_error(Pv, d, False, Pw)) / size)
-    return bool(worst < -_allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))), float(worst)
+        value = np.linalg.eigvalsh(M)[-1] / size
+        worst = max(worst, value)
+        # (the deployed loop's distance, as in check_cost)
+        passed = passed and value + _data_error(Pv, d, False, Pw) / size < -allow
+    return bool(passed), float(worst)
 
 
 def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
