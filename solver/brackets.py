@@ -251,23 +251,108 @@ def check_x0(x0, n: int) -> np.ndarray | None:
 
 
 # ---------------------------------------------------------------------------------- re-checks
+def _congruence_error(P: np.ndarray, X: np.ndarray, dX) -> float:
+    """A bound of ``||X_true' P X_true - X' P X||_2`` for ``|X_true - X| <= dX`` entrywise (None: 0): the Frobenius
+    norm of ``dX'|P|(|X| + dX) + (|X| + dX)'|P| dX``, rounded up (docs/design.md §8.4, "Loop data")."""
+    if dX is None:
+        return 0.0
+    aP, aX = np.abs(P), np.abs(X) + dX
+    E = dX.T @ aP @ aX
+    k = 2 * P.shape[0] + 4
+    return float(np.linalg.norm(E + E.T)) * (1 + 2 * k * np.finfo(float).eps)
+
+
+def _data_error(P: np.ndarray, d: dict, cost: bool = True, P_next: np.ndarray | None = None) -> float:
+    """A bound of the 2-norm of the difference between the re-checked inequality's matrix on the float64 loop data
+    ``d`` and on the deployed loop (``d["dA"]`` etc. from :meth:`solver.lifting.Lifted.numeric`; 0 without them).
+    ``cost``: ``A' P A - P + S``; else the bounded-real matrix of :func:`_brl`."""
+    if d.get("dA") is None:
+        return 0.0
+    eps = np.finfo(float).eps
+    if cost:
+        dS = d.get("dS")
+        e = _congruence_error(P, d["A"], d["dA"]) + (0.0 if dS is None else float(np.linalg.norm(dS)))
+        return e * (1 + 4 * eps)
+    n, k = d["A"].shape[0], d["B"].shape[1]
+    dAB = np.hstack([d["dA"], np.zeros((n, k)) if d.get("dB") is None else d["dB"]])
+    dCD = None if d.get("dC") is None else np.hstack([d["dC"], np.zeros_like(d["D"]) if d.get("dD") is None
+                                                      else d["dD"]])
+    AB = np.hstack([d["A"], d["B"]])
+    e = _congruence_error(P if P_next is None else P_next, AB, dAB)
+    if dCD is not None:
+        e += _congruence_error(np.eye(d["C"].shape[0]), np.hstack([d["C"], d["D"]]), dCD)
+    return e * (1 + 4 * eps)
+
+
+def _exact_loop(d: dict, frac, mul):
+    """The deployed interval loop of ``d`` in rationals, built from the float64 F, G, K (and Q, R, E, C_z, D_z) that
+    :meth:`solver.lifting.Lifted.numeric` attached (``d["plant"]``): ``(A, S, AB, CD)`` as lists of Fractions
+    (S None without weights, AB and CD None without a channel), or None without the plant data (docs/design.md
+    §8.4, "Loop data")."""
+    pl = d.get("plant")
+    if pl is None:
+        return None
+    Fs, Gs, Ks = [frac(X) for X in pl["F"]], [frac(X) for X in pl["G"]], [frac(X) for X in pl["K"]]
+    n = len(Fs[0])
+
+    def add(X, Y):
+        return [[a + b for a, b in zip(r, q)] for r, q in zip(X, Y)]
+
+    def tr(X):
+        return [list(col) for col in zip(*X)]
+
+    M = [[frac(np.eye(1))[0][0] if i == j else frac(np.zeros((1, 1)))[0][0] for j in range(n)] for i in range(n)]
+    Ms = []
+    for Fl, Gl, Kt in zip(Fs, Gs, Ks):
+        Ms.append(M)
+        M = add(mul(Fl, M), mul(Gl, Kt))
+    A, S, AB, CD = M, None, None, None
+    if pl["Q"] is not None and d.get("S") is not None:
+        Q, R = frac(pl["Q"]), frac(pl["R"])
+        S = [[0 * Q[0][0]] * n for _ in range(n)]
+        for Mt, Kt in zip(Ms, Ks):
+            S = add(S, add(mul(mul(tr(Mt), Q), Mt), mul(mul(tr(Kt), R), Kt)))
+    if pl["channel"] is not None and d.get("B") is not None:
+        E, Cz, Dz = (list(X) for X in pl["channel"])
+        eta, pw = len(Fs), E[0].shape[1]
+        Es, Cs, Ds = [frac(X) for X in E], [frac(X) for X in Cz], [frac(X) for X in Dz]
+        pz = len(Cs[0])
+        xw = [[0 * A[0][0]] * (eta * pw) for _ in range(n)]  # effect of w(0 .. eta-1) on x(t), as in lift_modes
+        Crows, Drows = [], []
+        for t in range(eta):
+            Crows += add(mul(Cs[t], Ms[t]), mul(Ds[t], Ks[t]))
+            Drows += mul(Cs[t], xw)
+            xw = mul(Fs[t], xw)
+            for i in range(n):
+                for j in range(pw):
+                    xw[i][t * pw + j] += Es[t][i][j]
+        AB = [A[i] + xw[i] for i in range(n)]
+        CD = [Crows[i] + Drows[i] for i in range(eta * pz)]
+    return A, S, AB, CD
+
+
 def check_cost(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     """Float64 re-check of ``P > 0`` and ``A_s' P A_s - P + S_s <= 0`` for all modes.
 
     Returns ``(passed, worst)``: ``worst`` is the largest eigenvalue of the inequality's left side
-    relative to the size of its terms; passing needs it below minus the rounding allowance (rounding cannot flip it).
+    relative to the size of its terms (on the float64 data: where it is negative but passing fails, the exact
+    re-check decides); passing needs it plus the distance of the float64 loop data to the deployed loop's (``dA``,
+    ``dS`` of :meth:`solver.lifting.Lifted.numeric`, relative to the same size: docs/design.md §8.4, "Loop data")
+    below minus the rounding allowance (rounding cannot flip it).
     """
     P = _sym(P)
     if np.linalg.eigvalsh(P)[0] <= 0:
         return False, np.inf
-    worst = -np.inf
+    worst, passed = -np.inf, True
     for d in data:
         APA = d["A"].T @ P @ d["A"]
         # |A|'|P||A| bounds the rounding of forming A'P A (Higham, ch. 3), which ||A'P A|| need not
         absA = np.abs(d["A"])
         size = np.linalg.norm(absA.T @ np.abs(P) @ absA, 2) + np.linalg.norm(P, 2) + np.linalg.norm(d["S"], 2)
-        worst = max(worst, np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size)
-    return bool(worst < -_allowance(P.shape[0])), float(worst)
+        value = np.linalg.eigvalsh(_sym(APA - P + d["S"]))[-1] / size
+        worst = max(worst, value)
+        passed = passed and value + _data_error(P, d) / size < -_allowance(P.shape[0])
+    return bool(passed), float(worst)
 
 
 def _psd_exact(M: list) -> bool:
@@ -358,9 +443,10 @@ EXACT_COST_MAX_N = 8
 def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
     """Exact re-check of the cost certificate: ``P >= 0`` and ``P - A_s' P A_s - S_s >= 0`` for every mode.
 
-    In rational arithmetic on the float64 numbers (``fractions.Fraction``, the data taken as exact as in
-    :func:`recheck_tree_bound`), so no rounding allowance: it decides where :func:`check_cost`'s relative
-    allowance cannot, i.e. where the slack the certificate needs is tiny beside ``|P|`` in some direction (a
+    In rational arithmetic (``fractions.Fraction``) on the deployed loop, rebuilt from the float64 F, G, K, Q, R
+    the data carry (``d["plant"]``, :meth:`solver.lifting.Lifted.numeric`); without them on the float64 data less
+    the bound of their distance to it (docs/design.md §8.4, "Loop data").  So no rounding allowance: it decides
+    where :func:`check_cost`'s relative allowance cannot, i.e. where the slack the certificate needs is tiny beside ``|P|`` in some direction (a
     nearly unreachable unstable mode: ``P`` spans 1e11, docs/design.md §8.5).  ``O(n^3)`` rational products
     per mode: small n only (:data:`EXACT_COST_MAX_N`).
     """
@@ -384,8 +470,13 @@ def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
         return False
     for d in data:
         A, Sq = frac(d["A"]), frac(d["S"])
+        e = Fraction(_data_error(P, d))  # the deployed loop's distance (docs/design.md §8.4, "Loop data") ...
+        exact = _exact_loop(d, frac, mul)
+        if exact is not None and exact[1] is not None:  # ... or the deployed loop itself, in rationals
+            A, Sq, e = exact[0], exact[1], Fraction(0)
         APA = mul(mul([list(col) for col in zip(*A)], Pq), A)
-        if not _psd_exact([[Pq[i][j] - APA[i][j] - (Sq[i][j] + Sq[j][i]) / 2 for j in range(n)] for i in range(n)]):
+        if not _psd_exact([[Pq[i][j] - APA[i][j] - (Sq[i][j] + Sq[j][i]) / 2 - (e if i == j else 0)
+                            for j in range(n)] for i in range(n)]):
             return False
     return True
 
@@ -565,20 +656,24 @@ def check_hinf(P: np.ndarray, g: float, data: list[dict]) -> tuple[bool, float]:
     nodes = P if P.ndim == 3 else P[None]
     if not np.all(np.isfinite(nodes)) or np.linalg.eigvalsh(nodes)[:, 0].min() <= 0:
         return False, np.inf
-    worst = -np.inf
+    worst, passed = -np.inf, True
+    allow = _allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))
     for d in data:
         Pv, Pw = (nodes[d["src"]], nodes[d["dst"]]) if P.ndim == 3 else (P, P)
         M, AB, CD = _brl(Pv, d, g, Pw)
         size = np.linalg.norm(AB, 2) ** 2 * np.linalg.norm(Pw, 2) + np.linalg.norm(CD, 2) ** 2 \
             + np.linalg.norm(Pv, 2) + g
-        worst = max(worst, np.linalg.eigvalsh(M)[-1] / size)
-    return bool(worst < -_allowance(P.shape[-1] + max(d["B"].shape[1] for d in data))), float(worst)
+        value = np.linalg.eigvalsh(M)[-1] / size
+        worst = max(worst, value)
+        # (the deployed loop's distance, as in check_cost)
+        passed = passed and value + _data_error(Pv, d, False, Pw) / size < -allow
+    return bool(passed), float(worst)
 
 
 def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     """Exact re-check of the bounded-real certificate: ``P >= 0`` and
-    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the float64
-    numbers (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
+    ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the deployed
+    loop (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
     relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4)."""
     from fractions import Fraction
 
@@ -600,12 +695,16 @@ def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     gq = Fraction(float(g))
     for d in data:
         AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
+        e = Fraction(_data_error(P, d, False))  # the deployed loop's distance (docs/design.md §8.4, "Loop data") ...
+        exact = _exact_loop(d, frac, mul)
+        if exact is not None and exact[2] is not None:  # ... or the deployed loop itself, in rationals
+            AB, CD, e = exact[2], exact[3], Fraction(0)
         k = len(AB[0]) - n
         ABt, CDt = [list(col) for col in zip(*AB)], [list(col) for col in zip(*CD)]
         M = mul(mul(ABt, Pq), AB)
         CC = mul(CDt, CD)
         neg = [[-(M[i][j] + CC[i][j]) + (Pq[i][j] if i < n and j < n else 0) + (gq if i == j and i >= n else 0)
-                for j in range(n + k)] for i in range(n + k)]
+                - (e if i == j else 0) for j in range(n + k)] for i in range(n + k)]
         if not _psd_exact(neg):
             return False
     return True

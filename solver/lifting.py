@@ -98,12 +98,15 @@ class Lifted:
         One per mode, in the ModeSet's order.
     Q, R : ndarray or None
         Cost weights (n x n positive semidefinite, m x m positive definite).
+    channel : (E, C, D) or None
+        The plant's disturbance channel per plant mode (:func:`check_channel`), for :meth:`errors`.
     """
 
     modes: ModeSet
     lifted: list
     Q: np.ndarray | None = None
     R: np.ndarray | None = None
+    channel: tuple | None = None
 
     @property
     def has_cost(self) -> bool:
@@ -121,8 +124,13 @@ class Lifted:
             return {}
         return {"n_disturbances": lm.B.shape[1] // lm.eta, "n_outputs": lm.D.shape[0] // lm.eta}
 
-    def numeric(self, gains: np.ndarray) -> list[dict]:
-        """Per mode ``{"A", "L", "S", "B", "C", "D"}`` for given gains (missing channels are None)."""
+    def numeric(self, gains: np.ndarray, errors: bool = True) -> list[dict]:
+        """Per mode ``{"A", "L", "S", "B", "C", "D"}`` for given gains (missing channels are None).
+
+        With ``errors`` (and the plant data on the ModeSet) each dict also holds ``"dA"``, ``"dS"``, ``"dB"``,
+        ``"dC"``, ``"dD"``: entrywise bounds of the distance of these float64 matrices to the deployed loop's,
+        built exactly from the float64 F, G, K (and Q, R, E, C_z, D_z), see :meth:`errors`.
+        """
         out = []
         for lm in self.lifted:
             L = None if lm.cost is None else lm.cost.value(gains)
@@ -134,7 +142,106 @@ class Lifted:
                 "C": None if lm.output is None else lm.output.value(gains),
                 "D": lm.D,
             })
+        if errors and self.modes.F is not None:
+            self.errors(gains, out)
         return out
+
+    def errors(self, gains: np.ndarray, data: list[dict]) -> None:
+        """Add to ``data`` (from :meth:`numeric`) entrywise bounds ``dA >= |A_true - A|`` (and ``dS``, ``dB``,
+        ``dC``, ``dD`` where the data and the plant's channel are there; missing ones are None).
+
+        ``A_true`` is the deployed interval loop: the products of the float64 F, G and gains in real arithmetic.
+        The float64 ``A = free + sum_q coef_q K_q`` can be far from it in relative terms where ``G K`` nearly
+        cancels ``F``; the re-checks of :mod:`solver.brackets` add the effect to their allowance
+        (docs/design.md §8.4).  The products over the interval and their bounds come from
+        :func:`solver.certificates.interval_data` (extended precision where there is one); the rest is a
+        float64 sum with its a-priori bound ``gamma_k sum |terms|`` (Higham §3.1), doubled to cover the rounding of
+        the bounds themselves.
+        """
+        from .certificates import gamma, interval_data
+
+        F, G = self.modes.F, self.modes.G
+        n, m = G.shape[1], G.shape[2]
+        K = np.asarray(gains, dtype=np.float64)
+        N = K.shape[0]
+        absK = np.abs(K)
+        eye = np.eye(N)
+        tiny = 64 * np.finfo(float).tiny  # underflow's absolute errors
+
+        def loop(free, dfree, coef, dcoef, eta):
+            """``free + sum_q coef_q K_q`` and its error bound (coef: (N, n, m))."""
+            value = free + np.einsum("qam,qmb->ab", coef[:eta], K[:eta])
+            terms = np.abs(free) + np.einsum("qam,qmb->ab", np.abs(coef[:eta]), absK[:eta])
+            err = dfree + np.einsum("qam,qmb->ab", dcoef[:eta], absK[:eta]) + gamma(eta * m + 2) * terms
+            return value, 2 * err + tiny
+
+        def close(X, X_alt, dX_alt):
+            return (np.abs(X - X_alt) * (1 + 4 * np.finfo(float).eps) + dX_alt) * (1 + 4 * np.finfo(float).eps) + tiny
+
+        plants = [lm.plants for lm in self.lifted]
+        free, dfree, coef, dcoef = interval_data(F, G, plants, eye)
+        need_prefix = any(d["S"] is not None or d["C"] is not None for d in data)
+        if need_prefix:
+            prefixes = [seq[:t] for seq in plants for t in range(len(seq))]
+            pfree, dpfree, pcoef, dpcoef = interval_data(F, G, prefixes, eye)
+        ch = self.channel
+        if ch is not None and any(d["B"] is not None for d in data):
+            E = np.asarray(ch[0], dtype=np.float64)
+            pw = E.shape[2]
+            Nb = max(len(seq) for seq in plants)
+            _, _, bq, dbq = interval_data(F, E, plants, np.eye(Nb))
+            _, _, pbq, dpbq = interval_data(F, E, prefixes if need_prefix else [()], np.eye(Nb))
+        at = 0
+        for s, (seq, d) in enumerate(zip(plants, data)):
+            eta = len(seq)
+            # the deployed loop's ingredients, for the exact re-checks (rebuilt in rationals there)
+            d["plant"] = {"F": [F[l] for l in seq], "G": [G[l] for l in seq], "K": K[:eta], "Q": self.Q,
+                          "R": self.R, "channel": None if ch is None else tuple(np.asarray(X)[list(seq)] for X in ch)}
+            A_alt, dA_alt = loop(free[s], dfree[s], coef[s], dcoef[s], eta)
+            d["dA"] = close(d["A"], A_alt, dA_alt)
+            d["dS"] = d["dB"] = d["dC"] = d["dD"] = None
+            Ms = []
+            if need_prefix:
+                for t in range(eta):
+                    Ms.append(loop(pfree[at + t], dpfree[at + t], pcoef[at + t], dpcoef[at + t], t))
+            if d["S"] is not None and self.Q is not None:
+                Q, R = self.Q, self.R
+                aQ, aR = np.abs(Q), np.abs(R)
+                S_alt, err, terms = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
+                for t, (M, dM) in enumerate(Ms):
+                    aM = np.abs(M)
+                    S_alt += M.T @ Q @ M + K[t].T @ R @ K[t]
+                    # |M'QM - Mt'QMt| <= dM'|Q|(|M| + dM) + (|M| + dM)'|Q| dM (the same for both factors)
+                    err += dM.T @ aQ @ (aM + dM) + (aM + dM).T @ aQ @ dM
+                    terms += aM.T @ aQ @ aM + absK[t].T @ aR @ absK[t]
+                err += gamma(2 * (n + m + eta)) * terms
+                d["dS"] = close(_symm(d["S"]), S_alt, 2 * err + tiny)
+            if ch is not None and d["C"] is not None:
+                Cz, Dz = np.asarray(ch[1], dtype=np.float64), np.asarray(ch[2], dtype=np.float64)
+                rows, drows = [], []
+                for t, (M, dM) in enumerate(Ms):
+                    l = seq[t]
+                    rows.append(Cz[l] @ M + Dz[l] @ K[t])
+                    drows.append(2 * (np.abs(Cz[l]) @ dM + gamma(n + m + 1) * (np.abs(Cz[l]) @ np.abs(M)
+                                                                                + np.abs(Dz[l]) @ absK[t])) + tiny)
+                d["dC"] = close(d["C"], np.vstack(rows), np.vstack(drows))
+            if ch is not None and d["B"] is not None:
+                d["dB"] = close(d["B"], np.hstack(list(bq[s, :eta])), np.hstack(list(dbq[s, :eta])))
+                pz = Cz.shape[1]
+                D_alt, dD_alt = np.zeros((eta * pz, eta * pw)), np.zeros((eta * pz, eta * pw))
+                for t in range(eta):
+                    aC = np.abs(Cz[seq[t]])
+                    for j in range(t):
+                        X, dX = pbq[at + t, j], dpbq[at + t, j]
+                        D_alt[t * pz:(t + 1) * pz, j * pw:(j + 1) * pw] = Cz[seq[t]] @ X
+                        dD_alt[t * pz:(t + 1) * pz, j * pw:(j + 1) * pw] = \
+                            2 * (aC @ dX + gamma(n + 1) * (aC @ np.abs(X))) + tiny
+                d["dD"] = close(d["D"], D_alt, dD_alt)
+            at += eta
+
+
+def _symm(M: np.ndarray) -> np.ndarray:
+    return 0.5 * (M + M.T)
 
 
 def _psd_root(M: np.ndarray) -> np.ndarray:
@@ -283,4 +390,4 @@ def lift_modes(modes: ModeSet, weights=None, disturbance=None, output=None, *, c
             eta=eta, plants=tuple(seq), state=AffineRows(free, coef), cost=cost_rows, output=out_rows,
             B=None if E is None else xw, D=None if E is None else np.vstack(out_w),
         ))
-    return Lifted(modes=modes, lifted=lifted, Q=Q, R=R)
+    return Lifted(modes=modes, lifted=lifted, Q=Q, R=R, channel=None if E is None else (E, Cz, Dz))

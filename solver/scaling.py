@@ -196,7 +196,8 @@ class PerformanceScaling:
                         D=None if lm.D is None else lm.D * (sw / sz))
                for lm in lifted.lifted]
         Q, R = (None, None) if lifted.Q is None else self.weights(lifted.Q, lifted.R)
-        return Lifted(modes=self.modes(lifted.modes), lifted=out, Q=Q, R=R)
+        ch = None if lifted.channel is None else self.channel(*lifted.channel)
+        return Lifted(modes=self.modes(lifted.modes), lifted=out, Q=Q, R=R, channel=ch)
 
     def quadratic_back(self, P, kind: str | None = None):
         """``T^-T P~ T^-1``, times ``cost`` for a cost certificate (``kind="cost"``), ``output^2`` for "hinf"."""

@@ -577,3 +577,64 @@ def test_a_certified_cost_bound_is_never_below_its_certificates_exact_value():
             assert Fraction(bound) >= exact
             below += Fraction(float(np.trace(P)) if start is None else float(start @ P @ start)) < exact
     assert below > 0  # the plain float64 value was below the exact one somewhere: the rounding matters
+
+
+def test_cost_recheck_covers_deployed_loop_rounding():
+    """n_drop = 2, G K nearly cancelling F: the float64 interval loop A_2 = F^2 + F G K_1 + G K_2 (0.255) is 1e-8
+    off the deployed loop's (exact in the float64 F, G, K), which the relative allowance of the re-check does not
+    cover: main certified 1.33717391e8 against the exact worst case 1.33717392e8 (docs/design.md §8.4, "Loop data").
+    Reference: the exact worst-case cost of a scalar switched loop, max_s S_s / (1 - A_s^2), in Fractions."""
+    from fractions import Fraction as Fr
+
+    from solver.brackets import certify_cost
+
+    F, G = np.array([[[1e4 + 1 / 3]]]), np.array([[[1.0]]])
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=F, G=G), 2))
+    k1, k2 = -9999.833325087962, -4999.993744890774
+    data = lifted.numeric(np.array([[[k1]], [[k2]]]))
+    f, g, K1, K2 = Fr(F[0, 0, 0]), Fr(G[0, 0, 0]), Fr(k1), Fr(k2)
+    A1 = f + g * K1
+    A2 = f * A1 + g * K2
+    worst = max((1 + K1**2) / (1 - A1**2), (1 + A1**2 + K1**2 + K2**2) / (1 - A2**2))
+    assert abs(float(data[1]["A"][0, 0]) - float(A2)) > 1e-9  # the float64 loop is off the deployed one
+    P, bound, _ = certify_cost(np.array([[float(worst)]]), data, None)
+    assert bound is not None and Fr(bound) >= worst
+    assert bound <= float(worst) * (1 + 1e-5)  # the allowance is no wider than the data's error needs
+
+
+def test_hinf_recheck_covers_deployed_loop_rounding():
+    """The case above with a disturbance (E = 1, z = [x; u]): main certified l2 gains whose bounded-real inequality
+    fails on the deployed loop (exact in the float64 F, G, K; reference: its matrices written out by hand in
+    Fractions for this scalar plant); now each certified level passes there (docs/design.md §8.4, "Loop data")."""
+    from fractions import Fraction as Fr
+
+    from solver.brackets import _psd_exact, certify_hinf
+
+    F, G = np.array([[[1e4 + 1 / 3]]]), np.array([[[1.0]]])
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=F, G=G), 2), disturbance=np.array([[1.0]]), cost=False)
+    k1, k2 = -9999.833325087962, -4999.993744890774
+    data = lifted.numeric(np.array([[[k1]], [[k2]]]))
+    f, K1, K2, one, zero = Fr(F[0, 0, 0]), Fr(k1), Fr(k2), Fr(1), Fr(0)
+    A1 = f + K1
+    A2 = f * A1 + K2
+    # [A B] and [C D] of the two interval modes (eta = 1, 2; B = [F E, E], z(t) = [x(t); u(t)])
+    modes = [([A1, one], [[one, zero], [K1, zero]]),
+             ([A2, f, one], [[one, zero, zero], [K1, zero, zero], [A1, one, zero], [K2, zero, zero]])]
+
+    def holds(P, g):
+        P, g = Fr(float(P)), Fr(float(g))
+        for AB, CD in modes:
+            k = len(AB)
+            neg = [[-(AB[i] * P * AB[j] + sum(r[i] * r[j] for r in CD)) + (P if i == j == 0 else 0)
+                    + (g if i == j > 0 else 0) for j in range(k)] for i in range(k)]
+            if not _psd_exact(neg):
+                return False
+        return True
+
+    certified = 0
+    for P0 in (1.4e8, 1e9, 1e10):
+        P, gam, _ = certify_hinf(np.array([[P0]]), data)
+        if P is not None:
+            certified += 1
+            assert holds(P[0, 0], gam**2), P0
+    assert certified == 3
