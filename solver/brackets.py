@@ -284,13 +284,19 @@ def _data_error(P: np.ndarray, d: dict, cost: bool = True, P_next: np.ndarray | 
     return e * (1 + 4 * eps)
 
 
+#: Longest interval whose deployed loop :func:`_exact_loop` rebuilds in rationals: the Fractions' bits grow by about 53
+#: per sample and the products' cost with them (the CTMS pendulum's cost design at n_drop = 20: 1.3 s of 1.4 s in
+#: the exact re-check; 0.5 s without it); longer ones use the float64 data less their error bound.
+EXACT_LOOP_MAX_SAMPLES = 8
+
+
 def _exact_loop(d: dict, frac, mul):
     """The deployed interval loop of ``d`` in rationals, built from the float64 F, G, K (and Q, R, E, C_z, D_z) that
     :meth:`solver.lifting.Lifted.numeric` attached (``d["plant"]``): ``(A, S, AB, CD)`` as lists of Fractions
-    (S None without weights, AB and CD None without a channel), or None without the plant data (docs/design.md
-    §8.4, "Loop data")."""
+    (S None without weights, AB and CD None without a channel), or None without the plant data or for an interval
+    longer than :data:`EXACT_LOOP_MAX_SAMPLES` (docs/design.md §8.4, "Loop data")."""
     pl = d.get("plant")
-    if pl is None:
+    if pl is None or len(pl["F"]) > EXACT_LOOP_MAX_SAMPLES:
         return None
     Fs, Gs, Ks = [frac(X) for X in pl["F"]], [frac(X) for X in pl["G"]], [frac(X) for X in pl["K"]]
     n = len(Fs[0])
