@@ -11,7 +11,7 @@ the computation gave a non-finite value. Result models accept fields they do not
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_serializer, model_serializer
 
