@@ -87,6 +87,10 @@ class Certificate(_Open):
                                   "`uncontrollable` (proofs that no design exists).")
     verified: bool | None = Field(None, description="True iff the service re-checked the certificate in float64 "
                                                     "(or exact) arithmetic against the original condition.")
+    exact: bool | None = Field(None, description="`common_quadratic`/`switched`: true when `verified` comes from "
+                                                 "the exact rational re-check on the loop rebuilt from the float64 "
+                                                 "plant and gains (n <= 8, where float64 could not decide its tiny "
+                                                 "margin), not the float64 one.")
     source: str | None = Field(None, description="What produced it (`lmi`, `switched`, `ccl_iterate`, "
                                                  "`theorem1_lmi`, `switched_lmi`, `sdp_dual`, ...).")
     statement: str | None = Field(None, description="`farkas`, `uncontrollable`: what the certificate proves, "
