@@ -32,6 +32,7 @@ import scipy.optimize
 
 from .compiled import SolveInfo, time_left
 from .errors import InvalidInput, SolverFailed
+from .exact import fractions
 from .lifting import Lifted
 
 #: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
@@ -284,13 +285,22 @@ def _data_error(P: np.ndarray, d: dict, cost: bool = True, P_next: np.ndarray | 
     return e * (1 + 4 * eps)
 
 
+#: A float64 matrix as exact Fractions (lists of rows), for the exact re-checks below.
+frac = fractions
+
+
+def mul(X: list, Y: list) -> list:
+    """The exact product of two matrices of Fractions (lists of rows)."""
+    return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
+
+
 #: Longest interval whose deployed loop :func:`_exact_loop` rebuilds in rationals: the Fractions' bits grow by about 53
 #: per sample and the products' cost with them (the CTMS pendulum's cost design at n_drop = 20: 1.3 s of 1.4 s in
 #: the exact re-check; 0.5 s without it); longer ones use the float64 data less their error bound.
 EXACT_LOOP_MAX_SAMPLES = 8
 
 
-def _exact_loop(d: dict, frac, mul):
+def _exact_loop(d: dict):
     """The deployed interval loop of ``d`` in rationals, built from the float64 F, G, K (and Q, R, E, C_z, D_z) that
     :meth:`solver.lifting.Lifted.numeric` attached (``d["plant"]``): ``(A, S, AB, CD)`` as lists of Fractions
     (S None without weights, AB and CD None without a channel), or None without the plant data or for an interval
@@ -398,12 +408,6 @@ def recheck_tree_bound(data: list[dict], P: np.ndarray, bound: float, depth: int
     """
     from fractions import Fraction
 
-    def frac(M):
-        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
-
-    def mul(X, Y):
-        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
-
     def tr(X):
         return [list(col) for col in zip(*X)]
 
@@ -464,12 +468,6 @@ def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
         return False
     n = P.shape[0]
 
-    def frac(M):
-        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
-
-    def mul(X, Y):
-        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
-
     Pq = frac(P)
     Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
     if not _psd_exact(Pq):
@@ -477,7 +475,7 @@ def check_cost_exact(P: np.ndarray, data: list[dict]) -> bool:
     for d in data:
         A, Sq = frac(d["A"]), frac(d["S"])
         e = Fraction(_data_error(P, d))  # the deployed loop's distance (docs/design.md §8.4, "Loop data") ...
-        exact = _exact_loop(d, frac, mul)
+        exact = _exact_loop(d)
         if exact is not None and exact[1] is not None:  # ... or the deployed loop itself, in rationals
             A, Sq, e = exact[0], exact[1], Fraction(0)
         APA = mul(mul([list(col) for col in zip(*A)], Pq), A)
@@ -696,12 +694,6 @@ def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     if P.ndim != 2 or not np.all(np.isfinite(P)) or not np.isfinite(g):
         return False
 
-    def frac(M):
-        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
-
-    def mul(X, Y):
-        return [[sum(X[i][k] * Y[k][j] for k in range(len(Y))) for j in range(len(Y[0]))] for i in range(len(X))]
-
     n = P.shape[0]
     Pq = frac(P)
     Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
@@ -711,7 +703,7 @@ def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     for d in data:
         AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
         e = Fraction(_data_error(P, d, False))  # the deployed loop's distance (docs/design.md §8.4, "Loop data") ...
-        exact = _exact_loop(d, frac, mul)
+        exact = _exact_loop(d)
         if exact is not None and exact[2] is not None:  # ... or the deployed loop itself, in rationals
             AB, CD, e = exact[2], exact[3], Fraction(0)
         k = len(AB[0]) - n
