@@ -203,7 +203,9 @@ def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     for d in data:
         Pv, Pw = P[d["src"]], P[d["dst"]]
         APA = d["A"].T @ Pw @ d["A"]
-        size = np.linalg.norm(APA, 2) + np.linalg.norm(Pv, 2) + np.linalg.norm(d["S"], 2)
+        # |A|'|P||A| bounds the rounding of forming A'P A (Higham, ch. 3), which ||A'P A|| need not
+        absA = np.abs(d["A"])
+        size = np.linalg.norm(absA.T @ np.abs(Pw) @ absA, 2) + np.linalg.norm(Pv, 2) + np.linalg.norm(d["S"], 2)
         worst = max(worst, np.linalg.eigvalsh(_sym(APA - Pv + d["S"]))[-1] / size)
     return bool(worst < -_allowance(P.shape[-1])), float(worst)
 
