@@ -59,6 +59,31 @@ class AffineRows:
         return out
 
 
+#: Absolute errors of underflow, added to every entrywise bound of the loop data.
+TINY = 64 * np.finfo(float).tiny
+
+
+def interval_loop(free, dfree, coef, dcoef, K, eta: int):
+    """``free + sum_q coef_q K_q`` (q < eta) in float64 and an entrywise bound of its distance to the same sum of
+    the exact interval data (``free``, ``coef`` within ``dfree``, ``dcoef``) in real arithmetic: the a-priori bound
+    ``gamma_k sum |terms|`` of the sum (Higham §3.1), doubled to cover the rounding of the bound itself.
+
+    free, dfree : (n, n); coef, dcoef : (N, n, m); K : (N, m, n).
+    """
+    from .certificates import gamma
+
+    m = coef.shape[-1]
+    value = free + np.einsum("qam,qmb->ab", coef[:eta], K[:eta])
+    terms = np.abs(free) + np.einsum("qam,qmb->ab", np.abs(coef[:eta]), np.abs(K[:eta]))
+    err = dfree + np.einsum("qam,qmb->ab", dcoef[:eta], np.abs(K[:eta])) + gamma(eta * m + 2) * terms
+    return value, 2 * err + TINY
+
+
+def close(X, X_alt, dX_alt):
+    """An entrywise bound of ``|X - X_true|`` from ``|X_alt - X_true| <= dX_alt`` (rounded up)."""
+    return (np.abs(X - X_alt) * (1 + 4 * np.finfo(float).eps) + dX_alt) * (1 + 4 * np.finfo(float).eps) + TINY
+
+
 @dataclass(frozen=True, eq=False)
 class LiftedMode:
     """The lifted data of one interval mode (see the module docstring).
@@ -166,17 +191,10 @@ class Lifted:
         N = K.shape[0]
         absK = np.abs(K)
         eye = np.eye(N)
-        tiny = 64 * np.finfo(float).tiny  # underflow's absolute errors
+        tiny = TINY
 
         def loop(free, dfree, coef, dcoef, eta):
-            """``free + sum_q coef_q K_q`` and its error bound (coef: (N, n, m))."""
-            value = free + np.einsum("qam,qmb->ab", coef[:eta], K[:eta])
-            terms = np.abs(free) + np.einsum("qam,qmb->ab", np.abs(coef[:eta]), absK[:eta])
-            err = dfree + np.einsum("qam,qmb->ab", dcoef[:eta], absK[:eta]) + gamma(eta * m + 2) * terms
-            return value, 2 * err + tiny
-
-        def close(X, X_alt, dX_alt):
-            return (np.abs(X - X_alt) * (1 + 4 * np.finfo(float).eps) + dX_alt) * (1 + 4 * np.finfo(float).eps) + tiny
+            return interval_loop(free, dfree, coef, dcoef, K, eta)
 
         plants = [lm.plants for lm in self.lifted]
         free, dfree, coef, dcoef = interval_data(F, G, plants, eye)

@@ -31,12 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import (NetworkPerformance, _allowance, _sym, certify_hinf, check_x0, hinf_norm_lower,
+from ..brackets import (NetworkPerformance, _allowance, _data_error, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         period_system)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
-from ..lifting import check_channel, check_weights, lift_modes
+from ..lifting import TINY, check_channel, check_weights, lift_modes
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
 from . import network_lmi
@@ -120,7 +120,37 @@ class Channels:
                         "B": None if self.B is None else self.B[e], "D": None if self.D is None else self.D[e],
                         "C": None if self.output is None else self.output[e].value(gains, n),
                         "src": int(self.prob.src[e]), "dst": int(self.prob.dst[e])})
+        if self.prob.F is not None:
+            loop_errors(self.prob, np.asarray(gains, dtype=np.float64), out)
         return out
+
+
+def loop_errors(prob, gains: np.ndarray, data: list[dict]) -> None:
+    """Add ``data[e]["dA"]``: an entrywise bound of the distance of the float64 ``A_e`` to the deployed loop's
+    (built exactly from the float64 F, G and gains), which the re-checks add to their allowance (docs/design.md
+    §8.4, "Loop data").  Augmented form: ``A_e`` holds F, identities and one ``G K`` product (exact data, one
+    rounded sum); lifted form: the interval's products, rebuilt with their bounds by
+    :func:`solver.certificates.interval_data`.  The stage cost and the channels carry no such bound here."""
+    from ..certificates import gamma, interval_data
+    from ..lifting import close, interval_loop
+
+    n, N = prob.n, prob.N
+    if prob.form == "lifted":
+        seqs = []
+        for lab in prob.labels:
+            seqs.append(tuple(lab["plants"]) if "plants" in lab else (int(lab["plant"]),) * int(lab["eta"]))
+        free, dfree, coef, dcoef = interval_data(prob.F, prob.G, tuple(seqs), np.eye(N))
+        for e, d in enumerate(data):
+            A_alt, dA_alt = interval_loop(free[e], dfree[e], coef[e], dcoef[e], gains, len(seqs[e]))
+            d["dA"] = close(d["A"], A_alt, dA_alt)
+        return
+    m = prob.m
+    for e, d in enumerate(data):
+        terms = np.abs(prob.free[e])
+        for j, b in enumerate(prob.right[e]):
+            if b >= 0:
+                terms[:, b * n:(b + 1) * n] += np.abs(prob.coef[e, j]) @ np.abs(gains[j])
+        d["dA"] = 2 * gamma(m + 2) * terms + TINY
 
 
 def initial_history(prob) -> np.ndarray:
@@ -199,15 +229,17 @@ def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     P = _sym(P)
     if not np.all(np.isfinite(P)) or np.linalg.eigvalsh(P)[:, 0].min() <= 0:
         return False, np.inf
-    worst = -np.inf
+    worst, passed = -np.inf, True
     for d in data:
         Pv, Pw = P[d["src"]], P[d["dst"]]
         APA = d["A"].T @ Pw @ d["A"]
         # |A|'|P||A| bounds the rounding of forming A'P A (Higham, ch. 3), which ||A'P A|| need not
         absA = np.abs(d["A"])
         size = np.linalg.norm(absA.T @ np.abs(Pw) @ absA, 2) + np.linalg.norm(Pv, 2) + np.linalg.norm(d["S"], 2)
-        worst = max(worst, np.linalg.eigvalsh(_sym(APA - Pv + d["S"]))[-1] / size)
-    return bool(worst < -_allowance(P.shape[-1])), float(worst)
+        value = np.linalg.eigvalsh(_sym(APA - Pv + d["S"]))[-1] / size
+        worst = max(worst, value)
+        passed = passed and value + _data_error(Pw, d) / size < -_allowance(P.shape[-1])
+    return bool(passed), float(worst)
 
 
 def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None) -> float:

@@ -294,3 +294,54 @@ def test_cost_with_input_limits_is_coordinate_free():
     assert base.outcome == res.outcome == "stabilized" and res.invariant_set is not None
     assert res.performance.upper == pytest.approx(base.performance.upper, rel=1e-4)
     assert res.performance.lower == pytest.approx(base.performance.lower, rel=1e-4)
+
+
+@pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
+def test_loop_data_bounds_cover_the_deployed_loop(net):
+    """``dA`` bounds the distance of every float64 transition matrix to the deployed loop's, rebuilt here in exact
+    rationals by stepping ``x(t+1) = F_l x(t) + G_l K_(d+1) x(t-d)`` (lifted: over the interval from a fresh packet;
+    augmented: on the history state), with gains large enough that ``G K`` cancels most of ``F``."""
+    from fractions import Fraction
+
+    def q(X):
+        return [[Fraction(float(v)) for v in row] for row in np.atleast_2d(X)]
+
+    def mm(X, Y):
+        return [[sum(a * b for a, b in zip(row, col)) for col in zip(*Y)] for row in X]
+
+    def add(X, Y):
+        return [[a + b for a, b in zip(r, s)] for r, s in zip(X, Y)]
+
+    rng = np.random.default_rng(3)
+    for plant_switching in ("per_interval", "per_sample"):
+        ch = network_performance.channels(MOTOR, net, "cost", plant_switching=plant_switching)
+        prob = ch.prob
+        n = prob.n
+        gains = 1e3 * rng.standard_normal((prob.N, 1, n)) + np.pi
+        data = ch.numeric(gains)
+        for lab, d in zip(prob.labels, data):
+            if prob.form == "lifted":
+                seq = lab["plants"] if "plants" in lab else [lab["plant"]] * lab["eta"]
+                A = q(np.eye(n))
+                for t, l in enumerate(seq):  # the packet of sample 0 acts at every sample of the interval
+                    A = add(mm(q(MOTOR.F[l]), A), mm(q(MOTOR.G[l]), q(gains[t])))
+            else:
+                l, age, k = lab["plant"], lab["age"], prob.k
+                A = [[Fraction(0)] * k for _ in range(k)]
+                top = add(q(MOTOR.F[l]), [[Fraction(0)] * n for _ in range(n)])
+                for i in range(n):
+                    for j in range(n):
+                        A[i][j] = top[i][j]
+                GK = mm(q(MOTOR.G[l]), q(gains[age]))
+                for i in range(n):
+                    for j in range(n):
+                        A[i][age * n + j] += GK[i][j]
+                for b in range(1, prob.N):
+                    for i in range(n):
+                        A[b * n + i][(b - 1) * n + i] = Fraction(1)
+            gap = np.array([[float(abs(A[i][j] - Fraction(float(d["A"][i, j])))) for j in range(len(A))]
+                            for i in range(len(A))])
+            assert np.all(gap <= d["dA"]), (lab, float((gap - d["dA"]).max()))
+            # and not vacuous: within a few thousand units of roundoff of the terms' size
+            assert float(d["dA"].max()) <= 1e4 * np.finfo(float).eps * (1 + float(np.abs(d["A"]).max())
+                                                                         + 1e3 * float(np.abs(gains).max()))
