@@ -110,6 +110,11 @@ class Channels:
     history: np.ndarray
     Q: np.ndarray | None = None
     R: np.ndarray | None = None
+    #: Lifted form: the lifted modes (with the plant data, for the loop-data bounds) and each transition's mode.
+    lifted: object | None = None
+    lifted_seq: list | None = None
+    #: Augmented form, hinf: the channel's (C_z, D_z) per plant mode.
+    output_data: tuple | None = None
 
     def numeric(self, gains: np.ndarray) -> list[dict]:
         n = self.prob.n
@@ -121,36 +126,65 @@ class Channels:
                         "C": None if self.output is None else self.output[e].value(gains, n),
                         "src": int(self.prob.src[e]), "dst": int(self.prob.dst[e])})
         if self.prob.F is not None:
-            loop_errors(self.prob, np.asarray(gains, dtype=np.float64), out)
+            loop_errors(self, np.asarray(gains, dtype=np.float64), out)
         return out
 
 
-def loop_errors(prob, gains: np.ndarray, data: list[dict]) -> None:
-    """Add ``data[e]["dA"]``: an entrywise bound of the distance of the float64 ``A_e`` to the deployed loop's
-    (built exactly from the float64 F, G and gains), which the re-checks add to their allowance (docs/design.md
-    §8.4, "Loop data").  Augmented form: ``A_e`` holds F, identities and one ``G K`` product (exact data, one
-    rounded sum); lifted form: the interval's products, rebuilt with their bounds by
-    :func:`solver.certificates.interval_data`.  The stage cost and the channels carry no such bound here."""
-    from ..certificates import gamma, interval_data
-    from ..lifting import close, interval_loop
+def loop_errors(ch: "Channels", gains: np.ndarray, data: list[dict]) -> None:
+    """Add to every transition's data entrywise bounds of the distance of its float64 matrices to the deployed
+    loop's (built exactly from the float64 F, G, gains, Q, R and channel), which the re-checks add to their
+    allowance (docs/design.md §8.4, "Loop data").  Lifted form: the lifted modes' bounds
+    (:meth:`solver.lifting.Lifted.errors`), widened by any difference of the two float64 evaluations.  Augmented
+    form: ``A_e`` holds F, identities and one ``G K`` product, the stage matrix ``e0'Q e0 + sel' K' R K sel`` and
+    the output ``C e0 + D K sel`` (B and D exact): each one rounded sum (Higham §3.1)."""
+    from ..certificates import gamma
+    from ..lifting import _symm, close
 
-    n, N = prob.n, prob.N
+    prob = ch.prob
     if prob.form == "lifted":
-        seqs = []
-        for lab in prob.labels:
-            seqs.append(tuple(lab["plants"]) if "plants" in lab else (int(lab["plant"]),) * int(lab["eta"]))
-        free, dfree, coef, dcoef = interval_data(prob.F, prob.G, tuple(seqs), np.eye(N))
-        for e, d in enumerate(data):
-            A_alt, dA_alt = interval_loop(free[e], dfree[e], coef[e], dcoef[e], gains, len(seqs[e]))
-            d["dA"] = close(d["A"], A_alt, dA_alt)
+        if ch.lifted is None:
+            return
+        per_mode = ch.lifted.numeric(gains)
+        for d, s in zip(data, ch.lifted_seq):
+            ref = per_mode[s]
+            for key in ("A", "S", "B", "C", "D"):
+                dkey = "d" + key
+                if d.get(key) is None or ref.get(dkey) is None:
+                    d[dkey] = None
+                else:
+                    X, Y = (_symm(d[key]), _symm(ref[key])) if key == "S" else (d[key], ref[key])
+                    d[dkey] = close(X, Y, ref[dkey])
         return
-    m = prob.m
+    n, m, k = prob.n, prob.m, prob.k
+    absK = np.abs(gains)
     for e, d in enumerate(data):
         terms = np.abs(prob.free[e])
         for j, b in enumerate(prob.right[e]):
             if b >= 0:
-                terms[:, b * n:(b + 1) * n] += np.abs(prob.coef[e, j]) @ np.abs(gains[j])
+                terms[:, b * n:(b + 1) * n] += np.abs(prob.coef[e, j]) @ absK[j]
         d["dA"] = 2 * gamma(m + 2) * terms + TINY
+        d["dS"] = d["dB"] = d["dC"] = d["dD"] = None
+        age = int(np.flatnonzero(prob.right[e] >= 0)[0]) if np.any(prob.right[e] >= 0) else None
+        cols = slice(n * age, n * (age + 1)) if age is not None else None
+        if d.get("S") is not None and ch.Q is not None:
+            S_alt, terms = np.zeros((k, k)), np.zeros((k, k))
+            S_alt[:n, :n] += ch.Q
+            terms[:n, :n] += np.abs(ch.Q)
+            if cols is not None:
+                K = gains[age]
+                S_alt[cols, cols] += K.T @ ch.R @ K
+                terms[cols, cols] += absK[age].T @ np.abs(ch.R) @ absK[age]
+            d["dS"] = close(_symm(d["S"]), S_alt, 2 * gamma(2 * (n + m) + 2) * terms + TINY)
+        if d.get("C") is not None and ch.output_data is not None:
+            C, D = ch.output_data
+            l = int(prob.labels[e]["plant"])
+            C_alt = np.zeros_like(d["C"])
+            C_alt[:, :n] = C[l]
+            terms = np.abs(C_alt)
+            if cols is not None:
+                C_alt[:, cols] += D[l] @ gains[age]
+                terms[:, cols] += np.abs(D[l]) @ absK[age]
+            d["dC"] = close(d["C"], C_alt, 2 * gamma(m + 2) * terms + TINY)
 
 
 def initial_history(prob) -> np.ndarray:
@@ -167,7 +201,7 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
     r = family.n_modes
     state = [Rows(prob.free[e], prob.coef[e], prob.right[e]) for e in range(prob.n_blocks)]
     cost = out_rows = Bs = Ds = None
-    Q = R = None
+    Q = R = lifted = seq = output_data = None
     if objective == "cost":
         Q, R = check_weights(weights, n, m)
     if prob.form == "lifted":
@@ -205,6 +239,7 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
         else:
             E, C, D = check_channel(disturbance, output, r, n, m)
             out_rows, Bs, Ds = [], [], []
+            output_data = (np.asarray(C, dtype=np.float64), np.asarray(D, dtype=np.float64))
             for e in range(prob.n_blocks):
                 d, l = int(ages[_source_node(prob, e)]), plants[e]
                 coef = np.zeros((N, C.shape[1], m))
@@ -215,7 +250,8 @@ def channels(family, network, objective: str, weights=None, disturbance=None, ou
                 Bs.append(np.vstack([E[l], np.zeros((k - n, E.shape[2]))]))
                 Ds.append(np.zeros((C.shape[1], E.shape[2])))
     start = np.arange(len(prob.nodes))
-    return Channels(prob, state, cost, out_rows, Bs, Ds, start, initial_history(prob), Q, R)
+    return Channels(prob, state, cost, out_rows, Bs, Ds, start, initial_history(prob), Q, R, lifted, seq,
+                    output_data)
 
 
 def _source_node(prob, e: int) -> int:

@@ -298,9 +298,10 @@ def test_cost_with_input_limits_is_coordinate_free():
 
 @pytest.mark.parametrize("net", NETWORKS, ids=lambda n: n.describe())
 def test_loop_data_bounds_cover_the_deployed_loop(net):
-    """``dA`` bounds the distance of every float64 transition matrix to the deployed loop's, rebuilt here in exact
-    rationals by stepping ``x(t+1) = F_l x(t) + G_l K_(d+1) x(t-d)`` (lifted: over the interval from a fresh packet;
-    augmented: on the history state), with gains large enough that ``G K`` cancels most of ``F``."""
+    """``dA`` and ``dS`` bound the distance of every float64 transition and stage matrix to the deployed loop's,
+    rebuilt here in exact rationals by stepping ``x(t+1) = F_l x(t) + G_l K_(d+1) x(t-d)`` with the stage
+    ``x'Qx + u'Ru`` (lifted: over the interval from a fresh packet; augmented: on the history state), with gains
+    large enough that ``G K`` cancels most of ``F``."""
     from fractions import Fraction
 
     def q(X):
@@ -312,36 +313,74 @@ def test_loop_data_bounds_cover_the_deployed_loop(net):
     def add(X, Y):
         return [[a + b for a, b in zip(r, s)] for r, s in zip(X, Y)]
 
+    def tr(X):
+        return [list(c) for c in zip(*X)]
+
+    def zeros(k):
+        return [[Fraction(0)] * k for _ in range(k)]
+
+    def covered(exact, value, bound):
+        gap = np.array([[float(abs(exact[i][j] - Fraction(float(value[i, j])))) for j in range(len(exact))]
+                        for i in range(len(exact))])
+        return bool(np.all(gap <= bound)), float((gap - bound).max())
+
     rng = np.random.default_rng(3)
+    Q, R = np.diag([2.0, 0.3]), np.array([[0.7]])
     for plant_switching in ("per_interval", "per_sample"):
-        ch = network_performance.channels(MOTOR, net, "cost", plant_switching=plant_switching)
+        ch = network_performance.channels(MOTOR, net, "cost", weights=(Q, R), plant_switching=plant_switching)
         prob = ch.prob
-        n = prob.n
+        n, k = prob.n, prob.k
         gains = 1e3 * rng.standard_normal((prob.N, 1, n)) + np.pi
         data = ch.numeric(gains)
+        Qq, Rq = q(Q), q(R)
         for lab, d in zip(prob.labels, data):
             if prob.form == "lifted":
                 seq = lab["plants"] if "plants" in lab else [lab["plant"]] * lab["eta"]
-                A = q(np.eye(n))
+                A, S = q(np.eye(n)), zeros(n)
                 for t, l in enumerate(seq):  # the packet of sample 0 acts at every sample of the interval
+                    U = mm(q(gains[t]), q(np.eye(n)))
+                    S = add(S, add(mm(mm(tr(A), Qq), A), mm(mm(tr(U), Rq), U)))
                     A = add(mm(q(MOTOR.F[l]), A), mm(q(MOTOR.G[l]), q(gains[t])))
             else:
-                l, age, k = lab["plant"], lab["age"], prob.k
-                A = [[Fraction(0)] * k for _ in range(k)]
-                top = add(q(MOTOR.F[l]), [[Fraction(0)] * n for _ in range(n)])
+                l, age = lab["plant"], lab["age"]
+                A, S = zeros(k), zeros(k)
+                F, GK, KRK = q(MOTOR.F[l]), mm(q(MOTOR.G[l]), q(gains[age])), mm(mm(tr(q(gains[age])), Rq),
+                                                                                 q(gains[age]))
                 for i in range(n):
                     for j in range(n):
-                        A[i][j] = top[i][j]
-                GK = mm(q(MOTOR.G[l]), q(gains[age]))
-                for i in range(n):
-                    for j in range(n):
+                        A[i][j] += F[i][j]
                         A[i][age * n + j] += GK[i][j]
+                        S[i][j] += Qq[i][j]
+                        S[age * n + i][age * n + j] += KRK[i][j]
                 for b in range(1, prob.N):
                     for i in range(n):
                         A[b * n + i][(b - 1) * n + i] = Fraction(1)
-            gap = np.array([[float(abs(A[i][j] - Fraction(float(d["A"][i, j])))) for j in range(len(A))]
-                            for i in range(len(A))])
-            assert np.all(gap <= d["dA"]), (lab, float((gap - d["dA"]).max()))
+            ok, excess = covered(A, d["A"], d["dA"])
+            assert ok, (lab, excess)
+            ok, excess = covered(S, 0.5 * (d["S"] + d["S"].T), d["dS"])
+            assert ok, (lab, excess)
             # and not vacuous: within a few thousand units of roundoff of the terms' size
-            assert float(d["dA"].max()) <= 1e4 * np.finfo(float).eps * (1 + float(np.abs(d["A"]).max())
-                                                                         + 1e3 * float(np.abs(gains).max()))
+            scale = 1 + float(np.abs(d["A"]).max()) + 1e3 * float(np.abs(gains).max())
+            assert float(d["dA"].max()) <= 1e4 * np.finfo(float).eps * scale
+            assert float(d["dS"].max()) <= 1e4 * np.finfo(float).eps * scale ** 2
+
+
+def test_output_bounds_cover_the_deployed_loop_on_the_augmented_form():
+    """hinf on the history state: ``dC`` bounds ``C_e - (C_l e0 + D_l K_(d+1) sel_d)``, rebuilt in rationals."""
+    from fractions import Fraction
+
+    net = NETWORKS[0]
+    Cz, Dz = np.array([[1.0, 0.3], [0.0, 0.0]]), np.array([[0.0], [0.1]])
+    ch = network_performance.channels(MOTOR, net, "hinf", disturbance=E, output=(Cz, Dz))
+    assert ch.prob.form == "augmented"
+    n = ch.prob.n
+    gains = 1e3 * np.random.default_rng(4).standard_normal((ch.prob.N, 1, n)) + np.e
+    for lab, d in zip(ch.prob.labels, ch.numeric(gains)):
+        age = lab["age"]
+        for i in range(Cz.shape[0]):
+            for j in range(d["C"].shape[1]):
+                exact = Fraction(float(Cz[i, j])) if j < n else Fraction(0)
+                if age * n <= j < (age + 1) * n:
+                    exact += Fraction(float(Dz[i, 0])) * Fraction(float(gains[age, 0, j - age * n]))
+                assert float(abs(exact - Fraction(float(d["C"][i, j])))) <= d["dC"][i, j]
+        assert float(d["dC"].max()) <= 1e4 * np.finfo(float).eps * (1 + 1e3 * float(np.abs(gains).max()))
