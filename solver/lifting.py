@@ -191,7 +191,6 @@ class Lifted:
         N = K.shape[0]
         absK = np.abs(K)
         eye = np.eye(N)
-        tiny = TINY
 
         def loop(free, dfree, coef, dcoef, eta):
             return interval_loop(free, dfree, coef, dcoef, K, eta)
@@ -233,7 +232,7 @@ class Lifted:
                     err += dM.T @ aQ @ (aM + dM) + (aM + dM).T @ aQ @ dM
                     terms += aM.T @ aQ @ aM + absK[t].T @ aR @ absK[t]
                 err += gamma(2 * (n + m + eta)) * terms
-                d["dS"] = close(_symm(d["S"]), S_alt, 2 * err + tiny)
+                d["dS"] = close(_symm(d["S"]), S_alt, 2 * err + TINY)
             if ch is not None and d["C"] is not None:
                 Cz, Dz = np.asarray(ch[1], dtype=np.float64), np.asarray(ch[2], dtype=np.float64)
                 rows, drows = [], []
@@ -241,7 +240,7 @@ class Lifted:
                     l = seq[t]
                     rows.append(Cz[l] @ M + Dz[l] @ K[t])
                     drows.append(2 * (np.abs(Cz[l]) @ dM + gamma(n + m + 1) * (np.abs(Cz[l]) @ np.abs(M)
-                                                                                + np.abs(Dz[l]) @ absK[t])) + tiny)
+                                                                                + np.abs(Dz[l]) @ absK[t])) + TINY)
                 d["dC"] = close(d["C"], np.vstack(rows), np.vstack(drows))
             if ch is not None and d["B"] is not None:
                 d["dB"] = close(d["B"], np.hstack(list(bq[s, :eta])), np.hstack(list(dbq[s, :eta])))
@@ -253,7 +252,7 @@ class Lifted:
                         X, dX = pbq[at + t, j], dpbq[at + t, j]
                         D_alt[t * pz:(t + 1) * pz, j * pw:(j + 1) * pw] = Cz[seq[t]] @ X
                         dD_alt[t * pz:(t + 1) * pz, j * pw:(j + 1) * pw] = \
-                            2 * (aC @ dX + gamma(n + 1) * (aC @ np.abs(X))) + tiny
+                            2 * (aC @ dX + gamma(n + 1) * (aC @ np.abs(X))) + TINY
                 d["dD"] = close(d["D"], D_alt, dD_alt)
             at += eta
 
