@@ -632,9 +632,10 @@ def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np
 EXACT_HEWER_STEPS = 3
 
 
-def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray) -> np.ndarray:
+def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
     """Hewer's iteration continued with each P solved exactly (:func:`solver.exact.lyapunov_exact`) and each gain
-    formed exactly and rounded once (:func:`solver.exact.riccati_gain_exact`); the gain of least exact ``trace P``.
+    formed exactly and rounded once (:func:`solver.exact.riccati_gain_exact`); the gain of least exact ``trace P``
+    and that P rounded to float64 (None when no exact step was taken).
 
     Where P spans 1e13 the float64 iteration stops 1e-5 above the Riccati cost (its Lyapunov solutions and the
     products ``G' P F`` lose that much); every exact step is a true Newton step, up to the gain's rounding
@@ -642,7 +643,7 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
     """
     from ..exact import lyapunov_exact, riccati_gain_exact
 
-    best, best_trace = K, None
+    best, best_trace, best_P = K, None, None
     for _ in range(EXACT_HEWER_STEPS):
         if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
             break
@@ -652,11 +653,11 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
         trace = sum(P[i][i] for i in range(len(P)))
         if best_trace is not None and not trace < best_trace:
             break  # converged to the gain's rounding
-        best, best_trace = K, trace
+        best, best_trace, best_P = K, trace, P
         K = riccati_gain_exact(F, G, R, P)
         if K is None:
             break
-    return best
+    return best, None if best_P is None else np.array([[float(v) for v in row] for row in best_P])
 
 
 def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None):
@@ -691,7 +692,11 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
     if F.shape[0] <= EXACT_COST_MAX_N:
-        K = _exact_hewer(F, G, Q, R, K)
+        K, P_exact = _exact_hewer(F, G, Q, R, K)
+        if P_exact is not None:
+            # the exact cost matrix of these gains, rounded: the coordinates of the solves below (where P spans
+            # 1e13 the float64 iteration's last P is no approximation of it: indefinite, hold-out seeds 1, 31)
+            P = P_exact
     A, S = (F + G @ K, Q + K.T @ R @ K) if loop is None else loop(K)
     if not np.max(np.abs(np.linalg.eigvals(A))) < 1:
         return None
