@@ -1200,7 +1200,7 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             timed_out = True
             return None
         try:
-            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining,
+            res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining, rate_search=True,
                                         sign_only=_probe_sign(probe_sign, lam, settling), warm_start=warm(lam)))
         except SolverFailed as err:
             if lam >= 1.0:  # nothing certified yet: the design itself failed
@@ -1380,7 +1380,7 @@ def _path_bracket(modes: ModeSet, options: DesignOptions, settling: bool, tol_wi
         sol.duals = X  # the probes' model and warm start (when the path leaves the bracket open)
         return sol, res
 
-    plain = replace(options, sign_only=False, warm_start=None)
+    plain = replace(options, sign_only=False, warm_start=None, rate_search=True)
     # the last certifying iterate first, then earlier ones (better centred: the paper example's last one is
     # certified 1e-7 above its re-check's resolution), each at the rates above its own that still close the bracket
     tries = [(his, path.W, path.Y, path.X_hi, path.hi_at)]

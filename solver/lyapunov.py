@@ -317,26 +317,27 @@ def switched_lmi(A: np.ndarray, rho: np.ndarray | None = None, solver: str = "AU
 
 
 def certify(A: np.ndarray, n_drop: int, kinds=("common_quadratic", "switched"), solver="AUTO",
-            time_limit=None, on_solve: Callable | None = None) -> Certificate | None:
+            time_limit=None, on_solve: Callable | None = None, rho: np.ndarray | None = None) -> Certificate | None:
     """A verified stability certificate for fixed closed loops, trying the kinds in order.
 
-    The switched kind is skipped above :data:`MAX_SWITCHED_MODES` modes.
+    The switched kind is skipped above :data:`MAX_SWITCHED_MODES` modes.  ``rho`` (S,): decay factors
+    ``lambda^(2 eta_s)`` the certificate must prove (default: plain stability).
     """
     for kind in kinds:
         if kind == "common_quadratic":
-            X, t, info = common_lmi(A, solver=solver, time_limit=time_limit)
+            X, t, info = common_lmi(A, rho=rho, solver=solver, time_limit=time_limit)
             if on_solve:
                 on_solve(info)
             if t > 0:
-                cert = recheck_lifted(X, A, n_drop, "theorem1_lmi")
+                cert = recheck_lifted(X, A, n_drop, "theorem1_lmi", rho=rho)
                 if cert.verified:
                     return cert
         elif kind == "switched" and A.shape[0] <= MAX_SWITCHED_MODES:
-            P, t, info = switched_lmi(A, solver=solver, time_limit=time_limit)
+            P, t, info = switched_lmi(A, rho=rho, solver=solver, time_limit=time_limit)
             if on_solve:
                 on_solve(info)
             if t > 0:
-                cert = recheck_switched(P, A, "switched_lmi")
+                cert = recheck_switched(P, A, "switched_lmi", rho=rho)
                 if cert.verified:
                     return cert
     return None

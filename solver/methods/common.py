@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+import scipy.linalg
 
 from ..certificates import check_farkas, check_farkas_switched, interval_data, uncontrollable_mode
 from ..compiled import SolveInfo, resolve_solver, time_left
@@ -35,6 +37,9 @@ class DesignOptions:
     warm_start: object | None = None
     #: The memory budget (bytes) of the ``"AUTO"`` fallback to Clarabel (:func:`solver.compiled.clarabel_fits`).
     max_memory: float | None = None
+    #: A step of a rate search (``decay_rate="max"``/``"auto"``): the SDP's own candidate decides, the gains are not
+    #: certified on their own at the rate when it fails (the searches' brackets stay those of docs/design.md §3.2.1).
+    rate_search: bool = False
 
     def rho(self, modes: ModeSet) -> np.ndarray:
         """Decay factors ``lambda^(2 eta_s)`` per mode (ones without a rate)."""
@@ -123,19 +128,40 @@ def certify_gains(
             cert = recheck_lifted_exact(candidate, A, modes.F, modes.G, gains, modes.plants, n_drop, candidate_source)
             if cert.verified:
                 return cert, A
-    if options.decay_rate is not None or np.max(spectral_radii(A)) >= 1.0:
-        return None, A  # a rate is the candidate's to prove; an unstable mode has no certificate
+    rate = options.decay_rate
+    if np.any(spectral_radii(A) >= (1.0 if rate is None else rate ** modes.eta.astype(float))):
+        return None, A  # a mode slower than the rate (or unstable) has no certificate
+    if rate is not None and options.rate_search:
+        return None, A  # a rate search's step: its own candidate decides (a failed one is a step without a verdict)
+    if rate is not None and candidate_kind != "switched" and A.shape[0] == 1:
+        # one loop: the Lyapunov solution of the loop scaled by the rate is a certificate wherever one exists (near
+        # the best rate the SDP's own W^-1 can miss the float64 re-check by its rounding, docs/design.md §3.3)
+        try:
+            scaled = A[0] * rate ** -float(modes.eta[0])
+            with warnings.catch_warnings():  # (an ill-conditioned solve is the re-check's to judge)
+                warnings.simplefilter("ignore")
+                X = scipy.linalg.solve_discrete_lyapunov(scaled.T, np.eye(A.shape[1]))
+            cert = recheck_lifted(X, A, n_drop, "lyapunov", rho=rho) if np.all(np.isfinite(X)) else None
+            if cert is not None and cert.verified:
+                cert.decay_rate = rate
+                return cert, A
+        except (np.linalg.LinAlgError, ValueError):
+            pass
     kinds = ("common_quadratic",) if modes.plant_switching == "per_interval" and candidate_kind != "switched" else (
         "common_quadratic", "switched")
     remaining = clock.remaining(options.time_limit)
     if remaining is not None and remaining <= 0:
         return None, A
     try:
-        return certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=remaining, on_solve=clock.add), A
+        cert = certify(A, n_drop, kinds=kinds, solver=options.solver, time_limit=remaining, on_solve=clock.add,
+                       rho=None if rate is None else rho)
     except SolverFailed as err:
         if is_time_limit(err, options, clock):
             return None, A
         raise
+    if cert is not None:
+        cert.decay_rate = rate
+    return cert, A
 
 
 def finish(
