@@ -108,6 +108,11 @@ class Performance:
         exactly, and ``certificate_upper`` is its bound rounded up (docs/design.md §8.5).  ``certificate`` then
         stays a float64 certificate (of a larger bound) when one passed, else it is this P's float64 rounding
         (the message says which).  JSON: strings ``"p/q"``.
+    mode_certificate : ndarray, shape (S, n, n), or None
+        hinf over several modes: one storage matrix ``P_s`` per loop mode (user coordinates) when they certify a
+        smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
+        ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] - diag(P_s, gamma^2 I) <= 0`` for every pair of
+        consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").
     """
 
     kind: str
@@ -123,6 +128,7 @@ class Performance:
     lead: int = 0
     certificate_upper: float | None = None
     exact_certificate: list | None = None
+    mode_certificate: np.ndarray | None = None
 
     def __post_init__(self):
         if self.certificate_upper is None:
@@ -152,6 +158,7 @@ class Performance:
             "certificate_upper": num(self.certificate_upper),
             "exact_certificate": None if self.exact_certificate is None else
             [[str(v) for v in row] for row in self.exact_certificate],
+            "mode_certificate": None if self.mode_certificate is None else self.mode_certificate.tolist(),
         }
 
     @classmethod
@@ -173,7 +180,9 @@ class Performance:
                    message=data.get("message") or "", lead=int(data.get("lead") or 0),
                    certificate_upper=data.get("certificate_upper"),
                    exact_certificate=None if data.get("exact_certificate") is None else
-                   [[Fraction(v) for v in row] for row in data["exact_certificate"]])
+                   [[Fraction(v) for v in row] for row in data["exact_certificate"]],
+                   mode_certificate=None if data.get("mode_certificate") is None else
+                   np.array(data["mode_certificate"], dtype=np.float64))
 
     def __getitem__(self, key: str):
         """``perf["upper"]``: the JSON field (results used to hold the bracket as a dict)."""
@@ -222,9 +231,12 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
                       ("the quadratic certificate alone: ", perf.certificate_upper)):
         if v is not None and np.isfinite(v):
             message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
+    mode_P = scale.quadratic_back(perf.mode_certificate, perf.kind)
     if P is not None:
         data = lifted.numeric(gains)
-        ok = check_cost(P, data)[0] if cost else check_hinf(P, (perf.upper * k)**2, data)[0]
+        ok = check_cost(P, data)[0] if cost else check_hinf(P, (perf.certificate_upper * k)**2, data)[0]
+        if mode_P is not None:
+            ok = ok and check_hinf(mode_P, (perf.upper * k)**2, mode_pairs(data))[0]
         message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
     exact_P = None
     if perf.exact_certificate is not None:  # the same congruence, exactly (powers of two)
@@ -236,7 +248,7 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
                        lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
                        verified=perf.verified, x0=x0, patterns=perf.patterns, message=message, lead=perf.lead,
                        certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k,
-                       exact_certificate=exact_P)
+                       exact_certificate=exact_P, mode_certificate=mode_P)
 
 
 def check_x0(x0, n: int) -> np.ndarray | None:
@@ -908,6 +920,44 @@ def fixed_gain_hinf(data: list[dict], solver: str = "AUTO"):
     if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the fixed-gain bounded-real LMI ended with status {status!r} (no common quadratic bound)"
     return certify_hinf(P.value, data)
+
+
+#: Loop modes at most for the mode-dependent storage of the l2-gain bound (S^2 bounded-real blocks).
+MODE_STORAGE_MAX_MODES = 16
+#: Relative gap of the bracket above which the mode-dependent storage is tried.
+MODE_STORAGE_GAP = 1e-3
+
+
+def mode_pairs(data: list[dict]) -> list[dict]:
+    """Every pair of consecutive loop modes as a transition ``s -> t`` (``src``, ``dst``) carrying mode s's data: any
+    mode may follow any (docs/design.md §2), so these are all the steps a storage ``x' P_s x`` has to decrease over."""
+    return [dict(d, src=s, dst=t) for s, d in enumerate(data) for t in range(len(data))]
+
+
+def mode_storage_hinf(data: list[dict], solver: str = "AUTO"):
+    """Upper bound for given gains from one storage matrix per loop mode: ``min gamma^2`` s.t.
+    ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] <= diag(P_s, gamma^2 I)`` for all modes s, t, ``P_s >= 0``.
+
+    Summed along any mode sequence from ``x(0) = 0`` this gives ``sum |z|^2 <= gamma^2 sum |w|^2`` as the common P
+    does, with more freedom: never larger than the common bound (docs/design.md §8.4, "Mode-dependent storage").
+    The solver's answer is only a proposal: :func:`certify_hinf` re-checks it on :func:`mode_pairs`.
+    Returns ``(P (S, n, n) or None, gamma or None, reason)``.
+    """
+    S, n = len(data), data[0]["A"].shape[0]
+    P = [cp.Variable((n, n), symmetric=True) for _ in range(S)]
+    g = cp.Variable()
+    cons = [Ps >> 0 for Ps in P]
+    for s, d in enumerate(data):
+        A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+        k = B.shape[1]
+        for t in range(S):
+            top = P[s] - A.T @ P[t] @ A - C.T @ C
+            off = -(A.T @ P[t] @ B + C.T @ D)
+            cons.append(cp.bmat([[top, off], [off.T, g * np.eye(k) - B.T @ P[t] @ B - D.T @ D]]) >> 0)
+    status = solve_sdp(cp.Problem(cp.Minimize(g), cons), solver).status
+    if any(Ps.value is None for Ps in P) or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        return None, None, f"the mode-dependent bounded-real LMI ended with status {status!r}"
+    return certify_hinf(np.array([Ps.value for Ps in P]), mode_pairs(data))
 
 
 # ------------------------------------------------------------------------- periodic lower bounds
@@ -1829,7 +1879,17 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
             if Pc is not None and (upper is None or gc < upper):
                 P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
                 break
-    quadratic, tree = upper, ""
+    quadratic, tree, mode_P = upper, "", None
+    if kind == "hinf" and P is not None and 1 < len(data) <= MODE_STORAGE_MAX_MODES and lower is not None and \
+            np.isfinite(lower) and upper > lower * (1 + MODE_STORAGE_GAP):
+        # a switched loop whose common storage leaves a gap: one storage per mode (docs/design.md §8.4)
+        try:
+            Pm, gm, _ = mode_storage_hinf(data, solver)
+        except SolverFailed:
+            Pm = None
+        if Pm is not None and gm < upper:
+            mode_P, upper = Pm, gm
+            tree = f"mode-dependent storage, {len(data)} matrices; the quadratic certificate alone: {quadratic:.6g}"
     if P is not None and exact_P is None and found.bound is not None and found.bound < upper:
         # (not on an exact certificate: the tree values the float64 loop, not the deployed one)
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
@@ -1837,7 +1897,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         tree = f"{found.tree}; the quadratic certificate alone: {quadratic:.6g}"
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
-        P, upper, quadratic = None, None, None
+        P, upper, quadratic, mode_P = None, None, None, None
         reason = f"the witness pattern ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
     if P is not None:
@@ -1850,4 +1910,5 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         message += f"; {note}"
     return Performance(kind=kind, upper=upper, lower=lower, witness=witness, certificate=P,
                        verified=P is not None, x0=x0, patterns=count, message=message, lead=lead,
-                       certificate_upper=quadratic, exact_certificate=exact_P if P is not None else None)
+                       certificate_upper=quadratic, exact_certificate=exact_P if P is not None else None,
+                       mode_certificate=mode_P)

@@ -247,8 +247,9 @@ class Performance(_Open):
                                   "initial states of covariance I; `hinf`: worst-case l2 gain from w to z, x(0) = 0.")
     upper: float | None = Field(None, description="Certified upper bound (a re-checked quadratic certificate; for the "
                                                   "cost the smaller of its bound and the prefix tree's certified bound "
-                                                  "on it, docs/design.md §8.4); null when none passed the float64 "
-                                                  "re-check (`message` says why).")
+                                                  "on it, for hinf of `mode_certificate`'s when set, docs/design.md "
+                                                  "§8.4); null when none passed the float64 re-check (`message` says "
+                                                  "why).")
     certificate_upper: float | None = Field(None, description="The quadratic certificate's own bound (`x0'Px`, "
                                                               "`trace P` or gamma): what the design's SDP minimizes.")
     lower: float | None = Field(None, description="The value of the worst allowed periodic pattern searched (exact "
@@ -267,6 +268,9 @@ class Performance(_Open):
         None, description="One LTI loop (one mode, n_drop = 1, n <= 8) whose float64 certificate cannot reach its "
         "cost: P (n x n, strings `p/q`) solving `P = A'PA + S` exactly for the loop F + G K, verified exactly; "
         "`certificate_upper` is its bound rounded up (docs/design.md §8.5).")
+    mode_certificate: list[Matrix] | None = Field(
+        None, description="hinf over several loop modes: one storage P_s per mode (S x n x n) when they certify a "
+        "smaller l2 gain than the common P; `upper` is then their bound (docs/design.md §8.4).")
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")
