@@ -74,7 +74,8 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
     -------
     dict
         ``K``, ``K1``..``KN``, ``F``, ``G``, ``P``, ``n_drop``, ``outcome``, ``certificate``, ``h``; for a
-        cost/hinf design also ``perf_kind``, ``perf_upper``, ``perf_lower`` (NaN when none) and ``P_perf``, and with
+        cost/hinf design also ``perf_kind``, ``perf_upper``, ``perf_lower`` (NaN when none) and ``P_perf`` (and
+        ``P_perf_modes``, n x n x S, when one storage per loop mode certifies ``perf_upper``), and with
         ``u_max`` ``X_inv`` (the invariant set ``x' X_inv x <= 1``); for output feedback ``L`` (n x p x r, the
         observer gains), ``C`` (p x n x r), ``P_joint`` and ``Q_joint`` (n x n x sensor_n_drop) of the joint
         certificate (docs/design.md §12).
@@ -113,6 +114,8 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
             "perf_lower": nan if perf.get("lower") is None else float(perf["lower"]),
             "P_perf": np.zeros((0, 0)) if perf.get("certificate") is None else np.asarray(perf["certificate"], float),
         })
+        if perf.get("mode_certificate") is not None:  # hinf: one storage per loop mode certifies perf_upper
+            out["P_perf_modes"] = np.moveaxis(np.asarray(perf["mode_certificate"], float), 0, -1)
     X_inv = _get(result, "invariant_set")
     if X_inv is not None:  # inputs within u_max from every x with x' X_inv x <= 1
         out["X_inv"] = np.asarray(X_inv, dtype=float)

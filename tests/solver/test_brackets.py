@@ -688,6 +688,9 @@ def test_mode_dependent_storage_narrows_a_switched_l2_gain_bracket():
                 w2 += w @ w
                 x = F[plant] @ x + G[plant] @ u + E @ w
         assert z2 <= g * w2 * (1 + 1e-12)
-    # the JSON form carries the storage matrices
+    # the JSON form and the MATLAB export carry the storage matrices
     from solver.brackets import Performance
+    from solver.matlab import matlab_variables, m_script
     np.testing.assert_array_equal(Performance.from_dict(perf.to_dict()).mode_certificate, Pm)
+    np.testing.assert_array_equal(np.moveaxis(matlab_variables(res, fam)["P_perf_modes"], -1, 0), Pm)
+    assert "P_perf_modes" in m_script(res, fam)
