@@ -1802,13 +1802,15 @@ def exact_loop_cost(lifted: Lifted, gains: np.ndarray, data: list[dict], P: np.n
 
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
-            x0: np.ndarray | None = None, solver: str = "AUTO", weight: np.ndarray | None = None) -> Performance:
+            x0: np.ndarray | None = None, solver: str = "AUTO", weight: np.ndarray | None = None,
+            time_left=None) -> Performance:
     """The certified bracket of ``kind`` for given gains.
 
     ``P0``: a candidate certificate (a design's); without one (or when it fails the re-check) the
     fixed-gain LMI proposes P.  Either way P is accepted only through the float64 re-check.
     ``weight`` (n,): the mean cost is ``sum_i weight_i P_ii`` instead of ``trace P`` (the user's trace of a design
-    made in balanced coordinates, :class:`solver.scaling.PerformanceScaling`).
+    made in balanced coordinates, :class:`solver.scaling.PerformanceScaling`).  ``time_left``: ``() -> seconds or
+    None`` (a design's time limit): the exact rational certificate (up to 2 s at n = 8) is not started once <= 0.
     """
     data = lifted.numeric(gains)
     P = upper = None
@@ -1840,7 +1842,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except np.linalg.LinAlgError:
             pass
     exact_P = exact_lower = None
-    if kind == "cost":
+    remaining = None if time_left is None else time_left()
+    if kind == "cost" and (remaining is None or remaining > 0):
         rational = exact_loop_cost(lifted, gains, data, P, upper, how, x0, weight)
         if rational is not None:
             exact_P, bound, Pf, exact_lower = rational
@@ -1851,8 +1854,10 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                 how = ("exact rational certificate (P = A'PA + S solved exactly for the loop F + G K; `certificate` "
                        "is a float64 one for its float64 rounding fl(F + G K))")
             upper = bound
+    remaining = None if time_left is None else time_left()
+    # out of time: the exhaustive short patterns only (the deeper searches are counts of up to 60 000 nodes, not times)
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
-                        certificate=P)
+                        certificate=P, deep=remaining is None or remaining > 0)
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
     if exact_lower is not None and lower is not None and np.isfinite(lower):
         # one loop, one allowed pattern: its cost is the exact P's value (the float64 witness of a loop whose P spans

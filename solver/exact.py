@@ -345,6 +345,12 @@ def rational_down(q: Fraction) -> float:
 EXACT_MAX_BITS = 14000
 
 
+#: The last results of :func:`lyapunov_exact`, by the bytes of its float64 arguments (the Riccati refinement's last
+#: exact step and the bracket's exact certificate solve the same loop: one elimination, up to 2 s at n = 8).
+_LYAPUNOV_CACHE: dict = {}
+_LYAPUNOV_CACHE_SIZE = 8
+
+
 def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     """The exact solution P of ``P = A' P A + S`` for the loop ``A = F + G K``, ``S = Q + K' R K``.
 
@@ -359,6 +365,17 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     Cramer determinants exceeds four times that: only the time is saved, the result's own size decides).
     O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).
     """
+    arrays = [np.ascontiguousarray(M, dtype=np.float64) for M in (F, G, K, Q, R)]
+    key = tuple((M.shape, M.tobytes()) for M in arrays)
+    if key not in _LYAPUNOV_CACHE:
+        if len(_LYAPUNOV_CACHE) >= _LYAPUNOV_CACHE_SIZE:
+            _LYAPUNOV_CACHE.pop(next(iter(_LYAPUNOV_CACHE)))
+        _LYAPUNOV_CACHE[key] = _lyapunov_exact(*arrays)
+    P = _LYAPUNOV_CACHE[key]
+    return None if P is None else [row[:] for row in P]
+
+
+def _lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     F, G, K = (np.asarray(M, dtype=np.float64) for M in (F, G, K))
     n = F.shape[0]
     Mi, s = closed_loop(F[None], G[None], K[None], (0,))  # A = Mi / 2^s exactly

@@ -555,7 +555,8 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
         Winv = P0
     performance = None
     if objective in ("cost", "hinf"):
-        performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight)
+        performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight,
+                              time_left=lambda: clock.remaining(options.time_limit))
     candidate = performance.certificate if performance is not None and performance.verified else Winv
     # exact: the performance certificate, re-checked exactly there, may hold a relative stability margin (1e-11
     # where P spans 1e11) that float64 cannot confirm; decided in exact arithmetic for small n (§8.5)
@@ -632,10 +633,11 @@ def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np
 EXACT_HEWER_STEPS = 3
 
 
-def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray):
+def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, time_left=None):
     """Hewer's iteration continued with each P solved exactly (:func:`solver.exact.lyapunov_exact`) and each gain
     formed exactly and rounded once (:func:`solver.exact.riccati_gain_exact`); the gain of least exact ``trace P``
-    and that P rounded to float64 (None when no exact step was taken).
+    and that P rounded to float64 (None when no exact step was taken).  ``time_left``: ``() -> seconds or None``; no
+    step starts once it is <= 0 (a step is up to 2 s at n = 8: the design's time limit bounds them).
 
     Where P spans 1e13 the float64 iteration stops 1e-5 above the Riccati cost (its Lyapunov solutions and the
     products ``G' P F`` lose that much); every exact step is a true Newton step, up to the gain's rounding
@@ -645,7 +647,7 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
 
     best, best_trace, best_P = K, None, None
     for _ in range(EXACT_HEWER_STEPS):
-        if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
+        if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or _out_of_time(time_left):
             break
         P = lyapunov_exact(F, G, K, Q, R)
         if P is None:
@@ -660,7 +662,13 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
     return best, None if best_P is None else np.array([[float(v) for v in row] for row in best_P])
 
 
-def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None):
+def _out_of_time(time_left) -> bool:
+    remaining = None if time_left is None else time_left()
+    return remaining is not None and remaining <= 0
+
+
+def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None,
+                   time_left=None):
     """Hewer's (Newton-Kleinman) iteration from a stabilizing ``u = K x`` to the LQR gain of ``(F, G, Q, R)``.
 
     ``K <- -(R + G' P G)^{-1} G' P F`` with ``P = (F + G K)' P (F + G K) + Q + K' R K``: every iterate
@@ -671,7 +679,8 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
     like any other: the caller's float64 re-checks certify it.  ``loop``: ``K -> (A, S)``, the float64 loop and
     cost matrix of the caller's re-check (its rounding, not ``F + G K``'s, is what an exact re-check of P sees where
-    P spans 1e11, docs/design.md §8.5).
+    P spans 1e11, docs/design.md §8.5).  ``time_left``: ``() -> seconds or None``, the design's time limit: the exact
+    steps and lifts stop once it is <= 0.
     """
     if not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
         return None
@@ -692,7 +701,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
     if F.shape[0] <= EXACT_COST_MAX_N:
-        K, P_exact = _exact_hewer(F, G, Q, R, K)
+        K, P_exact = _exact_hewer(F, G, Q, R, K, time_left)
         if P_exact is not None:
             # the exact cost matrix of these gains, rounded: the coordinates of the solves below (where P spans
             # 1e13 the float64 iteration's last P is no approximation of it: indefinite, hold-out seeds 1, 31)
@@ -709,7 +718,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if check_cost(Pe, data)[0]:
             found = Pe
             break
-    if S.shape[0] <= EXACT_COST_MAX_N:
+    if S.shape[0] <= EXACT_COST_MAX_N and not _out_of_time(time_left):
         # the float64 re-check's allowance is relative to |P|: where P spans 1e11 (a nearly unreachable unstable
         # mode) the lift it needs raises trace P by 1e-3 and more; a lift along P itself (slack eps P, relative
         # in every direction) raises it by about eps / (1 - |loop|^2) and passes the exact re-check (§8.5).
@@ -906,7 +915,8 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
             try:
                 refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains,
                                          loop=lambda K: (lambda d: (d["A"], d["S"]))(
-                                             lifted.numeric(K[None], errors=False)[0]))  # (no re-check here)
+                                             lifted.numeric(K[None], errors=False)[0]),  # (no re-check here)
+                                         time_left=lambda: clock.remaining(options.time_limit))
             except (np.linalg.LinAlgError, ValueError):
                 refined = None
             try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict

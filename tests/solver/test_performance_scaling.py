@@ -647,3 +647,35 @@ def test_an_exactly_rechecked_lifted_certificate_is_positive_definite():
             D = [[(1 - c2) * q[i][j] - (mu if i == j else 0) for j in range(2)] for i in range(2)]
             assert D[0][0] > 0 and D[0][0] * D[1][1] - D[0][1] * D[1][0] > 0
     assert checked > 0
+
+
+def test_exact_steps_start_only_within_the_time_limit(monkeypatch):
+    # the exact Hewer steps and the exact certificate cost up to 2 s each at n = 8 and used to run whatever the time
+    # limit (n = 8: 8.5 s under time_limit=0.5); once the limit has passed none starts, and the bracket's exact
+    # certificate reuses the refinement's last elimination (same loop) instead of repeating it
+    from solver import exact
+
+    calls = []
+    original = exact._lyapunov_exact
+    monkeypatch.setattr(exact, "_lyapunov_exact", lambda *a: calls.append(1) or original(*a))
+    F, G = _holdout_unreachable(3)
+    family = PlantFamily(F=F[None], G=G[None], sampling_period=0.1)
+
+    class Forgetful(dict):  # (never finds an earlier result)
+        def __contains__(self, key):
+            return False
+
+    eliminations = {}
+    for cache in (Forgetful(), {}):
+        monkeypatch.setattr(exact, "_LYAPUNOV_CACHE", cache)
+        calls.clear()
+        res = design(family, 1, objective="cost")
+        assert res.outcome == "stabilized" and "exact rational certificate" in res.performance.message
+        eliminations[type(cache)] = len(calls)
+    assert 1 <= eliminations[dict] < eliminations[Forgetful]
+    calls.clear()
+    exact._LYAPUNOV_CACHE.clear()
+    late = design(family, 1, objective="cost", time_limit=1e-9)
+    assert not calls
+    assert late.outcome in ("stabilized", "not_converged", "marginal")
+    assert late.outcome != "stabilized" or late.performance.verified
