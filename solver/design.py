@@ -1120,6 +1120,9 @@ SIGN_ONLY_PROBES = True
 #: ... and start from the nearest probe's solution (docs/design.md, "Rate search"): t lowered by WARM_SHIFT
 #: below the blocks' smallest eigenvalue, the multipliers blended with I/N by WARM_BLEND.
 WARM_PROBES = True
+#: ``"auto"``'s refuted probes stop at the first iterate whose multipliers pass the Farkas re-check (checked in the
+#: solve), not at the sign rule's lower bound within half of the dual bound.
+EARLY_REFUTE = True
 #: ... the first probe (lambda = 1) too: only its sign and its model are used (measured: saves about half a solve)
 SIGN_AT_ONE = True
 WARM_SHIFT = 0.01
@@ -1201,7 +1204,8 @@ def _smallest_rate(method: str, modes: ModeSet, options: DesignOptions, tol: flo
             return None
         try:
             res = runner(modes, replace(options, decay_rate=lam, time_limit=remaining, rate_search=True,
-                                        sign_only=_probe_sign(probe_sign, lam, settling), warm_start=warm(lam)))
+                                        sign_only=_probe_sign(probe_sign, lam, settling), warm_start=warm(lam),
+                                        early_refute=settling and EARLY_REFUTE and lam < 1.0))
         except SolverFailed as err:
             if lam >= 1.0:  # nothing certified yet: the design itself failed
                 raise

@@ -66,6 +66,10 @@ class IPMOptions:
     dense: bool | None = None
     threads: int | None = 1
     sign_only: bool | float = False
+    #: With ``sign_only``: ``refute(X) -> bool`` is asked at every iterate with ``<C, X> < 0`` and the primal residual
+    #: below ``feas_tol`` whose lower bound is not yet within half of it; True (the caller's Farkas re-check of these
+    #: multipliers passed) ends the solve ``"infeasible"`` there (docs/design.md §3.2.1).
+    refute: object | None = None
     #: The max-t form's data may change between iterations (the rate-following path, docs/design.md §3.2.2):
     #: ``retarget(y, X, S, upper, t, primal_residual)`` is called at every iterate before the stopping rules
     #: and returns None (go on), ``"stop"`` (status ``"stopped"``, this iterate returned) or new data
@@ -467,7 +471,8 @@ def _ipm_loop(C, b, op, adj, schur, o, t_start, feasible_start, x_start, offset=
             if dobj > 0.0 and rp < 1e-6 and dobj >= (0.5 if o.sign_only is True else o.sign_only) * pobj:
                 best, status = (score, it, y, X, rp, gap, pobj), "feasible"
                 break
-            if pobj < 0.0 and rp < o.feas_tol and dobj >= 2.0 * pobj:
+            if pobj < 0.0 and rp < o.feas_tol and (dobj >= 2.0 * pobj or (
+                    o.refute is not None and E is None and o.refute(X))):
                 best, status = (score, it, y, X, rp, gap, pobj), "infeasible"
                 break
         if score < 0.5 * prog[0]:

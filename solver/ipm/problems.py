@@ -349,7 +349,7 @@ def solve_common_fixed_gain(A, rho=None, options: IPMOptions | None = None) -> L
 
 # ----------------------------------------------------------------------------- the design methods' hook
 def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = None, free=None, coef=None,
-                 sign_only: bool | float = False, start: WarmStart | None = None):
+                 sign_only: bool | float = False, start: WarmStart | None = None, refute=None):
     """Solve a design method's SDP for a :class:`solver.network.ModeSet` the way ``CompiledProblem.solve`` would.
 
     The one call solver/methods/lmi.py and switched.py make when ``solver="IPM"``.
@@ -368,6 +368,8 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
         ``"optimal_inaccurate"``): the rate search's probes.
     start : WarmStart, optional
         ``lmi`` only: a warm start (``V = [W, Y]``), e.g. a neighbouring rate's solution.
+    refute : callable, optional
+        With ``sign_only``: :attr:`IPMOptions.refute`, the caller's Farkas re-check asked inside the solve.
 
     Returns
     -------
@@ -388,7 +390,7 @@ def design_solve(modes, kind: str = "lmi", rho=None, time_limit: float | None = 
     free = modes.free if free is None else free
     if rho is not None and np.all(np.asarray(rho) == 1.0):
         rho = None
-    opts = IPMOptions(time_limit=time_limit, sign_only=sign_only)
+    opts = IPMOptions(time_limit=time_limit, sign_only=sign_only, refute=refute)
     warm, start = start, time.perf_counter()
     solve = {"lmi": solve_lmi, "switched": solve_switched}[kind]
     sol = solve(free, coef, active, rho, opts, **({"start": warm} if warm is not None else {}))

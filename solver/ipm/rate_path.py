@@ -369,7 +369,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
     fam = _RateFamily(free, coef, active, eta, dense)
     n = fam.free.shape[1]
     out = RatePathResult(status="max_iterations")
-    st = {"lam": float(lam0), "it": 0, "above": []}
+    st = {"lam": float(lam0), "it": 0, "above": [], "kept": False}
     st["prob"], st["c"], op, adj, schur = fam.at(lam0)
     st["op"] = op
 
@@ -424,9 +424,13 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             return None
         prob2, c2, op2, adj2, schur2 = fam.at(new)
         # a residual left by an earlier large move (S is not C + A(y) yet): keep the slacks, carry the new data's
-        # (one max instead of np.allclose: this runs at every move, and allclose's overhead showed on the paper size)
-        absS = np.abs(S[0])
-        pending = bool(np.max(np.abs(S[0] - st["prob"].C - op_now(y))) > 1e-12 * float(absS.max()))
+        # (one max instead of np.allclose: this runs at every move, and allclose's overhead showed on the paper size;
+        # only after a move that kept the slacks: otherwise the loop set S = C + A(y), and the check, an operator
+        # application, cost 2 ms of the path's moves at n = 8)
+        pending = False
+        if st["kept"]:
+            pending = bool(np.max(np.abs(S[0] - st["prob"].C - op_now(y))) > 1e-12 * float(np.abs(S[0]).max()))
+            st["kept"] = pending
         # the multipliers' off-diagonal blocks scale by c / c' (A^*(X) and <C, X> unchanged) when that keeps them
         # positive definite, else combined with an earlier iterate's from above (_raise)
         ratio = (c / c2)[:, None, None]
@@ -447,6 +451,7 @@ def follow_rate(free, coef, active, eta, done, aim, lam0: float = 1.0, time_limi
             # the iterate stays as it is, centred: the new data's dual residual is carried by the iteration
             # (IPMOptions.retarget) and the next Newton step aims at the new rate's central path (the primal
             # residual kept)
+            st["kept"] = True
             if BLEND_LARGE > 0.0 and not up.any():
                 # down in rate (the first move from lambda = 1): the multipliers of a near-optimum are badly centred
                 # for the new data (X_b S_b ~ 0), blended with I / N as the probes' warm starts are (I / N is primal

@@ -33,6 +33,9 @@ class DesignOptions:
     #: The rate search's probes: the lmi SDP stops once its margin's sign is settled (IPM only); a float in (0, 1]:
     #: stops at the first margin at least that share of the dual bound (:attr:`solver.ipm.IPMOptions.sign_only`).
     sign_only: bool | float = False
+    #: ``decay_rate="auto"``'s probes (lmi on the IPM, with ``sign_only``): the Farkas re-check runs inside the solve
+    #: at every iterate whose multipliers are a candidate, and the first that passes ends it (docs/design.md §3.2.1).
+    early_refute: bool = False
     #: The rate search's warm start for the lmi SDP on the IPM (a :class:`solver.ipm.WarmStart`).
     warm_start: object | None = None
     #: The memory budget (bytes) of the ``"AUTO"`` fallback to Clarabel (:func:`solver.compiled.clarabel_fits`).
@@ -269,6 +272,19 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
     extra = {"sign_only": options.sign_only, "start": options.warm_start} if method == "lmi" and (
         options.sign_only or options.warm_start is not None) else {}
     scale = congruent_scale(modes, rate)
+    proven: dict = {}
+    if extra and options.early_refute and options.sign_only and rate is not None:
+        def refute(X):
+            # the re-check of every design's infeasible verdict, on this iterate's multipliers; kept for _verdict
+            try:
+                proof, _ = prove_infeasible(modes, method, X[0], rate, options.margin)
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # an iterate's: the solve goes on
+                return False
+            if proof is None or proof_outcome(proof) != "infeasible":
+                return False
+            proven["duals"], proven["proof"] = X[0], proof
+            return True
+        extra["refute"] = refute
     try:
         sol = solve_sdp(modes, scale, options.solver, options.time_limit, clock, **extra)
     except SolverFailed as err:
@@ -278,7 +294,7 @@ def run_one_shot(modes: ModeSet, method: str, options: DesignOptions, solve_sdp)
                           str(err.status), f"time limit reached ({options.time_limit:g} s) inside the solver"
                                            f"{rate_txt}; no iterate", [record], options)
         return _after_failure(modes, method, options, solve_sdp, scale, clock, err, rate_txt)
-    return _verdict(modes, method, options, clock, sol, rate_txt)
+    return _verdict(modes, method, options, clock, sol, rate_txt, proven=proven)
 
 
 def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sdp, scale, clock: RunClock,
@@ -327,7 +343,7 @@ def _after_failure(modes: ModeSet, method: str, options: DesignOptions, solve_sd
 
 
 def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunClock, sol, rate_txt: str,
-             report: bool = True) -> DesignResult:
+             report: bool = True, proven: dict | None = None) -> DesignResult:
     """Gains re-checked, or a Farkas proof, or "not_converged", from one SDP solution (``report``: its record
     goes to the progress callback)."""
     rate = options.decay_rate
@@ -366,7 +382,10 @@ def _verdict(modes: ModeSet, method: str, options: DesignOptions, clock: RunCloc
     if cert is not None:
         return result("stabilized", f"stabilized; SDP margin t* = {t:.3g}, {cert.kind} certificate re-checked "
                                     f"(relative margin {cert.margin:.3g}){rate_txt}")
-    proof, reason = prove_infeasible(modes, method, sol.duals, rate, options.margin)
+    if proven and proven.get("duals") is sol.duals:  # the solve's own stop: these multipliers passed in the loop
+        proof, reason = proven["proof"], ""
+    else:
+        proof, reason = prove_infeasible(modes, method, sol.duals, rate, options.margin)
     if proof is not None:
         return result(proof_outcome(proof), f"{proof.statement()}; t* = {t:.3g}", certificate=proof)
     if np.isfinite(t) and t > 0:

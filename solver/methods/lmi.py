@@ -77,7 +77,7 @@ def plant_values(modes: ModeSet, scale: np.ndarray | None = None) -> dict:
 
 
 def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limit: float | None = None,
-              clock=None, sign_only: bool | float = False, start=None) -> DesignSdpSolution:
+              clock=None, sign_only: bool | float = False, start=None, refute=None) -> DesignSdpSolution:
     """Solve the congruent design SDP once (see :class:`solver.compiled.DesignSdpSolution`).
 
     Parameters
@@ -89,10 +89,13 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
         The IPM stops once the margin's sign is settled (the rate search's probes; ignored by Clarabel).
     start : solver.ipm.WarmStart, optional
         The IPM's warm start (ignored by Clarabel).
+    refute : callable, optional
+        ``refute(X) -> bool``: the Farkas re-check of an iterate's multipliers inside the IPM's solve
+        (:attr:`solver.ipm.IPMOptions.refute`; ignored by Clarabel).
     """
     solver = resolve_solver(solver, "lmi", modes.n_modes)
     if solver == "IPM":  # the structured interior-point solver (solver/ipm/), same SDP and dual convention
-        return ipm_sdp(modes, "lmi", scale, time_limit, sign_only, start)
+        return ipm_sdp(modes, "lmi", scale, time_limit, sign_only, start, refute)
     compiled, cached, setup = compiled_for(modes, "lmi", build)
     if clock is not None:
         clock.cached, clock.setup = clock.cached and cached, clock.setup + setup
@@ -105,13 +108,14 @@ def solve_sdp(modes: ModeSet, scale: np.ndarray, solver: str = "AUTO", time_limi
 
 
 def ipm_sdp(modes: ModeSet, kind: str, scale: np.ndarray, time_limit: float | None,
-            sign_only: bool | float = False, start=None) -> DesignSdpSolution:
+            sign_only: bool | float = False, start=None, refute=None) -> DesignSdpSolution:
     """The congruent SDP of ``kind`` ("lmi" or "switched") solved by :func:`solver.ipm.design_solve`."""
     values = plant_values(modes, scale)
     S, n, m, J = modes.n_modes, modes.n_states, modes.n_inputs, modes.n_free_gains
     try:
         info, sol = ipm.design_solve(modes, kind, None, time_limit, free=values["free"].reshape(S, n, n),
-                                     coef=values["coef"].reshape(S, J, n, m), sign_only=sign_only, start=start)
+                                     coef=values["coef"].reshape(S, J, n, m), sign_only=sign_only, start=start,
+                                     refute=refute)
     except SolverFailed as err:  # the last iterate travels with the failure, for the caller's re-checks
         if getattr(err, "iterate", None) is not None:
             err.solution = _design_solution(kind, *err.iterate)

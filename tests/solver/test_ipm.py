@@ -35,6 +35,25 @@ def test_structured_schur_equals_dense(builder, n_drop):
     assert np.isclose(np.sum(prob.op(y) * U), y @ prob.adj(U))
 
 
+def test_problems_sharing_a_schur_plan_each_assemble_their_own_schur_complement():
+    """Plans are kept by the problem's structure (solver.ipm.schur._PLANS): problems of one structure with other data,
+    another gain mask, and of another structure in between, each equal the brute-force Schur complement."""
+    rng = np.random.default_rng(11)
+    fam = PlantFamily(F=[rng.standard_normal((3, 3)) for _ in range(2)], G=[rng.standard_normal((3, 2))] * 2)
+    modes = ModeSet.from_family(fam, 2)
+    coef, active = modes.scheme_coef()
+    masked = active.copy()
+    masked[0] = False
+    probs = [ipm.lmi_problem(modes.free, coef, active), ipm.switched_problem(modes.free, coef, active),
+             ipm.lmi_problem(2.0 * modes.free, -coef, masked), ipm.lmi_problem(modes.free, coef, active, rho=0.5 + 0 *
+                                                                               np.arange(modes.n_modes))]
+    for prob in probs + probs[::-1]:
+        X, G = _rand_psd(rng, prob.nb, prob.k), _rand_psd(rng, prob.nb, prob.k)
+        A = prob.dense_operator()
+        dense = np.einsum("ibjk,bkl,mblo,boj->im", A, X, A, G)
+        assert np.allclose(prob.schur(X, G), dense, rtol=1e-10, atol=1e-10 * np.abs(dense).max())
+
+
 @pytest.mark.parametrize("builder", [ipm.lmi_problem, ipm.switched_problem])
 def test_upper_triangle_assembly_is_the_full_ones(builder):
     """What the iteration factors (``upper=True``) is the upper triangle of the dense Schur complement."""

@@ -415,6 +415,33 @@ def test_interval_data_bounds_hold_exactly_and_do_not_grow_with_abs_products():
         assert dcoef.max() <= 64 * U * np.abs(coef).max()
 
 
+def test_interval_data_and_the_pbh_screen_of_one_family_never_serve_another_of_the_same_shape():
+    # the scale-free products (solver.certificates._interval_products) and the PBH screen are kept by the plant data
+    # (the rate search re-checks a Farkas proof per refuted rate): families of one shape, interleaved, each at several
+    # congruent scales, must get their own exact products c_s F^eta (fractions) within the bounds, and a plant with
+    # an unstable uncontrollable mode its structural proof after a controllable plant of the same shape
+    from solver.certificates import uncontrollable_mode
+
+    rng = np.random.default_rng(5)
+    fams = [PlantFamily(F=rng.standard_normal((2, 2, 2)), G=rng.standard_normal((2, 2, 1))) for _ in range(2)]
+    for rep in range(2):
+        for k, fam in enumerate(fams):
+            modes = ModeSet.from_family(fam, 2)
+            scale = np.array([2.0 ** (k + rep)] * modes.n_modes)
+            free, dfree, _, _ = interval_data(modes.F, modes.G, modes.plants, modes.gain_map, scale=scale)
+            for s in range(modes.n_modes):
+                P = [[Fraction(int(i == j)) for j in range(2)] for i in range(2)]
+                for p in modes.plants[s]:
+                    P = fmul(fr(fam.F[p]), P)
+                for i in range(2):
+                    for j in range(2):
+                        assert abs(Fraction(free[s, i, j]) - Fraction(scale[s]) * P[i][j]) <= Fraction(dfree[s, i, j])
+    F = np.array([[[1.2, 0.0], [0.0, 0.5]]])
+    assert uncontrollable_mode(F, np.array([[[1.0], [1.0]]]), 1.0) is None  # controllable: screened out
+    assert uncontrollable_mode(F, np.array([[[0.0], [1.0]]]), 1.0) is not None  # e_1 untouched: proven
+    assert uncontrollable_mode(F, np.array([[[0.0], [1.0]]]), 1.3) is None  # |1.2| < 1.3: nothing excluded
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_best_decay_rate_of_random_families_matches_an_independent_bisection(seed):
     rng = np.random.default_rng(seed)

@@ -455,3 +455,28 @@ def test_a_rate_just_above_the_best_certified_one_is_stabilized(seed, bad):
             AXA = mul(mul([list(col) for col in zip(*M)], X), M)
             decrease = [[lam ** (2 * eta) * X[i][j] - AXA[i][j] for j in range(n)] for i in range(n)]
             assert _positive_definite_exactly(decrease), (plant, eta)
+
+
+@pytest.mark.parametrize("rate", [0.31, 0.32])
+def test_a_probe_refuted_in_the_solve_carries_the_farkas_proof_of_its_own_multipliers(rate):
+    # "auto"'s probes (DesignOptions.early_refute) run the Farkas re-check inside the solve and stop at the first
+    # iterate whose multipliers pass it, before the sign rule's lower bound within half of the dual bound (paper
+    # example: one iteration fewer at these rates). The verdict must be that re-check's on the returned
+    # multipliers, and the rate infeasible by a second solver (Clarabel's optimal margin t* < 0)
+    from solver.certificates import check_farkas, interval_data
+    from solver.methods.common import DesignOptions
+
+    modes = ModeSet.from_family(PlantFamily.paper_example(0.1), 3)
+    runs = [lmi.run(modes, DesignOptions(decay_rate=rate, sign_only=True, early_refute=er, solver="IPM"))
+            for er in (False, True)]
+    assert [r.outcome for r in runs] == ["infeasible", "infeasible"]
+    assert runs[1].sdp.info.iterations < runs[0].sdp.info.iterations
+    cert = runs[1].certificate
+    assert cert.kind == "farkas" and cert.verified and cert.any_margin
+    np.testing.assert_array_equal(cert.multipliers, runs[1].sdp.duals)
+    free, dfree, coef, dcoef = interval_data(modes.F, modes.G, modes.plants, modes.gain_map,
+                                             scale=congruent_scale(modes, rate))
+    again = check_farkas(runs[1].sdp.duals, free, coef, dfree, dcoef, rate, margin=1e-6 / modes.n_states)
+    assert again.verified and again.delta == cert.delta
+    clarabel = lmi.solve_sdp(modes, congruent_scale(modes, rate), "CLARABEL")
+    assert clarabel.t < 0
