@@ -34,8 +34,8 @@ from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_le
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_invariant, check_x0, lyapunov,
-                        solve_sdp)
+from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_hinf_exact, check_invariant,
+                        check_x0, lyapunov, solve_sdp)
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
@@ -534,10 +534,11 @@ def _tie_break_ipm(lifted: Lifted, x0, rate, solver: str, clock: RunClock, time_
 
 
 def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions, clock: RunClock, info,
-              W, Y, extra, weight=None, gains=None, P0=None) -> dict | None:
+              W, Y, extra, weight=None, gains=None, P0=None, exact_hinf=None) -> dict | None:
     """Gains, certified bracket, stability certificate and invariant set of one proposal (None: W singular).
 
-    ``gains`` and ``P0`` given: a proposal made outside the SDP (the Riccati refinement).
+    ``gains`` and ``P0`` given: a proposal made outside the SDP (the Riccati refinement); ``exact_hinf``: a rational
+    bounded-real certificate and its level for them (:func:`solver.brackets.bracket`).
     """
     modes = lifted.modes
     kothare = objective == "cost" and u_max is not None
@@ -555,7 +556,8 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
         Winv = P0
     performance = None
     if objective in ("cost", "hinf"):
-        performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight)
+        performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight,
+                              exact_hinf=exact_hinf)
     candidate = performance.certificate if performance is not None and performance.verified else Winv
     # exact: the performance certificate, re-checked exactly there, may hold a relative stability margin (1e-11
     # where P spans 1e11) that float64 cannot confirm; decided in exact arithmetic for small n (§8.5)
@@ -972,7 +974,13 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                        f"{cert.margin:.3g}, below what float64 confirms)")
         if u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
-    if best.get("refined") == "game":
+    if best.get("refined") == "game" and best.get("game_how") == "exact":
+        message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
+                    f"{best['game_step']:g}) by exact Newton steps, its least level (the disturbance block's root) "
+                    f"{best['game_bisection']:.9g}")
+        if failures and infeasible:
+            message += f" ({failures[0]})"
+    elif best.get("refined") == "game":
         message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
                      f"{best['game_step']:g}), its least solvable level by bisection {best['game_bisection']:.9g}")
         if failures and infeasible:
@@ -1011,7 +1019,33 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
     start = info if info is not None else SolveInfo(status="riccati", solver="scipy", solve_time=0.0, wall_time=0.0,
                                                     objective=float("nan"), iterations=0)
     found = None
-    for step in GAME_STEPS:
+    if F.shape[0] <= GAME_MAX_N:
+        # exact Newton on the game Riccati equation, the level by the secant on its disturbance block, and an exact
+        # rational bounded-real certificate (scipy's solution is 1e-3 off where X spans 1e13; §8.5)
+        def check(K, Pq, g):  # (the bracket repeats it: a failing candidate costs no bracket)
+            return check_hinf_exact(Pq, g, lifted.numeric(K[None]))
+
+        for step, root, K, Pq, g in _game_exact_proposals(F, G, E, C, Du, Dw, level, check):
+            if have and np.sqrt(g) >= best["performance"].certificate_upper:
+                break
+            P0 = np.array([[float(v) for v in row] for row in Pq])
+            try:
+                c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
+                              gains=K[None], P0=0.5 * (P0 + P0.T), exact_hinf=(Pq, g))
+            except SolverFailed:
+                c = None
+            if c is None or not _good(c, None):
+                continue
+            if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
+                found = c
+                found.update(refined="game", game_level=float(np.sqrt(g)), game_step=step, game_bisection=root,
+                             game_how="exact")
+            if found["performance"].certificate_upper <= root * (1 + GAME_CLOSE):
+                break
+        if found is not None:
+            level = found["game_bisection"]
+    for step in GAME_STEPS if found is None or found["performance"].certificate_upper > level * (1 + GAME_CLOSE) \
+            else ():
         if have and level * (1 + step) >= best["performance"].certificate_upper:
             break  # nothing better to find above the certified level
         out = game_gains(F, G, E, C, Du, Dw, level * (1 + step))
@@ -1086,3 +1120,149 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
                  options)
     res.objective = objective
     return res
+
+
+#: Newton steps of the exact game iteration at one level at most (quadratic convergence from scipy's X, whose
+#: relative error is 1e-3 where X spans 1e13: ~4 steps to the gains' rounding).
+GAME_EXACT_STEPS = 8
+
+
+def _fraction_matrix(M) -> list:
+    from fractions import Fraction
+    return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+
+def game_newton_exact(F, G, E, C, Du, Dw, g, X, K=None, lift=None, steps: int = GAME_EXACT_STEPS,
+                      tol: float = 0.0):
+    """Newton's iteration on the game Riccati equation at ``g = gamma^2`` (``K`` None), or on the bounded-real
+    equation of the loop ``u = K x`` (``K`` given: the disturbance's Kleinman iteration), with each X solved exactly
+    (:func:`solver.exact.lyapunov_exact` for the loop ``F + [G E] L`` and the game's stage) and each gain formed
+    exactly and rounded once (:func:`solver.exact.game_gain_exact`); docs/design.md §8.5.
+
+    X: the start (n x n Fractions or float64; scipy's solution is 1e-3 off where X spans 1e13, still inside
+    Newton's quadratic basin).  ``lift`` (n x n Fractions): added to the stage (slack in the state block).  Stops
+    when no entry of X changes by more than ``tol`` times its largest (0: the rounded gains' fixed point; X spans
+    1e13, so a relative 1e-15 leaves its small directions 1e-2 off, more than a certificate's slack there).
+    Returns ``(L, X, Hww)``: the gains ``[K; L_w]`` (float64) formed from the last X (Fractions) and the disturbance
+    block of the saddle there, or None (a singular block or equation, or the bits limit of the exact solves).
+    """
+    from ..exact import game_gain_exact, game_stage_exact, lyapunov_exact
+
+    if isinstance(X, np.ndarray):
+        X = _fraction_matrix(X)
+    n, m = G.shape
+    B, D = np.hstack([G, E]), np.hstack([Du, Dw])
+    out = None
+    for _ in range(steps):
+        out = game_gain_exact(F, G, E, C, Du, Dw, g, X, K)
+        if out is None or not np.all(np.isfinite(out[0])):
+            return None
+        S = game_stage_exact(C, D, out[0], g, m)
+        if lift is not None:
+            S = [[S[i][j] + lift[i][j] for j in range(n)] for i in range(n)]
+        X_next = lyapunov_exact(F, B, out[0], None, None, S=S, definite=False)
+        if X_next is None:
+            return None
+        top = max(abs(v) for row in X_next for v in row)
+        change = max(abs(a - b) for r, q in zip(X_next, X) for a, b in zip(r, q))
+        X = X_next
+        if not top > 0 or change <= tol * top:
+            break
+    out = game_gain_exact(F, G, E, C, Du, Dw, g, X, K)
+    if out is None or not np.all(np.isfinite(out[0])):
+        return None
+    return out[0], X, out[1]
+
+
+def game_root(F, G, E, C, Du, Dw, level: float, X0):
+    """The least level of the game Riccati equation where it ends by its disturbance block: the root of
+    ``phi(g) = lambda_max(Dw'Dw - g I + E'X(g)E)`` (X(g) the Newton solution, :func:`game_newton_exact`), by the
+    secant method on ``g = gamma^2`` from ``level`` (scipy's bisection, 1e-3 off where X spans 1e13) and
+    ``level (1 + 1e-3)``.  phi is smooth through the root (X(g) continues below it; the saddle's sign on w fails
+    there), so the secant converges in a few steps, each a warm-started exact Newton solve (docs/design.md §8.5).
+    Returns ``(gamma, X)`` (X Fractions at the last level tried) or None (no sign change found, e.g. where the
+    level ends by X leaving the stabilizing branch instead)."""
+    def phi(g, X):
+        r = game_newton_exact(F, G, E, C, Du, Dw, g, X, tol=1e-15)
+        if r is None:
+            return None
+        Hww = np.array([[float(v) for v in row] for row in r[2]])
+        return float(np.linalg.eigvalsh(0.5 * (Hww + Hww.T))[-1]), r[1]
+
+    ga, gb = level ** 2, (level * (1 + 1e-3)) ** 2
+    a = phi(ga, X0)
+    b = None if a is None else phi(gb, a[1])
+    if a is None or b is None:
+        return None
+    (fa, _), (fb, Xb) = a, b
+    for _ in range(GAME_SECANT_STEPS):
+        if fb == fa:
+            return None
+        g = gb - fb * (gb - ga) / (fb - fa)
+        if not (np.isfinite(g) and g > 0):
+            return None
+        if abs(g - gb) <= GAME_TOL * g:
+            return float(np.sqrt(g)), Xb
+        c = phi(g, Xb)
+        if c is None:
+            return None
+        ga, fa = gb, fb
+        gb, (fb, Xb) = g, c
+    return None
+
+
+#: Secant steps on the level at most (:func:`game_root`; superlinear, ~6 from scipy's 1e-3).
+GAME_SECANT_STEPS = 12
+
+
+#: Relative steps above the game's least level at which the exact refinement takes gains (:func:`_game_refine`).
+GAME_EXACT_LEVELS = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5)
+#: Slack added to the loop's bounded-real stage, times ``|C|^2 I``: it covers the rounding of the disturbance's
+#: gain in the last Newton step (the value of a rounded gain misses the Riccati inequality by its square).
+GAME_EXACT_LIFTS = (1e-12, 1e-14, 1e-10)
+
+
+def _game_exact_proposals(F, G, E, C, Du, Dw, level: float, check):
+    """Gains and exact rational certificates of one LTI loop's H-infinity game (docs/design.md §8.5): the least
+    level by :func:`game_root`, the game's gains at ``root (1 + step)`` (:func:`game_newton_exact`, the saddle's
+    signs and both loops' stability checked), then the loop's own bounded-real equation at that level with a
+    small lift of the stage, solved by the disturbance's exact Newton steps: its X, rational, is the candidate,
+    kept when ``check(K, X, g)`` (the exact re-check on the deployed loop) passes.  Yields ``(step, root, K, X, g)``.
+    """
+    n, m = G.shape
+    # scipy's solution a little above its level is the start (its sign tests fail up to 10 % above it where X
+    # spans 1e14, hold-out seeds 19, 31, 47: the next step up then)
+    start = next((s for s in (game_gains(F, G, E, C, Du, Dw, level * (1 + step)) for step in (1e-3, 1e-2, 1e-1, 1.0))
+                  if s is not None), None)
+    if start is None:
+        return
+    try:
+        found = game_root(F, G, E, C, Du, Dw, level, start[1])
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+        found = None
+    if found is None:
+        return
+    root, X = found
+    size = float(np.linalg.norm(C, 2)) ** 2
+    for step in GAME_EXACT_LEVELS:
+        g = float((root * (1 + step)) ** 2)
+        r = game_newton_exact(F, G, E, C, Du, Dw, g, X)
+        if r is None:
+            continue
+        L, X1, Hww = r
+        K = L[:m]
+        Hf = np.array([[float(v) for v in row] for row in Hww])
+        if not np.linalg.eigvalsh(0.5 * (Hf + Hf.T))[-1] < 0 or \
+                not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or \
+                not np.max(np.abs(np.linalg.eigvals(F + np.hstack([G, E]) @ L))) < 1:
+            continue
+        for eps in GAME_EXACT_LIFTS:
+            lift = _fraction_matrix(eps * size * np.eye(n))
+            b = game_newton_exact(F, G, E, C, Du, Dw, g, X1, K=K, lift=lift)
+            if b is None:
+                continue
+            Hb = np.array([[float(v) for v in row] for row in b[2]])
+            if not np.linalg.eigvalsh(0.5 * (Hb + Hb.T))[-1] < 0 or not check(K, b[1], g):
+                continue
+            yield step, root, K, b[1], g
+            break
