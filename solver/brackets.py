@@ -106,9 +106,9 @@ class Performance:
         whose float64 certificate cannot reach its cost; P solves ``P = A' P A + S`` exactly for the deployed
         loop ``A = F + G K``, ``S = Q + K' R K`` (the float64 F, G, K, Q, R taken as exact rationals), verified
         exactly, and ``certificate_upper`` is its bound rounded up (docs/design.md §8.5).  hinf: a rational P of
-        the bounded-real inequality at ``upper^2`` (the game refinement's), checked exactly on the deployed loop.  ``certificate`` then
-        stays a float64 certificate (of a larger bound) when one passed, else it is this P's float64 rounding
-        (the message says which).  JSON: strings ``"p/q"``.
+        the bounded-real inequality at ``upper^2`` (the game refinement's), checked exactly on the deployed loop.
+        ``certificate`` then stays a float64 certificate (of a larger bound) when one passed, else it is this P's
+        float64 rounding (the message says which).  JSON: strings ``"p/q"``.
     """
 
     kind: str

@@ -368,7 +368,8 @@ def lyapunov_exact(F, G, K, Q, R, S: list | None = None, definite: bool = True) 
         Kq, Qq, Rq = fractions(K), fractions(Q), fractions(R)
         m = len(Rq)
         Sq = [[(Qq[i][j] + Qq[j][i]) / 2 + sum(Kq[a][i] * (Rq[a][b] + Rq[b][a]) / 2 * Kq[b][j]
-                                               for a in range(m) for b in range(m)) for j in range(n)] for i in range(n)]
+                                               for a in range(m) for b in range(m))
+               for j in range(n)] for i in range(n)]
     else:
         Sq = [[(Fraction(S[i][j]) + Fraction(S[j][i])) / 2 for j in range(n)] for i in range(n)]
     den = 1

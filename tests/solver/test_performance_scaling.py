@@ -743,3 +743,5 @@ def test_one_mode_hinf_design_reaches_the_optimal_level_with_an_exact_certificat
           - sum(CD[r][i] * CD[r][j] for r in range(n + m)) for j in range(n + 1)] for i in range(n + 1)]
     assert all(P[i][j] == P[j][i] for i in range(n) for j in range(n))
     assert _psd_fraction(P) and _psd_fraction(M)
+    from solver.brackets import Performance
+    assert Performance.from_dict(perf.to_dict()).exact_certificate == P  # (JSON: "p/q" strings)
