@@ -105,9 +105,10 @@ class Performance:
         An exact rational certificate (n x n, user coordinates): one LTI loop (one mode, ``n_drop = 1``, n <= 8)
         whose float64 certificate cannot reach its cost; P solves ``P = A' P A + S`` exactly for the deployed
         loop ``A = F + G K``, ``S = Q + K' R K`` (the float64 F, G, K, Q, R taken as exact rationals), verified
-        exactly, and ``certificate_upper`` is its bound rounded up (docs/design.md §8.5).  ``certificate`` then
-        stays a float64 certificate (of a larger bound) when one passed, else it is this P's float64 rounding
-        (the message says which).  JSON: strings ``"p/q"``.
+        exactly, and ``certificate_upper`` is its bound rounded up (docs/design.md §8.5).  hinf: a rational P of
+        the bounded-real inequality at ``upper^2`` (the game refinement's), checked exactly on the deployed loop.
+        ``certificate`` then stays a float64 certificate (of a larger bound) when one passed, else it is this P's
+        float64 rounding (the message says which).  JSON: strings ``"p/q"``.
     mode_certificate : ndarray, shape (S, n, n), or None
         hinf over several modes: one storage matrix ``P_s`` per loop mode (user coordinates) when they certify a
         smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
@@ -242,7 +243,8 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
     if perf.exact_certificate is not None:  # the same congruence, exactly (powers of two)
         inv = [Fraction(float(v)) for v in np.tile(1.0 / scale.plain.state, len(perf.exact_certificate) //
                                                        scale.plain.state.size)]
-        exact_P = [[v * inv[i] * inv[j] * Fraction(float(k)) for j, v in enumerate(row)]
+        factor = Fraction(float(scale.cost if cost else scale.output ** 2))  # as quadratic_back (powers of two)
+        exact_P = [[v * inv[i] * inv[j] * factor for j, v in enumerate(row)]
                    for i, row in enumerate(perf.exact_certificate)]
     return Performance(kind=perf.kind, upper=None if perf.upper is None else perf.upper * k,
                        lower=None if perf.lower is None else perf.lower * k, witness=perf.witness, certificate=P,
@@ -699,25 +701,35 @@ def check_hinf_exact(P: np.ndarray, g: float, data: list[dict]) -> bool:
     """Exact re-check of the bounded-real certificate: ``P >= 0`` and
     ``[A B; C D]' diag(P, I) [A B; C D] - diag(P, g I) <= 0`` for every mode, in rational arithmetic on the deployed
     loop (as :func:`check_cost_exact`; one matrix P, small sizes): it decides where :func:`check_hinf`'s
-    relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4)."""
+    relative allowance cannot (P spanning 1e9 and more, docs/design.md §8.4).  ``P`` may be a list of Fractions (an
+    exact rational certificate, checked on the deployed loop in rationals only)."""
     from fractions import Fraction
 
-    P = np.asarray(P, dtype=np.float64)
-    if P.ndim != 2 or not np.all(np.isfinite(P)) or not np.isfinite(g):
-        return False
-
-    n = P.shape[0]
-    Pq = frac(P)
+    rational = isinstance(P, list)  # an exact rational certificate (the game refinement's, §8.5)
+    if rational:
+        Pq = [[Fraction(v) for v in row] for row in P]
+        n = len(Pq)
+        if not np.isfinite(g) or any(len(row) != n for row in Pq):
+            return False
+    else:
+        P = np.asarray(P, dtype=np.float64)
+        if P.ndim != 2 or not np.all(np.isfinite(P)) or not np.isfinite(g):
+            return False
+        n = P.shape[0]
+        Pq = frac(P)
     Pq = [[(Pq[i][j] + Pq[j][i]) / 2 for j in range(n)] for i in range(n)]
     if not _psd_exact(Pq):
         return False
     gq = Fraction(float(g))
     for d in data:
-        AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
-        e = Fraction(_data_error(P, d, False))  # the deployed loop's distance (docs/design.md §8.4, "Loop data") ...
         exact = _exact_loop(d)
-        if exact is not None and exact[2] is not None:  # ... or the deployed loop itself, in rationals
+        if exact is not None and exact[2] is not None:  # the deployed loop itself, in rationals ...
             AB, CD, e = exact[2], exact[3], Fraction(0)
+        elif rational:
+            return False  # (no float64 P to size the loop data's distance with)
+        else:  # ... or the float64 data less their distance from it (docs/design.md §8.4, "Loop data")
+            AB, CD = frac(np.hstack([d["A"], d["B"]])), frac(np.hstack([d["C"], d["D"]]))
+            e = Fraction(_data_error(P, d, False))
         k = len(AB[0]) - n
         ABt, CDt = [list(col) for col in zip(*AB)], [list(col) for col in zip(*CD)]
         M = mul(mul(ABt, Pq), AB)
@@ -1803,14 +1815,17 @@ def exact_loop_cost(lifted: Lifted, gains: np.ndarray, data: list[dict], P: np.n
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
             x0: np.ndarray | None = None, solver: str = "AUTO", weight: np.ndarray | None = None,
-            time_left=None) -> Performance:
+            exact_hinf: tuple | None = None, seconds_left=None) -> Performance:
     """The certified bracket of ``kind`` for given gains.
 
     ``P0``: a candidate certificate (a design's); without one (or when it fails the re-check) the
     fixed-gain LMI proposes P.  Either way P is accepted only through the float64 re-check.
     ``weight`` (n,): the mean cost is ``sum_i weight_i P_ii`` instead of ``trace P`` (the user's trace of a design
-    made in balanced coordinates, :class:`solver.scaling.PerformanceScaling`).  ``time_left``: ``() -> seconds or
-    None`` (a design's time limit): the exact rational certificate (up to 2 s at n = 8) is not started once <= 0.
+    made in balanced coordinates, :class:`solver.scaling.PerformanceScaling`).
+    ``exact_hinf``: ``(P, g)``, a rational P (lists of Fractions) and a float64 ``g = gamma^2`` proposed for one LTI
+    loop, accepted through :func:`check_hinf_exact` (docs/design.md §8.5).
+    ``seconds_left``: ``() -> seconds or None`` (a design's time limit): the exact rational cost certificate (up
+    to 2 s at n = 8) and the deep lower-bound searches are not started once <= 0.
     """
     data = lifted.numeric(gains)
     P = upper = None
@@ -1842,7 +1857,24 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         except np.linalg.LinAlgError:
             pass
     exact_P = exact_lower = None
-    remaining = None if time_left is None else time_left()
+    if kind == "hinf" and exact_hinf is not None and len(data) == 1:
+        # one LTI loop, an exact rational P of the bounded-real inequality (the game refinement's, §8.5): checked
+        # exactly on the deployed loop; float64 cannot hold that P where it spans 1e13 (its rounding needs slack
+        # that costs 1e-4 of the level)
+        Pq, g = exact_hinf
+        if check_hinf_exact(Pq, g, data):
+            gamma = float(np.nextafter(np.sqrt(g), np.inf))  # sqrt rounds to nearest: never below
+            if upper is None or gamma < upper:
+                exact_P, upper = Pq, gamma
+                if P is None:
+                    P = _sym(np.array([[float(v) for v in row] for row in Pq]))
+                    how = ("exact rational certificate (bounded-real inequality checked exactly on the loop F + G K; "
+                           "`certificate` is its float64 rounding)")
+                else:
+                    how = ("exact rational certificate (bounded-real inequality checked exactly on the loop F + G K; "
+                           "`certificate` is a float64 one of a larger level)")
+                exact_lower = exact_gain_lower(data[0])
+    remaining = None if seconds_left is None else seconds_left()
     if kind == "cost" and (remaining is None or remaining > 0):
         rational = exact_loop_cost(lifted, gains, data, P, upper, how, x0, weight)
         if rational is not None:
@@ -1854,7 +1886,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                 how = ("exact rational certificate (P = A'PA + S solved exactly for the loop F + G K; `certificate` "
                        "is a float64 one for its float64 rounding fl(F + G K))")
             upper = bound
-    remaining = None if time_left is None else time_left()
+    remaining = None if seconds_left is None else seconds_left()
     # out of time: the exhaustive short patterns only (the deeper searches are counts of up to 60 000 nodes, not times)
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P, deep=remaining is None or remaining > 0)
@@ -1882,7 +1914,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                     if Pc is not None:
                         break
             if Pc is not None and (upper is None or gc < upper):
-                P, upper, how = Pc, gc, why or "bounded-real Riccati solution"
+                P, upper, how, exact_P = Pc, gc, why or "bounded-real Riccati solution", None
                 break
     quadratic, tree, mode_P = upper, "", None
     if kind == "hinf" and P is not None and 1 < len(data) <= MODE_STORAGE_MAX_MODES and lower is not None and \
@@ -1917,3 +1949,85 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                        verified=P is not None, x0=x0, patterns=count, message=message, lead=lead,
                        certificate_upper=quadratic, exact_certificate=exact_P if P is not None else None,
                        mode_certificate=mode_P)
+
+
+def _complex_solve(M: list, B: list) -> list | None:
+    """``M^-1 B`` exactly for complex rational matrices held as ``(re, im)`` pairs of Fractions (Gauss-Jordan)."""
+    def mul(a, b):
+        return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+    def sub(a, b):
+        return a[0] - b[0], a[1] - b[1]
+
+    def inv(a):
+        d = a[0] * a[0] + a[1] * a[1]
+        return a[0] / d, -a[1] / d
+
+    n = len(M)
+    aug = [M[i][:] + B[i][:] for i in range(n)]
+    for c in range(n):
+        piv = next((r for r in range(c, n) if aug[r][c] != (0, 0)), None)
+        if piv is None:
+            return None
+        aug[c], aug[piv] = aug[piv], aug[c]
+        iv = inv(aug[c][c])
+        aug[c] = [mul(x, iv) for x in aug[c]]
+        for r in range(n):
+            if r != c and aug[r][c] != (0, 0):
+                f = aug[r][c]
+                aug[r] = [sub(x, mul(f, y)) for x, y in zip(aug[r], aug[c])]
+    return [row[n:] for row in aug]
+
+
+def exact_gain_lower(d: dict, points: int = 2001) -> float | None:
+    """A lower bound on the l2 gain of one LTI loop (the deployed loop of ``d``, in rationals): a float64 sweep
+    locates the peaks, and at each ``|H(z) v| / |v|`` is evaluated exactly (z the float64 ``cos w + j sin w``,
+    lifted to ``|z| >= 1``: for a stable loop the gain there is at most the H-infinity norm; v the float64 top
+    right singular vector) and rounded down.  The float64 sweep itself is 4e-4 off where the loop's Lyapunov
+    matrices span 1e13 (gains 1e6; docs/design.md §8.5), above the gain.  None without the plant data."""
+    from fractions import Fraction
+
+    exact = _exact_loop(d)
+    if exact is None or exact[2] is None:
+        return None
+    n = d["A"].shape[0]
+    AB, CD = exact[2], exact[3]
+    sys = {"Phi": d["A"], "B": d["B"], "C": d["C"], "D": d["D"]}
+    omega = np.linspace(0.0, np.pi, points)
+    values = _sigma_max(sys, omega)
+    # the ends and the poles' angles too: the float64 values can be wrong enough to miss a peak at w = 0 (hold-out
+    # seed 31: 7e-8 low there, and the sweep's best point elsewhere)
+    candidates = [0.0, float(np.pi)] + [float(w) for w in np.abs(np.angle(np.linalg.eigvals(d["A"])))]
+    candidates += [float(omega[i]) for i in np.argsort(values)[-3:]]
+    for i in np.argsort(values)[-3:]:
+        lo, hi = omega[max(i - 1, 0)], omega[min(i + 1, points - 1)]
+        res = scipy.optimize.minimize_scalar(lambda w: -_sigma_max(sys, w)[0], bounds=(lo, hi), method="bounded",
+                                             options={"xatol": 1e-12})
+        candidates.append(float(res.x))
+    zero = Fraction(0)
+    best = None
+    for w in candidates:
+        zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
+        while zr * zr + zi * zi < 1:
+            zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
+        M = [[((zr if i == j else zero) - AB[i][j], zi if i == j else zero) for j in range(n)] for i in range(n)]
+        Y = _complex_solve(M, [[(AB[i][n + k], zero) for k in range(len(AB[0]) - n)] for i in range(n)])
+        if Y is None:
+            continue
+        p = len(Y[0])
+        H = [[(sum((CD[r][i] * Y[i][k][0] for i in range(n)), CD[r][n + k]),
+               sum((CD[r][i] * Y[i][k][1] for i in range(n)), zero)) for k in range(p)] for r in range(len(CD))]
+        Hf = np.array([[float(a) + 1j * float(b) for a, b in row] for row in H])
+        v = np.linalg.svd(Hf)[2][0].conj()
+        vq = [(Fraction(float(x.real)), Fraction(float(x.imag))) for x in v]
+        norm_v = sum(a * a + b * b for a, b in vq)
+        if norm_v == 0:
+            continue
+        Hv = [(sum(h[0] * x[0] - h[1] * x[1] for h, x in zip(row, vq)),
+               sum(h[0] * x[1] + h[1] * x[0] for h, x in zip(row, vq))) for row in H]
+        q = sum(a * a + b * b for a, b in Hv) / norm_v
+        f = float(np.sqrt(float(q)))
+        while Fraction(f) ** 2 > q:
+            f = float(np.nextafter(f, 0.0))
+        best = f if best is None else max(best, f)
+    return best

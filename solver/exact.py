@@ -351,7 +351,7 @@ _LYAPUNOV_CACHE: dict = {}
 _LYAPUNOV_CACHE_SIZE = 8
 
 
-def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
+def lyapunov_exact(F, G, K, Q, R, S: list | None = None, definite: bool = True) -> list[list[Fraction]] | None:
     """The exact solution P of ``P = A' P A + S`` for the loop ``A = F + G K``, ``S = Q + K' R K``.
 
     F (n, n), G (n, m), K (m, n), Q (n, n), R (m, m): float64 numbers taken as exact dyadic rationals, so A and S
@@ -363,26 +363,34 @@ def lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     singular (A has eigenvalues ``lambda_i lambda_j = 1``), P is not positive definite (A not stable), or P's
     numbers exceed :data:`EXACT_MAX_BITS` (then also None before the elimination when Hadamard's bound on the
     Cramer determinants exceeds four times that: only the time is saved, the result's own size decides).
-    O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).
+    O(n^6) big-integer operations: small n only (n <= 8: 36 unknowns).  ``S`` (n x n Fractions, symmetric): the
+    stage in place of ``Q + K' R K`` (Q and R then unused; the game's indefinite stages, :func:`game_gain_exact`);
+    ``definite=False``: P is returned without the test ``P > 0`` (a Newton iterate, not a certificate).
     """
+    if S is not None:  # (a given rational stage: not kept)
+        return _lyapunov_exact(F, G, K, Q, R, S, definite)
     arrays = [np.ascontiguousarray(M, dtype=np.float64) for M in (F, G, K, Q, R)]
-    key = tuple((M.shape, M.tobytes()) for M in arrays)
+    key = (definite,) + tuple((M.shape, M.tobytes()) for M in arrays)
     if key not in _LYAPUNOV_CACHE:
         if len(_LYAPUNOV_CACHE) >= _LYAPUNOV_CACHE_SIZE:
             _LYAPUNOV_CACHE.pop(next(iter(_LYAPUNOV_CACHE)))
-        _LYAPUNOV_CACHE[key] = _lyapunov_exact(*arrays)
+        _LYAPUNOV_CACHE[key] = _lyapunov_exact(*arrays, None, definite)
     P = _LYAPUNOV_CACHE[key]
     return None if P is None else [row[:] for row in P]
 
 
-def _lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
+def _lyapunov_exact(F, G, K, Q, R, S, definite) -> list[list[Fraction]] | None:
     F, G, K = (np.asarray(M, dtype=np.float64) for M in (F, G, K))
     n = F.shape[0]
     Mi, s = closed_loop(F[None], G[None], K[None], (0,))  # A = Mi / 2^s exactly
-    Kq, Qq, Rq = fractions(K), fractions(Q), fractions(R)
-    m = len(Rq)
-    Sq = [[(Qq[i][j] + Qq[j][i]) / 2 + sum(Kq[a][i] * (Rq[a][b] + Rq[b][a]) / 2 * Kq[b][j]
-                                           for a in range(m) for b in range(m)) for j in range(n)] for i in range(n)]
+    if S is None:
+        Kq, Qq, Rq = fractions(K), fractions(Q), fractions(R)
+        m = len(Rq)
+        Sq = [[(Qq[i][j] + Qq[j][i]) / 2 + sum(Kq[a][i] * (Rq[a][b] + Rq[b][a]) / 2 * Kq[b][j]
+                                               for a in range(m) for b in range(m))
+               for j in range(n)] for i in range(n)]
+    else:
+        Sq = [[(Fraction(S[i][j]) + Fraction(S[j][i])) / 2 for j in range(n)] for i in range(n)]
     den = 1
     for row in Sq:
         for v in row:
@@ -436,7 +444,7 @@ def _lyapunov_exact(F, G, K, Q, R) -> list[list[Fraction]] | None:
     for row in P:
         for v in row:
             pden = pden * v.denominator // gcd(pden, v.denominator)
-    if not positive_definite_integer([[int(v * pden) for v in row] for row in P]):
+    if definite and not positive_definite_integer([[int(v * pden) for v in row] for row in P]):
         return None
     if max(max(v.numerator.bit_length(), v.denominator.bit_length()) for row in P for v in row) > EXACT_MAX_BITS:
         return None  # (its "p/q" strings would exceed Python's int-to-str limit)
@@ -459,3 +467,52 @@ def riccati_gain_exact(F, G, R, P: list[list[Fraction]]) -> np.ndarray | None:
     if aug is None:
         return None
     return np.array([[float(v) for v in row[m:]] for row in aug])
+
+
+def game_stage_exact(C, D, L, g, m: int) -> list[list[Fraction]]:
+    """The game's stage ``(C + D L)' (C + D L) - g L_w' L_w`` exactly (``L_w = L[m:]``, the disturbance's rows).
+
+    C (q, n), D (q, m + p), L (m + p, n) float64 taken as exact; g a float64 (``gamma^2``) or Fraction.  With
+    ``u = L[:m] x``, ``w = L[m:] x`` it is the integrand ``|z|^2 - g |w|^2`` of the H-infinity game (§8.5)."""
+    Cq, Dq, Lq, gq = fractions(C), fractions(D), fractions(L), Fraction(g)
+    n, q = len(Cq[0]), len(Cq)
+    Z = [[Cq[r][j] + sum(Dq[r][a] * Lq[a][j] for a in range(len(Lq))) for j in range(n)] for r in range(q)]
+    return [[sum(Z[r][i] * Z[r][j] for r in range(q)) - gq * sum(Lq[a][i] * Lq[a][j] for a in range(m, len(Lq)))
+             for j in range(n)] for i in range(n)]
+
+
+def game_gain_exact(F, G, E, C, Du, Dw, g, X: list[list[Fraction]], K=None):
+    """The saddle gains of the H-infinity game at the value matrix X, in exact arithmetic, rounded once.
+
+    ``K`` None: both players, ``L = -(D'D - diag(0, g I) + B'XB)^{-1} (B'XF + D'C)``, ``B = [G E]``,
+    ``D = [Du Dw]`` (one Newton step of the game Riccati equation, §8.5).  ``K`` given (m, n): u = K x fixed, the
+    disturbance's best reply only, ``L_w = (g I - Dw'Dw - E'XE)^{-1} (E'X (F + G K) + Dw'(C + Du K))`` (a Newton
+    step of the loop's bounded-real equation).  Returns ``(L (m + p, n) float64, Hww)``: the full gain ``[K; L_w]``
+    and the disturbance block ``Dw'Dw - g I + E'XE`` (p x p Fractions: negative definite at a saddle), or None when
+    the block to invert is singular.
+    """
+    Fq, Gq, Eq, Cq, Duq, Dwq = (fractions(M) for M in (F, G, E, C, Du, Dw))
+    gq = Fraction(g)
+    n, m, q = len(Fq), len(Gq[0]), len(Cq)
+    if K is not None:  # the loop's data: F + G K and C + Du K exactly, u's columns dropped
+        Kq = fractions(K)
+        Fq = [[Fq[i][j] + sum(Gq[i][a] * Kq[a][j] for a in range(m)) for j in range(n)] for i in range(n)]
+        Cq = [[Cq[r][j] + sum(Duq[r][a] * Kq[a][j] for a in range(m)) for j in range(n)] for r in range(q)]
+        Bq, Dq, mu = Eq, Dwq, 0
+    else:
+        Bq = [Gq[i] + Eq[i] for i in range(n)]
+        Dq = [Duq[r] + Dwq[r] for r in range(q)]
+        mu = m
+    k = len(Bq[0])
+    BX = [[sum(Bq[i][a] * X[i][j] for i in range(n)) for j in range(n)] for a in range(k)]  # B' X
+    H = [[sum(Dq[r][a] * Dq[r][b] for r in range(q)) - (gq if a == b and a >= mu else 0)
+          + sum(BX[a][i] * Bq[i][b] for i in range(n)) for b in range(k)] for a in range(k)]
+    rhs = [[-(sum(BX[a][i] * Fq[i][j] for i in range(n)) + sum(Dq[r][a] * Cq[r][j] for r in range(q)))
+            for j in range(n)] for a in range(k)]
+    aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(k)])
+    if aug is None:
+        return None
+    L = np.array([[float(v) for v in row[k:]] for row in aug])
+    if K is not None:
+        L = np.vstack([np.asarray(K, dtype=np.float64), L])
+    return L, [row[mu:] for row in H[mu:]]

@@ -34,8 +34,8 @@ from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_le
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..lifting import Lifted, lift_modes
-from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_invariant, check_x0, lyapunov,
-                        solve_sdp)
+from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_hinf_exact, check_invariant,
+                        check_x0, lyapunov, solve_sdp)
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
@@ -534,10 +534,11 @@ def _tie_break_ipm(lifted: Lifted, x0, rate, solver: str, clock: RunClock, time_
 
 
 def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions, clock: RunClock, info,
-              W, Y, extra, weight=None, gains=None, P0=None) -> dict | None:
+              W, Y, extra, weight=None, gains=None, P0=None, exact_hinf=None) -> dict | None:
     """Gains, certified bracket, stability certificate and invariant set of one proposal (None: W singular).
 
-    ``gains`` and ``P0`` given: a proposal made outside the SDP (the Riccati refinement).
+    ``gains`` and ``P0`` given: a proposal made outside the SDP (the Riccati refinement); ``exact_hinf``: a rational
+    bounded-real certificate and its level for them (:func:`solver.brackets.bracket`).
     """
     modes = lifted.modes
     kothare = objective == "cost" and u_max is not None
@@ -556,7 +557,7 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
     performance = None
     if objective in ("cost", "hinf"):
         performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight,
-                              time_left=lambda: clock.remaining(options.time_limit))
+                              exact_hinf=exact_hinf, seconds_left=lambda: clock.remaining(options.time_limit))
     candidate = performance.certificate if performance is not None and performance.verified else Winv
     # exact: the performance certificate, re-checked exactly there, may hold a relative stability margin (1e-11
     # where P spans 1e11) that float64 cannot confirm; decided in exact arithmetic for small n (§8.5)
@@ -633,10 +634,10 @@ def _plain_lyapunov(A: np.ndarray, r: np.ndarray, coordinates: np.ndarray) -> np
 EXACT_HEWER_STEPS = 3
 
 
-def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, time_left=None):
+def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, seconds_left=None):
     """Hewer's iteration continued with each P solved exactly (:func:`solver.exact.lyapunov_exact`) and each gain
     formed exactly and rounded once (:func:`solver.exact.riccati_gain_exact`); the gain of least exact ``trace P``
-    and that P rounded to float64 (None when no exact step was taken).  ``time_left``: ``() -> seconds or None``; no
+    and that P rounded to float64 (None when no exact step was taken).  ``seconds_left``: ``() -> seconds or None``; no
     step starts once it is <= 0 (a step is up to 2 s at n = 8: the design's time limit bounds them).
 
     Where P spans 1e13 the float64 iteration stops 1e-5 above the Riccati cost (its Lyapunov solutions and the
@@ -647,7 +648,8 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
 
     best, best_trace, best_P = K, None, None
     for _ in range(EXACT_HEWER_STEPS):
-        if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or _out_of_time(time_left):
+        if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or \
+                _out_of_time(seconds_left):
             break
         P = lyapunov_exact(F, G, K, Q, R)
         if P is None:
@@ -662,13 +664,13 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
     return best, None if best_P is None else np.array([[float(v) for v in row] for row in best_P])
 
 
-def _out_of_time(time_left) -> bool:
-    remaining = None if time_left is None else time_left()
+def _out_of_time(seconds_left) -> bool:
+    remaining = None if seconds_left is None else seconds_left()
     return remaining is not None and remaining <= 0
 
 
 def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None,
-                   time_left=None):
+                   seconds_left=None):
     """Hewer's (Newton-Kleinman) iteration from a stabilizing ``u = K x`` to the LQR gain of ``(F, G, Q, R)``.
 
     ``K <- -(R + G' P G)^{-1} G' P F`` with ``P = (F + G K)' P (F + G K) + Q + K' R K``: every iterate
@@ -679,7 +681,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
     e.g. the CTMS weights ``Q = diag(5000, 0, 100, 0)``), or None when ``K`` does not stabilize.  A proposal
     like any other: the caller's float64 re-checks certify it.  ``loop``: ``K -> (A, S)``, the float64 loop and
     cost matrix of the caller's re-check (its rounding, not ``F + G K``'s, is what an exact re-check of P sees where
-    P spans 1e11, docs/design.md §8.5).  ``time_left``: ``() -> seconds or None``, the design's time limit: the exact
+    P spans 1e11, docs/design.md §8.5).  ``seconds_left``: ``() -> seconds or None``, the design's time limit: the exact
     steps and lifts stop once it is <= 0.
     """
     if not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1:
@@ -701,7 +703,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if step <= 1e-14 * max(np.linalg.norm(K), 1e-300):
             break
     if F.shape[0] <= EXACT_COST_MAX_N:
-        K, P_exact = _exact_hewer(F, G, Q, R, K, time_left)
+        K, P_exact = _exact_hewer(F, G, Q, R, K, seconds_left)
         if P_exact is not None:
             # the exact cost matrix of these gains, rounded: the coordinates of the solves below (where P spans
             # 1e13 the float64 iteration's last P is no approximation of it: indefinite, hold-out seeds 1, 31)
@@ -718,7 +720,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if check_cost(Pe, data)[0]:
             found = Pe
             break
-    if S.shape[0] <= EXACT_COST_MAX_N and not _out_of_time(time_left):
+    if S.shape[0] <= EXACT_COST_MAX_N and not _out_of_time(seconds_left):
         # the float64 re-check's allowance is relative to |P|: where P spans 1e11 (a nearly unreachable unstable
         # mode) the lift it needs raises trace P by 1e-3 and more; a lift along P itself (slack eps P, relative
         # in every direction) raises it by about eps / (1 - |loop|^2) and passes the exact re-check (§8.5).
@@ -916,7 +918,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                 refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains,
                                          loop=lambda K: (lambda d: (d["A"], d["S"]))(
                                              lifted.numeric(K[None], errors=False)[0]),  # (no re-check here)
-                                         time_left=lambda: clock.remaining(options.time_limit))
+                                         seconds_left=lambda: clock.remaining(options.time_limit))
             except (np.linalg.LinAlgError, ValueError):
                 refined = None
             try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
@@ -982,7 +984,13 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                        f"{cert.margin:.3g}, below what float64 confirms)")
         if u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
-    if best.get("refined") == "game":
+    if best.get("refined") == "game" and best.get("game_how") == "exact":
+        message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
+                    f"{best['game_step']:g}) by exact Newton steps, its least level (the disturbance block's root) "
+                    f"{best['game_bisection']:.9g}")
+        if failures and infeasible:
+            message += f" ({failures[0]})"
+    elif best.get("refined") == "game":
         message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
                      f"{best['game_step']:g}), its least solvable level by bisection {best['game_bisection']:.9g}")
         if failures and infeasible:
@@ -1021,7 +1029,35 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
     start = info if info is not None else SolveInfo(status="riccati", solver="scipy", solve_time=0.0, wall_time=0.0,
                                                     objective=float("nan"), iterations=0)
     found = None
-    for step in GAME_STEPS:
+    seconds_left = lambda: clock.remaining(options.time_limit)  # noqa: E731
+    if F.shape[0] <= GAME_MAX_N and not _out_of_time(seconds_left):
+        # exact Newton on the game Riccati equation, the level by the secant on its disturbance block, and an exact
+        # rational bounded-real certificate (scipy's solution is 1e-3 off where X spans 1e13; §8.5); each exact
+        # solve is up to 2 s at n = 8: none starts after the time limit
+        def check(K, Pq, g):  # (the bracket repeats it: a failing candidate costs no bracket)
+            return check_hinf_exact(Pq, g, lifted.numeric(K[None]))
+
+        for step, root, K, Pq, g in _game_exact_proposals(F, G, E, C, Du, Dw, level, check):
+            if have and np.sqrt(g) >= best["performance"].certificate_upper or _out_of_time(seconds_left):
+                break
+            P0 = np.array([[float(v) for v in row] for row in Pq])
+            try:
+                c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
+                              gains=K[None], P0=0.5 * (P0 + P0.T), exact_hinf=(Pq, g))
+            except SolverFailed:
+                c = None
+            if c is None or not _good(c, None):
+                continue
+            if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
+                found = c
+                found.update(refined="game", game_level=float(np.sqrt(g)), game_step=step, game_bisection=root,
+                             game_how="exact")
+            if found["performance"].certificate_upper <= root * (1 + GAME_CLOSE):
+                break
+        if found is not None:
+            level = found["game_bisection"]
+    for step in GAME_STEPS if found is None or found["performance"].certificate_upper > level * (1 + GAME_CLOSE) \
+            else ():
         if have and level * (1 + step) >= best["performance"].certificate_upper:
             break  # nothing better to find above the certified level
         out = game_gains(F, G, E, C, Du, Dw, level * (1 + step))
@@ -1096,3 +1132,149 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
                  options)
     res.objective = objective
     return res
+
+
+#: Newton steps of the exact game iteration at one level at most (quadratic convergence from scipy's X, whose
+#: relative error is 1e-3 where X spans 1e13: ~4 steps to the gains' rounding).
+GAME_EXACT_STEPS = 8
+
+
+def _fraction_matrix(M) -> list:
+    from fractions import Fraction
+    return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
+
+
+def game_newton_exact(F, G, E, C, Du, Dw, g, X, K=None, lift=None, steps: int = GAME_EXACT_STEPS,
+                      tol: float = 0.0):
+    """Newton's iteration on the game Riccati equation at ``g = gamma^2`` (``K`` None), or on the bounded-real
+    equation of the loop ``u = K x`` (``K`` given: the disturbance's Kleinman iteration), with each X solved exactly
+    (:func:`solver.exact.lyapunov_exact` for the loop ``F + [G E] L`` and the game's stage) and each gain formed
+    exactly and rounded once (:func:`solver.exact.game_gain_exact`); docs/design.md §8.5.
+
+    X: the start (n x n Fractions or float64; scipy's solution is 1e-3 off where X spans 1e13, still inside
+    Newton's quadratic basin).  ``lift`` (n x n Fractions): added to the stage (slack in the state block).  Stops
+    when no entry of X changes by more than ``tol`` times its largest (0: the rounded gains' fixed point; X spans
+    1e13, so a relative 1e-15 leaves its small directions 1e-2 off, more than a certificate's slack there).
+    Returns ``(L, X, Hww)``: the gains ``[K; L_w]`` (float64) formed from the last X (Fractions) and the disturbance
+    block of the saddle there, or None (a singular block or equation, or the bits limit of the exact solves).
+    """
+    from ..exact import game_gain_exact, game_stage_exact, lyapunov_exact
+
+    if isinstance(X, np.ndarray):
+        X = _fraction_matrix(X)
+    n, m = G.shape
+    B, D = np.hstack([G, E]), np.hstack([Du, Dw])
+    out = None
+    for _ in range(steps):
+        out = game_gain_exact(F, G, E, C, Du, Dw, g, X, K)
+        if out is None or not np.all(np.isfinite(out[0])):
+            return None
+        S = game_stage_exact(C, D, out[0], g, m)
+        if lift is not None:
+            S = [[S[i][j] + lift[i][j] for j in range(n)] for i in range(n)]
+        X_next = lyapunov_exact(F, B, out[0], None, None, S=S, definite=False)
+        if X_next is None:
+            return None
+        top = max(abs(v) for row in X_next for v in row)
+        change = max(abs(a - b) for r, q in zip(X_next, X) for a, b in zip(r, q))
+        X = X_next
+        if not top > 0 or change <= tol * top:
+            break
+    out = game_gain_exact(F, G, E, C, Du, Dw, g, X, K)
+    if out is None or not np.all(np.isfinite(out[0])):
+        return None
+    return out[0], X, out[1]
+
+
+def game_root(F, G, E, C, Du, Dw, level: float, X0):
+    """The least level of the game Riccati equation where it ends by its disturbance block: the root of
+    ``phi(g) = lambda_max(Dw'Dw - g I + E'X(g)E)`` (X(g) the Newton solution, :func:`game_newton_exact`), by the
+    secant method on ``g = gamma^2`` from ``level`` (scipy's bisection, 1e-3 off where X spans 1e13) and
+    ``level (1 + 1e-3)``.  phi is smooth through the root (X(g) continues below it; the saddle's sign on w fails
+    there), so the secant converges in a few steps, each a warm-started exact Newton solve (docs/design.md §8.5).
+    Returns ``(gamma, X)`` (X Fractions at the last level tried) or None (no sign change found, e.g. where the
+    level ends by X leaving the stabilizing branch instead)."""
+    def phi(g, X):
+        r = game_newton_exact(F, G, E, C, Du, Dw, g, X, tol=1e-15)
+        if r is None:
+            return None
+        Hww = np.array([[float(v) for v in row] for row in r[2]])
+        return float(np.linalg.eigvalsh(0.5 * (Hww + Hww.T))[-1]), r[1]
+
+    ga, gb = level ** 2, (level * (1 + 1e-3)) ** 2
+    a = phi(ga, X0)
+    b = None if a is None else phi(gb, a[1])
+    if a is None or b is None:
+        return None
+    (fa, _), (fb, Xb) = a, b
+    for _ in range(GAME_SECANT_STEPS):
+        if fb == fa:
+            return None
+        g = gb - fb * (gb - ga) / (fb - fa)
+        if not (np.isfinite(g) and g > 0):
+            return None
+        if abs(g - gb) <= GAME_TOL * g:
+            return float(np.sqrt(g)), Xb
+        c = phi(g, Xb)
+        if c is None:
+            return None
+        ga, fa = gb, fb
+        gb, (fb, Xb) = g, c
+    return None
+
+
+#: Secant steps on the level at most (:func:`game_root`; superlinear, ~6 from scipy's 1e-3).
+GAME_SECANT_STEPS = 12
+
+
+#: Relative steps above the game's least level at which the exact refinement takes gains (:func:`_game_refine`).
+GAME_EXACT_LEVELS = (1e-9, 1e-8, 1e-7, 1e-6, 1e-5)
+#: Slack added to the loop's bounded-real stage, times ``|C|^2 I``: it covers the rounding of the disturbance's
+#: gain in the last Newton step (the value of a rounded gain misses the Riccati inequality by its square).
+GAME_EXACT_LIFTS = (1e-12, 1e-14, 1e-10)
+
+
+def _game_exact_proposals(F, G, E, C, Du, Dw, level: float, check):
+    """Gains and exact rational certificates of one LTI loop's H-infinity game (docs/design.md §8.5): the least
+    level by :func:`game_root`, the game's gains at ``root (1 + step)`` (:func:`game_newton_exact`, the saddle's
+    signs and both loops' stability checked), then the loop's own bounded-real equation at that level with a
+    small lift of the stage, solved by the disturbance's exact Newton steps: its X, rational, is the candidate,
+    kept when ``check(K, X, g)`` (the exact re-check on the deployed loop) passes.  Yields ``(step, root, K, X, g)``.
+    """
+    n, m = G.shape
+    # scipy's solution a little above its level is the start (its sign tests fail up to 10 % above it where X
+    # spans 1e14, hold-out seeds 19, 31, 47: the next step up then)
+    start = next((s for s in (game_gains(F, G, E, C, Du, Dw, level * (1 + step)) for step in (1e-3, 1e-2, 1e-1, 1.0))
+                  if s is not None), None)
+    if start is None:
+        return
+    try:
+        found = game_root(F, G, E, C, Du, Dw, level, start[1])
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+        found = None
+    if found is None:
+        return
+    root, X = found
+    size = float(np.linalg.norm(C, 2)) ** 2
+    for step in GAME_EXACT_LEVELS:
+        g = float((root * (1 + step)) ** 2)
+        r = game_newton_exact(F, G, E, C, Du, Dw, g, X)
+        if r is None:
+            continue
+        L, X1, Hww = r
+        K = L[:m]
+        Hf = np.array([[float(v) for v in row] for row in Hww])
+        if not np.linalg.eigvalsh(0.5 * (Hf + Hf.T))[-1] < 0 or \
+                not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or \
+                not np.max(np.abs(np.linalg.eigvals(F + np.hstack([G, E]) @ L))) < 1:
+            continue
+        for eps in GAME_EXACT_LIFTS:
+            lift = _fraction_matrix(eps * size * np.eye(n))
+            b = game_newton_exact(F, G, E, C, Du, Dw, g, X1, K=K, lift=lift)
+            if b is None:
+                continue
+            Hb = np.array([[float(v) for v in row] for row in b[2]])
+            if not np.linalg.eigvalsh(0.5 * (Hb + Hb.T))[-1] < 0 or not check(K, b[1], g):
+                continue
+            yield step, root, K, b[1], g
+            break
