@@ -266,8 +266,9 @@ class Performance(_Open):
                                   "`certificate` may be only its float64 rounding; `message` says which).")
     exact_certificate: list[list[str]] | None = Field(
         None, description="One LTI loop (one mode, n_drop = 1, n <= 8) whose float64 certificate cannot reach its "
-        "cost: P (n x n, strings `p/q`) solving `P = A'PA + S` exactly for the loop F + G K, verified exactly; "
-        "`certificate_upper` is its bound rounded up (docs/design.md §8.5).")
+        "bound: P (n x n, strings `p/q`), for the cost solving `P = A'PA + S` exactly for the loop F + G K, for hinf "
+        "the bounded-real inequality at `upper^2`, verified exactly on that loop; `certificate_upper` is its bound "
+        "rounded up (docs/design.md §8.5).")
     mode_certificate: list[Matrix] | None = Field(
         None, description="hinf over several loop modes: one storage P_s per mode (S x n x n) when they certify a "
         "smaller l2 gain than the common P; `upper` is then their bound (docs/design.md §8.4).")
