@@ -1030,6 +1030,23 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
                                                     objective=float("nan"), iterations=0)
     found = None
     seconds_left = lambda: clock.remaining(options.time_limit)  # noqa: E731
+
+    def consider(gains, P0, exact_hinf=None, **how) -> bool:
+        """Re-check one proposal like any other and keep it when it certifies the smallest level so far; True once
+        that level is within GAME_CLOSE of the least one (``how["game_bisection"]``)."""
+        nonlocal found
+        try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
+            c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
+                          gains=gains[None], P0=P0, exact_hinf=exact_hinf)
+        except SolverFailed:
+            c = None
+        if c is None or not _good(c, None):
+            return False
+        if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
+            found = c
+            found.update(refined="game", **how)
+        return found["performance"].certificate_upper <= how["game_bisection"] * (1 + GAME_CLOSE)
+
     if F.shape[0] <= GAME_MAX_N and not _out_of_time(seconds_left):
         # exact Newton on the game Riccati equation, the level by the secant on its disturbance block, and an exact
         # rational bounded-real certificate (scipy's solution is 1e-3 off where X spans 1e13; §8.5); each exact
@@ -1041,18 +1058,8 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
             if have and np.sqrt(g) >= best["performance"].certificate_upper or _out_of_time(seconds_left):
                 break
             P0 = np.array([[float(v) for v in row] for row in Pq])
-            try:
-                c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
-                              gains=K[None], P0=0.5 * (P0 + P0.T), exact_hinf=(Pq, g))
-            except SolverFailed:
-                c = None
-            if c is None or not _good(c, None):
-                continue
-            if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
-                found = c
-                found.update(refined="game", game_level=float(np.sqrt(g)), game_step=step, game_bisection=root,
-                             game_how="exact")
-            if found["performance"].certificate_upper <= root * (1 + GAME_CLOSE):
+            if consider(K, 0.5 * (P0 + P0.T), (Pq, g), game_level=float(np.sqrt(g)), game_step=step,
+                        game_bisection=root, game_how="exact"):
                 break
         if found is not None:
             level = found["game_bisection"]
@@ -1061,19 +1068,8 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
         if have and level * (1 + step) >= best["performance"].certificate_upper:
             break  # nothing better to find above the certified level
         out = game_gains(F, G, E, C, Du, Dw, level * (1 + step))
-        if out is None:
-            continue
-        try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
-            c = _evaluate(lifted, "hinf", None, None, options, clock, start, None, None, None, trace_weight,
-                          gains=out[0][None], P0=out[1])
-        except SolverFailed:
-            c = None
-        if c is None or not _good(c, None):
-            continue
-        if found is None or c["performance"].certificate_upper < found["performance"].certificate_upper:
-            found = c
-            found.update(refined="game", game_level=level * (1 + step), game_step=step, game_bisection=level)
-        if found["performance"].certificate_upper <= level * (1 + GAME_CLOSE):
+        if out is not None and consider(out[0], out[1], game_level=level * (1 + step), game_step=step,
+                                        game_bisection=level):
             break
     if found is None or (have and not found["performance"].certificate_upper <
                          best["performance"].certificate_upper * (1 - 1e-9)):
