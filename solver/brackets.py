@@ -32,7 +32,7 @@ import scipy.optimize
 
 from .compiled import SolveInfo, time_left
 from .errors import InvalidInput, SolverFailed
-from .exact import fractions
+from .exact import floats, fractions
 from .lifting import Lifted
 
 #: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
@@ -1810,7 +1810,7 @@ def exact_loop_cost(lifted: Lifted, gains: np.ndarray, data: list[dict], P: np.n
     # kept even when above ``upper``: a float64 certificate re-checked (exactly) on the loop's float64 rounding
     # fl(F + G K) certifies that loop, whose cost differs from the deployed one's by up to 3e-5 (hold-out seed 4:
     # 9.66780e12 against 9.66785e12, the witness 9.66788e12 above the former refused the bracket)
-    return Pq, bound, np.array([[float(v) for v in row] for row in Pq]), rational_down(value)
+    return Pq, bound, floats(Pq), rational_down(value)
 
 
 def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None = None,
@@ -1867,7 +1867,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
             if upper is None or gamma < upper:
                 exact_P, upper = Pq, gamma
                 if P is None:
-                    P = _sym(np.array([[float(v) for v in row] for row in Pq]))
+                    P = _sym(floats(Pq))
                     how = ("exact rational certificate (bounded-real inequality checked exactly on the loop F + G K; "
                            "`certificate` is its float64 rounding)")
                 else:

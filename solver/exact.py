@@ -177,6 +177,12 @@ def fractions(a) -> list[list[Fraction]]:
     return [[Fraction(float(x)) for x in row] for row in np.asarray(a, dtype=np.float64)]
 
 
+def floats(M) -> np.ndarray:
+    """A rational matrix (lists of Fractions) rounded entry by entry to float64 (the inverse of :func:`fractions`
+    on float64 input)."""
+    return np.array([[float(v) for v in row] for row in M], dtype=np.float64)
+
+
 def charpoly_rational(M: list[list[Fraction]]) -> list[Fraction]:
     """Coefficients ``[c_0, ..., c_n]`` of ``det(z I - M)`` for a rational matrix (Faddeev-LeVerrier)."""
     n = len(M)
@@ -466,7 +472,7 @@ def riccati_gain_exact(F, G, R, P: list[list[Fraction]]) -> np.ndarray | None:
     aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(m)])  # [H | -G'PF] -> [I | K]
     if aug is None:
         return None
-    return np.array([[float(v) for v in row[m:]] for row in aug])
+    return floats([row[m:] for row in aug])
 
 
 def game_stage_exact(C, D, L, g, m: int) -> list[list[Fraction]]:
@@ -512,7 +518,7 @@ def game_gain_exact(F, G, E, C, Du, Dw, g, X: list[list[Fraction]], K=None):
     aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(k)])
     if aug is None:
         return None
-    L = np.array([[float(v) for v in row[k:]] for row in aug])
+    L = floats([row[k:] for row in aug])
     if K is not None:
         L = np.vstack([np.asarray(K, dtype=np.float64), L])
     return L, [row[mu:] for row in H[mu:]]

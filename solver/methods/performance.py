@@ -33,6 +33,7 @@ from .. import compiled
 from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_left
 from ..errors import SolverFailed
 from ..errors import InvalidInput
+from ..exact import floats, fractions
 from ..lifting import Lifted, lift_modes
 from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_hinf_exact, check_invariant,
                         check_x0, lyapunov, solve_sdp)
@@ -600,16 +601,11 @@ SLACK_STEPS = (1 / 16, 1 / 4, 1.0, 4.0, 16.0, 64.0)
 def _refined_lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray, steps: int = 2) -> np.ndarray:
     """:func:`solver.brackets.lyapunov` plus iterative refinement: ``P <- P + lyapunov(A, r)`` with the residual
     ``r = A' P A - P + S`` evaluated exactly (``fractions.Fraction``) and rounded once; small n only."""
-    from fractions import Fraction
-
-    def frac(M):
-        return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
-
     n = A.shape[0]
-    Aq, Sq = frac(A), frac(S)
+    Aq, Sq = fractions(A), fractions(S)
     P = lyapunov(A, S, hint)
     for _ in range(steps):
-        Pq = frac(P)
+        Pq = fractions(P)
         AP = [[sum(Aq[k][i] * Pq[k][j] for k in range(n)) for j in range(n)] for i in range(n)]  # A' P
         r = np.array([[float(sum(AP[i][k] * Aq[k][j] for k in range(n)) - Pq[i][j] + Sq[i][j]) for j in range(n)]
                       for i in range(n)])
@@ -661,7 +657,7 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
         K = riccati_gain_exact(F, G, R, P)
         if K is None:
             break
-    return best, None if best_P is None else np.array([[float(v) for v in row] for row in best_P])
+    return best, None if best_P is None else floats(best_P)
 
 
 def _out_of_time(seconds_left) -> bool:
@@ -1057,7 +1053,7 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
         for step, root, K, Pq, g in _game_exact_proposals(F, G, E, C, Du, Dw, level, check):
             if have and np.sqrt(g) >= best["performance"].certificate_upper or _out_of_time(seconds_left):
                 break
-            P0 = np.array([[float(v) for v in row] for row in Pq])
+            P0 = floats(Pq)
             if consider(K, 0.5 * (P0 + P0.T), (Pq, g), game_level=float(np.sqrt(g)), game_step=step,
                         game_bisection=root, game_how="exact"):
                 break
@@ -1135,11 +1131,6 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
 GAME_EXACT_STEPS = 8
 
 
-def _fraction_matrix(M) -> list:
-    from fractions import Fraction
-    return [[Fraction(float(v)) for v in row] for row in np.asarray(M, dtype=np.float64)]
-
-
 def game_newton_exact(F, G, E, C, Du, Dw, g, X, K=None, lift=None, steps: int = GAME_EXACT_STEPS,
                       tol: float = 0.0):
     """Newton's iteration on the game Riccati equation at ``g = gamma^2`` (``K`` None), or on the bounded-real
@@ -1157,7 +1148,7 @@ def game_newton_exact(F, G, E, C, Du, Dw, g, X, K=None, lift=None, steps: int = 
     from ..exact import game_gain_exact, game_stage_exact, lyapunov_exact
 
     if isinstance(X, np.ndarray):
-        X = _fraction_matrix(X)
+        X = fractions(X)
     n, m = G.shape
     B, D = np.hstack([G, E]), np.hstack([Du, Dw])
     out = None
@@ -1194,7 +1185,7 @@ def game_root(F, G, E, C, Du, Dw, level: float, X0):
         r = game_newton_exact(F, G, E, C, Du, Dw, g, X, tol=1e-15)
         if r is None:
             return None
-        Hww = np.array([[float(v) for v in row] for row in r[2]])
+        Hww = floats(r[2])
         return float(np.linalg.eigvalsh(0.5 * (Hww + Hww.T))[-1]), r[1]
 
     ga, gb = level ** 2, (level * (1 + 1e-3)) ** 2
@@ -1259,17 +1250,17 @@ def _game_exact_proposals(F, G, E, C, Du, Dw, level: float, check):
             continue
         L, X1, Hww = r
         K = L[:m]
-        Hf = np.array([[float(v) for v in row] for row in Hww])
+        Hf = floats(Hww)
         if not np.linalg.eigvalsh(0.5 * (Hf + Hf.T))[-1] < 0 or \
                 not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or \
                 not np.max(np.abs(np.linalg.eigvals(F + np.hstack([G, E]) @ L))) < 1:
             continue
         for eps in GAME_EXACT_LIFTS:
-            lift = _fraction_matrix(eps * size * np.eye(n))
+            lift = fractions(eps * size * np.eye(n))
             b = game_newton_exact(F, G, E, C, Du, Dw, g, X1, K=K, lift=lift)
             if b is None:
                 continue
-            Hb = np.array([[float(v) for v in row] for row in b[2]])
+            Hb = floats(b[2])
             if not np.linalg.eigvalsh(0.5 * (Hb + Hb.T))[-1] < 0 or not check(K, b[1], g):
                 continue
             yield step, root, K, b[1], g
