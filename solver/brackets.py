@@ -32,7 +32,7 @@ import scipy.optimize
 
 from .compiled import SolveInfo, time_left
 from .errors import InvalidInput, SolverFailed
-from .exact import floats, fractions
+from .exact import gauss_jordan, floats, fractions
 from .lifting import Lifted
 
 #: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
@@ -1951,34 +1951,6 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                        mode_certificate=mode_P)
 
 
-def _complex_solve(M: list, B: list) -> list | None:
-    """``M^-1 B`` exactly for complex rational matrices held as ``(re, im)`` pairs of Fractions (Gauss-Jordan)."""
-    def mul(a, b):
-        return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
-
-    def sub(a, b):
-        return a[0] - b[0], a[1] - b[1]
-
-    def inv(a):
-        d = a[0] * a[0] + a[1] * a[1]
-        return a[0] / d, -a[1] / d
-
-    n = len(M)
-    aug = [M[i][:] + B[i][:] for i in range(n)]
-    for c in range(n):
-        piv = next((r for r in range(c, n) if aug[r][c] != (0, 0)), None)
-        if piv is None:
-            return None
-        aug[c], aug[piv] = aug[piv], aug[c]
-        iv = inv(aug[c][c])
-        aug[c] = [mul(x, iv) for x in aug[c]]
-        for r in range(n):
-            if r != c and aug[r][c] != (0, 0):
-                f = aug[r][c]
-                aug[r] = [sub(x, mul(f, y)) for x, y in zip(aug[r], aug[c])]
-    return [row[n:] for row in aug]
-
-
 def exact_gain_lower(d: dict, points: int = 2001) -> float | None:
     """A lower bound on the l2 gain of one LTI loop (the deployed loop of ``d``, in rationals): a float64 sweep
     locates the peaks, and at each ``|H(z) v| / |v|`` is evaluated exactly (z the float64 ``cos w + j sin w``,
@@ -2010,11 +1982,14 @@ def exact_gain_lower(d: dict, points: int = 2001) -> float | None:
         zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
         while zr * zr + zi * zi < 1:
             zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
-        M = [[((zr if i == j else zero) - AB[i][j], zi if i == j else zero) for j in range(n)] for i in range(n)]
-        Y = _complex_solve(M, [[(AB[i][n + k], zero) for k in range(len(AB[0]) - n)] for i in range(n)])
-        if Y is None:
+        # (z I - A) Y = B in real form: [[zr I - A, -zi I], [zi I, zr I - A]] [Y_re; Y_im] = [B; 0], exactly
+        p = len(AB[0]) - n
+        Mr = [[(zr if i == j else zero) - AB[i][j] for j in range(n)] for i in range(n)]
+        aug = gauss_jordan([Mr[i] + [(-zi if i == j else zero) for j in range(n)] + AB[i][n:] for i in range(n)]
+                            + [[(zi if i == j else zero) for j in range(n)] + Mr[i] + [zero] * p for i in range(n)])
+        if aug is None:
             continue
-        p = len(Y[0])
+        Y = [[(aug[i][2 * n + k], aug[n + i][2 * n + k]) for k in range(p)] for i in range(n)]
         H = [[(sum((CD[r][i] * Y[i][k][0] for i in range(n)), CD[r][n + k]),
                sum((CD[r][i] * Y[i][k][1] for i in range(n)), zero)) for k in range(p)] for r in range(len(CD))]
         Hf = np.array([[float(a) + 1j * float(b) for a, b in row] for row in H])

@@ -250,12 +250,12 @@ def uncontrollable_part(F, G) -> list[list[Fraction]]:
     T = [[cols[j][i] for j in range(n)] for i in range(n)]
     # solve T X = F T exactly (Gauss-Jordan on [T | F T])
     FT = [[sum(Fq[i][l] * T[l][j] for l in range(n)) for j in range(n)] for i in range(n)]
-    aug = _gauss_jordan([T[i][:] + FT[i][:] for i in range(n)])  # T is invertible (a basis)
+    aug = gauss_jordan([T[i][:] + FT[i][:] for i in range(n)])  # T is invertible (a basis)
     X = [row[n:] for row in aug]
     return [row[k:] for row in X[k:]]
 
 
-def _gauss_jordan(aug: list) -> list | None:
+def gauss_jordan(aug: list) -> list | None:
     """Reduce ``[H | B]`` (k rows of Fractions) to ``[I | H^-1 B]`` exactly; None when H is singular."""
     k = len(aug)
     for c in range(k):
@@ -469,7 +469,7 @@ def riccati_gain_exact(F, G, R, P: list[list[Fraction]]) -> np.ndarray | None:
     GP = [[sum(Gq[k][a] * P[k][j] for k in range(n)) for j in range(n)] for a in range(m)]  # G' P
     H = [[Rq[a][b] + sum(GP[a][k] * Gq[k][b] for k in range(n)) for b in range(m)] for a in range(m)]
     rhs = [[-sum(GP[a][k] * Fq[k][j] for k in range(n)) for j in range(n)] for a in range(m)]
-    aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(m)])  # [H | -G'PF] -> [I | K]
+    aug = gauss_jordan([H[a][:] + rhs[a][:] for a in range(m)])  # [H | -G'PF] -> [I | K]
     if aug is None:
         return None
     return floats([row[m:] for row in aug])
@@ -515,7 +515,7 @@ def game_gain_exact(F, G, E, C, Du, Dw, g, X: list[list[Fraction]], K=None):
           + sum(BX[a][i] * Bq[i][b] for i in range(n)) for b in range(k)] for a in range(k)]
     rhs = [[-(sum(BX[a][i] * Fq[i][j] for i in range(n)) + sum(Dq[r][a] * Cq[r][j] for r in range(q)))
             for j in range(n)] for a in range(k)]
-    aug = _gauss_jordan([H[a][:] + rhs[a][:] for a in range(k)])
+    aug = gauss_jordan([H[a][:] + rhs[a][:] for a in range(k)])
     if aug is None:
         return None
     L = floats([row[k:] for row in aug])
