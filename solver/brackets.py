@@ -30,7 +30,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from .compiled import SolveInfo, time_left
+from .compiled import SolveInfo, out_of_time, time_left
 from .errors import InvalidInput, SolverFailed
 from .exact import gauss_jordan, floats, fractions
 from .lifting import Lifted
@@ -1874,8 +1874,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                     how = ("exact rational certificate (bounded-real inequality checked exactly on the loop F + G K; "
                            "`certificate` is a float64 one of a larger level)")
                 exact_lower = exact_gain_lower(data[0])
-    remaining = None if seconds_left is None else seconds_left()
-    if kind == "cost" and (remaining is None or remaining > 0):
+    if kind == "cost" and not out_of_time(seconds_left):
         rational = exact_loop_cost(lifted, gains, data, P, upper, how, x0, weight)
         if rational is not None:
             exact_P, bound, Pf, exact_lower = rational
@@ -1886,10 +1885,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                 how = ("exact rational certificate (P = A'PA + S solved exactly for the loop F + G K; `certificate` "
                        "is a float64 one for its float64 rounding fl(F + G K))")
             upper = bound
-    remaining = None if seconds_left is None else seconds_left()
     # out of time: the exhaustive short patterns only (the deeper searches are counts of up to 60 000 nodes, not times)
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
-                        certificate=P, deep=remaining is None or remaining > 0)
+                        certificate=P, deep=not out_of_time(seconds_left))
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
     if exact_lower is not None and lower is not None and np.isfinite(lower):
         # one loop, one allowed pattern: its cost is the exact P's value (the float64 witness of a loop whose P spans

@@ -155,6 +155,14 @@ def time_left(time_limit: float | None, start: float, floor: float | None = None
     return left if floor is None else max(left, floor)
 
 
+def out_of_time(seconds_left) -> bool:
+    """Whether a run's time is up: ``seconds_left`` is ``() -> seconds or None`` (None: no limit), e.g.
+    ``lambda: clock.remaining(time_limit)``; None itself means no limit.  Steps that cannot be cut short (an exact
+    elimination) ask it before they start."""
+    remaining = None if seconds_left is None else seconds_left()
+    return remaining is not None and remaining <= 0
+
+
 #: The time estimate of :func:`design_size` (docs/design.md §3.6): the path's Newton steps times one step's work,
 #: plus the bracket's lower-bound search.  One interior-point step (:func:`_step_seconds`) costs ``2 v^2`` per block
 #: touching v variables for the Schur pieces (at ``ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND``), ``k^3`` per block of side

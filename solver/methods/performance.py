@@ -30,7 +30,7 @@ import numpy as np
 import scipy.linalg
 
 from .. import compiled
-from ..compiled import SolveInfo, check_memory, ipm_memory, schur_block, time_left
+from ..compiled import SolveInfo, check_memory, ipm_memory, out_of_time, schur_block, time_left
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..exact import floats, fractions
@@ -645,7 +645,7 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
     best, best_trace, best_P = K, None, None
     for _ in range(EXACT_HEWER_STEPS):
         if not np.all(np.isfinite(K)) or not np.max(np.abs(np.linalg.eigvals(F + G @ K))) < 1 or \
-                _out_of_time(seconds_left):
+                out_of_time(seconds_left):
             break
         P = lyapunov_exact(F, G, K, Q, R)
         if P is None:
@@ -658,11 +658,6 @@ def _exact_hewer(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: 
         if K is None:
             break
     return best, None if best_P is None else floats(best_P)
-
-
-def _out_of_time(seconds_left) -> bool:
-    remaining = None if seconds_left is None else seconds_left()
-    return remaining is not None and remaining <= 0
 
 
 def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K: np.ndarray, loop=None,
@@ -716,7 +711,7 @@ def riccati_refine(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray, K
         if check_cost(Pe, data)[0]:
             found = Pe
             break
-    if S.shape[0] <= EXACT_COST_MAX_N and not _out_of_time(seconds_left):
+    if S.shape[0] <= EXACT_COST_MAX_N and not out_of_time(seconds_left):
         # the float64 re-check's allowance is relative to |P|: where P spans 1e11 (a nearly unreachable unstable
         # mode) the lift it needs raises trace P by 1e-3 and more; a lift along P itself (slack eps P, relative
         # in every direction) raises it by about eps / (1 - |loop|^2) and passes the exact re-check (§8.5).
@@ -1043,7 +1038,7 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
             found.update(refined="game", **how)
         return found["performance"].certificate_upper <= how["game_bisection"] * (1 + GAME_CLOSE)
 
-    if F.shape[0] <= GAME_MAX_N and not _out_of_time(seconds_left):
+    if F.shape[0] <= GAME_MAX_N and not out_of_time(seconds_left):
         # exact Newton on the game Riccati equation, the level by the secant on its disturbance block, and an exact
         # rational bounded-real certificate (scipy's solution is 1e-3 off where X spans 1e13; §8.5); each exact
         # solve is up to 2 s at n = 8: none starts after the time limit
@@ -1051,7 +1046,7 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
             return check_hinf_exact(Pq, g, lifted.numeric(K[None]))
 
         for step, root, K, Pq, g in _game_exact_proposals(F, G, E, C, Du, Dw, level, check):
-            if have and np.sqrt(g) >= best["performance"].certificate_upper or _out_of_time(seconds_left):
+            if have and np.sqrt(g) >= best["performance"].certificate_upper or out_of_time(seconds_left):
                 break
             P0 = floats(Pq)
             if consider(K, 0.5 * (P0 + P0.T), (Pq, g), game_level=float(np.sqrt(g)), game_step=step,
