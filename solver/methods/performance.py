@@ -975,15 +975,11 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                        f"{cert.margin:.3g}, below what float64 confirms)")
         if u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
-    if best.get("refined") == "game" and best.get("game_how") == "exact":
+    if best.get("refined") == "game":
+        how = (" by exact Newton steps, its least level (the disturbance block's root)"
+               if best.get("game_how") == "exact" else ", its least solvable level by bisection")
         message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
-                    f"{best['game_step']:g}) by exact Newton steps, its least level (the disturbance block's root) "
-                    f"{best['game_bisection']:.9g}")
-        if failures and infeasible:
-            message += f" ({failures[0]})"
-    elif best.get("refined") == "game":
-        message += (f"; gains of the H-infinity game Riccati equation at {best['game_level']:.9g} (1 + "
-                     f"{best['game_step']:g}), its least solvable level by bisection {best['game_bisection']:.9g}")
+                    f"{best['game_step']:g}){how} {best['game_bisection']:.9g}")
         if failures and infeasible:
             message += f" ({failures[0]})"
     elif best.get("refined"):
