@@ -138,7 +138,7 @@ def certify_gains(
         return None, A  # a rate search's step: its own candidate decides (a failed one is a step without a verdict)
     if rate is not None and candidate_kind != "switched" and A.shape[0] == 1:
         # one loop: the Lyapunov solution of the loop scaled by the rate is a certificate wherever one exists (near
-        # the best rate the SDP's own W^-1 can miss the float64 re-check by its rounding, docs/design.md §3.3)
+        # the best rate the SDP's own W^-1 can miss the float64 re-check by its rounding, docs/design.md §3.2)
         try:
             scaled = A[0] * rate ** -float(modes.eta[0])
             with warnings.catch_warnings():  # (an ill-conditioned solve is the re-check's to judge)
