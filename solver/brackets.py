@@ -916,18 +916,22 @@ def fixed_gain_cost(data: list[dict], x0: np.ndarray | None, solver: str = "AUTO
     return certify_cost(P.value, data, x0, weight)
 
 
+def _brl_lmi(P, d: dict, g, P_next=None):
+    """The bounded-real inequality of mode ``d`` as a cvxpy constraint: ``diag(P, g I) - [A B; C D]' diag(P_next, I)
+    [A B; C D] >= 0`` (``P_next`` defaults to P; the SDP form of :func:`_brl`)."""
+    A, B, C, D = d["A"], d["B"], d["C"], d["D"]
+    Pn = P if P_next is None else P_next
+    top = P - A.T @ Pn @ A - C.T @ C
+    off = -(A.T @ Pn @ B + C.T @ D)
+    return cp.bmat([[top, off], [off.T, g * np.eye(B.shape[1]) - B.T @ Pn @ B - D.T @ D]]) >> 0
+
+
 def fixed_gain_hinf(data: list[dict], solver: str = "AUTO"):
     """Upper bound for given gains: ``min gamma^2`` s.t. the bounded-real inequality on every mode, re-checked."""
     n = data[0]["A"].shape[0]
     P = cp.Variable((n, n), symmetric=True)
     g = cp.Variable()
-    cons = [P >> 0]
-    for d in data:
-        A, B, C, D = d["A"], d["B"], d["C"], d["D"]
-        k = B.shape[1]
-        top = P - A.T @ P @ A - C.T @ C
-        off = -(A.T @ P @ B + C.T @ D)
-        cons.append(cp.bmat([[top, off], [off.T, g * np.eye(k) - B.T @ P @ B - D.T @ D]]) >> 0)
+    cons = [P >> 0] + [_brl_lmi(P, d, g) for d in data]
     status = solve_sdp(cp.Problem(cp.Minimize(g), cons), solver).status
     if P.value is None or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the fixed-gain bounded-real LMI ended with status {status!r} (no common quadratic bound)"
@@ -959,13 +963,7 @@ def mode_storage_hinf(data: list[dict], solver: str = "AUTO"):
     P = [cp.Variable((n, n), symmetric=True) for _ in range(S)]
     g = cp.Variable()
     cons = [Ps >> 0 for Ps in P]
-    for s, d in enumerate(data):
-        A, B, C, D = d["A"], d["B"], d["C"], d["D"]
-        k = B.shape[1]
-        for t in range(S):
-            top = P[s] - A.T @ P[t] @ A - C.T @ C
-            off = -(A.T @ P[t] @ B + C.T @ D)
-            cons.append(cp.bmat([[top, off], [off.T, g * np.eye(k) - B.T @ P[t] @ B - D.T @ D]]) >> 0)
+    cons += [_brl_lmi(P[s], d, g, P[t]) for s, d in enumerate(data) for t in range(S)]
     status = solve_sdp(cp.Problem(cp.Minimize(g), cons), solver).status
     if any(Ps.value is None for Ps in P) or status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return None, None, f"the mode-dependent bounded-real LMI ended with status {status!r}"
