@@ -132,10 +132,10 @@ def certify_gains(
             if cert.verified:
                 return cert, A
     rate = options.decay_rate
-    if np.any(spectral_radii(A) >= (1.0 if rate is None else rate ** modes.eta.astype(float))):
-        return None, A  # a mode slower than the rate (or unstable) has no certificate
     if rate is not None and options.rate_search:
         return None, A  # a rate search's step: its own candidate decides (a failed one is a step without a verdict)
+    if np.any(spectral_radii(A) >= (1.0 if rate is None else rate ** modes.eta.astype(float))):
+        return None, A  # a mode slower than the rate (or unstable) has no certificate
     if rate is not None and candidate_kind != "switched" and A.shape[0] == 1:
         # one loop: the Lyapunov solution of the loop scaled by the rate is a certificate wherever one exists (near
         # the best rate the SDP's own W^-1 can miss the float64 re-check by its rounding, docs/design.md §3.2)
