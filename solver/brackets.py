@@ -1213,6 +1213,9 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
         return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
+    # (a)(a) and (a) are one infinite sequence with one value: which of them wins the comparisons above is decided by
+    # rounding (it changed with the machine's BLAS), so the reported period is the shortest one
+    witness = list(witness[:lead]) + _primitive_period(list(witness[lead:]))
     labels = []
     for s in witness:
         lm = lifted.lifted[s]
@@ -1221,6 +1224,15 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
     return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
+
+
+def _primitive_period(period: list) -> list:
+    """The shortest block whose repetition is ``period`` (``[a, b, a, b]`` -> ``[a, b]``)."""
+    n = len(period)
+    for k in range(1, n):
+        if n % k == 0 and period == period[:k] * (n // k):
+            return period[:k]
+    return period
 
 
 def _tails(data: list[dict], seqs: list, hint: np.ndarray | None = None) -> list:

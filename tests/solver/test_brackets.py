@@ -694,3 +694,13 @@ def test_mode_dependent_storage_narrows_a_switched_l2_gain_bracket():
     np.testing.assert_array_equal(Performance.from_dict(perf.to_dict()).mode_certificate, Pm)
     np.testing.assert_array_equal(np.moveaxis(matlab_variables(res, fam)["P_perf_modes"], -1, 0), Pm)
     assert "P_perf_modes" in m_script(res, fam)
+
+
+def test_witness_is_reported_by_its_shortest_period():
+    from solver.brackets import _primitive_period
+
+    assert _primitive_period([(0, 1), (0, 1)]) == [(0, 1)]
+    assert _primitive_period([1, 2, 1, 2, 1, 2]) == [1, 2]
+    assert _primitive_period([1, 2, 1]) == [1, 2, 1]
+    assert _primitive_period([1, 1, 2, 1, 1, 2]) == [1, 1, 2]
+    assert _primitive_period([3]) == [3]
