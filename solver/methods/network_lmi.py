@@ -44,7 +44,7 @@ import numpy as np
 
 from ..certificates import Prover, gamma
 from ..compiled import cp  # cvxpy, imported on first use
-from ..errors import SolverFailed
+from ..errors import InvalidInput, SolverFailed
 from ..lyapunov import RECHECK_TOL, Certificate
 from ..network import ModeSet, spectral_radii
 from ..networks import loop_matrices
@@ -625,6 +625,79 @@ def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, dea
 
 
 # ------------------------------------------------------------------------------------------- the design
+def to_user_coordinates(res: DesignResult, scale, family, network, prob: NetworkProblem, plant_switching: str,
+                       time_limit: float | None) -> DesignResult:
+    """A network design made in balanced coordinates, mapped back and re-checked on the user's data.
+
+    Gains map by ``K = U K~ T^-1``, node matrices and Farkas multipliers by the congruence ``T^-T M~ T^-1``
+    (``scale``: a :class:`solver.scaling.Scaling`, powers of two, so the maps are exact).  The node certificate is
+    re-checked on ``prob`` (the user's network problem); when its relative margin does not survive there (it is not
+    invariant under the congruence), the node analysis of the gains in the user's coordinates is tried, then (plain
+    stability) the network analysis; when none passes, the balanced certificate stands, which proves the same loop
+    (``res.scaling["certificate"] == "scaled"``).
+    """
+    res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
+    cert = res.certificate
+    if res.outcome == "not_certified" and getattr(cert, "kind", None) == "farkas_network":
+        rate_scale = (np.ones(prob.n_blocks) if cert.decay_rate is None
+                      else float(cert.decay_rate) ** (-prob.length.astype(float)))
+        mine = check_network_farkas(prob, [scale.quadratic_back(M) for M in cert.multipliers], rate_scale,
+                                    cert.decay_rate, per_block=cert.per_block)
+        if mine.verified:
+            before, res.certificate = cert.statement(), mine
+            if res.message.startswith(before):
+                res.message = mine.statement() + res.message[len(before):]
+        else:
+            cert.scaled = True
+            res.scaling["certificate"] = "scaled"
+            res.message += "; the Farkas certificate is stated in balanced coordinates (res.scaling)"
+    if res.gains is None:
+        return res
+    res.gains = scale.gains_back(res.gains)
+    if res.outcome != "stabilized":
+        return res
+    rate = res.decay_rate if res.decay_rate is not None else getattr(cert, "decay_rate", None)
+    mine = None
+    if isinstance(cert, NodeCertificate):
+        mine = recheck_network(prob, scale.quadratic_back(cert.P), res.gains, rate, source=cert.source)
+        mine = mine if mine.verified else None
+    if mine is None:
+        mine = node_analysis(prob, res.gains, rate, time_limit)
+    if mine is None and rate is None:
+        from ..analysis import analyze
+
+        try:
+            rep = analyze(family, res.gains, network=network, plant_switching=plant_switching, bounds="none",
+                          max_product_length=2)
+            mine = rep.certificate if rep.stable is True else None
+        except (InvalidInput, SolverFailed):
+            mine = None
+    res.spectral_radii = spectral_radii(prob.closed_loops(res.gains))
+    if mine is not None:
+        res.certificate = mine
+    else:
+        res.scaling["certificate"] = "scaled"
+        res.message += ("; the node certificate is stated in balanced coordinates (res.scaling): its relative margin "
+                        "does not survive the congruence back to the user's")
+    return res
+
+
+def run_balanced(family, network, *, scaling: str = "auto", plant_switching: str = "per_interval",
+                 time_limit: float | None = None, **options) -> DesignResult:
+    """:func:`run` in balanced coordinates (``scaling="auto"``, :func:`solver.scaling.balance`), the answer mapped
+    back by :func:`to_user_coordinates` (docs/design.md §11.1, "Scaling"); ``scaling="none"``: :func:`run`."""
+    from ..scaling import balance
+
+    start = time.perf_counter()
+    scale = balance(family) if scaling == "auto" else None
+    if scale is None or scale.is_identity:
+        return run(family, network, plant_switching=plant_switching, time_limit=time_limit, **options)
+    res = run(scale.family(family), network, plant_switching=plant_switching, time_limit=time_limit, **options)
+    left = None if time_limit is None else max(float(time_limit) - (time.perf_counter() - start), 1e-3)
+    return to_user_coordinates(res, scale, family, network, build_problem(family, network, plant_switching),
+                               plant_switching, left)
+
+
 def solver_order(solver: str, fallback: bool = True) -> list:
     """The solvers the network LMI tries, in order: "AUTO" is the IPM, then Clarabel (``fallback``)."""
     name = str(solver).upper()

@@ -313,9 +313,11 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
     return certify_hinf(P0, data)
 
 
-def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: float | None = None):
+def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: float | None = None,
+               trace_weight: np.ndarray | None = None):
     """Node matrices for fixed gains (the smallest bound, a Clarabel SDP within ``time_limit`` s): a candidate
-    for :func:`certify`."""
+    for :func:`certify`.  ``trace_weight`` (n,): the cost bound ``sum_i w_i (S' P_v S)_ii`` instead of the trace
+    (balanced coordinates, :attr:`solver.scaling.PerformanceScaling.trace_weight`)."""
     k, V = ch.prob.k, len(ch.prob.nodes)
     P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
     cons, S = [], ch.history
@@ -325,7 +327,12 @@ def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: f
             M = P[d["src"]] - d["A"].T @ P[d["dst"]] @ d["A"] - d["S"]
             cons.append(0.5 * (M + M.T) >> 0)
         for v in ch.start:
-            val = x0 @ S.T @ P[v] @ S @ x0 if x0 is not None else cp.trace(S.T @ P[v] @ S)
+            if x0 is not None:
+                val = x0 @ S.T @ P[v] @ S @ x0
+            elif trace_weight is not None:
+                val = cp.sum(cp.multiply(trace_weight, cp.diag(S.T @ P[v] @ S)))
+            else:
+                val = cp.trace(S.T @ P[v] @ S)
             cons.append(val <= tau)
         cons += [X >> 0 for X in P]
         obj = tau
@@ -739,7 +746,10 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         history += plain.history
         why = "; ".join(failures) if failures else "no certified answer"
         if plain.outcome == "stabilized":
-            perf = bracket(ch_user, plain.gains, objective, x0=x0, time_limit=time_left(time_limit, start, floor=1e-3))
+            P0 = None if scale is None else _balanced_fixed_gain(ch, scale, plain.gains, objective, x0_s,
+                                                                 time_left(time_limit, start, floor=1e-3))
+            perf = bracket(ch_user, plain.gains, objective, P0=P0, x0=x0,
+                           time_limit=time_left(time_limit, start, floor=1e-3))
             base.update(method=plain.method, solver=plain.solver)
             outcome = "stabilized" if perf.verified else "not_converged"  # not without the bracket asked for
             res = DesignResult(outcome=outcome, gains=plain.gains, certificate=plain.certificate, history=history,
@@ -827,6 +837,18 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
     return dict(gains=gains, perf=perf, cert=cert, inv=inv, inv_reason=inv_reason, good=good)
 
 
+def _balanced_fixed_gain(ch: Channels, scale, gains: np.ndarray, objective: str, x0_s, time_limit):
+    """The fixed-gain node matrices of the user's ``gains`` found in balanced coordinates (``ch``: the balanced
+    channels), mapped back: the candidate :func:`bracket` re-checks in the user's (None when there is none).
+    Badly scaled plants (states from 1e-3 to 1e3) leave the fixed-gain SDP in the user's coordinates without an
+    answer that passes the re-check; the balanced one has one (docs/design.md §11.3)."""
+    t, u = scale.plain.state, scale.plain.input
+    balanced = gains * t[None, None, :] / u[None, :, None]  # K~ = U^-1 K T
+    weight = scale.trace_weight if objective == "cost" and x0_s is None else None
+    P, _ = fixed_gain(ch, ch.numeric(balanced), objective, x0_s, time_limit, trace_weight=weight)
+    return None if P is None else scale.quadratic_back(P, objective)
+
+
 def _rank(c: dict) -> tuple:
     """Order of candidates: re-checked first, then stabilizing, a certified bound, limits proven, the lower bound."""
     upper = c["perf"].upper if c["perf"].verified else np.inf
@@ -844,7 +866,7 @@ def _shortfall(c: dict, objective: str) -> str:
 
 def _stability_design(family, network, u_max, x0, plant_switching: str, scaling: str, solver: str, fallback: bool,
                       time_limit, start) -> DesignResult:
-    """The stability design on ``network`` (:func:`network_lmi.run`, cone complementarity included), or the
+    """The stability design on ``network`` (:func:`network_lmi.run_balanced`, cone complementarity included), or the
     input-limited one (:func:`run_limits`) with ``u_max``: the fallback of :func:`run` when its SDP certifies
     nothing.  Its "not_certified" is a re-checked Farkas certificate of the network LMI (section 11.1), which every
     solution of the performance SDPs solves at ``t = 0`` (each transition block's leading ``2k x 2k`` part)."""
@@ -852,8 +874,8 @@ def _stability_design(family, network, u_max, x0, plant_switching: str, scaling:
     if u_max is not None:
         return run_limits(family, network, u_max, x0=x0, plant_switching=plant_switching, scaling=scaling,
                           time_limit=left, solver=solver)
-    return network_lmi.run(family, network, plant_switching=plant_switching, time_limit=left, solver=solver,
-                           fallback=fallback)
+    return network_lmi.run_balanced(family, network, scaling=scaling, plant_switching=plant_switching,
+                                    time_limit=left, solver=solver, fallback=fallback)
 
 
 # ------------------------------------------------------------------------------------------- input limits

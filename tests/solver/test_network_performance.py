@@ -384,3 +384,30 @@ def test_output_bounds_cover_the_deployed_loop_on_the_augmented_form():
                     exact += Fraction(float(Dz[i, 0])) * Fraction(float(gains[age, 0, j - age * n]))
                 assert float(abs(exact - Fraction(float(d["C"][i, j])))) <= d["dC"][i, j]
         assert float(d["dC"].max()) <= 1e4 * np.finfo(float).eps * (1 + 1e3 * float(np.abs(gains).max()))
+
+
+def test_cost_on_a_badly_scaled_plant_brackets_the_stability_designs_gains():
+    """When the network cost SDP certifies nothing (the augmented form on delays), the stability design's gains are
+    bracketed; on a badly scaled plant (state scales 0.05 to 100) both run in balanced coordinates (docs/design.md
+    §11.1, §11.3) and the bracket is re-checked in the user's: every admissible run, stepped sample by sample from
+    the unit vectors, costs at most the certified trace bound."""
+    from bench.cases import random_family
+
+    base = random_family(3, 2, 1, seed=0)
+    t = np.exp(np.random.default_rng(100).uniform(np.log(1e-3), np.log(1e3), 3))
+    fam = PlantFamily(F=np.asarray(base.F) / t[None, :, None] * t[None, None, :], G=np.asarray(base.G) / t[None, :, None])
+    net = Network.delays(1, 2)
+    res = design(fam, network=net, objective="cost")
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper
+    Q, R, T = np.eye(3), np.eye(1), 8
+    F, G = np.asarray(fam.F), np.asarray(fam.G)
+    worst = 0.0
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(2), repeat=2):
+            seq = [plants[0]] * 4 + [plants[1]] * (T - 4)
+            worst = max(worst, sum(run_cost(F, G, res.gains, Q, R, e, ages, seq, ages[0]) for e in np.eye(3)))
+    assert 0 < worst <= perf.upper
