@@ -940,8 +940,6 @@ def monte_carlo_cost(family, gains, n_drop: int, channel: Channel, weights, *, e
     (vectorized); randomness from ``Generator(PCG64(seed))``.  The sum stops at ``horizon``: pick
     it so that ``ms_radius ** horizon`` is negligible.
     """
-    from scipy.stats import norm
-
     n_drop, K, exhausted = _loop_inputs(family, gains, n_drop, channel, exhausted)
     r, n, m = family.n_modes, family.n_states, family.n_inputs
     Qw, Rw = check_weights(weights, n, m)
