@@ -720,7 +720,8 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         if W is None:
             failures.append(f"{name}: {why}")
             continue
-        cand = _candidate(ch_user, prob, scale, objective, kothare, W, Y, Z, value, x0, u_max, time_limit, start)
+        cand = _candidate(ch_user, prob, scale, objective, kothare, W, Y, Z, value, x0, u_max, time_limit, start,
+                          ch=None if scale is None else ch)
         if cand is None:
             failures.append(f"{name}: its node matrices or slack are singular ({status})")
             continue
@@ -750,6 +751,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                                                                  time_left(time_limit, start, floor=1e-3))
             perf = bracket(ch_user, plain.gains, objective, P0=P0, x0=x0,
                            time_limit=time_left(time_limit, start, floor=1e-3))
+            if not perf.verified and scale is not None:
+                perf = _balanced_bracket(ch, scale, plain.gains, objective, None, x0,
+                                         time_left(time_limit, start, floor=1e-3)) or perf
             base.update(method=plain.method, solver=plain.solver)
             outcome = "stabilized" if perf.verified else "not_converged"  # not without the bracket asked for
             res = DesignResult(outcome=outcome, gains=plain.gains, certificate=plain.certificate, history=history,
@@ -809,8 +813,11 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
 
 
 def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W, Y, Z, value, x0, u_max,
-               time_limit, start) -> dict | None:
-    """One solver's answer mapped back and re-checked: gains, bracket, node certificate, invariant sets."""
+               time_limit, start, ch: Channels | None = None) -> dict | None:
+    """One solver's answer mapped back and re-checked: gains, bracket, node certificate, invariant sets.
+
+    ``ch``: the balanced channels (with ``scale``), where the bracket is made when the user's coordinates confirm
+    none (:func:`_balanced_bracket`)."""
     try:
         gains = gains_from(prob, Y, Z)
         X = np.linalg.inv(W)  # the Kothare form's ellipsoids (P_v = gamma X_v); P_v = X_v otherwise
@@ -818,12 +825,15 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
         return None
     if not np.all(np.isfinite(gains)) or not np.all(np.isfinite(X)):
         return None
-    P0 = value * X if kothare else X
+    P0 = P0_balanced = value * X if kothare else X
     if scale is not None:
         gains = scale.plain.gains_back(gains)
         P0 = scale.quadratic_back(P0, objective)
         X = scale.quadratic_back(X)
     perf = bracket(ch_user, gains, objective, P0=P0, x0=x0, time_limit=time_left(time_limit, start, floor=1e-3))
+    if not perf.verified and ch is not None:
+        perf = _balanced_bracket(ch, scale, gains, objective, P0_balanced, x0, time_left(time_limit, start,
+                                                                                          floor=1e-3)) or perf
     inv, inv_reason = None, ""
     if kothare:
         inv, inv_reason = check_invariant_nodes(X, prob, gains, u_max, ch_user.history, x0)
@@ -847,6 +857,33 @@ def _balanced_fixed_gain(ch: Channels, scale, gains: np.ndarray, objective: str,
     weight = scale.trace_weight if objective == "cost" and x0_s is None else None
     P, _ = fixed_gain(ch, ch.numeric(balanced), objective, x0_s, time_limit, trace_weight=weight)
     return None if P is None else scale.quadratic_back(P, objective)
+
+
+def _balanced_bracket(ch: Channels, scale, gains: np.ndarray, objective: str, P0, x0, time_limit):
+    """The bracket of the user's ``gains`` made and re-checked in balanced coordinates (``ch``, ``scale``; ``P0``
+    the balanced candidate or None), in the user's figures; None when it certifies nothing there either.
+
+    The balanced data are the user's under an exact powers-of-two similarity, so the balanced re-check proves the
+    same inequalities; it is the one that stands when the user's coordinates are too badly scaled to resolve the
+    margin (relative eigenvalues of 1e-17 there; docs/design.md §11.3), as for the bounded-drops brackets
+    (:func:`solver.brackets.bracket_back`)."""
+    t, u = scale.plain.state, scale.plain.input
+    balanced = gains * t[None, None, :] / u[None, :, None]  # K~ = U^-1 K T
+    perf = bracket(ch, balanced, objective, P0=P0, x0=scale.x0(x0), time_limit=time_limit)
+    if not perf.verified:
+        return None
+    k = scale.cost if objective == "cost" else scale.gain
+    message = perf.message
+    what = "cost" if objective == "cost" else "l2 gain"
+    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst admissible closed walk searched: ", perf.lower)):
+        if v is not None and np.isfinite(v):
+            message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
+    return NetworkPerformance(
+        kind=perf.kind, upper=perf.upper * k, lower=None if perf.lower is None else perf.lower * k,
+        witness=perf.witness, certificate=scale.quadratic_back(perf.certificate, objective), verified=True, x0=x0,
+        patterns=perf.patterns, message=message + "; node matrices re-checked in balanced coordinates (powers-of-two "
+                                                  "scaling: the same inequalities)",
+        walk=perf.walk, form=perf.form, start_nodes=perf.start_nodes)
 
 
 def _rank(c: dict) -> tuple:
