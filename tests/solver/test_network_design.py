@@ -3,11 +3,12 @@ random admissible sequences stepped sample by sample, exact arithmetic on an uns
 
 import itertools
 from fractions import Fraction
+from math import gcd
 
 import numpy as np
 import pytest
 
-from solver import InvalidInput, Network, PlantFamily, analyze, design
+from solver import InvalidInput, Network, PlantFamily, analyze, design, exact
 from solver.compiled import design_size
 from solver.methods import network_lmi
 
@@ -274,3 +275,101 @@ def test_per_sample_plant_switching_on_the_paper_motor():
     assert res.outcome == "stabilized" and "lifted form" in res.message
     assert analyze(fam, res.gains, network=net, plant_switching="per_sample").stable is True
     assert random_runs_decay(fam, res.gains, net, runs=30, steps=300) < 1e-3
+
+
+# ------------------------------------------------------------------------------------- fixed-rate fallback
+def exact_augmented(F, G, K, d):
+    """A[d] on xi = (x(t), ..., x(t-N+1)) in Fractions, from x(t+1) = F x(t) + G K_(d+1) x(t-d) (not loop_matrices)."""
+    n, N = F.shape[0], K.shape[0]
+    Fq = exact.fractions(F)
+    Gq, Kq = exact.fractions(G), exact.fractions(K[d])
+    GKq = [[sum(Gq[i][p] * Kq[p][j] for p in range(len(Kq))) for j in range(n)] for i in range(n)]
+    A = [[Fraction(0)] * (n * N) for _ in range(n * N)]
+    for i in range(n):
+        for j in range(n):
+            A[i][j] += Fq[i][j]
+            A[i][d * n + j] += GKq[i][j]
+    for i in range(n, n * N):  # the shift x(t-i) -> x(t-i-1)
+        A[i][i - n] = Fraction(1)
+    return A
+
+
+def exactly_positive_definite(M):
+    """Sylvester's criterion on the integer matrix (common denominator) of a symmetric Fraction matrix."""
+    den = 1
+    for row in M:
+        for x in row:
+            den = den * x.denominator // gcd(den, x.denominator)
+    return exact.positive_definite_integer([[x * den for x in row] for row in M])
+
+
+def own_recheck_fails(monkeypatch):
+    """Every re-check of the design's own node matrices (``run``'s, source "network_lmi") fails; CCL's fixed-gain
+    node SDP (source "network_analysis") keeps the real one."""
+    real = network_lmi.recheck_network
+
+    def recheck(prob, P, gains, rate=None, source="network_lmi"):
+        cert = real(prob, P, gains, rate, source)
+        if source == "network_lmi":
+            cert.verified = False
+        return cert
+
+    monkeypatch.setattr(network_lmi, "recheck_network", recheck)
+
+
+def test_fixed_rate_fallback_certifies_the_lmi_gains_when_their_own_node_matrices_fail(monkeypatch):
+    """docs/design.md §11.1, "Fixed-rate fallback": the design's own node matrices fail the re-check (forced), the
+    fixed-gain node analysis of the same gains at the same rate certifies them, before CCL (which would otherwise
+    answer, with other gains: method "network_ccl")."""
+    own_recheck_fails(monkeypatch)
+    net, rate = Network.weakly_hard(2, 5, 3), 0.95
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=rate)
+    assert res.outcome == "stabilized" and res.method == "network_lmi", res.message
+    assert "failed the float64 re-check" in res.message and "fixed-gain node analysis" in res.message
+    cert = res.certificate
+    assert cert.kind == "node_dependent" and cert.verified and cert.decay_rate == rate and res.decay_rate == rate
+    # independent re-check in exact arithmetic on the float64 numbers: states (node, plant mode), edges rebuilt from
+    # the automaton (the plant switches only where a fresh packet arrives), rate^2 P_v - A_v' P_w A_v > 0 exactly
+    F, G, K = np.asarray(WEAKLY_HARD_FAMILY.F), np.asarray(WEAKLY_HARD_FAMILY.G), np.asarray(res.gains)
+    states = [tuple(s) for s in cert.states]
+    assert sorted(states) == [(i, l) for i in range(net.nodes) for l in range(2)]
+    index = {s: v for v, s in enumerate(states)}
+    P = [[[(a + b) / 2 for a, b in zip(ra, rb)] for ra, rb in zip(exact.fractions(M), zip(*exact.fractions(M)))]
+         for M in cert.P]
+    rho2 = Fraction(rate) ** 2
+    edges = 0
+    for (i, l), v in index.items():
+        A = exact_augmented(F[l], G[l], K, int(net.ages[i]))
+        At = [list(col) for col in zip(*A)]
+        assert exactly_positive_definite(P[v])
+        for j in net.successors(i):
+            for l2 in range(2):
+                if l2 != l and net.ages[j] > net.ages[i]:
+                    continue
+                Pw = P[index[(j, l2)]]
+                PA = [[sum(Pw[r][p] * A[p][c] for p in range(len(A))) for c in range(len(A))] for r in range(len(A))]
+                dec = [[rho2 * P[v][r][c] - sum(At[r][p] * PA[p][c] for p in range(len(A))) for c in range(len(A))]
+                       for r in range(len(A))]
+                assert exactly_positive_definite(dec), (i, l, j, l2)
+                edges += 1
+    assert edges > len(states)
+    # and the loop decays along random admissible runs
+    assert random_runs_decay(WEAKLY_HARD_FAMILY, res.gains, net, runs=30, steps=300) < 1e-3
+
+
+def test_rate_search_steps_skip_the_fixed_rate_fallback(monkeypatch):
+    """A rate search's probe (``rate_search=True``) is decided by the SDP's own candidate alone."""
+    own_recheck_fails(monkeypatch)
+    calls = []
+    real = network_lmi.fixed_gain_certificate
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(network_lmi, "fixed_gain_certificate", counted)
+    net = Network.weakly_hard(2, 5, 3)
+    probe = network_lmi.run(WEAKLY_HARD_FAMILY, net, decay_rate=0.95, use_ccl=False, rate_search=True)
+    assert probe.outcome != "stabilized" and not calls
+    fixed = network_lmi.run(WEAKLY_HARD_FAMILY, net, decay_rate=0.95, use_ccl=False)
+    assert fixed.outcome == "stabilized" and calls
