@@ -445,9 +445,10 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
             res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
     res.network = network.to_dict() if hasattr(network, "to_dict") else None
     if (prob.form == "augmented" and family.n_modes > 1 and plant_switching == "per_interval"
-            and not getattr(res, "fixed_rate_fallback", False)):
-        # (not for the fixed-rate fallback's certificate: the design's own matrices failed, and the node analysis's
-        # product automaton follows per_interval itself)
+            and not (getattr(res, "fixed_rate_fallback", False)
+                     and not isinstance(res.certificate, network_lmi.NodeCertificate))):
+        # (not for the fixed-rate fallback's certificate on the product automaton: the design's own matrices failed,
+        # and that automaton follows per_interval itself)
         res.message += "; the augmented certificate lets the plant mode switch at every sample (it covers per_interval)"
     res.timings["total"] = time.perf_counter() - start
     if res.outcome == "stabilized" and res.decay_rate is not None:

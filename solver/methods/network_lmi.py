@@ -555,20 +555,23 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
     return cert if cert.verified else None
 
 
-def fixed_rate_certificate(family, network, gains: np.ndarray, rate: float | None = None, *,
-                           plant_switching: str = "per_interval", solver: str = "AUTO", recheck=None):
+def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndarray, rate: float | None = None, *,
+                           plant_switching: str = "per_interval", solver: str = "AUTO", recheck=None,
+                           time_limit: float | None = None):
     """The fixed-rate fallback (docs/design.md 11.1): a certificate for ``gains`` at ``rate`` that does not use the
     design's own node matrices, or None.
 
     ``recheck(gains, rate) -> (ok, certificate or None)`` (the design's independent analysis, as in :func:`run`)
     decides first: not ok gives None, a verified certificate of its own is the answer (plain stability:
     ``analyze``'s node analysis at rate 1).  Otherwise (no ``recheck``, or one without a certificate at a decay
-    rate) the fixed-gain node analysis :func:`solver.network_analysis.fixed_gain_certificate` at ``rate``.
+    rate) the fixed-gain node SDP in the design's own form (:func:`node_analysis`, re-checked by
+    :func:`recheck_network` like the design's matrices), then the fixed-gain node analysis on the product automaton
+    (:func:`solver.network_analysis.fixed_gain_certificate`, the augmented state, one matrix per node and plant mode).
 
     Returns
     -------
-    solver.network_analysis.NetworkCertificate or None
-        Verified by the float64 re-check of :func:`solver.network_analysis.recheck_node_dependent` at ``rate``.
+    NodeCertificate or solver.network_analysis.NetworkCertificate or None
+        Verified by the float64 re-check at ``rate``.
     """
     if not np.all(np.isfinite(gains)):
         return None
@@ -578,6 +581,9 @@ def fixed_rate_certificate(family, network, gains: np.ndarray, rate: float | Non
             return None
         if other is not None and getattr(other, "verified", False):
             return other
+    cert = node_analysis(prob, gains, rate, time_limit)
+    if cert is not None:
+        return cert
     return fixed_gain_certificate(family, np.asarray(gains, float), network, rate, plant_switching=plant_switching,
                                   solver=solver)
 
@@ -807,19 +813,20 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     for fsol, fgains, own in ([] if rate_search else reversed(failed)):  # the latest solve's gains first
         if deadline is not None and time.perf_counter() >= deadline:
             break
-        fcert = fixed_rate_certificate(family, network, fgains, decay_rate, plant_switching=plant_switching,
-                                       solver=solver if fallback else "IPM", recheck=recheck)
+        fcert = fixed_rate_certificate(prob, family, network, fgains, decay_rate, plant_switching=plant_switching,
+                                       solver=solver if fallback else "IPM", recheck=recheck, time_limit=left())
         solves += 1
         if fcert is None:
             notes.append(f"the fixed-gain node analysis of the {fsol.solver} gains certified nothing{rate_txt}")
             continue
+        which = (f"{prob.form} form, {len(fcert.P)} node matrices" if isinstance(fcert, NodeCertificate) else
+                 f"one P per network node and plant mode on the augmented state, {len(fcert.P)} matrices")
         res = DesignResult(outcome="stabilized", gains=fgains, certificate=fcert, history=history,
                            solver_status=fsol.status, timings=timings(solver_time, solves), decay_rate=decay_rate,
                            spectral_radii=spectral_radii(prob.closed_loops(fgains)), **{**base, "solver": fsol.solver},
                            message=f"stabilized on {where}; network LMI margin t* = {fsol.t:.3g} ({fsol.solver}), but "
                                    f"its node matrices failed the float64 re-check (relative margin {own.margin:.3g}); "
-                                   f"certificate: the fixed-gain node analysis of these gains (one P per network "
-                                   f"node and plant mode on the augmented state, {len(fcert.P)} matrices), "
+                                   f"certificate: the fixed-gain node analysis of these gains ({which}), "
                                    f"re-checked (relative margin {fcert.margin:.3g}){rate_txt}{via}")
         res.sdp, res.fixed_rate_fallback = fsol, True  # (not exported)
         return res
