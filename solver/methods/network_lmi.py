@@ -557,7 +557,7 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
 
 def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndarray, rate: float | None = None, *,
                            plant_switching: str = "per_interval", solver: str = "AUTO", recheck=None,
-                           time_limit: float | None = None):
+                           time_limit: float | None = None, clarabel: bool = True):
     """The fixed-rate fallback (docs/design.md 11.1): a certificate for ``gains`` at ``rate`` that does not use the
     design's own node matrices, or None.
 
@@ -567,6 +567,7 @@ def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndar
     rate) the fixed-gain node SDP in the design's own form (:func:`node_analysis`, re-checked by
     :func:`recheck_network` like the design's matrices), then the fixed-gain node analysis on the product automaton
     (:func:`solver.network_analysis.fixed_gain_certificate`, the augmented state, one matrix per node and plant mode).
+    ``clarabel=False`` (Clarabel's memory over the budget, as CCL): the design-form SDP, on Clarabel, is skipped.
 
     Returns
     -------
@@ -581,7 +582,7 @@ def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndar
             return None
         if other is not None and getattr(other, "verified", False):
             return other
-    cert = node_analysis(prob, gains, rate, time_limit)
+    cert = node_analysis(prob, gains, rate, time_limit) if clarabel else None
     if cert is not None:
         return cert
     return fixed_gain_certificate(family, np.asarray(gains, float), network, rate, plant_switching=plant_switching,
@@ -695,8 +696,10 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         :class:`NetworkFarkasCertificate` when the convex LMI is proven infeasible and CCL found nothing;
         "not_converged" otherwise.  ``solver`` names the solver whose answer decided, ``timings["solves"]``
         counts every SDP solved; ``res.sdp`` (not exported) is the deciding :class:`NetworkSolution`.  From the
-        fixed-rate fallback, "stabilized" carries a :class:`solver.network_analysis.NetworkCertificate` (one ``P``
-        per network node and plant mode on the augmented state) and ``message`` names it.
+        fixed-rate fallback (``res.fixed_rate_fallback``, not exported), "stabilized" carries the fixed-gain node
+        SDP's :class:`NodeCertificate` (the design's form) or a :class:`solver.network_analysis.NetworkCertificate`
+        (one ``P`` per network node and plant mode on the augmented state; plain stability: ``recheck``'s own), and
+        ``message`` names it.
     """
     start_t = time.perf_counter()
     deadline = None if time_limit is None else start_t + float(time_limit)
@@ -814,7 +817,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         if deadline is not None and time.perf_counter() >= deadline:
             break
         fcert = fixed_rate_certificate(prob, family, network, fgains, decay_rate, plant_switching=plant_switching,
-                                       solver=solver if fallback else "IPM", recheck=recheck, time_limit=left())
+                                       solver=solver if fallback else "IPM", recheck=recheck, time_limit=left(),
+                                       clarabel=fallback)
         solves += 1
         if fcert is None:
             notes.append(f"the fixed-gain node analysis of the {fsol.solver} gains certified nothing{rate_txt}")
