@@ -454,7 +454,11 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         if res.outcome not in ("stabilized", "infeasible") and network_lmi.contains_bounded_drops(network):
             res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
     res.network = network.to_dict() if hasattr(network, "to_dict") else None
-    if prob.form == "augmented" and family.n_modes > 1 and plant_switching == "per_interval":
+    if (prob.form == "augmented" and family.n_modes > 1 and plant_switching == "per_interval"
+            and not (getattr(res, "fixed_rate_fallback", False)
+                     and not isinstance(res.certificate, network_lmi.NodeCertificate))):
+        # (not for the fixed-rate fallback's certificate on the product automaton: the design's own matrices failed,
+        # and that automaton follows per_interval itself)
         res.message += "; the augmented certificate lets the plant mode switch at every sample (it covers per_interval)"
     res.timings["total"] = time.perf_counter() - start
     if res.outcome == "stabilized" and res.decay_rate is not None:
@@ -523,7 +527,8 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
 
     def one(rate, use_ccl=True, probe=False):
         """One design at ``rate``, warm started from the nearest rate solved; a probe of the search stops once the
-        margin's sign is settled."""
+        margin's sign is settled and is a rate search's step (``rate_search``: no per-block solve, no fixed-gain
+        node analysis; docs/design.md 11.1)."""
         warm = None
         if rate is not None and WARM_PROBES and solved:
             from .ipm.network_blocks import warm_start
@@ -534,7 +539,7 @@ def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, call
                               time_limit=left(), callback=callback, max_iter=max_iter,
                               use_ccl=use_ccl and fallback, prob=prob,
                               recheck=recheck, solver=solver, fallback=fallback, start=warm,
-                              sign_only=probe and SIGN_ONLY_PROBES, per_block=not probe)
+                              sign_only=probe and SIGN_ONLY_PROBES, rate_search=probe)
         sdp = getattr(res, "sdp", None)
         if rate is not None and sdp is not None and sdp.ipm is not None:
             solved.append((rate, sdp))

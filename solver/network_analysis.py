@@ -246,6 +246,53 @@ class NodeLMI:
         return np.array([P.value for P in self.P])
 
 
+def fixed_gain_certificate(family, K: np.ndarray, net: Network, rate: float | None = None, *,
+                           plant_switching: str = "per_interval", solver: str = "AUTO") -> NetworkCertificate | None:
+    """The node analysis of given gains at one per-sample decay rate (docs/design.md §11.1, "Fixed-rate fallback").
+
+    The node SDP of :class:`NodeLMI` on the product automaton (one ``P_v`` per network node and plant mode, on the
+    augmented state) at ``rho = rate`` (None: plain stability, ``rho = 1``), re-checked in float64 by
+    :func:`recheck_node_dependent` at that rate: ``V_v(xi) = xi^T P_v xi`` shrinks by ``rate^2`` per sample along
+    every admissible run.
+
+    Parameters
+    ----------
+    family : PlantFamily
+    K : ndarray, shape (N, m, n)
+        The gains, ``N = net.n_drop``.
+    net : Network
+    rate : float or None
+        The per-sample decay rate to certify.
+    plant_switching, solver : str
+        As for :func:`analyze_network`.
+
+    Returns
+    -------
+    NetworkCertificate or None
+        The verified certificate; None when no P passes the re-check, the solver fails, or the SDP is over the
+        limits :func:`analyze_network` refuses up front (a fallback never raises for them).
+    """
+    from .compiled import MAX_SOLVER_MEMORY
+
+    A = loop_matrices(family, K, net)
+    product = product_automaton(net, family.n_modes, plant_switching)
+    D = A.shape[-1]
+    if product.size * D > MAX_LMI_ROWS or node_sdp_memory(product.succ, D, solver) > MAX_SOLVER_MEMORY:
+        return None
+    A_states = A[product.modes, product.ages]  # (V, D, D)
+    if not np.all(np.isfinite(A_states)):
+        return None
+    rho = 1.0 if rate is None else float(rate)
+    try:
+        P = NodeLMI(A_states, product).solve(rho, solver)
+    except SolverFailed:
+        return None
+    if P is None or not np.all(np.isfinite(P)):
+        return None
+    cert = recheck_node_dependent(P, A_states, product, rho, source="node_lmi" if rate is None else "node_lmi_rate")
+    return cert if cert.verified else None
+
+
 def cycle_products(A_states: np.ndarray, product: ProductAutomaton, max_length: int, max_products: int):
     """Closed walks of the product automaton up to ``max_length`` and ``rho(product)^(1/length)``.
 

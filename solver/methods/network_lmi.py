@@ -47,6 +47,7 @@ from ..compiled import cp  # cvxpy, imported on first use
 from ..errors import InvalidInput, SolverFailed
 from ..lyapunov import RECHECK_TOL, Certificate
 from ..network import ModeSet, spectral_radii
+from ..network_analysis import fixed_gain_certificate
 from ..networks import loop_matrices
 from ..result import DesignResult, IterationRecord
 
@@ -554,6 +555,40 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
     return cert if cert.verified else None
 
 
+def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndarray, rate: float | None = None, *,
+                           plant_switching: str = "per_interval", solver: str = "AUTO", recheck=None,
+                           time_limit: float | None = None, clarabel: bool = True):
+    """The fixed-rate fallback (docs/design.md 11.1): a certificate for ``gains`` at ``rate`` that does not use the
+    design's own node matrices, or None.
+
+    ``recheck(gains, rate) -> (ok, certificate or None)`` (the design's independent analysis, as in :func:`run`)
+    decides first: not ok gives None, a verified certificate of its own is the answer (plain stability:
+    ``analyze``'s node analysis at rate 1).  Otherwise (no ``recheck``, or one without a certificate at a decay
+    rate) the fixed-gain node SDP in the design's own form (:func:`node_analysis`, re-checked by
+    :func:`recheck_network` like the design's matrices), then the fixed-gain node analysis on the product automaton
+    (:func:`solver.network_analysis.fixed_gain_certificate`, the augmented state, one matrix per node and plant mode).
+    ``clarabel=False`` (Clarabel's memory over the budget, as CCL): the design-form SDP, on Clarabel, is skipped.
+
+    Returns
+    -------
+    NodeCertificate or solver.network_analysis.NetworkCertificate or None
+        Verified by the float64 re-check at ``rate``.
+    """
+    if not np.all(np.isfinite(gains)):
+        return None
+    if recheck is not None:
+        ok, other = recheck(gains, rate)
+        if not ok:
+            return None
+        if other is not None and getattr(other, "verified", False):
+            return other
+    cert = node_analysis(prob, gains, rate, time_limit) if clarabel else None
+    if cert is not None:
+        return cert
+    return fixed_gain_certificate(family, np.asarray(gains, float), network, rate, plant_switching=plant_switching,
+                                  solver=solver)
+
+
 def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, deadline: float | None = None,
         callback=None, start: float | None = None):
     """The paper's cone complementarity linearization on the exact node conditions (docs/design.md).
@@ -709,7 +744,7 @@ def solver_order(solver: str, fallback: bool = True) -> list:
 def run(family, network, *, decay_rate: float | None = None, plant_switching: str = "per_interval",
         time_limit: float | None = None, callback=None, max_iter: int = 50, use_ccl: bool = True,
         prob: NetworkProblem | None = None, recheck=None, solver: str = "AUTO", fallback: bool = True,
-        start=None, sign_only: bool = False, per_block: bool = True) -> DesignResult:
+        start=None, sign_only: bool = False, per_block: bool = True, rate_search: bool = False) -> DesignResult:
     """One design on ``network`` at ``decay_rate`` (None: plain stability).
 
     The convex network LMI first, on the solvers of :func:`solver_order` (``"AUTO"``: the structured IPM, and
@@ -721,6 +756,11 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
     own node matrices is the only check).  ``start``, ``sign_only``: the IPM's warm start and early stop (the
     rate search's probes).  ``per_block``: when the augmented form ends at ``t* <= 0`` without a proof, solve
     it once more normalized per slack block (a Farkas certificate of that restriction; docs/design.md 11.1).
+    When the SDP's gains are found (``t* > 0``) but its node matrices fail the float64 re-check, the fixed-gain node
+    analysis of those gains at ``decay_rate`` decides before CCL (:func:`fixed_rate_certificate`; docs/design.md 11.1,
+    "Fixed-rate fallback").  ``rate_search``: a step of a rate search (``decay_rate="max"``/``"auto"``): the SDP's own
+    candidate decides, neither the per-block solve nor the fixed-gain node analysis runs (the search's bracket stays
+    the convex condition's, docs/design.md 3.2.1).
 
     Returns
     -------
@@ -728,7 +768,11 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         "stabilized" with a :class:`NodeCertificate`; "not_certified" with a
         :class:`NetworkFarkasCertificate` when the convex LMI is proven infeasible and CCL found nothing;
         "not_converged" otherwise.  ``solver`` names the solver whose answer decided, ``timings["solves"]``
-        counts every SDP solved; ``res.sdp`` (not exported) is the deciding :class:`NetworkSolution`.
+        counts every SDP solved; ``res.sdp`` (not exported) is the deciding :class:`NetworkSolution`.  From the
+        fixed-rate fallback (``res.fixed_rate_fallback``, not exported), "stabilized" carries the fixed-gain node
+        SDP's :class:`NodeCertificate` (the design's form) or a :class:`solver.network_analysis.NetworkCertificate`
+        (one ``P`` per network node and plant mode on the augmented state; plain stability: ``recheck``'s own), and
+        ``message`` names it.
     """
     start_t = time.perf_counter()
     deadline = None if time_limit is None else start_t + float(time_limit)
@@ -757,6 +801,7 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
 
     sol = gains = cert = proof = None
     solver_time, solves, history, notes = 0.0, 0, [], []
+    failed = []  # (solution, gains, own re-check) of the SDP's gains whose node matrices failed the re-check
     for i, name in enumerate(order):
         last = i == len(order) - 1
         try:
@@ -781,7 +826,10 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
         if np.isfinite(sol.t) and sol.t > 0:
             gains = gains_from(prob, sol)
             if np.all(np.isfinite(gains)):
-                cert = accept(gains, recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate))
+                own = recheck_network(prob, np.linalg.inv(sol.W), gains, decay_rate)
+                cert = accept(gains, own)
+                if not own.verified:
+                    failed.append((sol, gains, own))
         elif sol.multipliers is not None:
             proof = check_network_farkas(prob, sol.multipliers, scale, decay_rate)
             proof = proof if proof.verified else None
@@ -798,8 +846,8 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
             break
         notes.append(f"{name}: t* = {sol.t:.3g} with neither a certificate passing the float64 re-check nor a Farkas "
                      f"proof, {order[i + 1]} instead")
-    if (per_block and cert is None and proof is None and sol is not None and prob.zblocks > 1 and not sol.t > 0
-            and (deadline is None or time.perf_counter() < deadline)):
+    if (per_block and not rate_search and cert is None and proof is None and sol is not None and prob.zblocks > 1
+            and not sol.t > 0 and (deadline is None or time.perf_counter() < deadline)):
         # the augmented form's t* >= 0 always (a zero slack block reaches t = 0, docs/design.md 11.1): the LMI with
         # one normalization per slack block, a restriction, can be proven infeasible (and its solutions are the
         # LMI's too)
@@ -814,7 +862,10 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
             if np.isfinite(alt.t) and alt.t > 0:
                 agains = gains_from(prob, alt)
                 if np.all(np.isfinite(agains)):
-                    cert = accept(agains, recheck_network(prob, np.linalg.inv(alt.W), agains, decay_rate))
+                    own = recheck_network(prob, np.linalg.inv(alt.W), agains, decay_rate)
+                    cert = accept(agains, own)
+                    if not own.verified:
+                        failed.append((alt, agains, own))
                 if cert is not None:
                     sol, gains = alt, agains
             elif alt.multipliers is not None:
@@ -835,6 +886,28 @@ def run(family, network, *, decay_rate: float | None = None, plant_switching: st
                                    f"certificate re-checked (relative margin {cert.margin:.3g}){rate_txt}{via}")
         res.sdp = sol
         return res
+    for fsol, fgains, own in ([] if rate_search else reversed(failed)):  # the latest solve's gains first
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
+        fcert = fixed_rate_certificate(prob, family, network, fgains, decay_rate, plant_switching=plant_switching,
+                                       solver=solver if fallback else "IPM", recheck=recheck, time_limit=left(),
+                                       clarabel=fallback)
+        solves += 1
+        if fcert is None:
+            notes.append(f"the fixed-gain node analysis of the {fsol.solver} gains certified nothing{rate_txt}")
+            continue
+        which = (f"{prob.form} form, {len(fcert.P)} node matrices" if isinstance(fcert, NodeCertificate) else
+                 f"one P per network node and plant mode on the augmented state, {len(fcert.P)} matrices")
+        res = DesignResult(outcome="stabilized", gains=fgains, certificate=fcert, history=history,
+                           solver_status=fsol.status, timings=timings(solver_time, solves), decay_rate=decay_rate,
+                           spectral_radii=spectral_radii(prob.closed_loops(fgains)), **{**base, "solver": fsol.solver},
+                           message=f"stabilized on {where}; network LMI margin t* = {fsol.t:.3g} ({fsol.solver}), but "
+                                   f"its node matrices failed the float64 re-check (relative margin {own.margin:.3g}); "
+                                   f"certificate: the fixed-gain node analysis of these gains ({which}), "
+                                   f"re-checked (relative margin {fcert.margin:.3g}){rate_txt}{via}")
+        res.sdp, res.fixed_rate_fallback = fsol, True  # (not exported)
+        return res
+    via = "" if not notes else "; " + "; ".join(notes)
     if use_ccl and (deadline is None or time.perf_counter() < deadline):
         cgains, ccert, chist, ctime = ccl(prob, decay_rate, max_iter, deadline, callback, start_t)
         history += chist

@@ -3,11 +3,12 @@ random admissible sequences stepped sample by sample, exact arithmetic on an uns
 
 import itertools
 from fractions import Fraction
+from math import gcd
 
 import numpy as np
 import pytest
 
-from solver import InvalidInput, Network, PlantFamily, analyze, design
+from solver import InvalidInput, Network, PlantFamily, analyze, design, exact
 from solver.compiled import design_size
 from solver.methods import network_lmi
 
@@ -328,3 +329,165 @@ def test_network_design_balances_badly_scaled_plants_and_proves_the_users_loop()
     delays = design(fam, network=Network.delays(1, 2), decay_rate=None)
     assert delays.outcome == "stabilized", delays.message
     assert max_cycle_rate(fam, delays.gains, Network.delays(1, 2), 6) < 1.0
+
+
+# ------------------------------------------------------------------------------------- fixed-rate fallback
+def exact_augmented(F, G, K, d):
+    """A[d] on xi = (x(t), ..., x(t-N+1)) in Fractions, from x(t+1) = F x(t) + G K_(d+1) x(t-d) (not loop_matrices)."""
+    n, N = F.shape[0], K.shape[0]
+    Fq = exact.fractions(F)
+    Gq, Kq = exact.fractions(G), exact.fractions(K[d])
+    GKq = [[sum(Gq[i][p] * Kq[p][j] for p in range(len(Kq))) for j in range(n)] for i in range(n)]
+    A = [[Fraction(0)] * (n * N) for _ in range(n * N)]
+    for i in range(n):
+        for j in range(n):
+            A[i][j] += Fq[i][j]
+            A[i][d * n + j] += GKq[i][j]
+    for i in range(n, n * N):  # the shift x(t-i) -> x(t-i-1)
+        A[i][i - n] = Fraction(1)
+    return A
+
+
+def exactly_positive_definite(M):
+    """Sylvester's criterion on the integer matrix (common denominator) of a symmetric Fraction matrix."""
+    den = 1
+    for row in M:
+        for x in row:
+            den = den * x.denominator // gcd(den, x.denominator)
+    return exact.positive_definite_integer([[x * den for x in row] for row in M])
+
+
+def own_recheck_fails(monkeypatch):
+    """Every re-check of the design's own node matrices (``run``'s, source "network_lmi") fails; CCL's fixed-gain
+    node SDP (source "network_analysis") keeps the real one."""
+    real = network_lmi.recheck_network
+
+    def recheck(prob, P, gains, rate=None, source="network_lmi"):
+        cert = real(prob, P, gains, rate, source)
+        if source == "network_lmi":
+            cert.verified = False
+        return cert
+
+    monkeypatch.setattr(network_lmi, "recheck_network", recheck)
+
+
+def exact_matmul(A, B):
+    return [[sum(A[r][p] * B[p][c] for p in range(len(B))) for c in range(len(B[0]))] for r in range(len(A))]
+
+
+def exactly_decreasing(Pv, Pw, A, rho2):
+    """``rho2 P_v - A' P_w A`` positive definite, in Fractions."""
+    At = [list(col) for col in zip(*A)]
+    APA = exact_matmul(At, exact_matmul(Pw, A))
+    return exactly_positive_definite([[rho2 * Pv[r][c] - APA[r][c] for c in range(len(A))] for r in range(len(A))])
+
+
+def exact_symmetric(M):
+    """The symmetric part of a float64 matrix, exactly."""
+    Q = exact.fractions(M)
+    return [[(Q[r][c] + Q[c][r]) / 2 for c in range(len(Q))] for r in range(len(Q))]
+
+
+def reception_paths(net):
+    """(v, w, eta): a packet received at node v (age 0), the next one at w, eta samples later, the ages between
+    them 1, ..., eta - 1 (walked on the automaton's successors, not network_lmi.lifted_edges)."""
+    out = set()
+    for v in range(net.nodes):
+        if net.ages[v] != 0:
+            continue
+        walk = [(v, 1)]
+        while walk:
+            u, eta = walk.pop()
+            for w in net.successors(u):
+                if net.ages[w] == 0:
+                    out.add((v, w, eta))
+                elif net.ages[w] == eta:
+                    walk.append((w, eta + 1))
+    return out
+
+
+def test_fixed_rate_fallback_certifies_the_lmi_gains_when_their_own_node_matrices_fail(monkeypatch):
+    """docs/design.md §11.1, "Fixed-rate fallback": the design's own node matrices fail the re-check (forced), the
+    fixed-gain node SDP in the design's (lifted) form certifies the same gains at the same rate, before CCL (which
+    would otherwise answer, with other gains: method "network_ccl")."""
+    own_recheck_fails(monkeypatch)
+    net, rate = Network.weakly_hard(2, 5, 3), 0.95
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=rate)
+    assert res.outcome == "stabilized" and res.method == "network_lmi", res.message
+    assert "failed the float64 re-check" in res.message and "fixed-gain node analysis" in res.message
+    cert = res.certificate
+    assert cert.kind == "node_dependent" and cert.verified and cert.form == "lifted" and res.decay_rate == rate
+    # independent re-check in exact arithmetic on the float64 numbers: for every reception-to-reception path of eta
+    # samples and plant mode l (constant between receptions), the interval map
+    # x -> (F^eta + sum_t F^(eta-1-t) G K_(t+1)) x satisfies rate^(2 eta) P_v - A' P_w A > 0 exactly
+    F, G, K = np.asarray(WEAKLY_HARD_FAMILY.F), np.asarray(WEAKLY_HARD_FAMILY.G), np.asarray(res.gains)
+    index = {int(v): i for i, v in enumerate(cert.nodes)}
+    assert sorted(index) == [v for v in range(net.nodes) if net.ages[v] == 0]
+    P = [exact_symmetric(M) for M in cert.P]
+    paths = reception_paths(net)
+    assert {eta for _, _, eta in paths} == {1, 2, 3}
+    for v in index:
+        assert exactly_positive_definite(P[index[v]])
+    for v, w, eta in paths:
+        for l in range(2):
+            Fq, Gq = exact.fractions(F[l]), exact.fractions(G[l])
+            n = len(Fq)
+            power = [[Fraction(int(r == c)) for c in range(n)] for r in range(n)]  # F^(eta-1-t), t from eta-1 down
+            A = [[Fraction(0)] * n for _ in range(n)]
+            for t in reversed(range(eta)):
+                GK = exact_matmul(exact_matmul(power, Gq), exact.fractions(K[t]))
+                A = [[A[r][c] + GK[r][c] for c in range(n)] for r in range(n)]
+                power = exact_matmul(power, Fq)
+            A = [[A[r][c] + power[r][c] for c in range(n)] for r in range(n)]  # power = F^eta
+            assert exactly_decreasing(P[index[v]], P[index[w]], A, Fraction(rate) ** (2 * eta)), (v, w, eta, l)
+    assert random_runs_decay(WEAKLY_HARD_FAMILY, res.gains, net, runs=30, steps=300) < 1e-3
+
+
+def test_fixed_rate_fallback_on_the_product_automaton(monkeypatch):
+    """When the design-form node SDP certifies nothing either (forced), the node analysis on the product automaton
+    (augmented state, one P per node and plant mode) certifies the gains: re-checked exactly."""
+    own_recheck_fails(monkeypatch)
+    monkeypatch.setattr(network_lmi, "node_analysis", lambda *args, **kwargs: None)
+    net, rate = Network.weakly_hard(2, 5, 3), 0.95
+    res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate=rate, max_iter=1)
+    assert res.outcome == "stabilized" and res.method == "network_lmi", res.message
+    assert "fixed-gain node analysis" in res.message and "plant mode on the augmented state" in res.message
+    cert = res.certificate
+    assert cert.kind == "node_dependent" and cert.verified and cert.decay_rate == rate
+    # states (node, plant mode), edges rebuilt from the automaton (the plant switches only where a fresh packet
+    # arrives), rate^2 P_v - A_v' P_w A_v > 0 exactly with A_v built from x(t+1) = F x(t) + G K_(d+1) x(t-d)
+    F, G, K = np.asarray(WEAKLY_HARD_FAMILY.F), np.asarray(WEAKLY_HARD_FAMILY.G), np.asarray(res.gains)
+    states = [tuple(s) for s in cert.states]
+    assert sorted(states) == [(i, l) for i in range(net.nodes) for l in range(2)]
+    index = {s: v for v, s in enumerate(states)}
+    P = [exact_symmetric(M) for M in cert.P]
+    edges = 0
+    for (i, l), v in index.items():
+        A = exact_augmented(F[l], G[l], K, int(net.ages[i]))
+        assert exactly_positive_definite(P[v])
+        for j in net.successors(i):
+            for l2 in range(2):
+                if l2 != l and net.ages[j] > net.ages[i]:
+                    continue
+                assert exactly_decreasing(P[v], P[index[(j, l2)]], A, Fraction(rate) ** 2), (i, l, j, l2)
+                edges += 1
+    assert edges > len(states)
+    assert random_runs_decay(WEAKLY_HARD_FAMILY, res.gains, net, runs=30, steps=300) < 1e-3
+
+
+def test_rate_search_steps_skip_the_fixed_rate_fallback(monkeypatch):
+    """A rate search's probe (``rate_search=True``) is decided by the SDP's own candidate alone."""
+    own_recheck_fails(monkeypatch)
+    calls = []
+    real = network_lmi.node_analysis
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(network_lmi, "node_analysis", counted)
+    net = Network.weakly_hard(2, 5, 3)
+    probe = network_lmi.run(WEAKLY_HARD_FAMILY, net, decay_rate=0.95, use_ccl=False, rate_search=True)
+    assert probe.outcome != "stabilized" and not calls
+    fixed = network_lmi.run(WEAKLY_HARD_FAMILY, net, decay_rate=0.95, use_ccl=False)
+    assert fixed.outcome == "stabilized" and calls
