@@ -149,7 +149,8 @@ def design(
         the family's entries spread over more than three decades, and maps
         gains and certificates back (see :mod:`solver.scaling`).  Designs with an
         ``objective`` or ``u_max`` balance the weights and channels too (powers of two) and map the
-        bracket back (:class:`solver.scaling.PerformanceScaling`).
+        bracket back (:class:`solver.scaling.PerformanceScaling`); so do designs on a ``network``
+        (docs/design.md §11.1, "Scaling").
     max_memory : float, optional
         Memory budget in bytes (default :data:`solver.compiled.MAX_SOLVER_MEMORY`, 4 GiB, or
         ``NCS_SOLVER_MAX_MEMORY``).  Before anything is built, the design's size is estimated
