@@ -436,3 +436,30 @@ def test_hinf_on_a_badly_scaled_plant_is_certified_in_balanced_coordinates():
         peak = max(np.linalg.norm(np.vstack([X, K[0] @ X]), 2)
                    for X in (np.linalg.solve(np.exp(1j * s) * np.eye(3) - A, Ew) for s in np.linspace(0, np.pi, 400)))
         assert peak <= perf.upper * (1 + 1e-9)
+
+
+def test_stability_gains_refined_for_the_cost_lower_the_certified_bound():
+    """When the network cost SDP has no interior (the augmented form on delays), the stability design's gains are
+    refined by alternating the fixed-gain SDP and the fixed-node gain SDP (docs/design.md §11.3): on this family the
+    certified trace bound drops from the stability gains' 1204 to about 272, and every admissible run of 8 samples,
+    stepped sample by sample from the unit vectors, stays within it."""
+    from bench.cases import random_family
+
+    fam, net = random_family(3, 2, 1, seed=4), Network.delays(1, 2)
+    res = design(fam, network=net, objective="cost")
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and perf.lower <= perf.upper and "refined for the cost" in res.message
+    plain = design(fam, network=net, decay_rate=None)
+    before = network_performance.bracket(network_performance.channels(fam, net, "cost"), plain.gains, "cost")
+    assert before.verified and perf.upper < 0.5 * before.upper
+    Q, R, T = np.eye(3), np.eye(1), 8
+    F, G = np.asarray(fam.F), np.asarray(fam.G)
+    worst = 0.0
+    for ages in itertools.product(range(net.n_drop), repeat=T):
+        if not net.admissible(ages):
+            continue
+        for plants in itertools.product(range(2), repeat=2):
+            seq = [plants[0]] * 4 + [plants[1]] * (T - 4)
+            worst = max(worst, sum(run_cost(F, G, res.gains, Q, R, e, ages, seq, ages[0]) for e in np.eye(3)))
+    assert 0 < worst <= perf.upper
