@@ -2054,10 +2054,30 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
     while zr * zr + zi * zi < 1:
         zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
+    # v: the top right singular vector of H(z) from the exact period rounded once to float64 (only H v is formed
+    # exactly: one right-hand side instead of the period's p disturbance columns, each a column of big integers;
+    # a v off by e costs e^2 of the value, never its validity)
+    ABf = np.array([[int(x) / (1 << sab) for x in row] for row in Nab], dtype=float).reshape(Nab.shape)
+    CDf = np.array([[int(x) / (1 << scd) for x in row] for row in Ncd], dtype=float).reshape(Ncd.shape)
+    z = complex(float(zr), float(zi))
+    try:
+        Hf = CDf[:, n:] + CDf[:, :n] @ np.linalg.solve(z * np.eye(n) - ABf[:, :n], ABf[:, n:])
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Hf)):
+        return None
+    v = np.linalg.svd(Hf, full_matrices=False)[2][0].conj()
     (Z,), t = dyadic([[zr, zi]])
+    (V,), u = dyadic([[Fraction(float(x.real)) for x in v] + [Fraction(float(x.imag)) for x in v]])
+    p = v.size
+    Vr, Vi = np.array(V[:p], dtype=object), np.array(V[p:], dtype=object)
+    norm_v = int(np.dot(Vr, Vr) + np.dot(Vi, Vi))
+    if norm_v == 0:
+        return None
+    # (zI - Phi) y = B v over the integers, scaled by 2^(t + sab + u): (Z 2^sab - Phi_N 2^t) y = B_N (V) 2^t,
+    # in real form [[Mr, -Zi], [Zi, Mr]] [yr; yi] = [B Vr; B Vi] 2^t
     Zr, Zi = Z[0] << sab, Z[1] << sab
     A, B = Nab[:, :n] * (1 << t), Nab[:, n:] * (1 << t)
-    p = B.shape[1]
     M = [[0] * (2 * n) for _ in range(2 * n)]
     for i in range(n):
         for j in range(n):
@@ -2065,30 +2085,19 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
         M[i][i] += Zr
         M[n + i][n + i] += Zr
         M[i][n + i], M[n + i][i] = -Zi, Zi
-    rhs = [list(B[i]) for i in range(n)] + [[0] * p for _ in range(n)]
-    bits = max(max((abs(int(v)).bit_length() for row in M for v in row), default=0),
-               max((abs(int(v)).bit_length() for row in rhs for v in row), default=0))
+    rhs = [[int(x)] for x in np.dot(B, Vr)] + [[int(x)] for x in np.dot(B, Vi)]
+    bits = max(max((abs(int(x)).bit_length() for row in M for x in row), default=0),
+               max((abs(r[0]).bit_length() for r in rhs), default=0))
     if bits > EXACT_PERIOD_MAX_BITS:
         return None
     solved = solve_integer(M, rhs)
     if solved is None:
         return None
-    Y, d = solved  # Y = d (Yr; Yi), integers
-    Yr, Yi = np.array(Y[:n], dtype=object).reshape(n, p), np.array(Y[n:], dtype=object).reshape(n, p)
+    Y, d = solved  # d (yr; yi), integers: y = Y / d, and H v = (C Y / d + D V) / (2^scd 2^u)
+    yr, yi = np.array([r[0] for r in Y[:n]], dtype=object), np.array([r[0] for r in Y[n:]], dtype=object)
     C, D = Ncd[:, :n], Ncd[:, n:]
-    Hr, Hi = np.dot(C, Yr) + D * d, np.dot(C, Yi)  # H = (Hr + j Hi) / (d 2^scd)
-    scale = d << scd
-    Hf = np.array([[float(Fraction(int(a), scale)) + 1j * float(Fraction(int(b), scale)) for a, b in zip(ra, rb)]
-                   for ra, rb in zip(Hr, Hi)])
-    if not np.all(np.isfinite(Hf)):
-        return None
-    v = np.linalg.svd(Hf)[2][0].conj()
-    (V,), _ = dyadic([[Fraction(float(x.real)) for x in v] + [Fraction(float(x.imag)) for x in v]])
-    Vr, Vi = np.array(V[:p], dtype=object), np.array(V[p:], dtype=object)
-    norm_v = int(np.dot(Vr, Vr) + np.dot(Vi, Vi))
-    if norm_v == 0:
-        return None
-    re, im = np.dot(Hr, Vr) - np.dot(Hi, Vi), np.dot(Hr, Vi) + np.dot(Hi, Vr)
+    re, im = np.dot(C, yr) + np.dot(D, Vr) * d, np.dot(C, yi) + np.dot(D, Vi) * d
+    scale = d << scd  # |H v|^2 / |v|^2 = |re + j im|^2 / (|V|^2 scale^2): 2^u cancels
     q = Fraction(int(np.dot(re, re) + np.dot(im, im)), norm_v * scale * scale)
     f = float(np.sqrt(float(q)))
     while Fraction(f) ** 2 > q:
