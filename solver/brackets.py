@@ -12,8 +12,9 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
   with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"); the quadratic bound stays in
   ``certificate_upper``.
 
-* ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (frequency sweep, a lower
-  bound by construction) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
+* ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (level-set iteration in float64, then
+  the witness's gain at its peak frequency evaluated in exact arithmetic, :func:`exact_witness`: a proven lower
+  bound) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
 """
 
 from __future__ import annotations
@@ -1832,7 +1833,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     ``exact_hinf``: ``(P, g)``, a rational P (lists of Fractions) and a float64 ``g = gamma^2`` proposed for one LTI
     loop, accepted through :func:`check_hinf_exact` (docs/design.md §8.5).
     ``seconds_left``: ``() -> seconds or None`` (a design's time limit): the exact rational cost certificate (up
-    to 2 s at n = 8) and the deep lower-bound searches are not started once <= 0.
+    to 2 s at n = 8), the exact hinf witness (:func:`exact_witness`) and the deep lower-bound searches are not
+    started once <= 0.
     """
     data = lifted.numeric(gains)
     P = upper = None

@@ -852,3 +852,22 @@ def test_solve_integer_is_the_exact_solution():
             for c in range(3):
                 assert sum(Fraction(M[i][j]) * Fraction(X[j][c], d) for j in range(k)) == B[i][c]
     assert solve_integer([[1, 2], [2, 4]], [[1], [0]]) is None
+
+
+def test_a_skipped_exact_witness_keeps_the_float64_value_and_says_so(monkeypatch):
+    # over the work cap, or with the run's time up, the float64 witness stays and the message says it is no proof
+    from solver import brackets
+    from solver.brackets import lower_bound
+
+    F, G, E = _near_unit_pole_loop(1e-8, seed=1)
+    fam, K = PlantFamily(F=F[None], G=G[None]), np.zeros((2, 1, 3))
+    lifted = lift_modes(ModeSet.from_family(fam, 2), None, E)
+    witness = lower_bound(lifted, K, "hinf").value
+    perf = bracket(lifted, K, "hinf", seconds_left=lambda: 0.0)
+    assert perf.lower == witness and "float64 witness, not a proof (no time left" in perf.message
+    monkeypatch.setattr(brackets, "EXACT_PERIOD_MAX_WORK", 2)
+    perf = bracket(lifted, K, "hinf")
+    assert perf.lower == witness and "float64 witness, not a proof (period" in perf.message
+    monkeypatch.undo()
+    perf = bracket(lifted, K, "hinf")
+    assert perf.lower != witness and "evaluated exactly" in perf.message
