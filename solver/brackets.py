@@ -1220,6 +1220,12 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
         return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
+    # (a)(a) and (a) are one infinite sequence with one value: which of them wins the comparisons above is decided by
+    # rounding (it changed with the machine's BLAS), so the reported period is the shortest one
+    valued = list(witness[lead:])
+    witness = list(witness[:lead]) + _primitive_period(valued)
+    if peak is not None and len(witness) < len(valued):
+        peak = primitive_peak(data, witness, len(valued) // len(witness), peak)
     labels = []
     for s in witness:
         lm = lifted.lifted[s]
@@ -1228,6 +1234,24 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
     return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "", tuple(witness), peak)
+
+
+def primitive_peak(data: list[dict], period, r: int, peak: float) -> float:
+    """The frequency (rad/sample, in [0, pi]) of ``period``'s lifted system where the ``r``-fold period (``period``
+    repeated r times) has its gain at ``peak``: the r-fold lifting's singular values at ``e^{jw}`` are the short
+    period's at the r-th roots, ``(w + 2 pi k) / r`` (folded into [0, pi]: real data); the root of the largest gain."""
+    roots = np.array([(peak + 2 * np.pi * k) / r for k in range(r)]) % (2 * np.pi)
+    roots = np.where(roots > np.pi, 2 * np.pi - roots, roots)
+    return float(roots[int(np.argmax(_sigma_max(period_system(data, tuple(period)), roots)))])
+
+
+def _primitive_period(period: list) -> list:
+    """The shortest block whose repetition is ``period`` (``[a, b, a, b]`` -> ``[a, b]``)."""
+    n = len(period)
+    for k in range(1, n):
+        if n % k == 0 and period == period[:k] * (n // k):
+            return period[:k]
+    return period
 
 
 def _tails(data: list[dict], seqs: list, hint: np.ndarray | None = None) -> list:

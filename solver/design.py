@@ -439,8 +439,18 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                                n_drop=network.n_drop, plant_switching=plant_switching,
                                message=f"{unc.statement()}: no gains stabilize the loop on {network.describe()}")
         else:
-            res = _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter,
-                                 plant_switching, start, solver, fallback)
+            # balanced coordinates (powers of two, exact), as the plain design (docs/design.md §11.1, "Scaling")
+            scale = balance(family) if scaling == "auto" else None
+            if scale is None or scale.is_identity:
+                res = _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter,
+                                     plant_switching, start, solver, fallback)
+            else:
+                scaled = scale.family(family)
+                res = _network_rates(scaled, network, network_lmi.build_problem(scaled, network, plant_switching),
+                                     decay_rate, rate_tol, time_limit, callback, max_iter, plant_switching, start,
+                                     solver, fallback)
+                res = _network_unscale(res, scale, family, network, prob, plant_switching,
+                                       time_left(time_limit, start, floor=1e-3))
         if res.outcome not in ("stabilized", "infeasible") and network_lmi.contains_bounded_drops(network):
             res = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
     res.network = network.to_dict() if hasattr(network, "to_dict") else None
@@ -448,8 +458,66 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
         res.message += "; the augmented certificate lets the plant mode switch at every sample (it covers per_interval)"
     res.timings["total"] = time.perf_counter() - start
     if res.outcome == "stabilized" and res.decay_rate is not None:
-        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, None),
+        res.settling = certified_settling(res.decay_rate, metric_condition(res.certificate, res.scaling),
                                           family.sampling_period)
+    return res
+
+
+def _network_unscale(res: DesignResult, scale: Scaling, family: PlantFamily, network, prob, plant_switching: str,
+                     time_limit: float | None) -> DesignResult:
+    """A network design made in balanced coordinates, mapped back and re-checked on the user's data.
+
+    Gains map by ``K = U K~ T^-1``, node matrices and Farkas multipliers by the congruence ``T^-T M~ T^-1``
+    (exact: powers of two).  The node certificate is re-checked on ``prob`` (the user's network problem); when
+    its relative margin does not survive there (it is not invariant under the congruence), the node analysis of
+    the gains in the user's coordinates is tried, then (plain stability) the network analysis; when none passes,
+    the balanced certificate stands, which proves the same loop (``res.scaling["certificate"] == "scaled"``).
+    """
+    from .methods import network_lmi
+
+    res.scaling = {"state": scale.state.tolist(), "input": scale.input.tolist(), "certificate": "original"}
+    cert = res.certificate
+    if res.outcome == "not_certified" and getattr(cert, "kind", None) == "farkas_network":
+        rate_scale = (np.ones(prob.n_blocks) if cert.decay_rate is None
+                      else float(cert.decay_rate) ** (-prob.length.astype(float)))
+        mine = network_lmi.check_network_farkas(prob, [scale.quadratic_back(M) for M in cert.multipliers],
+                                                rate_scale, cert.decay_rate, per_block=cert.per_block)
+        if mine.verified:
+            before, res.certificate = cert.statement(), mine
+            if res.message.startswith(before):
+                res.message = mine.statement() + res.message[len(before):]
+        else:
+            cert.scaled = True
+            res.scaling["certificate"] = "scaled"
+            res.message += "; the Farkas certificate is stated in balanced coordinates (res.scaling)"
+    if res.gains is None:
+        return res
+    res.gains = scale.gains_back(res.gains)
+    if res.outcome != "stabilized":
+        return res
+    rate = res.decay_rate if res.decay_rate is not None else getattr(cert, "decay_rate", None)
+    mine = None
+    if isinstance(cert, network_lmi.NodeCertificate):
+        mine = network_lmi.recheck_network(prob, scale.quadratic_back(cert.P), res.gains, rate, source=cert.source)
+        mine = mine if mine.verified else None
+    if mine is None:
+        mine = network_lmi.node_analysis(prob, res.gains, rate, time_limit)
+    if mine is None and rate is None:
+        from .analysis import analyze
+
+        try:
+            rep = analyze(family, res.gains, network=network, plant_switching=plant_switching, bounds="none",
+                          max_product_length=2)
+            mine = rep.certificate if rep.stable is True else None
+        except (InvalidInput, SolverFailed):
+            mine = None
+    res.spectral_radii = network_lmi.spectral_radii(prob.closed_loops(res.gains))
+    if mine is not None:
+        res.certificate = mine
+    else:
+        res.scaling["certificate"] = "scaled"
+        res.message += ("; the node certificate is stated in balanced coordinates (res.scaling): its relative margin "
+                        "does not survive the congruence back to the user's")
     return res
 
 

@@ -696,6 +696,16 @@ def test_mode_dependent_storage_narrows_a_switched_l2_gain_bracket():
     assert "P_perf_modes" in m_script(res, fam)
 
 
+def test_witness_is_reported_by_its_shortest_period():
+    from solver.brackets import _primitive_period
+
+    assert _primitive_period([(0, 1), (0, 1)]) == [(0, 1)]
+    assert _primitive_period([1, 2, 1, 2, 1, 2]) == [1, 2]
+    assert _primitive_period([1, 2, 1]) == [1, 2, 1]
+    assert _primitive_period([1, 1, 2, 1, 1, 2]) == [1, 1, 2]
+    assert _primitive_period([3]) == [3]
+
+
 # --------------------------------------------------------------------------- exact hinf witness (§8.4)
 def _mp_gain_sweep(F, E, dps: int = 60) -> float:
     """The l2 gain of ``x+ = F x + E w``, ``z = x`` (F's float64 numbers taken as exact) by a sweep in mpmath at
@@ -871,3 +881,26 @@ def test_a_skipped_exact_witness_keeps_the_float64_value_and_says_so(monkeypatch
     monkeypatch.undo()
     perf = bracket(lifted, K, "hinf")
     assert perf.lower != witness and "evaluated exactly" in perf.message
+
+
+def test_a_witness_shortened_to_its_primitive_period_keeps_its_peak():
+    # (a)(a)...(a) reported as (a): the peak frequency moves to the root of e^{jw} where (a) has that gain, so the
+    # exact witness evaluates the shorter period where the longer one peaked (the r-fold lifting's singular values
+    # are the short period's at the r-th roots: checked here against the r-fold period itself)
+    from solver.brackets import _sigma_max, hinf_norm_peak, period_system, primitive_peak
+
+    rng = np.random.default_rng(4)
+    fam = unstable_family()
+    modes = ModeSet.from_family(fam, 3)
+    lifted = lift_modes(modes, None, np.array([[0.5], [1.0]]))
+    K = modes.expand(0.3 * rng.normal(size=(modes.n_free_gains, 1, 2)) + np.array([[[-0.6, -1.0]]]))
+    data = lifted.numeric(K)
+    short = (0, 3)
+    if not np.max(np.abs(np.linalg.eigvals(period_system(data, short)["Phi"]))) < 1:
+        pytest.skip("unstable period")
+    for r in (2, 3):
+        value, peak = hinf_norm_peak(period_system(data, short * r), frequency=True)
+        w = primitive_peak(data, short, r, peak)
+        assert 0 <= w <= np.pi
+        assert _sigma_max(period_system(data, short), w)[0] == pytest.approx(value, rel=1e-9)
+        assert value == pytest.approx(hinf_norm_peak(period_system(data, short)), rel=1e-9)

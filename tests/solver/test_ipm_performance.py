@@ -5,6 +5,9 @@ its definition, a Farkas certificate checked by hand, and IPM vs Clarabel on a h
 (same verdicts, optimal values within 1e-6 relative).
 """
 
+import warnings
+
+import cvxpy as cp
 import numpy as np
 import pytest
 
@@ -355,6 +358,18 @@ def test_recentred_start_is_the_same_iterate_by_congruence(objective, x0, u_max)
     assert value2 == pytest.approx(sol.value, rel=1e-9)
 
 
+def _clarabel_optimum(lifted, objective):
+    """Clarabel's optimum of the same SDP (cvxpy's form, :func:`perf.build`) when Clarabel calls it optimal, else None.
+
+    At 1e-9 rather than the design's 1e-11: at 1e-11 Clarabel ends "optimal_inaccurate" on most of these families,
+    and how many it calls optimal changed with the machine (BLAS kernels), which left nothing to compare with."""
+    problem = perf.build(lifted, objective, None, None, None)[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-9, tol_gap_rel=1e-9, tol_feas=1e-9, max_iter=500)
+    return float(problem.value) if problem.status == cp.OPTIMAL else None
+
+
 def test_two_stage_solve_matches_the_one_stage_solve_and_clarabel():
     """The cost and hinf SDPs through the switch to the answer's coordinates (``solve(..., "IPM")``) reach the optimum
     of the two phases as built (no switch; its lower bound ``value - gap`` too) and Clarabel's when Clarabel calls its
@@ -375,9 +390,9 @@ def test_two_stage_solve_matches_the_one_stage_solve_and_clarabel():
             assert ref.status in ("optimal", "inaccurate")
             assert info.objective == pytest.approx(ref.value, rel=1e-6), (seed, objective)
             assert info.objective >= ref.lower * (1 - 1e-6), (seed, objective)
-            clarabel = perf.solve(lifted, objective, None, None, None, "CLARABEL")[0]
-            if clarabel.status == "optimal":
-                assert info.objective == pytest.approx(clarabel.objective, rel=1e-6), (seed, objective)
+            clarabel = _clarabel_optimum(lifted, objective)
+            if clarabel is not None:
+                assert info.objective == pytest.approx(clarabel, rel=1e-6), (seed, objective)
                 compared += 1
     assert compared >= 1
 
@@ -428,8 +443,8 @@ def test_centring_power_keeps_the_optimum():
                 assert sol.status in ("optimal", "inaccurate"), (seed, objective, power)
                 values.append(sol.value)
             assert values[1] == pytest.approx(values[0], rel=1e-6), (seed, objective)
-            clarabel = perf.solve(lifted, objective, None, None, None, "CLARABEL")[0]
-            if clarabel.status == "optimal":
-                assert values[1] == pytest.approx(clarabel.objective, rel=1e-6), (seed, objective)
+            clarabel = _clarabel_optimum(lifted, objective)
+            if clarabel is not None:
+                assert values[1] == pytest.approx(clarabel, rel=1e-6), (seed, objective)
                 compared += 1
     assert compared >= 1

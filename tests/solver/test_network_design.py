@@ -274,3 +274,57 @@ def test_per_sample_plant_switching_on_the_paper_motor():
     assert res.outcome == "stabilized" and "lifted form" in res.message
     assert analyze(fam, res.gains, network=net, plant_switching="per_sample").stable is True
     assert random_runs_decay(fam, res.gains, net, runs=30, steps=300) < 1e-3
+
+
+def exact_positive_definite(M):
+    """Whether the symmetric rational matrix M is positive definite: LDL' pivots in exact arithmetic."""
+    A = [[Fraction(x) for x in row] for row in M]
+    n = len(A)
+    for k in range(n):
+        if A[k][k] <= 0:
+            return False
+        for i in range(k + 1, n):
+            f = A[i][k] / A[k][k]
+            for j in range(k, n):
+                A[i][j] -= f * A[k][j]
+    return True
+
+
+def _badly_scaled(fam, seed):
+    """The family in coordinates x = T x~ with state scales from 1e-3 to 1e3 (inputs unscaled)."""
+    t = np.exp(np.random.default_rng(100 + seed).uniform(np.log(1e-3), np.log(1e3), fam.n_states))
+    return PlantFamily(F=np.asarray(fam.F) / t[None, :, None] * t[None, None, :], G=np.asarray(fam.G) / t[None, :, None])
+
+
+def test_network_design_balances_badly_scaled_plants_and_proves_the_users_loop():
+    """The network design runs in balanced coordinates (docs/design.md §11.1, "Scaling"): on a badly scaled copy of
+    a random family it is certified, in the user's coordinates, where the unbalanced design found nothing."""
+    from bench.cases import random_family
+
+    net = Network.weakly_hard(1, 3, 2)
+    fam = _badly_scaled(random_family(3, 2, 1, seed=1), 1)
+    unbalanced = design(fam, network=net, decay_rate=None, scaling="none")
+    assert unbalanced.outcome != "stabilized"
+    res = design(fam, network=net, decay_rate=None)
+    assert res.outcome == "stabilized", res.message
+    assert res.scaling["certificate"] == "original" and len(res.scaling["state"]) == 3
+    # the node certificate re-checked in exact arithmetic on the user's loop (every transition of the automaton)
+    prob = network_lmi.build_problem(fam, net)
+    A = prob.closed_loops(res.gains)
+    P = [[[Fraction(float(x)) for x in row] for row in M] for M in 0.5 * (res.certificate.P +
+                                                                          np.swapaxes(res.certificate.P, 1, 2))]
+    assert all(exact_positive_definite(M) for M in P)
+    for e in range(prob.n_blocks):
+        Ae = [[Fraction(float(x)) for x in row] for row in A[e]]
+        k = len(Ae)
+        Pw = P[prob.dst[e]]
+        APA = [[sum(Ae[p][i] * Pw[p][q] * Ae[q][j] for p in range(k) for q in range(k)) for j in range(k)]
+               for i in range(k)]
+        assert exact_positive_definite([[P[prob.src[e]][i][j] - APA[i][j] for j in range(k)] for i in range(k)])
+    # independent of the automaton's transition matrices: admissible cycles and random runs, sample by sample
+    assert max_cycle_rate(fam, res.gains, net, 6) < 1.0
+    assert random_runs_decay(fam, res.gains, net, runs=40, steps=400) < 1e-3
+    # a delays network on the same plant: stabilized, by a certificate in one of the two coordinates
+    delays = design(fam, network=Network.delays(1, 2), decay_rate=None)
+    assert delays.outcome == "stabilized", delays.message
+    assert max_cycle_rate(fam, delays.gains, Network.delays(1, 2), 6) < 1.0

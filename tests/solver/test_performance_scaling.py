@@ -211,7 +211,16 @@ def test_lyapunov_keeps_accuracy_on_a_far_from_normal_loop():
     mp.mp.dps = 40
     Pm = _lyapunov_mp(mp.matrix(A.tolist()), mp.matrix(S.tolist()))
     ref = np.array([[float(Pm[i, j]) for j in range(n)] for i in range(n)])
-    assert np.trace(X) == pytest.approx(np.trace(ref), rel=1e-7)
+    # no float64 method can beat the problem's own conditioning: one rounding of A's entries (1 ulp, random
+    # signs) moves the exact trace by ~1e-7 relative here, so the solution must be within a few such roundings
+    # (scipy's methods are off by 1e-3 or indefinite on this loop)
+    rng = np.random.default_rng(0)
+    moved = []
+    for _ in range(3):
+        Ap = A * (1 + np.finfo(float).eps * rng.choice([-1.0, 1.0], size=A.shape))
+        Pp = _lyapunov_mp(mp.matrix(Ap.tolist()), mp.matrix(S.tolist()))
+        moved.append(abs(sum(float(Pp[i, i]) for i in range(n)) / np.trace(ref) - 1))
+    assert abs(np.trace(X) / np.trace(ref) - 1) <= 10 * max(moved)
     # the exact re-check: the solution lifted by 1e-6 along itself passes, shrunk by 1e-6 it fails
     data = [{"A": A, "S": S}]
     assert check_cost_exact(lyapunov(A, S + 1e-6 * ref, ref), data)
