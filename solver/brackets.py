@@ -1997,6 +1997,9 @@ EXACT_PERIOD_MAX_WORK = 32
 #: ... nor when the integers of that system exceed this many bits (subnormal data; an elimination's cost grows
 #: with the square of the bits).
 EXACT_PERIOD_MAX_BITS = 20000
+#: Where the exact value at the float64 peak is this much (relative) below the float64 witness, w = 0, pi and the
+#: period's pole angles are evaluated exactly too.
+EXACT_SHORTFALL = 1e-6
 
 
 def _stack_pairs(pairs: list, axis: int) -> tuple:
@@ -2145,11 +2148,21 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     if out_of_time(seconds_left):
         return None, "float64 witness, not a proof (no time left for its exact evaluation)"
     period = exact_period(data, seq)
-    value = None if period is None else exact_gain_lower(data, seq, found.peak, period=period)
+    if period is None:
+        return None, "float64 witness, not a proof (no disturbance channel to evaluate exactly)"
+    value, where = exact_gain_lower(data, seq, found.peak, period=period), f"w = {found.peak:.6g} rad/sample"
+    if value is None or value < found.value * (1 - EXACT_SHORTFALL):
+        # far below float64's value: the float64 peak may be misplaced (an ill-conditioned period); the level-set
+        # iteration's own starting points too (w = 0, pi, the poles' angles), the largest kept
+        Phi = floats([[Fraction(int(v), 1 << period["AB"][1]) for v in row[:period["n"]]] for row in period["AB"][0]])
+        more = [0.0, float(np.pi)] + sorted({float(w) for w in np.abs(np.angle(np.linalg.eigvals(Phi)))})
+        other = exact_gain_lower(data, seq, more, period=period)
+        if other is not None and (value is None or other > value):
+            value, where = other, "w = 0, pi and the poles' angles (above the float64 peak's)"
     if value is None:
         return None, "float64 witness, not a proof (its exact evaluation failed: singular or too many bits)"
-    where = "the deployed loop" if period["deployed"] else "the float64 loop data as exact rationals"
-    return value, (f"witness gain evaluated exactly at w = {found.peak:.6g} rad/sample on {where} "
+    loop = "the deployed loop" if period["deployed"] else "the float64 loop data as exact rationals"
+    return value, (f"witness gain evaluated exactly at {where} on {loop} "
                    f"(float64: {found.value / value - 1:+.2g} relative)")
 
 
@@ -2160,7 +2173,7 @@ def exact_gain_lower(data: list[dict], seq=(0,), peak: float | None = None, poin
     exact arithmetic (:func:`_exact_gain_at`), the largest value.
 
     ``peak`` (rad/sample): the frequency where float64 found the pattern's largest gain (:func:`hinf_norm_peak`),
-    the only one evaluated.  Without it a float64 sweep of ``points`` frequencies locates the peaks, and w = 0, pi,
+    the only one evaluated (or a sequence of frequencies).  Without it a float64 sweep of ``points`` frequencies locates the peaks, and w = 0, pi,
     the poles' angles and the sweep's best points are evaluated (the one-loop exact certificate, docs/design.md
     §8.5: the float64 sweep was 4e-4 above the gain of a loop whose Lyapunov matrices span 1e13, and 7e-8 low at
     a peak at w = 0).  None without a channel or where no evaluation succeeds (``period`` None and ``peak`` None:
@@ -2171,7 +2184,7 @@ def exact_gain_lower(data: list[dict], seq=(0,), peak: float | None = None, poin
     if period is None:
         return None
     if peak is not None:
-        candidates = [float(peak)]
+        candidates = [float(w) for w in np.atleast_1d(peak)]
     else:
         sys = period_system(data, tuple(seq))
         omega = np.linspace(0.0, np.pi, points)

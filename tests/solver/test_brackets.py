@@ -904,3 +904,23 @@ def test_a_witness_shortened_to_its_primitive_period_keeps_its_peak():
         assert 0 <= w <= np.pi
         assert _sigma_max(period_system(data, short), w)[0] == pytest.approx(value, rel=1e-9)
         assert value == pytest.approx(hinf_norm_peak(period_system(data, short)), rel=1e-9)
+
+
+def test_exact_witness_recovers_from_a_misplaced_float64_peak():
+    # a float64 peak frequency far from the true one (pi/2 on a loop that peaks at w = 0): the exact value there is
+    # far below the float64 witness, so w = 0, pi and the poles' angles are evaluated too; the value is then the
+    # 60-digit gain's (within 1e-12, never above it)
+    from fractions import Fraction
+    import mpmath as mp
+    from solver.brackets import exact_witness, lower_bound
+
+    F, G, E = _near_unit_pole_loop(1e-8, seed=1)
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=F[None], G=G[None]), 2), None, E)
+    K = np.zeros((2, 1, 3))
+    found = lower_bound(lifted, K, "hinf")
+    ref = _mp_gain_sweep(F, E)
+    value, note = exact_witness(lifted.numeric(K), found._replace(peak=np.pi / 2))
+    assert "poles' angles" in note, note
+    with mp.workdps(60):
+        assert mp.mpf(Fraction(value).numerator) / Fraction(value).denominator <= ref
+    assert value >= float(ref) * (1 - 1e-12)
