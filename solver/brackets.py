@@ -12,8 +12,9 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
   with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"); the quadratic bound stays in
   ``certificate_upper``.
 
-* ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (frequency sweep, a lower
-  bound by construction) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
+* ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (level-set iteration in float64, then
+  the witness's gain at its peak frequency evaluated in exact arithmetic, :func:`exact_witness`: a proven lower
+  bound) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import scipy.optimize
 
 from .compiled import SolveInfo, out_of_time, time_left
 from .errors import InvalidInput, SolverFailed
-from .exact import gauss_jordan, floats, fractions
+from .exact import floats, fractions
 from .lifting import Lifted
 
 #: Rounding allowance of the float64 re-checks, relative to the size of the terms (eigvalsh is backward
@@ -1041,19 +1042,20 @@ def _sigma_max(sys: dict, omega: np.ndarray) -> np.ndarray:
     return np.linalg.svd(H, compute_uv=False)[:, 0]
 
 
-def hinf_norm_lower(sys: dict, points: int = SWEEP, refine: bool = True) -> float:
+def hinf_norm_lower(sys: dict, points: int = SWEEP, refine: bool = True, frequency: bool = False):
     """A lower bound on the H-infinity norm of a stable discrete LTI system: the largest gain found by
     a frequency sweep on [0, pi] and at the angles of the poles, refined (bounded scalar search) around its best
     points and around every pole angle (a lightly damped pole's peak is within a few ``1 - |pole|`` of it:
     the CTMS bus suspension's closed loop peaks at 0.0525 rad/sample, a pole of radius 0.9989, between two
-    points of the sweep, which found 15 % of the norm)."""
+    points of the sweep, which found 15 % of the norm).  ``frequency``: ``(bound, w)``, w (rad/sample) where the
+    bound was evaluated."""
     poles = np.linalg.eigvals(sys["Phi"])
     angles = np.abs(np.angle(poles))
     omega = np.unique(np.concatenate([np.linspace(0.0, np.pi, points), angles]))
     gains = _sigma_max(sys, omega)
-    best = float(np.max(gains))
+    best, where = float(np.max(gains)), float(omega[int(np.argmax(gains))])
     if not refine:
-        return best
+        return (best, where) if frequency else best
     spans = [(omega[max(i - 1, 0)], omega[min(i + 1, omega.size - 1)]) for i in np.argsort(gains)[-3:]]
     spacing = np.pi / max(points - 1, 1)
     for theta, radius in zip(angles, np.abs(poles)):
@@ -1068,8 +1070,9 @@ def hinf_norm_lower(sys: dict, points: int = SWEEP, refine: bool = True) -> floa
             continue
         res = scipy.optimize.minimize_scalar(lambda w: -_sigma_max(sys, w)[0], bounds=(lo, hi), method="bounded",
                                              options={"xatol": 1e-12})
-        best = max(best, float(-res.fun))
-    return best
+        if float(-res.fun) > best:
+            best, where = float(-res.fun), float(res.x)
+    return (best, where) if frequency else best
 
 
 #: A pole's span is refined only when its peak (``4 (1 - |pole|)`` wide) is narrower than this many sweep spacings.
@@ -1094,6 +1097,10 @@ class LowerBound(NamedTuple):
     bound: float | None = None
     #: ... and how it was proved (search, depth, prefixes valued).
     tree: str = ""
+    #: hinf: the witness as loop-mode indices (one period, ``data`` order) and the frequency (rad/sample) of its
+    #: valued gain, where :func:`exact_gain_lower` evaluates it exactly (None for the cost).
+    pattern: tuple = ()
+    peak: float | None = None
 
 
 def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | None = None,
@@ -1152,7 +1159,7 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             unstable[pos] = bad
             good = ~bad
             systems.append((pos[good], sys if good.all() else {key: v[good] for key, v in sys.items()}))
-    note, skipped, lead, bound, grown_count, tree = "", 0, 0, None, 0, None
+    note, skipped, lead, bound, grown_count, tree, peak = "", 0, 0, None, 0, None, None
     # the certificate as coordinates for the witnesses' Lyapunov equations (small n: each costs a few more solves)
     hint = certificate if certificate is not None and certificate.ndim == 2 and \
         certificate.shape[-1] <= EXACT_COST_MAX_N else None
@@ -1206,16 +1213,19 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
             if grown:
                 cands = sorted(cands + grown, key=lambda e: -e[0])[:REFINED]
         if cands:  # the best coarse patterns valued on their own (sweep, pole angles, refinement): the largest wins
-            fine = [hinf_norm_peak(period_system(data, p)) for _, p in cands]
-            win = int(np.argmax(fine))
-            best, witness = fine[win], cands[win][1]
+            fine = [hinf_norm_peak(period_system(data, p), frequency=True) for _, p in cands]
+            win = int(np.argmax([v for v, _ in fine]))
+            (best, peak), witness = fine[win], cands[win][1]
             if len(witness) > max(len(q) for q in pats):
                 note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
         return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
     # (a)(a) and (a) are one infinite sequence with one value: which of them wins the comparisons above is decided by
     # rounding (it changed with the machine's BLAS), so the reported period is the shortest one
-    witness = list(witness[:lead]) + _primitive_period(list(witness[lead:]))
+    valued = list(witness[lead:])
+    witness = list(witness[:lead]) + _primitive_period(valued)
+    if peak is not None and len(witness) < len(valued):
+        peak = primitive_peak(data, witness, len(valued) // len(witness), peak)
     labels = []
     for s in witness:
         lm = lifted.lifted[s]
@@ -1223,7 +1233,16 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
         labels.append((plant, lm.eta))
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
-    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "")
+    return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "", tuple(witness), peak)
+
+
+def primitive_peak(data: list[dict], period, r: int, peak: float) -> float:
+    """The frequency (rad/sample, in [0, pi]) of ``period``'s lifted system where the ``r``-fold period (``period``
+    repeated r times) has its gain at ``peak``: the r-fold lifting's singular values at ``e^{jw}`` are the short
+    period's at the r-th roots, ``(w + 2 pi k) / r`` (folded into [0, pi]: real data); the root of the largest gain."""
+    roots = np.array([(peak + 2 * np.pi * k) / r for k in range(r)]) % (2 * np.pi)
+    roots = np.where(roots > np.pi, 2 * np.pi - roots, roots)
+    return float(roots[int(np.argmax(_sigma_max(period_system(data, tuple(period)), roots)))])
 
 
 def _primitive_period(period: list) -> list:
@@ -1749,24 +1768,27 @@ def _norms_pruned(systems: list, values: np.ndarray, keep: int = 1) -> None:
 PEAK_TOL = 1e-14
 
 
-def hinf_norm_peak(sys: dict) -> float:
+def hinf_norm_peak(sys: dict, frequency: bool = False):
     """The H-infinity norm of one stable discrete LTI system as a witnessed gain: the level-set iteration
     (:func:`solver.periodic.level_set_norms`) finds the peak frequency, the gain is evaluated there by an SVD of
-    ``D + C (e^{jw} I - Phi)^{-1} B`` and polished by a bounded scalar search within 1e-3 rad of it (the
+    ``D + C (e^{jw} I - Phi)^{-1} B`` and polished by a bounded scalar search within 1e-7 rad of it (the
     iteration stops within ~1e-9 of the peak value).  Where the pencil is ill-conditioned: :func:`hinf_norm_lower`
-    (sweep and refinement)."""
+    (sweep and refinement).  ``frequency``: ``(gain, w)`` with w (rad/sample) the frequency of that gain, where
+    :func:`exact_gain_lower` evaluates the witness exactly (docs/design.md §8.4)."""
     from . import periodic
 
     stack = {k: np.asarray(sys[k])[None] for k in ("Phi", "B", "C", "D")}
     _, omega, status = periodic.level_set_norms(periodic.gram_form(stack), tol=PEAK_TOL)
     if status[0] == 2:
-        return hinf_norm_lower(sys)
+        return hinf_norm_lower(sys, frequency=frequency)
     w = float(omega[0])
     best = float(_sigma_max(sys, w)[0])
     lo, hi = max(w - 1e-7, 0.0), min(w + 1e-7, np.pi)
     res = scipy.optimize.minimize_scalar(lambda x: -_sigma_max(sys, x)[0], bounds=(lo, hi), method="bounded",
                                          options={"xatol": 1e-14})
-    return max(best, float(-res.fun))
+    if float(-res.fun) > best:
+        best, w = float(-res.fun), float(res.x)
+    return (best, w) if frequency else best
 
 
 #: :func:`exact_loop_cost` solves exactly where the float64 bound is above the loop's float64 cost by this much.
@@ -1835,7 +1857,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     ``exact_hinf``: ``(P, g)``, a rational P (lists of Fractions) and a float64 ``g = gamma^2`` proposed for one LTI
     loop, accepted through :func:`check_hinf_exact` (docs/design.md §8.5).
     ``seconds_left``: ``() -> seconds or None`` (a design's time limit): the exact rational cost certificate (up
-    to 2 s at n = 8) and the deep lower-bound searches are not started once <= 0.
+    to 2 s at n = 8), the exact hinf witness (:func:`exact_witness`) and the deep lower-bound searches are not
+    started once <= 0.
     """
     data = lifted.numeric(gains)
     P = upper = None
@@ -1883,7 +1906,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                 else:
                     how = ("exact rational certificate (bounded-real inequality checked exactly on the loop F + G K; "
                            "`certificate` is a float64 one of a larger level)")
-                exact_lower = exact_gain_lower(data[0])
+                exact_lower = exact_gain_lower(data, (0,))
     if kind == "cost" and not out_of_time(seconds_left):
         rational = exact_loop_cost(lifted, gains, data, P, upper, how, x0, weight)
         if rational is not None:
@@ -1899,26 +1922,34 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     found = lower_bound(lifted, gains, kind, x0, data=data, weight=weight, stop=np.inf if upper is None else upper,
                         certificate=P, deep=not out_of_time(seconds_left))
     lower, witness, count, note, lead = found.value, found.witness, found.patterns, found.note, found.lead
+    seed = lower  # the float64 witness: where the bounded-real Riccati candidates below start
     if exact_lower is not None and lower is not None and np.isfinite(lower):
         # one loop, one allowed pattern: its cost is the exact P's value (the float64 witness of a loop whose P spans
         # 1e13 is off by more than 1e-6, hold-out seed 9: above the exact bound)
         lower = exact_lower
-    if kind == "hinf" and len(data) == 1 and lower is not None and np.isfinite(lower) and lower > 0 and (
-            upper is None or upper > lower * (1 + 1e-7)):
+    elif kind == "hinf" and lower is not None and np.isfinite(lower) and lower > 0 and found.peak is not None:
+        # the float64 witness is no proof on an ill-conditioned loop (above the pattern's exact gain by up to 27x):
+        # the pattern's exact lifted period evaluated at its peak frequency (docs/design.md §8.4, "Lower bound")
+        value, why = exact_witness(data, found, seconds_left)
+        if value is not None:
+            lower = value
+        note = f"{note}; {why}" if note else why
+    if kind == "hinf" and len(data) == 1 and seed is not None and np.isfinite(seed) and seed > 0 and (
+            upper is None or upper > seed * (1 + 1e-7)):
         # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real
         # Riccati solution a hair above it is the least certificate there (§8.5); the SDP's P can be 1e-3 off
         small = data[0]["A"].shape[0] <= EXACT_COST_MAX_N
         for delta in (1e-8, 1e-7, 1e-6, 1e-5, 3e-5, 1e-4):
-            X = bounded_real_riccati(data[0], lower * (1 + delta))
+            X = bounded_real_riccati(data[0], seed * (1 + delta))
             if X is None:
                 continue
-            Pc, gc, why = certify_hinf(X, data, lower * (1 + delta))
+            Pc, gc, why = certify_hinf(X, data, seed * (1 + delta))
             # the Riccati solution is tight in the state block; where P spans 1e11 its float64 rounding (1e-5
             # absolute) needs slack there: the equation with C'C + eps X (exact re-check, small n only, §8.5)
             for eps in (1e-7, 1e-6, 1e-5, 1e-4) if Pc is None and small else ():
-                Xl = bounded_real_riccati(data[0], lower * (1 + delta), lift=eps * X)
+                Xl = bounded_real_riccati(data[0], seed * (1 + delta), lift=eps * X)
                 if Xl is not None:
-                    Pc, gc, why = certify_hinf(Xl, data, lower * (1 + delta))
+                    Pc, gc, why = certify_hinf(Xl, data, seed * (1 + delta))
                     if Pc is not None:
                         break
             if Pc is not None and (upper is None or gc < upper):
@@ -1959,58 +1990,217 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                        mode_certificate=mode_P)
 
 
-def exact_gain_lower(d: dict, points: int = 2001) -> float | None:
-    """A lower bound on the l2 gain of one LTI loop (the deployed loop of ``d``, in rationals): a float64 sweep
-    locates the peaks, and at each ``|H(z) v| / |v|`` is evaluated exactly (z the float64 ``cos w + j sin w``,
-    lifted to ``|z| >= 1``: for a stable loop the gain there is at most the H-infinity norm; v the float64 top
-    right singular vector) and rounded down.  The float64 sweep itself is 4e-4 off where the loop's Lyapunov
-    matrices span 1e13 (gains 1e6; docs/design.md §8.5), above the gain.  None without the plant data."""
-    from fractions import Fraction
+#: The exact witness (:func:`exact_gain_lower`) is evaluated only for a period of at most this many intervals times
+#: states (``len(seq) n``): the real form of ``(zI - Phi) Y = B`` has side ``2n`` and the period's rationals grow by
+#: ~53 bits per interval (docs/design.md §8.4, "Lower bound").
+EXACT_PERIOD_MAX_WORK = 32
+#: ... nor when the integers of that system exceed this many bits (subnormal data; an elimination's cost grows
+#: with the square of the bits).
+EXACT_PERIOD_MAX_BITS = 20000
+#: Where the exact value at the float64 peak is this much (relative) below the float64 witness, w = 0, pi and the
+#: period's pole angles are evaluated exactly too.
+EXACT_SHORTFALL = 1e-6
 
-    exact = _exact_loop(d)
-    if exact is None or exact[2] is None:
+
+def _stack_pairs(pairs: list, axis: int) -> tuple:
+    """Concatenate ``(N, s)`` integer matrices (values ``N / 2^s``) along ``axis``, exactly."""
+    s = max(t for _, t in pairs)
+    return np.concatenate([N * (1 << (s - t)) for N, t in pairs], axis=axis), s
+
+
+def _placed(X: tuple, col: int, width: int) -> tuple:
+    """``(N, s)`` with X's columns placed at ``col`` in a zero matrix of ``width`` columns."""
+    N, t = X
+    Z = np.zeros((N.shape[0], width), dtype=object) * 0
+    Z[:, col:col + N.shape[1]] = N
+    return Z, t
+
+
+def exact_period(data: list[dict], seq, deployed: bool | None = None) -> dict | None:
+    """The lifted one-period system of the periodic pattern ``seq`` (loop-mode indices) in exact integer arithmetic,
+    as :func:`period_system` builds it in float64: ``x(end) = Phi x(start) + B w``, ``z = C x(start) + D w``.
+
+    Each interval's ``[A_s B_s]``, ``[C_s D_s]`` is the deployed loop rebuilt in rationals from the float64 F, G, K,
+    E, C_z, D_z the data carry (:func:`_exact_loop`, docs/design.md §8.4 "Loop data") when every interval has it
+    (``deployed`` None or True; True: else None), otherwise the float64 interval data taken as exact rationals
+    (``deployed`` False or None).  Every number is dyadic, so a matrix is held as ``(N, s)``, integers N (object
+    array) over ``2^s``.  Returns ``{"AB": [Phi B], "CD": [C D], "n": n, "deployed": bool}`` as such pairs, or None
+    without a disturbance channel.
+    """
+    from .exact import dyadic, exact, identity, matmul
+    from .exact import add as add_exact
+
+    if data[seq[0]].get("B") is None:
         return None
-    n = d["A"].shape[0]
-    AB, CD = exact[2], exact[3]
-    sys = {"Phi": d["A"], "B": d["B"], "C": d["C"], "D": d["D"]}
-    omega = np.linspace(0.0, np.pi, points)
-    values = _sigma_max(sys, omega)
-    # the ends and the poles' angles too: the float64 values can be wrong enough to miss a peak at w = 0 (hold-out
-    # seed 31: 7e-8 low there, and the sweep's best point elsewhere)
-    candidates = [0.0, float(np.pi)] + [float(w) for w in np.abs(np.angle(np.linalg.eigvals(d["A"])))]
-    candidates += [float(omega[i]) for i in np.argsort(values)[-3:]]
-    for i in np.argsort(values)[-3:]:
-        lo, hi = omega[max(i - 1, 0)], omega[min(i + 1, points - 1)]
-        res = scipy.optimize.minimize_scalar(lambda w: -_sigma_max(sys, w)[0], bounds=(lo, hi), method="bounded",
-                                             options={"xatol": 1e-12})
-        candidates.append(float(res.x))
-    zero = Fraction(0)
+    n = data[seq[0]]["A"].shape[0]
+    blocks = None
+    if deployed is not False:
+        loops = [_exact_loop(data[s]) for s in seq]
+        if all(lp is not None and lp[2] is not None for lp in loops):
+            blocks = []
+            for lp in loops:
+                N, t = dyadic(lp[2])
+                AB = (np.array(N, dtype=object).reshape(n, -1), t)
+                N, t = dyadic(lp[3])
+                CD = (np.array(N, dtype=object).reshape(len(lp[3]), -1), t)
+                blocks.append(((AB[0][:, :n], AB[1]), (AB[0][:, n:], AB[1]), (CD[0][:, :n], CD[1]),
+                               (CD[0][:, n:], CD[1])))
+        elif deployed:
+            return None
+    used = blocks is not None
+    if blocks is None:
+        blocks = [tuple(exact(data[s][k]) for k in ("A", "B", "C", "D")) for s in seq]
+    widths = [b[1][0].shape[1] for b in blocks]
+    total = sum(widths)
+    T, Tw = identity(n), (np.zeros((n, total), dtype=object) * 0, 0)
+    Cs, Ds, col = [], [], 0
+    for (A, B, C, D), w in zip(blocks, widths):
+        Cs.append(matmul(C, T))
+        Ds.append(add_exact(matmul(C, Tw), _placed(D, col, total)))
+        Tw = add_exact(matmul(A, Tw), _placed(B, col, total))
+        T = matmul(A, T)
+        col += w
+    return {"AB": _stack_pairs([T, Tw], 1), "CD": _stack_pairs([_stack_pairs(Cs, 0), _stack_pairs(Ds, 0)], 1),
+            "n": n, "deployed": used}
+
+
+def _exact_gain_at(period: dict, w: float) -> float | None:
+    """A proven lower bound on the l2 gain of the exact lifted system ``period`` (:func:`exact_period`) from one
+    frequency ``w`` (rad/sample): ``|H(z) v| / |v|``, rounded down, with ``H(z) = D + C (zI - Phi)^{-1} B``.
+
+    z is the float64 ``cos w + j sin w`` as a rational, lifted by factors ``1 + 2^-50`` to ``|z| >= 1``: for a
+    stable period the gain there is at most the H-infinity norm (maximum modulus), which is the pattern's l2 gain
+    from x = 0 (lifting is an isometry); an unstable period's gain is infinite or that of its stable minimal part.
+    ``(zI - Phi) Y = B`` is solved in its real form (side 2n) over the integers (:func:`solver.exact.solve_integer`),
+    H formed exactly, v the top right singular vector of H's float64 rounding, and ``|H v|^2 / |v|^2`` compared
+    with the float64 square root in rationals.  None where ``zI - Phi`` is singular or the integers exceed
+    :data:`EXACT_PERIOD_MAX_BITS`.
+    """
+    from .exact import dyadic, solve_integer
+
+    n = period["n"]
+    (Nab, sab), (Ncd, scd) = period["AB"], period["CD"]
+    zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
+    while zr * zr + zi * zi < 1:
+        zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
+    # v: the top right singular vector of H(z) from the exact period rounded once to float64 (only H v is formed
+    # exactly: one right-hand side instead of the period's p disturbance columns, each a column of big integers;
+    # a v off by e costs e^2 of the value, never its validity)
+    ABf = np.array([[int(x) / (1 << sab) for x in row] for row in Nab], dtype=float).reshape(Nab.shape)
+    CDf = np.array([[int(x) / (1 << scd) for x in row] for row in Ncd], dtype=float).reshape(Ncd.shape)
+    z = complex(float(zr), float(zi))
+    try:
+        Hf = CDf[:, n:] + CDf[:, :n] @ np.linalg.solve(z * np.eye(n) - ABf[:, :n], ABf[:, n:])
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Hf)):
+        return None
+    v = np.linalg.svd(Hf, full_matrices=False)[2][0].conj()
+    (Z,), t = dyadic([[zr, zi]])
+    (V,), u = dyadic([[Fraction(float(x.real)) for x in v] + [Fraction(float(x.imag)) for x in v]])
+    p = v.size
+    Vr, Vi = np.array(V[:p], dtype=object), np.array(V[p:], dtype=object)
+    norm_v = int(np.dot(Vr, Vr) + np.dot(Vi, Vi))
+    if norm_v == 0:
+        return None
+    # (zI - Phi) y = B v over the integers, scaled by 2^(t + sab + u): (Z 2^sab - Phi_N 2^t) y = B_N (V) 2^t,
+    # in real form [[Mr, -Zi], [Zi, Mr]] [yr; yi] = [B Vr; B Vi] 2^t
+    Zr, Zi = Z[0] << sab, Z[1] << sab
+    A, B = Nab[:, :n] * (1 << t), Nab[:, n:] * (1 << t)
+    M = [[0] * (2 * n) for _ in range(2 * n)]
+    for i in range(n):
+        for j in range(n):
+            M[i][j] = M[n + i][n + j] = -A[i, j]
+        M[i][i] += Zr
+        M[n + i][n + i] += Zr
+        M[i][n + i], M[n + i][i] = -Zi, Zi
+    rhs = [[int(x)] for x in np.dot(B, Vr)] + [[int(x)] for x in np.dot(B, Vi)]
+    bits = max(max((abs(int(x)).bit_length() for row in M for x in row), default=0),
+               max((abs(r[0]).bit_length() for r in rhs), default=0))
+    if bits > EXACT_PERIOD_MAX_BITS:
+        return None
+    solved = solve_integer(M, rhs)
+    if solved is None:
+        return None
+    Y, d = solved  # d (yr; yi), integers: y = Y / d, and H v = (C Y / d + D V) / (2^scd 2^u)
+    yr, yi = np.array([r[0] for r in Y[:n]], dtype=object), np.array([r[0] for r in Y[n:]], dtype=object)
+    C, D = Ncd[:, :n], Ncd[:, n:]
+    re, im = np.dot(C, yr) + np.dot(D, Vr) * d, np.dot(C, yi) + np.dot(D, Vi) * d
+    scale = d << scd  # |H v|^2 / |v|^2 = |re + j im|^2 / (|V|^2 scale^2): 2^u cancels
+    q = Fraction(int(np.dot(re, re) + np.dot(im, im)), norm_v * scale * scale)
+    f = float(np.sqrt(float(q)))
+    while Fraction(f) ** 2 > q:
+        f = float(np.nextafter(f, 0.0))
+    return f
+
+
+def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tuple[float | None, str]:
+    """The hinf witness ``found`` (:func:`lower_bound`) evaluated exactly: ``(value, note)``, value a proven lower
+    bound on the witness pattern's l2 gain (:func:`exact_gain_lower` at ``found.peak``), or None with the reason
+    the float64 value stays (the period's work above :data:`EXACT_PERIOD_MAX_WORK`, the run out of time, or the
+    exact evaluation failed).  The note says which, for the bracket's message (docs/design.md §8.4)."""
+    seq, n = tuple(found.pattern), data[0]["A"].shape[0]
+    if not seq or found.peak is None:
+        return None, "float64 witness (no peak frequency to evaluate exactly)"
+    if len(seq) * n > EXACT_PERIOD_MAX_WORK:
+        return None, (f"float64 witness, not a proof (period {len(seq)} x {n} states is above the exact "
+                      f"evaluation's {EXACT_PERIOD_MAX_WORK})")
+    if out_of_time(seconds_left):
+        return None, "float64 witness, not a proof (no time left for its exact evaluation)"
+    period = exact_period(data, seq)
+    if period is None:
+        return None, "float64 witness, not a proof (no disturbance channel to evaluate exactly)"
+    value, where = exact_gain_lower(data, seq, found.peak, period=period), f"w = {found.peak:.6g} rad/sample"
+    if value is None or value < found.value * (1 - EXACT_SHORTFALL):
+        # far below float64's value: the float64 peak may be misplaced (an ill-conditioned period); the level-set
+        # iteration's own starting points too (w = 0, pi, the poles' angles), the largest kept
+        Phi = floats([[Fraction(int(v), 1 << period["AB"][1]) for v in row[:period["n"]]] for row in period["AB"][0]])
+        more = [0.0, float(np.pi)] + sorted({float(w) for w in np.abs(np.angle(np.linalg.eigvals(Phi)))})
+        other = exact_gain_lower(data, seq, more, period=period)
+        if other is not None and (value is None or other > value):
+            value, where = other, "w = 0, pi and the poles' angles (above the float64 peak's)"
+    if value is None:
+        return None, "float64 witness, not a proof (its exact evaluation failed: singular or too many bits)"
+    loop = "the deployed loop" if period["deployed"] else "the float64 loop data as exact rationals"
+    return value, (f"witness gain evaluated exactly at {where} on {loop} "
+                   f"(float64: {found.value / value - 1:+.2g} relative)")
+
+
+def exact_gain_lower(data: list[dict], seq=(0,), peak: float | None = None, points: int = 2001,
+                     period: dict | None = None) -> float | None:
+    """A proven lower bound on the l2 gain of the periodic pattern ``seq`` (loop-mode indices; one LTI loop:
+    ``(0,)``): the exact lifted period (:func:`exact_period`, or ``period`` when given) evaluated at frequencies in
+    exact arithmetic (:func:`_exact_gain_at`), the largest value.
+
+    ``peak`` (rad/sample): the frequency where float64 found the pattern's largest gain (:func:`hinf_norm_peak`),
+    the only one evaluated (or a sequence of frequencies).  Without it a float64 sweep of ``points`` frequencies locates the peaks, and w = 0, pi,
+    the poles' angles and the sweep's best points are evaluated (the one-loop exact certificate, docs/design.md
+    §8.5: the float64 sweep was 4e-4 above the gain of a loop whose Lyapunov matrices span 1e13, and 7e-8 low at
+    a peak at w = 0).  None without a channel or where no evaluation succeeds (``period`` None and ``peak`` None:
+    the deployed loop only, as the exact certificate it goes with).
+    """
+    if period is None:
+        period = exact_period(data, tuple(seq), deployed=True if peak is None else None)
+    if period is None:
+        return None
+    if peak is not None:
+        candidates = [float(w) for w in np.atleast_1d(peak)]
+    else:
+        sys = period_system(data, tuple(seq))
+        omega = np.linspace(0.0, np.pi, points)
+        values = _sigma_max(sys, omega)
+        # the ends and the poles' angles too: the float64 values can be wrong enough to miss a peak at w = 0
+        # (hold-out seed 31: 7e-8 low there, and the sweep's best point elsewhere)
+        candidates = [0.0, float(np.pi)] + [float(w) for w in np.abs(np.angle(np.linalg.eigvals(sys["Phi"])))]
+        candidates += [float(omega[i]) for i in np.argsort(values)[-3:]]
+        for i in np.argsort(values)[-3:]:
+            lo, hi = omega[max(i - 1, 0)], omega[min(i + 1, points - 1)]
+            res = scipy.optimize.minimize_scalar(lambda w: -_sigma_max(sys, w)[0], bounds=(lo, hi),
+                                                 method="bounded", options={"xatol": 1e-12})
+            candidates.append(float(res.x))
     best = None
     for w in candidates:
-        zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
-        while zr * zr + zi * zi < 1:
-            zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
-        # (z I - A) Y = B in real form: [[zr I - A, -zi I], [zi I, zr I - A]] [Y_re; Y_im] = [B; 0], exactly
-        p = len(AB[0]) - n
-        Mr = [[(zr if i == j else zero) - AB[i][j] for j in range(n)] for i in range(n)]
-        aug = gauss_jordan([Mr[i] + [(-zi if i == j else zero) for j in range(n)] + AB[i][n:] for i in range(n)]
-                            + [[(zi if i == j else zero) for j in range(n)] + Mr[i] + [zero] * p for i in range(n)])
-        if aug is None:
-            continue
-        Y = [[(aug[i][2 * n + k], aug[n + i][2 * n + k]) for k in range(p)] for i in range(n)]
-        H = [[(sum((CD[r][i] * Y[i][k][0] for i in range(n)), CD[r][n + k]),
-               sum((CD[r][i] * Y[i][k][1] for i in range(n)), zero)) for k in range(p)] for r in range(len(CD))]
-        Hf = np.array([[float(a) + 1j * float(b) for a, b in row] for row in H])
-        v = np.linalg.svd(Hf)[2][0].conj()
-        vq = [(Fraction(float(x.real)), Fraction(float(x.imag))) for x in v]
-        norm_v = sum(a * a + b * b for a, b in vq)
-        if norm_v == 0:
-            continue
-        Hv = [(sum(h[0] * x[0] - h[1] * x[1] for h, x in zip(row, vq)),
-               sum(h[0] * x[1] + h[1] * x[0] for h, x in zip(row, vq))) for row in H]
-        q = sum(a * a + b * b for a, b in Hv) / norm_v
-        f = float(np.sqrt(float(q)))
-        while Fraction(f) ** 2 > q:
-            f = float(np.nextafter(f, 0.0))
-        best = f if best is None else max(best, f)
+        f = _exact_gain_at(period, w)
+        if f is not None:
+            best = f if best is None else max(best, f)
     return best

@@ -272,6 +272,62 @@ def gauss_jordan(aug: list) -> list | None:
     return aug
 
 
+def solve_integer(M, B) -> tuple[list[list[int]], int] | None:
+    """Solve ``M X = B`` exactly for an integer matrix ``M`` (k x k) and integer right-hand sides ``B`` (k x p):
+    ``(X_num, d)`` with ``M X_num = d B``, ``X = X_num / d`` (``d = +-det M``, nonzero; integers), or None when M is
+    singular.
+
+    Fraction-free (Bareiss) elimination: every division is exact, so the integers stay of the size of the minors
+    (Hadamard) instead of growing like the products of Gauss-Jordan's Fractions; the back substitution divides
+    ``d b - sum_{j>i} a_ij X_j`` by the pivot row's ``a_ii``, exact because ``d x_i`` is an integer (Cramer).
+    """
+    k = len(M)
+    p = len(B[0]) if k else 0
+    a = [[int(v) for v in M[i]] + [int(v) for v in B[i]] for i in range(k)]
+    prev = 1
+    for c in range(k):
+        piv = next((r for r in range(c, k) if a[r][c] != 0), None)
+        if piv is None:
+            return None
+        a[c], a[piv] = a[piv], a[c]
+        pc, rowc = a[c][c], a[c]
+        for r in range(c + 1, k):
+            row, arc = a[r], a[r][c]
+            a[r] = [0] * (c + 1) + [(pc * row[j] - arc * rowc[j]) // prev for j in range(c + 1, k + p)]
+        prev = pc
+    d = a[k - 1][k - 1] if k else 1
+    X = [[0] * p for _ in range(k)]
+    for i in range(k - 1, -1, -1):
+        row = a[i]
+        for col in range(p):
+            rest = d * row[k + col] - sum(row[j] * X[j][col] for j in range(i + 1, k))
+            q, r = divmod(rest, row[i])
+            if r:  # cannot happen (Cramer): a wrong answer would be worse than none
+                raise ArithmeticError("fraction-free back substitution left a remainder")
+            X[i][col] = q
+    return X, d
+
+
+def dyadic(M) -> tuple[list[list[int]], int]:
+    """``(N, s)`` with ``M == N / 2^s`` exactly, for a matrix of dyadic Fractions (lists of rows, or an
+    ``exact``-style pair)."""
+    if isinstance(M, tuple):
+        N, s = M
+        return [[int(v) for v in row] for row in N], s
+    s = max((Fraction(v).denominator.bit_length() - 1 for row in M for v in row), default=0)
+    out = []
+    for row in M:
+        r = []
+        for v in row:
+            v = Fraction(v)
+            den = v.denominator
+            if den & (den - 1):
+                raise ValueError("not a dyadic rational")
+            r.append(v.numerator << (s - (den.bit_length() - 1)))
+        out.append(r)
+    return out, s
+
+
 def positive_definite_shifted(M, shift: float) -> bool:
     """Exactly decide whether ``M + shift I`` is positive definite, for a symmetric float64 matrix M.
 

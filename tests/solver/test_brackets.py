@@ -704,3 +704,223 @@ def test_witness_is_reported_by_its_shortest_period():
     assert _primitive_period([1, 2, 1]) == [1, 2, 1]
     assert _primitive_period([1, 1, 2, 1, 1, 2]) == [1, 1, 2]
     assert _primitive_period([3]) == [3]
+
+
+# --------------------------------------------------------------------------- exact hinf witness (§8.4)
+def _mp_gain_sweep(F, E, dps: int = 60) -> float:
+    """The l2 gain of ``x+ = F x + E w``, ``z = x`` (F's float64 numbers taken as exact) by a sweep in mpmath at
+    ``dps`` digits refined around its best point: an independent reference of the H-infinity norm."""
+    import mpmath as mp
+
+    n = F.shape[0]
+    with mp.workdps(dps):
+        Fm = mp.matrix([[mp.mpf(float(v)) for v in row] for row in F])
+        Em = mp.matrix([[mp.mpf(float(v)) for v in row] for row in E])
+
+        def gain(w):
+            Y = mp.lu_solve(mp.expj(w) * mp.eye(n) - Fm, Em)
+            return mp.sqrt(sum(abs(y) ** 2 for y in Y))
+
+        grid = [mp.pi * k / 400 for k in range(401)] + [mp.mpf(10) ** -k for k in range(3, 16)]
+        best = max(grid, key=gain)
+        lo, hi = max(best - mp.pi / 400, 0), min(best + mp.pi / 400, mp.pi)
+        for _ in range(200):  # golden section on the peak (unimodal there)
+            a, b = lo + (hi - lo) * 0.382, lo + (hi - lo) * 0.618
+            lo, hi = (lo, b) if gain(a) >= gain(b) else (a, hi)
+        return max(gain(best), gain(lo), gain(mp.mpf(0)))
+
+
+def _near_unit_pole_loop(eps: float, seed: int = 0):
+    """A stable 3-state plant with a real pole ``1 - eps`` in mixed coordinates (random orthogonal basis), zero
+    gains: every interval loop is a power of F, the l2 gain ~1/eps peaks at w = 0."""
+    rng = np.random.default_rng(seed)
+    V, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    F = V @ np.diag([1 - eps, 0.5, -0.3]) @ V.T
+    return F, rng.normal(size=(3, 1)), np.ones((3, 1))
+
+
+def test_hinf_witness_is_exact_where_the_float64_one_exceeds_the_gain():
+    # a pole 1e-12 inside the unit circle in mixed coordinates: the float64 period products and solves put the
+    # witness 2e-5 above the pattern's l2 gain (no lower bound); the exact lifted period at the peak frequency is
+    # at most that gain and within 1e-12 of it.  Without z = [x; u] and u = 0 every pattern's lifted system has
+    # the gain of the sample loop (F, E, I) itself (lifting is an isometry), the reference below.
+    from fractions import Fraction
+    import mpmath as mp
+    from solver.brackets import lower_bound
+    from solver.lifting import lift_modes
+
+    F, G, E = _near_unit_pole_loop(1e-12)
+    fam = PlantFamily(F=F[None], G=G[None])
+    K = np.zeros((2, 1, 3))
+    ref = _mp_gain_sweep(F, E)
+    # the float64 witness alone (what the bracket reported before)
+    lifted = lift_modes(ModeSet.from_family(fam, 2), None, E)
+    found = lower_bound(lifted, K, "hinf")
+    assert found.value > float(ref) * (1 + 1e-6)
+    perf = analyze(fam, K, 2, disturbance=E).hinf
+    with mp.workdps(60):
+        assert mp.mpf(Fraction(perf.lower).numerator) / Fraction(perf.lower).denominator <= ref
+    assert perf.lower >= float(ref) * (1 - 1e-12)
+    assert "evaluated exactly" in perf.message, perf.message
+
+
+def test_exact_witness_never_exceeds_the_mpmath_gain_and_matches_float64_where_well_conditioned():
+    # poles 1e-6 .. 1e-10 from the unit circle: the exact witness is below the independent 60-digit gain on every
+    # one and within 1e-9 of it (the float64 one is above it already at 1e-6, by 3.8e-11 relative), and on a
+    # well-conditioned switched loop it is the float64 witness to rounding
+    from fractions import Fraction
+    import mpmath as mp
+
+    for eps in (1e-6, 1e-8, 1e-10):
+        F, G, E = _near_unit_pole_loop(eps, seed=1)
+        ref = _mp_gain_sweep(F, E)
+        perf = analyze(PlantFamily(F=F[None], G=G[None]), np.zeros((3, 1, 3)), 3, disturbance=E).hinf
+        with mp.workdps(60):
+            assert mp.mpf(Fraction(perf.lower).numerator) / Fraction(perf.lower).denominator <= ref, eps
+        assert perf.lower >= float(ref) * (1 - 1e-9)
+        assert "evaluated exactly" in perf.message, perf.message
+    fam = unstable_family()
+    res = design(fam, 3, objective="hinf", disturbance=np.array([[0.5], [1.0]]))
+    perf = res.performance
+    assert "evaluated exactly" in perf.message and "deployed loop" in perf.message
+    assert perf.lower <= perf.upper
+    from solver.brackets import lower_bound
+    lifted = lift_modes(ModeSet.from_family(fam, 3), None, np.array([[0.5], [1.0]]))
+    assert perf.lower == pytest.approx(lower_bound(lifted, res.gains, "hinf").value, rel=1e-12)
+
+
+@pytest.mark.parametrize("switching", ["per_interval", "per_sample"])
+def test_exact_period_is_the_pattern_stepped_sample_by_sample_in_rationals(switching):
+    # exact_period's [Phi B], [C D] equal, entry for entry, the period stepped through the buffer in Fractions from
+    # the float64 F, G, K, E, C, D (the deployed loop); the float64 data variant equals the float64 intervals'
+    # products in Fractions
+    from fractions import Fraction
+    from solver.brackets import exact_period
+
+    rng = np.random.default_rng(11)
+    r, n, m, pw, pz, N = 2, 3, 1, 2, 2, 2
+    F, G = rng.normal(size=(r, n, n)), rng.normal(size=(r, n, m))
+    E, C, D = rng.normal(size=(r, n, pw)), rng.normal(size=(r, pz, n)), rng.normal(size=(r, pz, m))
+    modes = ModeSet.from_family(PlantFamily(F=F, G=G), N, plant_switching=switching)
+    lifted = lift_modes(modes, None, list(E), (list(C), list(D)))
+    K = modes.expand(rng.normal(size=(modes.n_free_gains, m, n)))
+    data = lifted.numeric(K)
+    q = np.vectorize(Fraction, otypes=[object])
+    Fq, Gq, Eq, Cq, Dq, Kq = q(F), q(G), q(E), q(C), q(D), q(K)
+
+    def stepped(seq, x, w):  # w: one row per sample of the period
+        zs, t0 = [], 0
+        for s in seq:
+            xm, plants = x.copy(), modes.plants[s]
+            for t, pl in enumerate(plants):
+                u = Kq[t] @ xm
+                zs.extend(Cq[pl] @ x + Dq[pl] @ u)
+                x = Fq[pl] @ x + Gq[pl] @ u + Eq[pl] @ w[t0 + t]
+            t0 += len(plants)
+        return list(x), zs
+
+    for seq in [(0,), (1, 0), (0, 1, 1)][: 3 if switching == "per_interval" else 2]:
+        seq = tuple(s % len(data) for s in seq)
+        per = exact_period(data, seq)
+        assert per["deployed"]
+        (Nab, sab), (Ncd, scd) = per["AB"], per["CD"]
+        samples = sum(len(modes.plants[s]) for s in seq)
+        zero = Fraction(0)
+        cols = []
+        for j in range(n + samples * pw):
+            x = np.array([Fraction(int(i == j)) for i in range(n)], dtype=object)
+            w = np.array([[Fraction(int(n + t * pw + k == j)) for k in range(pw)] for t in range(samples)] or
+                         [[zero]], dtype=object)
+            cols.append(stepped(seq, x, w))
+        for i in range(n):
+            assert [Fraction(int(Nab[i, j]), 2 ** sab) for j in range(len(cols))] == [c[0][i] for c in cols]
+        for i in range(samples * pz):
+            assert [Fraction(int(Ncd[i, j]), 2 ** scd) for j in range(len(cols))] == [c[1][i] for c in cols]
+        # the float64 interval data as exact rationals: their products in Fractions
+        flo = exact_period(data, seq, deployed=False)
+        assert not flo["deployed"]
+        Phi = np.eye(n, dtype=object) * Fraction(1)
+        for s in seq:
+            Phi = q(data[s]["A"]) @ Phi
+        (Nf, sf) = flo["AB"]
+        assert all(Fraction(int(Nf[i, j]), 2 ** sf) == Phi[i, j] for i in range(n) for j in range(n))
+
+
+def test_solve_integer_is_the_exact_solution():
+    from fractions import Fraction
+    from solver.exact import solve_integer
+
+    rng = np.random.default_rng(2)
+    for k in (1, 2, 5, 8):
+        M = [[int(v) for v in row] for row in rng.integers(-10 ** 12, 10 ** 12, size=(k, k))]
+        if k > 1:
+            M[0][0] = 0  # a zero pivot: the row exchange
+        B = [[int(v) for v in row] for row in rng.integers(-10 ** 6, 10 ** 6, size=(k, 3))]
+        X, d = solve_integer(M, B)
+        assert d != 0
+        for i in range(k):
+            for c in range(3):
+                assert sum(Fraction(M[i][j]) * Fraction(X[j][c], d) for j in range(k)) == B[i][c]
+    assert solve_integer([[1, 2], [2, 4]], [[1], [0]]) is None
+
+
+def test_a_skipped_exact_witness_keeps_the_float64_value_and_says_so(monkeypatch):
+    # over the work cap, or with the run's time up, the float64 witness stays and the message says it is no proof
+    from solver import brackets
+    from solver.brackets import lower_bound
+
+    F, G, E = _near_unit_pole_loop(1e-8, seed=1)
+    fam, K = PlantFamily(F=F[None], G=G[None]), np.zeros((2, 1, 3))
+    lifted = lift_modes(ModeSet.from_family(fam, 2), None, E)
+    witness = lower_bound(lifted, K, "hinf").value
+    perf = bracket(lifted, K, "hinf", seconds_left=lambda: 0.0)
+    assert perf.lower == witness and "float64 witness, not a proof (no time left" in perf.message
+    monkeypatch.setattr(brackets, "EXACT_PERIOD_MAX_WORK", 2)
+    perf = bracket(lifted, K, "hinf")
+    assert perf.lower == witness and "float64 witness, not a proof (period" in perf.message
+    monkeypatch.undo()
+    perf = bracket(lifted, K, "hinf")
+    assert perf.lower != witness and "evaluated exactly" in perf.message
+
+
+def test_a_witness_shortened_to_its_primitive_period_keeps_its_peak():
+    # (a)(a)...(a) reported as (a): the peak frequency moves to the root of e^{jw} where (a) has that gain, so the
+    # exact witness evaluates the shorter period where the longer one peaked (the r-fold lifting's singular values
+    # are the short period's at the r-th roots: checked here against the r-fold period itself)
+    from solver.brackets import _sigma_max, hinf_norm_peak, period_system, primitive_peak
+
+    rng = np.random.default_rng(4)
+    fam = unstable_family()
+    modes = ModeSet.from_family(fam, 3)
+    lifted = lift_modes(modes, None, np.array([[0.5], [1.0]]))
+    K = modes.expand(0.3 * rng.normal(size=(modes.n_free_gains, 1, 2)) + np.array([[[-0.6, -1.0]]]))
+    data = lifted.numeric(K)
+    short = (0, 3)
+    if not np.max(np.abs(np.linalg.eigvals(period_system(data, short)["Phi"]))) < 1:
+        pytest.skip("unstable period")
+    for r in (2, 3):
+        value, peak = hinf_norm_peak(period_system(data, short * r), frequency=True)
+        w = primitive_peak(data, short, r, peak)
+        assert 0 <= w <= np.pi
+        assert _sigma_max(period_system(data, short), w)[0] == pytest.approx(value, rel=1e-9)
+        assert value == pytest.approx(hinf_norm_peak(period_system(data, short)), rel=1e-9)
+
+
+def test_exact_witness_recovers_from_a_misplaced_float64_peak():
+    # a float64 peak frequency far from the true one (pi/2 on a loop that peaks at w = 0): the exact value there is
+    # far below the float64 witness, so w = 0, pi and the poles' angles are evaluated too; the value is then the
+    # 60-digit gain's (within 1e-12, never above it)
+    from fractions import Fraction
+    import mpmath as mp
+    from solver.brackets import exact_witness, lower_bound
+
+    F, G, E = _near_unit_pole_loop(1e-8, seed=1)
+    lifted = lift_modes(ModeSet.from_family(PlantFamily(F=F[None], G=G[None]), 2), None, E)
+    K = np.zeros((2, 1, 3))
+    found = lower_bound(lifted, K, "hinf")
+    ref = _mp_gain_sweep(F, E)
+    value, note = exact_witness(lifted.numeric(K), found._replace(peak=np.pi / 2))
+    assert "poles' angles" in note, note
+    with mp.workdps(60):
+        assert mp.mpf(Fraction(value).numerator) / Fraction(value).denominator <= ref
+    assert value >= float(ref) * (1 - 1e-12)
