@@ -292,20 +292,21 @@ def test_cached_and_fresh_problems_agree_for_iterative_and_switched_methods(meth
 
 
 def test_problem_cache_is_a_bounded_lru():
-    from solver.compiled import ProblemCache
+    from solver.memo import BoundedCache
 
-    cache = ProblemCache(maxsize=2)
+    assert isinstance(problem_cache, BoundedCache)
+    cache = BoundedCache(2)
     built = []
 
     def builder(tag):
         return lambda: built.append(tag) or tag
 
-    assert cache.get("a", builder("a")) == ("a", False)
-    assert cache.get("b", builder("b")) == ("b", False)
-    assert cache.get("a", builder("a")) == ("a", True)  # a is now the most recent
-    cache.get("c", builder("c"))  # evicts b, the least recently used
+    assert cache.lookup("a", builder("a")) == ("a", False)
+    assert cache.lookup("b", builder("b")) == ("b", False)
+    assert cache.lookup("a", builder("a")) == ("a", True)  # a is now the most recent
+    cache.lookup("c", builder("c"))  # evicts b, the least recently used
     assert cache.keys() == ["a", "c"]
-    assert cache.get("b", builder("b")) == ("b", False)
+    assert cache.lookup("b", builder("b")) == ("b", False)
     assert built == ["a", "b", "c", "b"] and len(cache) == 2
 
 
