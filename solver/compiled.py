@@ -156,8 +156,8 @@ def time_left(time_limit: float | None, start: float, floor: float | None = None
 
 def out_of_time(seconds_left) -> bool:
     """Whether a run's time is up: ``seconds_left`` is ``() -> seconds or None`` (None: no limit), e.g.
-    ``lambda: clock.remaining(time_limit)``; None itself means no limit.  Steps that cannot be cut short (an exact
-    elimination) ask it before they start."""
+    :meth:`solver.methods.common.RunClock.countdown`'s; None itself means no limit.  Steps that cannot be cut
+    short (an exact elimination) ask it before they start."""
     remaining = None if seconds_left is None else seconds_left()
     return remaining is not None and remaining <= 0
 
