@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .memo import BoundedCache
+
 #: Unit roundoff of float64.
 U = 2.0**-53
 
@@ -248,7 +250,7 @@ def interval_data(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndar
 #: :func:`_interval_products` by the plant data, scheme and gain map: the products and their bounds do not depend on
 #: the congruent scale, so the rate search's Farkas re-checks (one per refuted rate) share them (2.6 ms of a
 #: re-check's 5.4 ms at n = 8, 50 modes); the entries are read-only.
-_PRODUCTS: dict = {}
+_PRODUCTS = BoundedCache(32)
 
 
 def _interval_products(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndarray) -> tuple:
@@ -257,9 +259,10 @@ def _interval_products(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np
     (before the scale's rounding and the final factor 2)."""
     data_key = (F.shape, G.shape, F.tobytes(), G.tobytes(), tuple(tuple(int(i) for i in seq) for seq in plants),
                 gain_map.shape, gain_map.tobytes())
-    got = _PRODUCTS.get(data_key)
-    if got is not None:
-        return got
+    return _PRODUCTS.get_or_compute(data_key, lambda: _compute_interval_products(F, G, plants, gain_map))
+
+
+def _compute_interval_products(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np.ndarray) -> tuple:
     n, m = F.shape[1], G.shape[2]
     N, J = gain_map.shape
     S = len(plants)
@@ -298,9 +301,6 @@ def _interval_products(F: np.ndarray, G: np.ndarray, plants: tuple, gain_map: np
     got = (tails, dtails, acc, dacc)
     for arr in got:
         arr.flags.writeable = False
-    if len(_PRODUCTS) > 32:
-        _PRODUCTS.clear()
-    _PRODUCTS[data_key] = got
     return got
 
 
@@ -660,7 +660,7 @@ def clearly_controllable(F: np.ndarray, G: np.ndarray) -> bool:
 
 #: :func:`clearly_controllable` by the plant mode's data: the screen does not depend on the rate, and the rate
 #: search proves a refuted rate per probe (1 ms of a Farkas re-check's 5.4 ms at n = 8, five plant modes).
-_SCREENED: dict = {}
+_SCREENED = BoundedCache(256)
 
 
 def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> UncontrollableCertificate | None:
@@ -690,12 +690,7 @@ def uncontrollable_mode(F: np.ndarray, G: np.ndarray, rate: float = 1.0) -> Unco
         return None
     for l in range(F.shape[0]):
         key = (F[l].shape, G[l].shape, F[l].tobytes(), G[l].tobytes())
-        screened = _SCREENED.get(key)
-        if screened is None:
-            if len(_SCREENED) > 256:
-                _SCREENED.clear()
-            screened = _SCREENED[key] = clearly_controllable(F[l], G[l])
-        if screened:
+        if _SCREENED.get_or_compute(key, lambda: clearly_controllable(F[l], G[l])):
             continue
         part = exact.uncontrollable_part(F[l], G[l])
         if not part:

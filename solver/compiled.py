@@ -14,13 +14,12 @@ import os
 import threading
 import warnings
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Callable, Hashable
 
 import numpy as np
 
 from .errors import InvalidInput, SolverFailed
+from .memo import BoundedCache
 
 
 class _LazyCvxpy:
@@ -157,8 +156,8 @@ def time_left(time_limit: float | None, start: float, floor: float | None = None
 
 def out_of_time(seconds_left) -> bool:
     """Whether a run's time is up: ``seconds_left`` is ``() -> seconds or None`` (None: no limit), e.g.
-    ``lambda: clock.remaining(time_limit)``; None itself means no limit.  Steps that cannot be cut short (an exact
-    elimination) ask it before they start."""
+    :meth:`solver.methods.common.RunClock.countdown`'s; None itself means no limit.  Steps that cannot be cut
+    short (an exact elimination) ask it before they start."""
     remaining = None if seconds_left is None else seconds_left()
     return remaining is not None and remaining <= 0
 
@@ -845,53 +844,9 @@ class CompiledProblem:
         return np.array(var.value, dtype=np.float64)
 
 
-class ProblemCache:
-    """Bounded LRU cache of compiled problems, keyed by shape (one per process).
-
-    Parameters
-    ----------
-    maxsize : int
-        Number of compiled problems kept; the least recently used is dropped.
-    """
-
-    def __init__(self, maxsize: int = 32):
-        self.maxsize = maxsize
-        self._items: OrderedDict[Hashable, CompiledProblem] = OrderedDict()
-        self._lock = threading.Lock()
-        self.hits = 0
-        self.misses = 0
-
-    def get(self, key: Hashable, build: Callable[[], CompiledProblem]) -> tuple[CompiledProblem, bool]:
-        """Return ``(problem, was_cached)``, building and storing it on a miss."""
-        with self._lock:
-            if key in self._items:
-                self._items.move_to_end(key)
-                self.hits += 1
-                return self._items[key], True
-        compiled = build()
-        with self._lock:
-            self.misses += 1
-            self._items[key] = compiled
-            self._items.move_to_end(key)
-            while len(self._items) > self.maxsize:
-                self._items.popitem(last=False)
-        return compiled, False
-
-    def clear(self) -> None:
-        with self._lock:
-            self._items.clear()
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def keys(self) -> list:
-        with self._lock:
-            return list(self._items)
-
-
-#: The process-wide cache every method uses (each worker process has its own);
-#: ``NCS_PROBLEM_CACHE_SIZE`` sets its bound.
-problem_cache = ProblemCache(maxsize=max(1, int(os.environ.get("NCS_PROBLEM_CACHE_SIZE", "32"))))
+#: The process-wide cache of compiled problems by shape, every method's (each worker process has its own;
+#: ``lookup(key, build)`` gives ``(problem, was_cached)``); ``NCS_PROBLEM_CACHE_SIZE`` sets its bound.
+problem_cache = BoundedCache(max(1, int(os.environ.get("NCS_PROBLEM_CACHE_SIZE", "32"))))
 
 
 @dataclass

@@ -19,6 +19,8 @@ from math import gcd
 
 import numpy as np
 
+from .memo import BoundedCache
+
 
 def exact(a) -> tuple[np.ndarray, int]:
     """``(M, s)`` with ``a == M / 2^s`` exactly, for a float64 array (any shape)."""
@@ -409,8 +411,7 @@ EXACT_MAX_BITS = 14000
 
 #: The last results of :func:`lyapunov_exact`, by the bytes of its float64 arguments (the Riccati refinement's last
 #: exact step and the bracket's exact certificate solve the same loop: one elimination, up to 2 s at n = 8).
-_LYAPUNOV_CACHE: dict = {}
-_LYAPUNOV_CACHE_SIZE = 8
+_LYAPUNOV_CACHE = BoundedCache(8)
 
 
 def lyapunov_exact(F, G, K, Q, R, S: list | None = None, definite: bool = True) -> list[list[Fraction]] | None:
@@ -433,11 +434,7 @@ def lyapunov_exact(F, G, K, Q, R, S: list | None = None, definite: bool = True) 
         return _lyapunov_exact(F, G, K, Q, R, S, definite)
     arrays = [np.ascontiguousarray(M, dtype=np.float64) for M in (F, G, K, Q, R)]
     key = (definite,) + tuple((M.shape, M.tobytes()) for M in arrays)
-    if key not in _LYAPUNOV_CACHE:
-        if len(_LYAPUNOV_CACHE) >= _LYAPUNOV_CACHE_SIZE:
-            _LYAPUNOV_CACHE.pop(next(iter(_LYAPUNOV_CACHE)))
-        _LYAPUNOV_CACHE[key] = _lyapunov_exact(*arrays, None, definite)
-    P = _LYAPUNOV_CACHE[key]
+    P = _LYAPUNOV_CACHE.get_or_compute(key, lambda: _lyapunov_exact(*arrays, None, definite))
     return None if P is None else [row[:] for row in P]
 
 

@@ -268,7 +268,7 @@ def _solve_fixed_gain(kind: str, A: np.ndarray, rho, solver: str, time_limit) ->
     """Solve the cached fixed-gain LMI of a kind for closed loops A (S, n, n) and decay factors rho."""
     S, n, _ = A.shape
     builder = {"common_lmi": _build_common, "switched_lmi": _build_switched}[kind]
-    compiled, _ = problem_cache.get((kind, n, S), lambda: builder(n, S))
+    compiled, _ = problem_cache.lookup((kind, n, S), lambda: builder(n, S))
     info = compiled.solve({"A": A.reshape(S * n, n), "rho": np.ones(S) if rho is None else rho},
                           solver=solver, time_limit=time_limit)
     return compiled, info

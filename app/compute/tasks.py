@@ -7,47 +7,24 @@ processes stay lean.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
 
+from solver.memo import BoundedCache
 from solver.result import jsonable
 
 
-class DigestMemo:
-    """The last ``size`` values by the digest of their inputs (least recently used first out), shared by the
-    threads of one process. Keyed by digest, not by the inputs, which may be large."""
+def _digest(text: str) -> str:
+    """The key of a memo below: the SHA-256 of the inputs' text, not the text itself, which may be large."""
+    import hashlib
 
-    def __init__(self, size: int):
-        self.size = size
-        self._values: OrderedDict[str, Any] = OrderedDict()
-        self._lock = threading.Lock()
-
-    @staticmethod
-    def digest(text: str) -> str:
-        import hashlib
-
-        return hashlib.sha256(text.encode()).hexdigest()
-
-    def get(self, key: str, default: Any = None) -> Any:
-        with self._lock:
-            if key not in self._values:
-                return default
-            self._values.move_to_end(key)
-            return self._values[key]
-
-    def put(self, key: str, value: Any) -> None:
-        with self._lock:
-            self._values[key] = value
-            self._values.move_to_end(key)
-            while len(self._values) > self.size:
-                self._values.popitem(last=False)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
-_families = DigestMemo(64)  # digest of the plant JSON -> its (read-only) family
-_checked = DigestMemo(256)  # digests of inputs that passed check_design_inputs
+# The last values by the digest of their inputs, shared by the threads of one process (docs/design.md §6.1).
+_families = BoundedCache(64)  # digest of the plant JSON -> its (read-only) family
+_checked = BoundedCache(256)  # digests of inputs that passed check_design_inputs
 
 
 def build_family(plant: dict[str, Any]):
@@ -56,10 +33,11 @@ def build_family(plant: dict[str, Any]):
     The remembered family's matrices are read-only, so no caller can change what the next one gets."""
     import json
 
-    key = _families.digest(json.dumps(plant, sort_keys=True, separators=(",", ":")))
-    fam = _families.get(key)
-    if fam is not None:
-        return fam
+    key = _digest(json.dumps(plant, sort_keys=True, separators=(",", ":")))
+    return _families.get_or_compute(key, lambda: _read_only_family(plant))
+
+
+def _read_only_family(plant: dict[str, Any]):
     # A family that overflows when discretized is reported by the solver as InvalidInput;
     # numpy's overflow warnings on the way there would only clutter the service log.
     with np.errstate(over="ignore", invalid="ignore"):
@@ -67,7 +45,6 @@ def build_family(plant: dict[str, Any]):
     for matrix in (fam.F, fam.G):
         if isinstance(matrix, np.ndarray):
             matrix.flags.writeable = False
-    _families.put(key, fam)
     return fam
 
 
@@ -498,7 +475,7 @@ def check_design_inputs(plant_json: str, n_drop: int | None, plant_switching: st
 
     from solver.network import ModeSet
 
-    key = _checked.digest(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}")
+    key = _digest(f"{n_drop}|{plant_switching}|{scheme}|{plant_json}")
     if _checked.get(key, False):
         return
     fam = build_family(json.loads(plant_json))

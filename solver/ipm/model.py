@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ..memo import BoundedCache
 from .schur import _onehot, assemble
 
 __all__ = ["BlockGroup", "BlockLMI", "GroupedLMI", "MatrixVariable"]
@@ -106,8 +107,9 @@ class _Sel:
         return M
 
 
-#: Basis matrices T per variable structure (they depend on shapes only, not on the plant data).
-_BASIS_CACHE: dict = {}
+#: Basis matrices per variable structure (they depend on shapes only, not on the plant data):
+#: ``(T, its last row, T dense or None until asked for)``.
+_BASIS_CACHE = BoundedCache(64)
 
 
 @dataclass
@@ -147,12 +149,7 @@ class BlockLMI:
         self.with_t = self.objective is None
         key = (tuple((v.shape, v.sym_block) for v in self.variables),
                None if self.equality is None else self.equality.tobytes(), self.with_t)
-        if key not in _BASIS_CACHE:
-            if len(_BASIS_CACHE) > 64:
-                _BASIS_CACHE.clear()
-            T = self._basis()
-            _BASIS_CACHE[key] = (T, np.asarray(T[-1, :].todense()).ravel(), None)
-        self.T, self.b, _ = _BASIS_CACHE[key]
+        self.T, self.b, _ = _BASIS_CACHE.get_or_compute(key, self._basis_entry)
         if not self.with_t:
             self.b = -(self.T.T @ np.append(np.asarray(self.objective, dtype=np.float64), 0.0))
         self.p = self.T.shape[1]
@@ -174,6 +171,11 @@ class BlockLMI:
         if Tt is None:
             Tt = self._Tt = self.T.T.tocsr()
         return Tt
+
+    def _basis_entry(self) -> tuple:
+        """The basis cache's entry of this structure: ``(T, T's last row (dense), None)``."""
+        T = self._basis()
+        return T, np.asarray(T[-1, :].todense()).ravel(), None
 
     def _basis(self) -> sp.csr_matrix:
         """Sparse ``T`` with ``x_full = x0 + T y`` over the symmetric, equality-respecting directions."""
@@ -277,11 +279,11 @@ class BlockLMI:
 
     def dense_operator(self) -> np.ndarray:
         """The basis matrices ``A_i`` as one array (p, nb, k, k) (small problems, tests)."""
-        # the cache may have been cleared since this model was built (another model's entry filled it up)
+        # this model's entry may have been dropped since it was built (models built since filled the cache)
         T = _BASIS_CACHE.get(self._key, (None, None, None))[2]
         if T is None:
             T = self.T.toarray()
-            _BASIS_CACHE[self._key] = (self.T, np.asarray(self.T[-1, :].todense()).ravel(), T)
+            _BASIS_CACHE.put(self._key, (self.T, np.asarray(self.T[-1, :].todense()).ravel(), T))
         p, k, nb = self.p, self.k, self.nb
         if not any(len(term) > 3 for var in self.variables for term in var.terms):
             # Each full coordinate's matrices (unit entry E_ab of a variable: sym(c L E_ab R) = c

@@ -14,6 +14,7 @@ import numpy as np
 
 from dataclasses import replace
 
+from ..memo import BoundedCache
 from .algorithm import IPMOptions, IPMSolution, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 
@@ -76,29 +77,27 @@ def lmi_problem(free: np.ndarray, coef: np.ndarray, active: np.ndarray | None = 
 
 
 #: Shape-only pieces of :func:`lmi_problem` (selectors, identities, the trace normalization), read-only.
-_LMI_CONSTS: dict = {}
+_LMI_CONSTS = BoundedCache(64)
 
 
 def _lmi_consts(S: int, n: int, Jm: int):
-    key = (S, n, Jm)
-    c = _LMI_CONSTS.get(key)
-    if c is None:
-        if len(_LMI_CONSTS) > 64:
-            _LMI_CONSTS.clear()
-        P1, P2 = _selectors(n)
-        eye = np.eye(n)
-        C0 = np.zeros((S, 2 * n, 2 * n))
-        C0[:, :n, :n] = eye
-        C0[:, n:, n:] = eye
-        LF0 = np.zeros((S, 2 * n, n))
-        LF0[:, :n] = 0.5 * eye
-        a = np.zeros(n * n + Jm * n)
-        a[: n * n: n + 1] = 1.0  # trace W
-        V0 = [eye] + ([np.zeros((Jm, n))] if Jm > 0 else [])
-        c = (P2, np.broadcast_to(P1.T, (S, n, 2 * n)), np.broadcast_to(P2, (S, 2 * n, n)), C0, a, V0, LF0)
-        for arr in (P2, eye, C0, LF0, a, *V0):
-            arr.flags.writeable = False
-        _LMI_CONSTS[key] = c
+    return _LMI_CONSTS.get_or_compute((S, n, Jm), lambda: _build_lmi_consts(S, n, Jm))
+
+
+def _build_lmi_consts(S: int, n: int, Jm: int):
+    P1, P2 = _selectors(n)
+    eye = np.eye(n)
+    C0 = np.zeros((S, 2 * n, 2 * n))
+    C0[:, :n, :n] = eye
+    C0[:, n:, n:] = eye
+    LF0 = np.zeros((S, 2 * n, n))
+    LF0[:, :n] = 0.5 * eye
+    a = np.zeros(n * n + Jm * n)
+    a[: n * n: n + 1] = 1.0  # trace W
+    V0 = [eye] + ([np.zeros((Jm, n))] if Jm > 0 else [])
+    c = (P2, np.broadcast_to(P1.T, (S, n, 2 * n)), np.broadcast_to(P2, (S, 2 * n, n)), C0, a, V0, LF0)
+    for arr in (P2, eye, C0, LF0, a, *V0):
+        arr.flags.writeable = False
     return c
 
 

@@ -12,6 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.blas import dsyr2k as _syr2k
 
+from ..memo import BoundedCache
+
 __all__ = ["assemble", "dense_ops", "pair", "pieces"]
 
 
@@ -230,20 +232,14 @@ def _packed_pieces(plan, i, Ps, Qs):
 #: Plans by the problem's structure key (:attr:`solver.ipm.model.BlockLMI._key`: the variables' shapes, the equality,
 #: the form), which fixes everything a :class:`_Plan` reads (variables, slices, basis): the rate search's probes and
 #: "auto"'s final design build one problem per rate, and a plan cost 2 ms of a 3.7 ms first assembly at n = 8.
-_PLANS: dict = {}
+_PLANS = BoundedCache(64)
 
 
 def _plan(problem) -> _Plan:
     plan = problem.__dict__.get("_schur_plan")
     if plan is None:
         key = problem.__dict__.get("_key")
-        plan = None if key is None else _PLANS.get(key)
-        if plan is None:
-            plan = _Plan(problem)
-            if key is not None:
-                if len(_PLANS) > 64:
-                    _PLANS.clear()
-                _PLANS[key] = plan
+        plan = _Plan(problem) if key is None else _PLANS.get_or_compute(key, lambda: _Plan(problem))
         problem._schur_plan = plan
     return plan
 

@@ -71,6 +71,11 @@ class RunClock:
     def remaining(self, time_limit: float | None) -> float | None:
         return time_left(time_limit, self.start)
 
+    def countdown(self, time_limit: float | None) -> Callable[[], float | None]:
+        """``() -> seconds left of time_limit`` (None without a limit), counted from this run's start: the
+        ``seconds_left`` of the steps that check the time as they go (:func:`solver.compiled.out_of_time`)."""
+        return lambda: self.remaining(time_limit)
+
     def timings(self) -> dict:
         total = self.elapsed
         return {

@@ -61,7 +61,7 @@ def compiled_for(modes: ModeSet, kind: str, builder) -> tuple[CompiledProblem, b
     _, active = modes.scheme_coef()
     n, m, S, J = modes.n_states, modes.n_inputs, modes.n_modes, modes.n_free_gains
     start = time.perf_counter()
-    compiled, cached = problem_cache.get((kind,) + modes.shape_key(), lambda: builder(n, m, S, J, active))
+    compiled, cached = problem_cache.lookup((kind,) + modes.shape_key(), lambda: builder(n, m, S, J, active))
     return compiled, cached, (0.0 if cached else time.perf_counter() - start)
 
 

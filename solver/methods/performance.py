@@ -558,7 +558,7 @@ def _evaluate(lifted: Lifted, objective: str, x0, u_max, options: DesignOptions,
     performance = None
     if objective in ("cost", "hinf"):
         performance = bracket(lifted, gains, objective, P0=P0, x0=x0, solver=options.solver, weight=weight,
-                              exact_hinf=exact_hinf, seconds_left=lambda: clock.remaining(options.time_limit))
+                              exact_hinf=exact_hinf, seconds_left=clock.countdown(options.time_limit))
     candidate = performance.certificate if performance is not None and performance.verified else Winv
     # exact: the performance certificate, re-checked exactly there, may hold a relative stability margin (1e-11
     # where P spans 1e11) that float64 cannot confirm; decided in exact arithmetic for small n (§8.5)
@@ -909,7 +909,7 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                 refined = riccati_refine(modes.F[0], modes.G[0], lifted.Q, lifted.R, start_gains,
                                          loop=lambda K: (lambda d: (d["A"], d["S"]))(
                                              lifted.numeric(K[None], errors=False)[0]),  # (no re-check here)
-                                         seconds_left=lambda: clock.remaining(options.time_limit))
+                                         seconds_left=clock.countdown(options.time_limit))
             except (np.linalg.LinAlgError, ValueError):
                 refined = None
             try:  # a fixed-gain LMI inside may fail: the refinement is optional, never the reason for no verdict
@@ -1016,7 +1016,7 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
     start = info if info is not None else SolveInfo(status="riccati", solver="scipy", solve_time=0.0, wall_time=0.0,
                                                     objective=float("nan"), iterations=0)
     found = None
-    seconds_left = lambda: clock.remaining(options.time_limit)  # noqa: E731
+    seconds_left = clock.countdown(options.time_limit)
 
     def consider(gains, P0, exact_hinf=None, **how) -> bool:
         """Re-check one proposal like any other and keep it when it certifies the smallest level so far; True once

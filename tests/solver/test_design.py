@@ -225,6 +225,17 @@ def test_time_left_keeps_the_sign_out_of_time_and_floors_only_when_asked():
     assert 0.0 < time_left(100.0, start) <= 100.0 and 0.0 < time_left(100.0, start, floor=1e-3) <= 100.0
 
 
+def test_run_clock_countdown_counts_from_the_run_start():
+    from solver.compiled import out_of_time
+    from solver.methods.common import RunClock
+
+    clock = RunClock(start=time.perf_counter() - 2.0)  # a run that started 2 s ago
+    unlimited, over, ample = clock.countdown(None), clock.countdown(1.0), clock.countdown(100.0)
+    assert unlimited() is None and not out_of_time(unlimited)
+    assert over() <= -1.0 and out_of_time(over)
+    assert 0.0 < ample() <= 98.0 and not out_of_time(ample)
+
+
 def test_callback_sees_every_iteration_and_can_stop():
     fam = uncontrollable_unstable()
     seen = []
@@ -292,20 +303,21 @@ def test_cached_and_fresh_problems_agree_for_iterative_and_switched_methods(meth
 
 
 def test_problem_cache_is_a_bounded_lru():
-    from solver.compiled import ProblemCache
+    from solver.memo import BoundedCache
 
-    cache = ProblemCache(maxsize=2)
+    assert isinstance(problem_cache, BoundedCache)
+    cache = BoundedCache(2)
     built = []
 
     def builder(tag):
         return lambda: built.append(tag) or tag
 
-    assert cache.get("a", builder("a")) == ("a", False)
-    assert cache.get("b", builder("b")) == ("b", False)
-    assert cache.get("a", builder("a")) == ("a", True)  # a is now the most recent
-    cache.get("c", builder("c"))  # evicts b, the least recently used
+    assert cache.lookup("a", builder("a")) == ("a", False)
+    assert cache.lookup("b", builder("b")) == ("b", False)
+    assert cache.lookup("a", builder("a")) == ("a", True)  # a is now the most recent
+    cache.lookup("c", builder("c"))  # evicts b, the least recently used
     assert cache.keys() == ["a", "c"]
-    assert cache.get("b", builder("b")) == ("b", False)
+    assert cache.lookup("b", builder("b")) == ("b", False)
     assert built == ["a", "b", "c", "b"] and len(cache) == 2
 
 

@@ -304,21 +304,17 @@ def test_max_tau_sdp_converges_in_two_stages():
     assert tau >= np.linalg.eigvalsh(one.W)[0] * (1 - 1e-9)
 
 
-def test_a_model_survives_the_basis_cache_being_cleared():
-    """The basis cache is cleared when full; a model built before must still give its dense operator (the
-    one-phase attempt builds models between this one's construction and its two-phase solve)."""
+def test_a_model_survives_the_basis_cache_dropping_its_entry(monkeypatch):
+    """The basis cache drops the least recently used entry when full; a model built before must still give its
+    dense operator (the one-phase attempt builds models between this one's construction and its two-phase solve)."""
     from solver.ipm import model
+    from solver.memo import BoundedCache
 
     groups = [ipm.BlockGroup("low", -np.ones((1, 1, 1)), {"W": [(np.ones((1, 1, 1)), None, 1.0)]}),
               ipm.BlockGroup("high", np.diag([0.5, 1.0])[None], {"W": [(np.array([[[1.0], [0.0]]]), None, -1.0)]})]
     lmi = ipm.GroupedLMI([("W", (1, 1), 1)], [], groups, [np.zeros((1, 1))])
-    for i in range(70):  # fill the cache past its limit: the next new model clears it
-        model._BASIS_CACHE[("filler", i)] = (None, None, None)
-    try:
-        assert ipm.solve_grouped(lmi, {"W": np.ones((1, 1))}).status == "infeasible"
-    finally:
-        for i in range(70):
-            model._BASIS_CACHE.pop(("filler", i), None)
+    monkeypatch.setattr(model, "_BASIS_CACHE", BoundedCache(1))  # every new structure drops the one before
+    assert ipm.solve_grouped(lmi, {"W": np.ones((1, 1))}).status == "infeasible"
 
 
 @pytest.mark.parametrize("objective, x0, u_max", [("cost", None, None), ("cost", X0, None), ("cost", X0, [0.5]),

@@ -611,6 +611,7 @@ def test_exact_steps_start_only_within_the_time_limit(monkeypatch):
     # limit (n = 8: 8.5 s under time_limit=0.5); once the limit has passed none starts, and the bracket's exact
     # certificate reuses the refinement's last elimination (same loop) instead of repeating it
     from solver import exact
+    from solver.memo import BoundedCache
 
     calls = []
     original = exact._lyapunov_exact
@@ -618,18 +619,18 @@ def test_exact_steps_start_only_within_the_time_limit(monkeypatch):
     F, G = _holdout_unreachable(3)
     family = PlantFamily(F=F[None], G=G[None], sampling_period=0.1)
 
-    class Forgetful(dict):  # (never finds an earlier result)
-        def __contains__(self, key):
-            return False
+    class Forgetful(BoundedCache):  # (never finds an earlier result)
+        def lookup(self, key, compute):
+            return compute(), False
 
     eliminations = {}
-    for cache in (Forgetful(), {}):
+    for cache in (Forgetful(8), BoundedCache(8)):
         monkeypatch.setattr(exact, "_LYAPUNOV_CACHE", cache)
         calls.clear()
         res = design(family, 1, objective="cost")
         assert res.outcome == "stabilized" and "exact rational certificate" in res.performance.message
         eliminations[type(cache)] = len(calls)
-    assert 1 <= eliminations[dict] < eliminations[Forgetful]
+    assert 1 <= eliminations[BoundedCache] < eliminations[Forgetful]
     calls.clear()
     exact._LYAPUNOV_CACHE.clear()
     late = design(family, 1, objective="cost", time_limit=1e-9)
