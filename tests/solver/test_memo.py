@@ -8,6 +8,15 @@ import pytest
 from solver.memo import BoundedCache
 
 
+def run_threads(worker, n_threads):
+    """Run ``worker(t)`` for t = 0..n_threads-1 in threads, and wait for all of them."""
+    threads = [threading.Thread(target=worker, args=(t,)) for t in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+
+
 def test_least_recently_used_is_dropped_first():
     cache = BoundedCache(3)
     for key in "abc":
@@ -86,11 +95,7 @@ def test_threads_compute_each_key_once():
             if cache.get_or_compute(k, compute(k)) != k * 10:
                 wrong.append(k)
 
-    threads = [threading.Thread(target=worker, args=(t,)) for t in range(n_threads)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(worker, n_threads)
     assert not wrong
     assert counts == {k: 1 for k in range(keys)}  # never computed twice, however the threads interleave
     assert cache.misses == keys and cache.hits == n_threads * 200 - keys
@@ -113,11 +118,7 @@ def test_threads_keep_the_bound_and_lru_consistent():
             if len(cache) > 7:
                 wrong.append(("size", len(cache)))
 
-    threads = [threading.Thread(target=worker, args=(t,)) for t in range(n_threads)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(worker, n_threads)
     assert not wrong
     keys = cache.keys()
     assert len(keys) == 7 == len(set(keys)) and all(cache.get(k) == -k for k in keys)
