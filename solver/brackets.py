@@ -511,6 +511,12 @@ def _lyapunov_once(A: np.ndarray, S: np.ndarray, method: str) -> np.ndarray | No
     return P if np.all(np.isfinite(P)) else None
 
 
+def _semidefinite(P: np.ndarray) -> bool:
+    """Positive semidefinite up to rounding: no eigenvalue below ``-n eps`` times the largest."""
+    eig = np.linalg.eigvalsh(0.5 * (P + P.T))
+    return bool(eig[-1] > 0 and eig[0] >= -P.shape[0] * np.finfo(float).eps * eig[-1])
+
+
 def _lyapunov_residual(A: np.ndarray, P: np.ndarray, S: np.ndarray) -> float:
     """``||A' P A - P + S||_F`` relative to the size of its terms."""
     APA = A.T @ P @ A
@@ -553,11 +559,15 @@ def lyapunov(A: np.ndarray, S: np.ndarray, hint: np.ndarray | None = None) -> np
             try:
                 L = np.linalg.cholesky(0.5 * (P + P.T))
             except np.linalg.LinAlgError:
-                break
-            residual = _lyapunov_residual(A, P, S)
-            if best is None or residual < best[0]:
-                best = (residual, P)
-            if step == 2:  # (a third re-solve would never be looked at)
+                L = None
+            # a semidefinite candidate competes too (cost rows that never see part of the state make the solution
+            # singular: without it the hint itself was returned, and a witness took the certificate's value); an
+            # indefinite one never does (scipy's answers on far from normal loops, residual 1e-10)
+            if L is not None or _semidefinite(P):
+                residual = _lyapunov_residual(A, P, S)
+                if best is None or residual < best[0]:
+                    best = (residual, P)
+            if L is None or step == 2:  # (a third re-solve would never be looked at)
                 break
             At = scipy.linalg.solve_triangular(L, A.T @ L, lower=True).T  # L' A L^-T
             St = scipy.linalg.solve_triangular(L, scipy.linalg.solve_triangular(L, S, lower=True).T, lower=True)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .compiled import solve_quietly
 from .errors import InvalidInput
 from .workload import channel_operator_size, check_channel
 
@@ -807,7 +808,7 @@ def _arbitrary_cost(loops):
     for rel in (1e-7, 1e-5, 1e-3):
         eta.value = rel * scale
         try:
-            prob.solve(solver=cp.CLARABEL)
+            solve_quietly(prob)
         except cp.error.SolverError:
             continue
         if prob.status in ("optimal", "optimal_inaccurate") and all(P.value is not None for P in Ps):
@@ -841,7 +842,7 @@ def _arbitrary_lmi(loops):
         b = hi if it == 0 else 0.5 * (lo + hi)
         beta.value = b
         try:
-            prob.solve(solver=cp.CLARABEL)
+            solve_quietly(prob)
         except cp.error.SolverError:
             status = "solver_error"
         else:
@@ -1284,7 +1285,7 @@ def design_channel(family, n_drop: int, channel: Channel, *, exhausted: str = "h
     objective = cp.Minimize(sum(loop.initial[i] * cp.trace(X[i]) for i in X))
     prob = cp.Problem(objective, cons)
     try:
-        prob.solve(solver=cp.CLARABEL)
+        solve_quietly(prob)
         status = prob.status
     except cp.error.SolverError as err:
         return ChannelDesignResult("not_converged", None, None, None, "solver_error", str(err))

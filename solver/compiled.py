@@ -162,6 +162,16 @@ def out_of_time(seconds_left) -> bool:
     return remaining is not None and remaining <= 0
 
 
+
+def solve_quietly(problem, solver: str = "CLARABEL", time_limit: float | None = None) -> None:
+    """``problem.solve`` on ``solver`` (a cvxpy solver name) within ``time_limit`` seconds, without cvxpy's
+    "Solution may be inaccurate" warning: every answer is a proposal the callers re-check, and the status is theirs
+    to act on, so the warning only reached the user's terminal.  Raises ``cvxpy.error.SolverError`` as cvxpy does."""
+    opts = {} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        problem.solve(solver=getattr(cp, solver), **opts)
+
 #: The time estimate of :func:`design_size` (docs/design.md §3.6): the path's Newton steps times one step's work,
 #: plus the bracket's lower-bound search.  One interior-point step (:func:`_step_seconds`) costs ``2 v^2`` per block
 #: touching v variables for the Schur pieces (at ``ESTIMATE_ASSEMBLY_FLOPS_PER_SECOND``), ``k^3`` per block of side

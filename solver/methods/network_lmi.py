@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificates import Prover, gamma
-from ..compiled import cp  # cvxpy, imported on first use
+from ..compiled import cp, solve_quietly  # cvxpy, imported on first use
 from ..errors import InvalidInput, SolverFailed
 from ..lyapunov import RECHECK_TOL, Certificate
 from ..network import ModeSet, spectral_radii
@@ -545,8 +545,7 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
         D = rho[e] * P[prob.src[e]] - A[e].T @ P[prob.dst[e]] @ A[e]
         cons.append(0.5 * (D + D.T) - t * eye >> 0)
     try:
-        cp.Problem(cp.Maximize(t), cons).solve(
-            solver=cp.CLARABEL, **({} if time_limit is None else {"time_limit": float(max(time_limit, 1e-3))}))
+        solve_quietly(cp.Problem(cp.Maximize(t), cons), time_limit=time_limit)
     except cp.error.SolverError:
         return None
     if t.value is None or not t.value > 0:
@@ -628,7 +627,7 @@ def ccl(prob: NetworkProblem, rate: float | None = None, max_iter: int = 50, dea
         if left is not None and left <= 0:
             return False
         try:
-            problem.solve(solver=cp.CLARABEL, **({} if left is None else {"time_limit": float(left)}))
+            solve_quietly(problem, time_limit=left)
         except cp.error.SolverError:
             return False
         solve_time += problem.solver_stats.solve_time or 0.0

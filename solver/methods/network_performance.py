@@ -31,14 +31,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import (NetworkPerformance, _allowance, _data_error, _sym, certify_hinf, check_x0, hinf_norm_lower,
-                        period_system)
+from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _sym,
+                        certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import TINY, check_channel, check_weights, lift_modes
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
+from ..scaling import Scaling
 from . import network_lmi
 
 #: Closed walks valued for the lower bound at most (cost; hinf: ``MAX_WALKS_HINF``), shortest first.
@@ -282,15 +283,21 @@ def check_cost_nodes(P: np.ndarray, data: list[dict]) -> tuple[bool, float]:
     return bool(passed), float(worst)
 
 
-def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None) -> float:
-    """``max_v x0' S' P_v S x0`` (``trace S' P_v S`` without x0) over the start nodes."""
-    S = ch.history
-    vals = [float(x0 @ S.T @ P[v] @ S @ x0) if x0 is not None else float(np.trace(S.T @ P[v] @ S))
-            for v in ch.start]
-    return max(vals)
+def history_value(P: np.ndarray, S: np.ndarray, x0: np.ndarray | None, weight: np.ndarray | None = None) -> float:
+    """``x0' S' P S x0``, or without x0 ``trace S' P S`` (``sum_i w_i (S' P S)_ii`` with ``weight``: the user's
+    trace in balanced coordinates, :attr:`solver.scaling.PerformanceScaling.trace_weight`)."""
+    if x0 is not None:
+        return float(x0 @ S.T @ P @ S @ x0)
+    M = S.T @ P @ S
+    return float(np.trace(M)) if weight is None else float(np.sum(weight * np.diagonal(M)))
 
 
-def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
+def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None, weight: np.ndarray | None = None) -> float:
+    """``max_v x0' S' P_v S x0`` (the trace without x0, weighted with ``weight``) over the start nodes."""
+    return max(history_value(P[v], ch.history, x0, weight) for v in ch.start)
+
+
+def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None, weight: np.ndarray | None = None):
     """The solver's node matrices scaled until the float64 re-check passes: ``(P, upper, reason)``.
 
     cost: ``c P0`` passes when ``c (P0_v - A_e' P0_w A_e) >= S_e``: ``c`` is the largest generalized eigenvalue over
@@ -312,7 +319,7 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None):
             P = c * (1 + bump) * P0
             ok, worst = check_cost_nodes(P, data)
             if ok:
-                return P, bound_of(P, ch, x0), ""
+                return P, bound_of(P, ch, x0, weight), ""
         return None, None, f"no multiple of the solver's node matrices passes the re-check (worst {worst:.3g})"
     return certify_hinf(P0, data)
 
@@ -425,7 +432,7 @@ def gains_for_nodes(ch: Channels, P: np.ndarray, kind: str, level: float | None 
 
 
 def refine_gains(ch: Channels, gains: np.ndarray, kind: str, x0=None, time_limit: float | None = None,
-                 rounds: int = REFINE_ROUNDS) -> tuple[np.ndarray, list]:
+                 rounds: int = REFINE_ROUNDS, trace_weight: np.ndarray | None = None) -> tuple[np.ndarray, list]:
     """The stability design's gains improved for the objective by alternating the fixed-gain SDP (node matrices
     of least bound for the gains, :func:`fixed_gain`) and :func:`gains_for_nodes` (gains that keep those node
     matrices valid with the most room): each round's bound is at most the last one's (docs/design.md §11.3, "Gains
@@ -439,10 +446,10 @@ def refine_gains(ch: Channels, gains: np.ndarray, kind: str, x0=None, time_limit
         left = time_left(time_limit, start, floor=1e-3)
         if left is not None and left <= 1e-3:
             break
-        P, _ = fixed_gain(ch, ch.numeric(K), kind, x0, left)
+        P, _ = fixed_gain(ch, ch.numeric(K), kind, x0, left, trace_weight=trace_weight)
         if P is None:
             break
-        value = bound_of(P, ch, x0) if kind == "cost" else None
+        value = bound_of(P, ch, x0, trace_weight) if kind == "cost" else None
         if kind != "cost":
             value = _hinf_level(ch, P, K)
         if value is None or not np.isfinite(value):
@@ -498,28 +505,50 @@ def closed_walks(prob, start, max_length: int = MAX_WALK_LENGTH, max_count: int 
     return found
 
 
-def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None) -> float:
+#: Relative residual of scipy's answer above which a walk's Lyapunov equation is solved again in the coordinates
+#: of the certificate (:func:`walk_value`).
+WALK_RESIDUAL = 1e-12
+
+
+def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None, hint: np.ndarray | None = None,
+               weight: np.ndarray | None = None) -> float:
     """The exact cost from the walk's start (``x0' S' P_per S x0``, ``trace``) of repeating it, or a lower bound
-    on its l2 gain (frequency sweep of the period's lifted system); ``inf`` for an unstable costly walk."""
+    on its l2 gain (frequency sweep of the period's lifted system); ``inf`` for an unstable costly walk.
+
+    ``hint``: the certificate's matrix of the walk's first node (``Phi' P_v Phi < P_v`` over a closed walk), the
+    coordinates of :func:`solver.brackets.lyapunov` when scipy's answer has a residual above
+    ``WALK_RESIDUAL``.  On badly scaled plants scipy's Kronecker matrix has a reciprocal condition of 1e-17 (a
+    warning per walk), yet its answers stay within 1e-10 of the doubled series ``sum Phi'^k L'L Phi^k``; the
+    contraction coordinates, 3-20x slower over 4000 walks, only serve the ones it gets wrong."""
     sys = period_system(data, list(walk))
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
         return np.inf if kind == "cost" else np.nan
     if kind == "cost":
-        Pp = scipy.linalg.solve_discrete_lyapunov(sys["Phi"].T, sys["L"].T @ sys["L"])
-        S = ch.history
-        return float(x0 @ S.T @ Pp @ S @ x0) if x0 is not None else float(np.trace(S.T @ Pp @ S))
+        Phi, Q = sys["Phi"], sys["L"].T @ sys["L"]
+        Pp = _lyapunov_once(Phi, Q, "direct" if Phi.shape[0] < 10 else "bilinear")
+        if Pp is None or _lyapunov_residual(Phi, Pp, Q) > WALK_RESIDUAL:
+            try:
+                Pp = lyapunov(Phi, Q, hint)
+            except np.linalg.LinAlgError:
+                return np.nan
+        return history_value(Pp, ch.history, x0, weight)
     return hinf_norm_lower(sys, refine=False)
 
 
 def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float = np.inf,
-                max_length: int = MAX_WALK_LENGTH):
-    """Worst closed walk searched: ``(value, walk, walks valued)``; the search stops once ``stop`` is reached."""
+                max_length: int = MAX_WALK_LENGTH, certificate: np.ndarray | None = None,
+                weight: np.ndarray | None = None):
+    """Worst closed walk searched: ``(value, walk, walks valued)``; the search stops once ``stop`` is reached.
+
+    ``certificate``: node matrices ``P_v`` (one per node), the coordinates of each walk's Lyapunov equation;
+    ``weight``: the trace's (:func:`history_value`)."""
     start = ch.start if kind == "cost" else np.arange(len(ch.prob.nodes))
     walks = closed_walks(ch.prob, start, max_length, MAX_WALKS if kind == "cost" else MAX_WALKS_HINF)
     best, arg, count = -np.inf, None, 0
     values = []
     for w in walks:
-        v = walk_value(data, w, ch, kind, x0)
+        hint = None if certificate is None else certificate[int(ch.prob.src[w[0]])]
+        v = walk_value(data, w, ch, kind, x0, hint, weight)
         count += 1
         values.append(v)
         if np.isfinite(v) or (kind == "cost" and v == np.inf):
@@ -552,20 +581,22 @@ def _walk_labels(prob, walk) -> list:
 
 
 def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
-            time_limit: float | None = None) -> NetworkPerformance:
+            time_limit: float | None = None, trace_weight: np.ndarray | None = None) -> NetworkPerformance:
     """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower;
-    ``time_limit``: the fixed-gain SDP's, in seconds)."""
+    ``time_limit``: the fixed-gain SDP's, in seconds, 0 to skip it; ``trace_weight``: the cost's trace weights,
+    balanced coordinates, :func:`history_value`)."""
     data = ch.numeric(gains)
     P = upper = None
     reason = ""
     if P0 is not None:
-        P, upper, reason = certify(P0, ch, data, kind, x0)
-    if P is None:
-        Pf, why = fixed_gain(ch, data, kind, x0, time_limit)
+        P, upper, reason = certify(P0, ch, data, kind, x0, trace_weight)
+    if P is None and (time_limit is None or time_limit > 0):
+        Pf, why = fixed_gain(ch, data, kind, x0, time_limit, trace_weight=trace_weight)
         if Pf is not None:
-            P, upper, why = certify(Pf, ch, data, kind, x0)
+            P, upper, why = certify(Pf, ch, data, kind, x0, trace_weight)
         reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
-    lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper)
+    lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper, certificate=P,
+                                     weight=trace_weight)
     if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
     what = "cost" if kind == "cost" else "l2 gain"
@@ -858,7 +889,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
         history += plain.history
         why = "; ".join(failures) if failures else "no certified answer"
         if plain.outcome == "stabilized":
-            def bracket_of(gains):
+            def bracket_of(gains, stability_nodes=None):
                 P0 = None if scale is None else _balanced_fixed_gain(ch, scale, gains, objective, x0_s,
                                                                      time_left(time_limit, start, floor=1e-3))
                 perf = bracket(ch_user, gains, objective, P0=P0, x0=x0,
@@ -866,9 +897,12 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                 if not perf.verified and scale is not None:
                     perf = _balanced_bracket(ch, scale, gains, objective, None, x0,
                                              time_left(time_limit, start, floor=1e-3)) or perf
+                if not perf.verified and stability_nodes is not None:
+                    perf = _stability_bracket(ch, ch_user, scale, gains, objective, stability_nodes, x0) or perf
                 return perf
 
-            gains, cert, perf = plain.gains, plain.certificate, bracket_of(plain.gains)
+            gains, cert = plain.gains, plain.certificate
+            perf = bracket_of(gains, _user_nodes(plain, ch_user.prob))
             how = f"not optimized for the {objective}"
             if perf.verified and not kothare:
                 refined = _refined(ch, ch_user, scale, gains, objective, x0_s, perf, bracket_of, time_limit, start)
@@ -983,6 +1017,32 @@ def _balanced_fixed_gain(ch: Channels, scale, gains: np.ndarray, objective: str,
     return None if P is None else scale.quadratic_back(P, objective)
 
 
+def _user_nodes(res: DesignResult, prob) -> np.ndarray | None:
+    """The node matrices of a network stability design's certificate in the user's coordinates (exact: the
+    balancing is by powers of two), when they are node matrices of ``prob``; else None."""
+    P = getattr(res.certificate, "P", None)
+    if res.certificate is None or not res.certificate.verified or P is None or np.ndim(P) != 3 \
+            or P.shape[0] != len(prob.nodes) or P.shape[-1] != prob.k:
+        return None
+    if (res.scaling or {}).get("certificate") == "scaled":
+        P = Scaling(np.asarray(res.scaling["state"]), np.asarray(res.scaling["input"])).quadratic_back(P)
+    return np.asarray(P, dtype=float)
+
+
+def _stability_bracket(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objective: str,
+                       nodes: np.ndarray, x0) -> NetworkPerformance | None:
+    """The bracket certified by a multiple of the stability certificate's node matrices (``nodes``, the user's
+    coordinates; :func:`certify`): the last resort when no fixed-gain SDP answers (Clarabel fails on badly scaled
+    families near the stability boundary).  Made in the user's coordinates, else in the balanced ones (``ch``,
+    ``scale``).  The fixed-gain SDP is not run again (``time_limit=0``)."""
+    perf = bracket(ch_user, gains, objective, P0=nodes, x0=x0, time_limit=0.0)
+    if perf.verified or scale is None:
+        return perf if perf.verified else None
+    k = nodes.shape[-1] // scale.plain.state.size
+    t = np.tile(scale.plain.state, k)
+    return _balanced_bracket(ch, scale, gains, objective, nodes * t[None, :, None] * t[None, None, :], x0, 0.0)
+
+
 def _refined(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objective: str, x0_s, perf, bracket_of,
              time_limit, start) -> dict:
     """:func:`refine_gains` on the stability design's gains (in balanced coordinates when ``scale``), kept only when
@@ -990,7 +1050,9 @@ def _refined(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objectiv
     passes (the bound's node matrices, else the fixed-gain node SDP)."""
     prob = ch_user.prob
     work = gains if scale is None else gains * scale.plain.state[None, None, :] / scale.plain.input[None, :, None]
-    K, values = refine_gains(ch, work, objective, x0_s, time_left(time_limit, start, floor=1e-3))
+    weight = scale.trace_weight if scale is not None and objective == "cost" and x0_s is None else None
+    K, values = refine_gains(ch, work, objective, x0_s, time_left(time_limit, start, floor=1e-3),
+                             trace_weight=weight)
     out = {"gains": None, "cert": None, "perf": None, "solves": 2 * len(values),
            "how": f"not optimized for the {objective}: the refinement found no better gains"}
     if K is work:
@@ -1021,7 +1083,8 @@ def _balanced_bracket(ch: Channels, scale, gains: np.ndarray, objective: str, P0
     (:func:`solver.brackets.bracket_back`)."""
     t, u = scale.plain.state, scale.plain.input
     balanced = gains * t[None, None, :] / u[None, :, None]  # K~ = U^-1 K T
-    perf = bracket(ch, balanced, objective, P0=P0, x0=scale.x0(x0), time_limit=time_limit)
+    weight = scale.trace_weight if objective == "cost" and x0 is None else None
+    perf = bracket(ch, balanced, objective, P0=P0, x0=scale.x0(x0), time_limit=time_limit, trace_weight=weight)
     if not perf.verified:
         return None
     k = scale.cost if objective == "cost" else scale.gain

@@ -227,6 +227,33 @@ def test_lyapunov_keeps_accuracy_on_a_far_from_normal_loop():
     assert not check_cost_exact(ref * (1 - 1e-6), data)
 
 
+def test_lyapunov_with_a_hint_returns_a_semidefinite_solution_not_the_hint():
+    """A state the cost never sees makes the solution singular (no Cholesky factor, so no re-solve in its
+    coordinates): the answer is still the equation's, never the positive definite hint it was given."""
+    from solver.brackets import lyapunov
+
+    A, S = np.diag([0.5, 0.9]), np.diag([1.0, 0.0])
+    P = lyapunov(A, S, np.diag([1.5, 1.0]))
+    np.testing.assert_allclose(P, np.diag([1 / (1 - 0.25), 0.0]), atol=1e-14)
+
+
+@pytest.mark.parametrize("n_drop", [1, 2, 3])
+def test_cost_bracket_of_a_state_the_cost_never_sees_holds_the_riccati_cost(n_drop):
+    """A stable state that no input reaches and Q does not weigh: the optimal gains ignore it and every interval's
+    cost is the scalar Riccati value ``p^2 - a^2 p - 1 = 0`` (a = 1.1, b = q = r = 1).  The witness's periodic
+    cost is then singular; its lower end was the certificate's (2.8e-6 above the Riccati cost, above the upper end)."""
+    a = 1.1
+    riccati = (a * a + np.sqrt(a ** 4 + 4)) / 2
+    np.testing.assert_allclose(scipy.linalg.solve_discrete_are(np.array([[a]]), np.eye(1), np.eye(1), np.eye(1)),
+                               [[riccati]], rtol=1e-14)
+    family = PlantFamily(F=np.array([[[a, 0.0], [0.0, 0.9]]]), G=np.array([[[1.0], [0.0]]]))
+    res = design(family, n_drop, objective="cost", weights=(np.diag([1.0, 0.0]), np.eye(1)), decay_rate=None)
+    assert res.outcome == "stabilized"
+    perf = res.performance
+    assert perf.lower <= riccati * (1 + 1e-12) <= perf.upper * (1 + 1e-12)
+    assert perf.lower == pytest.approx(riccati, rel=1e-9)
+
+
 @pytest.mark.parametrize("seed, coupling", [(0, 1e-4), (1, 3e-5)])
 def test_input_limited_design_stabilizes_whenever_the_plain_design_does(seed, coupling):
     # the limited SDP certifies nothing on these (the ellipsoid spans 1e8): the plain design's gains and its
