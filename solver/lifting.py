@@ -310,7 +310,9 @@ def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
             raise InvalidInput(f"{name} must be symmetric", ("weights", i))
         W = 0.5 * (W + W.T)
         low = np.linalg.eigvalsh(W)[0]
-        scale = max(1.0, float(np.abs(W).max()))
+        # relative to the matrix's own size: the balanced weights (solver.scaling) of a large Q beside a small R
+        # put R~ near 1e-13, a positive definite matrix the absolute floor refused
+        scale = float(np.abs(W).max())
         if name == "Q" and low < -1e-12 * scale:
             raise InvalidInput("Q must be positive semidefinite", ("weights", 0))
         if name == "R" and low <= 1e-12 * scale:

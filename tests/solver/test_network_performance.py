@@ -515,3 +515,22 @@ def test_cost_brackets_made_in_balanced_coordinates_bound_the_users_trace(seed):
                   for e in np.eye(fam.n_states))
     assert stepped == pytest.approx(perf.lower, rel=1e-9)
     assert 0 < worst_trace_cost(fam, res.gains, net) <= perf.upper
+
+
+@pytest.mark.parametrize("net", [Network.delays(1, 2), Network.weakly_hard(1, 3, 2)], ids=lambda n: n.describe())
+def test_large_state_weights_beside_a_small_input_weight_are_designed_for(net):
+    """Q = diag(5000, 0, 100) beside R = 0.01 on a badly scaled plant: the balanced R~ is near 1e-13, positive
+    definite; the weights' check refused it ("R must be positive definite") on every network, where the bounded-drops
+    design answered.  Now validated relative to each matrix's own size."""
+    from bench.cases import random_family
+    from solver.lifting import check_weights
+
+    _, R = check_weights((np.eye(2), 1e-13 * np.eye(1)), 2, 1)
+    assert R[0, 0] == 1e-13
+    for bad in (np.zeros((1, 1)), -np.eye(1)):
+        with pytest.raises(InvalidInput, match="R must be positive definite"):
+            check_weights((np.eye(2), bad), 2, 1)
+    fam = badly_scaled(random_family(3, 2, 1, seed=5, spread=0.1), seed=5)
+    res = design(fam, network=net, objective="cost", weights=(np.diag([5000.0, 0.0, 100.0]), 1e-2 * np.eye(1)))
+    assert res.outcome == "stabilized", res.message
+    assert res.performance.verified and res.performance.lower <= res.performance.upper
