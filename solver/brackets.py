@@ -114,7 +114,10 @@ class Performance:
         hinf over several modes: one storage matrix ``P_s`` per loop mode (user coordinates) when they certify a
         smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
         ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] - diag(P_s, gamma^2 I) <= 0`` for every pair of
-        consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").
+        consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").  On a
+        network (:class:`NetworkPerformance`), shape (E [+ s], k, k): one matrix per transition, for the state just
+        after it, then for the cost one per start node: a Lyapunov function of memory one, used when it bounds below
+        the node matrices or they pass no re-check (``certificate`` may then be None; docs/design.md §11.3).
     """
 
     kind: str

@@ -263,7 +263,8 @@ class Performance(_Open):
         "storage (hinf). On a `network`: one P per node matrix (V x k x k, `form` says on which state).")
     verified: bool | None = Field(None, description="Whether `upper` is certified: `certificate` passed the float64 "
                                   "re-check (or the exact one), or `exact_certificate` passed its exact check (then "
-                                  "`certificate` may be only its float64 rounding; `message` says which).")
+                                  "`certificate` may be only its float64 rounding; `message` says which), or on a "
+                                  "`network` `mode_certificate` passed it (`certificate` may then be null).")
     exact_certificate: list[list[str]] | None = Field(
         None, description="One LTI loop (one mode, n_drop = 1, n <= 8) whose float64 certificate cannot reach its "
         "bound: P (n x n, strings `p/q`), for the cost solving `P = A'PA + S` exactly for the loop F + G K, for hinf "
@@ -271,7 +272,10 @@ class Performance(_Open):
         "rounded up (docs/design.md §8.5).")
     mode_certificate: list[Matrix] | None = Field(
         None, description="hinf over several loop modes: one storage P_s per mode (S x n x n) when they certify a "
-        "smaller l2 gain than the common P; `upper` is then their bound (docs/design.md §8.4).")
+        "smaller l2 gain than the common P; `upper` is then their bound (docs/design.md §8.4). On a `network`: one P "
+        "per transition, for the state just after it, then (cost) one per start node, when they certify a smaller "
+        "bound than the node matrices (`certificate_upper`) or the node matrices pass no re-check "
+        "(docs/design.md §11.3).")
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")

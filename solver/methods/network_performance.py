@@ -24,6 +24,7 @@ the stability design's gains are bracketed instead, or its Farkas refutation of 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from dataclasses import dataclass
@@ -54,6 +55,10 @@ REFINED = 4
 #: Rounds of the gain refinement of the stability design's gains (:func:`refine_gains`), and the relative gain of a
 #: round below which it stops.
 REFINE_ROUNDS = 8
+#: A bracket open by more than this (upper / lower - 1) tries the bound of memory one (:func:`memory_bracket`).
+MEMORY_GAP = 1e-2
+#: Most matrices of memory one (transitions, plus the start nodes for the cost) the brackets try.
+MAX_MEMORY_NODES = 256
 REFINE_TOL = 1e-3
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
@@ -325,19 +330,57 @@ def certify(P0: np.ndarray, ch: Channels, data: list[dict], kind: str, x0=None, 
 
 
 def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: float | None = None,
-               trace_weight: np.ndarray | None = None):
+               trace_weight: np.ndarray | None = None, coordinates: np.ndarray | None = None,
+               n_nodes: int | None = None):
     """Node matrices for fixed gains (the smallest bound, a Clarabel SDP within ``time_limit`` s): a candidate
     for :func:`certify`.  ``trace_weight`` (n,): the cost bound ``sum_i w_i (S' P_v S)_ii`` instead of the trace
-    (balanced coordinates, :attr:`solver.scaling.PerformanceScaling.trace_weight`)."""
-    k, V = ch.prob.k, len(ch.prob.nodes)
+    (balanced coordinates, :attr:`solver.scaling.PerformanceScaling.trace_weight`).
+
+    ``coordinates`` (V, k, k), positive definite node matrices ``Pi_v = L_v L_v'`` (a stability certificate of the
+    same gains): the SDP is first posed in the coordinates ``xi = L_v^-T eta`` at node v, where they are the
+    identity (``P~_v = L_v^-1 P_v L_v^-T``, ``A~_e = L_w' A_e L_v^-T``; the same optimum).  On barely stable gains of
+    badly scaled plants the node matrices span ten or more decades, and Clarabel fails on the plain form where it
+    solves this one (docs/design.md §11.3, "The fixed-gain SDP in the certificate's coordinates").  ``n_nodes``:
+    the number of matrices (default: the automaton's nodes; :func:`memory_lift` has its own).
+    """
+    V = len(ch.prob.nodes) if n_nodes is None else int(n_nodes)
+    reasons = []
+    if coordinates is not None:
+        try:
+            L = np.linalg.cholesky(_sym(np.asarray(coordinates, float)))
+        except np.linalg.LinAlgError:
+            L = None
+        if L is not None:
+            T = np.linalg.inv(L).transpose(0, 2, 1)  # T_v = L_v^-T: T_v' Pi_v T_v = I
+            moved = [dict(d, A=L[d["dst"]].T @ d["A"] @ T[d["src"]],
+                          S=None if d["S"] is None else T[d["src"]].T @ d["S"] @ T[d["src"]],
+                          B=None if d["B"] is None else L[d["dst"]].T @ d["B"],
+                          C=None if d["C"] is None else d["C"] @ T[d["src"]]) for d in data]
+            history = np.einsum("vji,jk->vik", L, ch.history)  # L_v' S
+            P, why = _fixed_gain_sdp(ch, moved, kind, history, x0, time_limit, trace_weight, normalize=True)
+            if P is not None:
+                return np.einsum("vij,vjk,vlk->vil", L, P, L), ""  # P_v = L_v P~_v L_v'
+            reasons.append(f"in the certificate's coordinates: {why}")
+    P, why = _fixed_gain_sdp(ch, data, kind, np.stack([ch.history] * V), x0, time_limit, trace_weight)
+    return P, "; ".join(reasons + [why]) if P is None else ""
+
+
+def _fixed_gain_sdp(ch: Channels, data: list[dict], kind: str, history: np.ndarray, x0, time_limit, trace_weight,
+                    normalize: bool = False):
+    """The SDP of :func:`fixed_gain` on ``data`` with ``history[v]`` the initial history at node v (``normalize``:
+    the stage costs divided by the largest one's norm, and the answer multiplied back: in the certificate's
+    coordinates they are the only data far from 1)."""
+    k, V = ch.prob.k, history.shape[0]
     P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
-    cons, S = [], ch.history
+    cons = []
     if kind == "cost":
+        size = max(max(float(np.linalg.norm(d["S"], 2)) for d in data), 1e-300) if normalize else 1.0
         tau = cp.Variable()
         for d in data:
-            M = P[d["src"]] - d["A"].T @ P[d["dst"]] @ d["A"] - d["S"]
+            M = P[d["src"]] - d["A"].T @ P[d["dst"]] @ d["A"] - d["S"] / size
             cons.append(0.5 * (M + M.T) >> 0)
         for v in ch.start:
+            S = history[v]
             if x0 is not None:
                 val = x0 @ S.T @ P[v] @ S @ x0
             elif trace_weight is not None:
@@ -348,6 +391,7 @@ def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: f
         cons += [X >> 0 for X in P]
         obj = tau
     else:
+        size = 1.0
         g = cp.Variable()
         for d in data:
             AB = np.hstack([d["A"], d["B"]])
@@ -367,7 +411,7 @@ def fixed_gain(ch: Channels, data: list[dict], kind: str, x0=None, time_limit: f
         return None, f"the fixed-gain SDP failed ({err})"
     if P[0].value is None:
         return None, "the fixed-gain SDP has no solution (the gains may not stabilize every admissible run)"
-    return np.stack([X.value for X in P]), ""
+    return size * np.stack([X.value for X in P]), ""
 
 
 def _rows_of(rows: Rows, K: list, n: int, k: int):
@@ -432,13 +476,16 @@ def gains_for_nodes(ch: Channels, P: np.ndarray, kind: str, level: float | None 
 
 
 def refine_gains(ch: Channels, gains: np.ndarray, kind: str, x0=None, time_limit: float | None = None,
-                 rounds: int = REFINE_ROUNDS, trace_weight: np.ndarray | None = None) -> tuple[np.ndarray, list]:
+                 rounds: int = REFINE_ROUNDS, trace_weight: np.ndarray | None = None,
+                 coordinates: np.ndarray | None = None) -> tuple[np.ndarray, list]:
     """The stability design's gains improved for the objective by alternating the fixed-gain SDP (node matrices
     of least bound for the gains, :func:`fixed_gain`) and :func:`gains_for_nodes` (gains that keep those node
     matrices valid with the most room): each round's bound is at most the last one's (docs/design.md §11.3, "Gains
     refined for the objective").  Stops after ``rounds``, when a round gains less than ``REFINE_TOL`` relative, or
-    at ``time_limit``.  Returns the gains of the least bound the fixed-gain SDP found (float figures, proposals:
-    the caller brackets them) and each round's bound."""
+    at ``time_limit``.  ``coordinates``: node matrices proving ``gains`` stable, where the first fixed-gain SDP is
+    posed (:func:`fixed_gain`); each later one is posed where the last round's node matrices are the identity (they
+    hold for the new gains).  Returns the gains of the least bound the fixed-gain SDP found (float figures,
+    proposals: the caller brackets them) and each round's bound."""
     start = time.perf_counter()
     best, best_value, values = np.asarray(gains, float), np.inf, []
     K = best
@@ -446,9 +493,10 @@ def refine_gains(ch: Channels, gains: np.ndarray, kind: str, x0=None, time_limit
         left = time_left(time_limit, start, floor=1e-3)
         if left is not None and left <= 1e-3:
             break
-        P, _ = fixed_gain(ch, ch.numeric(K), kind, x0, left, trace_weight=trace_weight)
+        P, _ = fixed_gain(ch, ch.numeric(K), kind, x0, left, trace_weight=trace_weight, coordinates=coordinates)
         if P is None:
             break
+        coordinates = P
         value = bound_of(P, ch, x0, trace_weight) if kind == "cost" else None
         if kind != "cost":
             value = _hinf_level(ch, P, K)
@@ -580,11 +628,64 @@ def _walk_labels(prob, walk) -> list:
     return out
 
 
+def memory_lift(ch: Channels, data: list[dict], kind: str) -> tuple[Channels, list[dict]]:
+    """The transition graph with one node per transition (the state just after it), and for the cost one per start
+    node (a run's first state): a quadratic function per node of this graph is a path-dependent Lyapunov function
+    of memory one, which may bound far below the automaton's node matrices (docs/design.md §11.3, "Memory of the
+    last transition").  Returns the channels with the start copies as start nodes and the lifted data, whose
+    transitions carry their data (and its rounding bounds) unchanged."""
+    E = len(data)
+    lifted = [dict(data[f], src=e, dst=f) for e in range(E) for f in range(E) if data[f]["src"] == data[e]["dst"]]
+    start = []
+    if kind == "cost":
+        for i, v in enumerate(ch.start):
+            lifted += [dict(data[f], src=E + i, dst=f) for f in range(E) if data[f]["src"] == int(v)]
+            start.append(E + i)
+    return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted
+
+
+def _memory_nodes(ch: Channels, data: list[dict], kind: str) -> int:
+    """Matrices of :func:`memory_lift` (transitions, plus the start nodes for the cost)."""
+    return len(data) + (len(ch.start) if kind == "cost" else 0)
+
+
+def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
+                   time_limit: float | None = None, trace_weight: np.ndarray | None = None):
+    """The certified bound of memory one (:func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the
+    coordinates of the node matrices ``nodes`` when given (each lifted node takes its automaton node's), re-checked
+    as any node matrices (:func:`certify`).  ``(P (E [+ s], k, k) or None, upper or None, reason)``."""
+    lch, lifted = memory_lift(ch, data, kind)
+    count = _memory_nodes(ch, data, kind)
+    if count > MAX_MEMORY_NODES:
+        return None, None, f"{count} matrices of memory one exceed {MAX_MEMORY_NODES}"
+    coordinates = None
+    if nodes is not None:
+        at = [d["dst"] for d in data] + [int(v) for v in ch.start][:count - len(data)]
+        coordinates = np.asarray(nodes)[at]
+    P0, why = fixed_gain(lch, lifted, kind, x0, time_limit, trace_weight=trace_weight, coordinates=coordinates,
+                         n_nodes=count)
+    if P0 is None:
+        return None, None, why
+    P, upper, why = certify(P0, lch, lifted, kind, x0, trace_weight)
+    if P is None and coordinates is not None:
+        # the SDP's optimum is on the cone's edge (P_v - A' P_w A singular where the stage cost is), where rounding
+        # leaves it just outside; a little of the node matrices, a certificate of the lift with room, brings it in
+        norm = np.linalg.norm(P0, 2, axis=(-2, -1)).max() / np.linalg.norm(coordinates, 2, axis=(-2, -1)).max()
+        for share in (1e-8, 1e-6, 1e-4, 1e-2):
+            P, upper, why = certify(P0 + share * norm * coordinates, lch, lifted, kind, x0, trace_weight)
+            if P is not None:
+                break
+    return P, upper, why
+
+
 def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
-            time_limit: float | None = None, trace_weight: np.ndarray | None = None) -> NetworkPerformance:
+            time_limit: float | None = None, trace_weight: np.ndarray | None = None,
+            memory: bool = True) -> NetworkPerformance:
     """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower;
     ``time_limit``: the fixed-gain SDP's, in seconds, 0 to skip it; ``trace_weight``: the cost's trace weights,
-    balanced coordinates, :func:`history_value`)."""
+    balanced coordinates, :func:`history_value`).  ``memory``: when the node matrices leave the bracket open by
+    more than ``MEMORY_GAP``, try the bound of memory one (:func:`memory_bracket`; ``mode_certificate``)."""
+    start = time.perf_counter()
     data = ch.numeric(gains)
     P = upper = None
     reason = ""
@@ -599,17 +700,33 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
                                      weight=trace_weight)
     if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
+    node_upper, memory_P = upper, None
+    left = None if time_limit is None or time_limit <= 0 else time_left(time_limit, start, floor=1e-3)
+    if memory and (upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and \
+            (left is None or left > 1e-3) and (lower is None or np.isfinite(lower)):
+        Pm, bound, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight)
+        if Pm is not None and (lower is None or lower <= bound * (1 + 1e-6)) and (upper is None or bound < upper):
+            memory_P, upper = Pm, bound
+        elif P is None:
+            reason = f"{reason}; memory one: {why}" if why else reason
     what = "cost" if kind == "cost" else "l2 gain"
-    message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None
-               else f"no certified upper bound: {reason}")
+    if memory_P is not None:
+        message = (f"{what} certified <= {upper:.6g} (float64 re-check of one matrix per transition, the last taken"
+                   f"{', and per start node' if kind == 'cost' else ''})")
+        if node_upper is not None:
+            message += f"; the node matrices alone: {node_upper:.6g}"
+    else:
+        message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None
+                   else f"no certified upper bound: {reason}")
     if lower is not None:
         message += f"; worst admissible closed walk searched: {lower:.6g} ({count} walks)"
     prob = ch.prob
     return NetworkPerformance(
         kind=kind, upper=upper, lower=lower, witness=[] if walk is None else _walk_labels(prob, walk),
-        certificate=P, verified=P is not None, x0=x0, patterns=count, message=message,
+        certificate=P, verified=P is not None or memory_P is not None, x0=x0, patterns=count, message=message,
         walk=[] if walk is None else [dict(prob.labels[e]) for e in walk], form=prob.form,
-        start_nodes=[int(prob.nodes[v]) for v in ch.start])
+        start_nodes=[int(prob.nodes[v]) for v in ch.start], certificate_upper=node_upper,
+        mode_certificate=memory_P)
 
 
 # ------------------------------------------------------------------------------------------- the design SDP
@@ -898,14 +1015,20 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                     perf = _balanced_bracket(ch, scale, gains, objective, None, x0,
                                              time_left(time_limit, start, floor=1e-3)) or perf
                 if not perf.verified and stability_nodes is not None:
-                    perf = _stability_bracket(ch, ch_user, scale, gains, objective, stability_nodes, x0) or perf
+                    perf = _stability_bracket(ch, ch_user, scale, gains, objective, stability_nodes, x0,
+                                              time_left(time_limit, start, floor=1e-3)) or perf
                 return perf
 
             gains, cert = plain.gains, plain.certificate
-            perf = bracket_of(gains, _user_nodes(plain, ch_user.prob))
+            nodes = _user_nodes(plain, ch_user.prob)
+            perf = bracket_of(gains, nodes)
             how = f"not optimized for the {objective}"
             if perf.verified and not kothare:
-                refined = _refined(ch, ch_user, scale, gains, objective, x0_s, perf, bracket_of, time_limit, start)
+                if nodes is not None and scale is not None:
+                    tk = np.tile(scale.plain.state, prob.k // scale.plain.state.size)
+                    nodes = nodes * tk[None, :, None] * tk[None, None, :]
+                refined = _refined(ch, ch_user, scale, gains, objective, x0_s, perf, bracket_of, time_limit, start,
+                                   coordinates=nodes)
                 timings["solves"] += refined["solves"]
                 if refined["gains"] is not None:
                     gains, cert, perf = refined["gains"], refined["cert"], refined["perf"]
@@ -996,7 +1119,7 @@ def _candidate(ch_user: Channels, prob, scale, objective: str, kothare: bool, W,
     if kothare:
         inv, inv_reason = check_invariant_nodes(X, prob, gains, u_max, ch_user.history, x0)
     cert = None
-    if perf.verified:
+    if perf.verified and perf.certificate is not None:
         cert = network_lmi.recheck_network(prob, perf.certificate, gains, source=f"network_{objective}")
         cert = cert if cert.verified else None
     if cert is None:
@@ -1030,21 +1153,38 @@ def _user_nodes(res: DesignResult, prob) -> np.ndarray | None:
 
 
 def _stability_bracket(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objective: str,
-                       nodes: np.ndarray, x0) -> NetworkPerformance | None:
-    """The bracket certified by a multiple of the stability certificate's node matrices (``nodes``, the user's
-    coordinates; :func:`certify`): the last resort when no fixed-gain SDP answers (Clarabel fails on badly scaled
-    families near the stability boundary).  Made in the user's coordinates, else in the balanced ones (``ch``,
-    ``scale``).  The fixed-gain SDP is not run again (``time_limit=0``)."""
-    perf = bracket(ch_user, gains, objective, P0=nodes, x0=x0, time_limit=0.0)
-    if perf.verified or scale is None:
-        return perf if perf.verified else None
-    k = nodes.shape[-1] // scale.plain.state.size
-    t = np.tile(scale.plain.state, k)
-    return _balanced_bracket(ch, scale, gains, objective, nodes * t[None, :, None] * t[None, None, :], x0, 0.0)
+                       nodes: np.ndarray, x0, time_limit: float | None = None) -> NetworkPerformance | None:
+    """The bracket of the stability design's gains made from its certificate's node matrices (``nodes``, the user's
+    coordinates): the fixed-gain SDP posed in their coordinates (:func:`fixed_gain`, Clarabel solves it where it
+    fails on the plain form: badly scaled families near the stability boundary) and a multiple of them
+    (:func:`certify`, finite since they prove stability with a margin), the smaller certified bound.  Made in the
+    user's coordinates, else in the balanced ones (``ch``, ``scale``)."""
+    def least(ch_: Channels, K: np.ndarray, P_nodes: np.ndarray, x0_, weight):
+        data = ch_.numeric(K)
+        proposal, _ = fixed_gain(ch_, data, objective, x0_, time_limit, trace_weight=weight, coordinates=P_nodes)
+        found = []
+        for P0 in (proposal, P_nodes):
+            if P0 is not None:
+                P, upper, _ = certify(P0, ch_, data, objective, x0_, weight)
+                if P is not None:
+                    found.append((upper, P))
+        return min(found, key=lambda c: c[0])[1] if found else None
+
+    P = least(ch_user, gains, nodes, x0, None)
+    if P is not None:
+        return bracket(ch_user, gains, objective, P0=P, x0=x0, time_limit=0.0)
+    if scale is None:
+        return None
+    t, u = scale.plain.state, scale.plain.input
+    tk = np.tile(t, nodes.shape[-1] // t.size)
+    weight = scale.trace_weight if objective == "cost" and x0 is None else None
+    P = least(ch, gains * t[None, None, :] / u[None, :, None], nodes * tk[None, :, None] * tk[None, None, :],
+              scale.x0(x0), weight)
+    return None if P is None else _balanced_bracket(ch, scale, gains, objective, P, x0, 0.0)
 
 
 def _refined(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objective: str, x0_s, perf, bracket_of,
-             time_limit, start) -> dict:
+             time_limit, start, coordinates: np.ndarray | None = None) -> dict:
     """:func:`refine_gains` on the stability design's gains (in balanced coordinates when ``scale``), kept only when
     their bracket (``bracket_of``, the user's re-check) certifies a smaller bound and their node certificate
     passes (the bound's node matrices, else the fixed-gain node SDP)."""
@@ -1052,7 +1192,7 @@ def _refined(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objectiv
     work = gains if scale is None else gains * scale.plain.state[None, None, :] / scale.plain.input[None, :, None]
     weight = scale.trace_weight if scale is not None and objective == "cost" and x0_s is None else None
     K, values = refine_gains(ch, work, objective, x0_s, time_left(time_limit, start, floor=1e-3),
-                             trace_weight=weight)
+                             trace_weight=weight, coordinates=coordinates)
     out = {"gains": None, "cert": None, "perf": None, "solves": 2 * len(values),
            "how": f"not optimized for the {objective}: the refinement found no better gains"}
     if K is work:
@@ -1061,8 +1201,9 @@ def _refined(ch: Channels, ch_user: Channels, scale, gains: np.ndarray, objectiv
     mine = bracket_of(K)
     if not (mine.verified and mine.upper < perf.upper):
         return out
-    cert = network_lmi.recheck_network(prob, mine.certificate, K, source=f"network_{objective}")
-    if not cert.verified:
+    cert = None if mine.certificate is None else \
+        network_lmi.recheck_network(prob, mine.certificate, K, source=f"network_{objective}")
+    if cert is None or not cert.verified:
         cert = network_lmi.node_analysis(prob, K, None, time_left(time_limit, start, floor=1e-3))
     if cert is None:
         return out
@@ -1090,15 +1231,18 @@ def _balanced_bracket(ch: Channels, scale, gains: np.ndarray, objective: str, P0
     k = scale.cost if objective == "cost" else scale.gain
     message = perf.message
     what = "cost" if objective == "cost" else "l2 gain"
-    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst admissible closed walk searched: ", perf.lower)):
+    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst admissible closed walk searched: ", perf.lower),
+                      ("the node matrices alone: ", perf.certificate_upper)):
         if v is not None and np.isfinite(v):
             message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
     return NetworkPerformance(
         kind=perf.kind, upper=perf.upper * k, lower=None if perf.lower is None else perf.lower * k,
         witness=perf.witness, certificate=scale.quadratic_back(perf.certificate, objective), verified=True, x0=x0,
-        patterns=perf.patterns, message=message + "; node matrices re-checked in balanced coordinates (powers-of-two "
-                                                  "scaling: the same inequalities)",
-        walk=perf.walk, form=perf.form, start_nodes=perf.start_nodes)
+        patterns=perf.patterns, message=message + "; re-checked in balanced coordinates (powers-of-two scaling: the "
+                                                  "same inequalities)",
+        walk=perf.walk, form=perf.form, start_nodes=perf.start_nodes,
+        certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k,
+        mode_certificate=scale.quadratic_back(perf.mode_certificate, objective))
 
 
 def _rank(c: dict) -> tuple:
