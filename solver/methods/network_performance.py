@@ -55,11 +55,11 @@ REFINED = 4
 #: Rounds of the gain refinement of the stability design's gains (:func:`refine_gains`), and the relative gain of a
 #: round below which it stops.
 REFINE_ROUNDS = 8
+REFINE_TOL = 1e-3
 #: A bracket open by more than this (upper / lower - 1) tries the bound of memory one (:func:`memory_bracket`).
 MEMORY_GAP = 1e-2
 #: Most matrices of memory one (transitions, plus the start nodes for the cost) the brackets try.
 MAX_MEMORY_NODES = 256
-REFINE_TOL = 1e-3
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
 LIMIT_SLACK = 1e-6
@@ -644,24 +644,17 @@ def memory_lift(ch: Channels, data: list[dict], kind: str) -> tuple[Channels, li
     return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted
 
 
-def _memory_nodes(ch: Channels, data: list[dict], kind: str) -> int:
-    """Matrices of :func:`memory_lift` (transitions, plus the start nodes for the cost)."""
-    return len(data) + (len(ch.start) if kind == "cost" else 0)
-
-
 def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
                    time_limit: float | None = None, trace_weight: np.ndarray | None = None):
     """The certified bound of memory one (:func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the
     coordinates of the node matrices ``nodes`` when given (each lifted node takes its automaton node's), re-checked
     as any node matrices (:func:`certify`).  ``(P (E [+ s], k, k) or None, upper or None, reason)``."""
-    lch, lifted = memory_lift(ch, data, kind)
-    count = _memory_nodes(ch, data, kind)
+    starts = [int(v) for v in ch.start] if kind == "cost" else []
+    count = len(data) + len(starts)
     if count > MAX_MEMORY_NODES:
         return None, None, f"{count} matrices of memory one exceed {MAX_MEMORY_NODES}"
-    coordinates = None
-    if nodes is not None:
-        at = [d["dst"] for d in data] + [int(v) for v in ch.start][:count - len(data)]
-        coordinates = np.asarray(nodes)[at]
+    lch, lifted = memory_lift(ch, data, kind)
+    coordinates = None if nodes is None else np.asarray(nodes)[[d["dst"] for d in data] + starts]
     P0, why = fixed_gain(lch, lifted, kind, x0, time_limit, trace_weight=trace_weight, coordinates=coordinates,
                          n_nodes=count)
     if P0 is None:
