@@ -45,6 +45,12 @@ class Scaling:
         """``K = U K~ T^-1`` for gains of shape (n_drop, m, n)."""
         return gains * self.input[None, :, None] / self.state[None, None, :]
 
+    def quadratic(self, P: np.ndarray) -> np.ndarray:
+        """``T' P T``: user matrices (..., k n, k n) on k stacked copies of the state in these coordinates (the
+        inverse of :meth:`quadratic_back`; exact, powers of two)."""
+        t = np.tile(self.state, P.shape[-1] // self.state.size)
+        return P * t[..., :, None] * t[..., None, :]
+
     def quadratic_back(self, P: np.ndarray) -> np.ndarray:
         """``T^-T P~ T^-1`` for (..., k n, k n) matrices on k stacked copies of the state."""
         k = P.shape[-1] // self.state.size

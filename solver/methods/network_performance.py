@@ -1018,8 +1018,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
             how = f"not optimized for the {objective}"
             if perf.verified and not kothare:
                 if nodes is not None and scale is not None:
-                    tk = np.tile(scale.plain.state, prob.k // scale.plain.state.size)
-                    nodes = nodes * tk[None, :, None] * tk[None, None, :]
+                    nodes = scale.plain.quadratic(nodes)
                 refined = _refined(ch, ch_user, scale, gains, objective, x0_s, perf, bracket_of, time_limit, start,
                                    coordinates=nodes)
                 timings["solves"] += refined["solves"]
@@ -1169,10 +1168,8 @@ def _stability_bracket(ch: Channels, ch_user: Channels, scale, gains: np.ndarray
     if scale is None:
         return None
     t, u = scale.plain.state, scale.plain.input
-    tk = np.tile(t, nodes.shape[-1] // t.size)
     weight = scale.trace_weight if objective == "cost" and x0 is None else None
-    P = least(ch, gains * t[None, None, :] / u[None, :, None], nodes * tk[None, :, None] * tk[None, None, :],
-              scale.x0(x0), weight)
+    P = least(ch, gains * t[None, None, :] / u[None, :, None], scale.plain.quadratic(nodes), scale.x0(x0), weight)
     return None if P is None else _balanced_bracket(ch, scale, gains, objective, P, x0, 0.0)
 
 
