@@ -115,9 +115,11 @@ class Performance:
         smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
         ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] - diag(P_s, gamma^2 I) <= 0`` for every pair of
         consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").  On a
-        network (:class:`NetworkPerformance`), shape (E [+ s], k, k): one matrix per transition, for the state just
-        after it, then for the cost one per start node: a Lyapunov function of memory one, used when it bounds below
-        the node matrices or they pass no re-check (``certificate`` may then be None; docs/design.md §11.3).
+        network (:class:`NetworkPerformance`), shape (count, k, k): one matrix per sequence of the last ``memory``
+        transitions, for the state just after it, then for the cost one per start node and shorter run start
+        (:func:`solver.methods.network_performance.memory_lift`'s order): a path-dependent Lyapunov function, used
+        when it bounds below the node matrices or they pass no re-check (``certificate`` may then be None;
+        docs/design.md §11.3).
     """
 
     kind: str
@@ -198,25 +200,31 @@ class Performance:
 class NetworkPerformance(Performance):
     """A certified bracket on a network: ``certificate`` holds one P per node matrix (shape (V, k, k)).
 
-    ``walk`` lists the witness's transitions (``from``/``to`` automaton nodes, plant, age or interval length): its
-    repetition from its first node is an admissible run whose value is ``lower``.  ``form`` as in
-    :class:`solver.methods.network_lmi.NodeCertificate`; ``start_nodes``: the nodes the bound covers as starts.
+    ``walk`` lists the witness's transitions (``from``/``to`` automaton nodes, plant, age or interval length):
+    ``walk[:lead]`` taken once from a start node, then ``walk[lead:]`` repeated forever, is an admissible run whose
+    value is ``lower``.  ``form`` as in :class:`solver.methods.network_lmi.NodeCertificate`; ``start_nodes``: the
+    nodes the bound covers as starts.  ``memory``: 0 when ``upper`` is the node matrices' bound, else the number of
+    last transitions each matrix of ``mode_certificate`` is for (docs/design.md §11.3, "Memory of the last
+    transitions").
     """
 
     walk: list = field(default_factory=list)
     form: str = "lifted"
     start_nodes: list = field(default_factory=list)
+    memory: int = 0
 
     def to_dict(self) -> dict:
         out = super().to_dict()
-        out.update({"walk": self.walk, "form": self.form, "start_nodes": [int(v) for v in self.start_nodes]})
+        out.update({"walk": self.walk, "form": self.form, "start_nodes": [int(v) for v in self.start_nodes],
+                    "memory": int(self.memory)})
         return out
 
     @classmethod
     def from_dict(cls, data: dict) -> "NetworkPerformance":
-        base = Performance.from_dict({k: v for k, v in data.items() if k != "start_nodes"})
+        base = Performance.from_dict({k: v for k, v in data.items() if k not in ("start_nodes", "memory")})
         return cls(**{f: getattr(base, f) for f in Performance.__dataclass_fields__}, walk=list(data.get("walk") or []),
-                   form=data.get("form") or "lifted", start_nodes=[int(v) for v in data.get("start_nodes") or []])
+                   form=data.get("form") or "lifted", start_nodes=[int(v) for v in data.get("start_nodes") or []],
+                   memory=int(data.get("memory") or 0))
 
 
 def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0: np.ndarray | None) -> Performance:

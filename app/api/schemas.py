@@ -273,9 +273,9 @@ class Performance(_Open):
     mode_certificate: list[Matrix] | None = Field(
         None, description="hinf over several loop modes: one storage P_s per mode (S x n x n) when they certify a "
         "smaller l2 gain than the common P; `upper` is then their bound (docs/design.md §8.4). On a `network`: one P "
-        "per transition, for the state just after it, then (cost) one per start node, when they certify a smaller "
-        "bound than the node matrices (`certificate_upper`) or the node matrices pass no re-check "
-        "(docs/design.md §11.3).")
+        "per sequence of the last `memory` transitions, for the state just after it, then (cost) one per start node and "
+        "shorter run start, when they certify a smaller bound than the node matrices (`certificate_upper`) or the "
+        "node matrices pass no re-check (docs/design.md §11.3).")
     gap: float | None = Field(None, description="`(upper - lower) / upper`.")
     x0: list[Num] | None = Field(None, description="The initial state of a cost bound (null: mean over x0).")
     patterns: int | None = Field(None, description="Periodic patterns evaluated for `lower`.")
@@ -284,11 +284,15 @@ class Performance(_Open):
     message: str | None = Field(None, description="The bracket in words.")
     walk: list[dict[str, int]] | None = Field(
         None, description="On a `network`: the witness's transitions (`from`, `to` automaton nodes, `plant`, and `age` "
-        "or `eta`); repeating them forever is an admissible run whose value is `lower` (docs/design.md §11.3).")
+        "or `eta`); the first `lead` once from a start node, then the rest repeated forever, is an admissible run "
+        "whose value is `lower` (docs/design.md §11.3).")
     form: str | None = Field(None, description="On a `network`: `lifted` (x at packet receptions) or `augmented` "
                                                "(the stacked state (x(t), ..., x(t-N+1))).")
     start_nodes: list[int] | None = Field(None, description="On a `network`: the automaton nodes a run may start "
                                                             "in; the bound is the largest over them.")
+    memory: int | None = Field(None, description="On a `network`: 0 when `upper` is the node matrices' bound, else the "
+                                                 "number of last transitions each matrix of `mode_certificate` is for "
+                                                 "(docs/design.md §11.3).")
 
 
 class ObserverObstruction(_Open):

@@ -13,8 +13,9 @@ affine in ``(Z, Y)`` after ``Y_j = K_j Z_b``:
 lifted form, and one sample's ``[Q^(1/2) e_0'; R^(1/2) K_(d+1) e_d']`` (``z = C x + D u``, ``B = [E; 0]``) on the
 augmented one.  The bound is ``max_v x0' S' P_v S x0`` (``trace S' P_v S``) over the nodes a run may start in,
 ``S`` the initial history (``x0``, or ``x0`` repeated on the augmented state).  Every figure is re-checked in
-float64 (:func:`certify`) and the lower bound is the exact value of the worst admissible closed walk searched
-(:func:`lower_bound`), both independent of the solver.
+float64 (:func:`certify`), also with one matrix per sequence of the last transitions (:func:`memory_bracket`),
+and the lower bound is the exact value of the worst admissible run searched (closed walks repeated,
+:func:`lower_bound`, and a first stretch before one, :func:`worst_run`), both independent of the solver.
 
 The design SDP runs on the structured IPM (:func:`solve_ipm`, the model of
 :mod:`solver.ipm.network_performance_blocks`) or on Clarabel through cvxpy (:func:`solve`); when neither certifies,
@@ -32,8 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _sym,
-                        certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system)
+from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _moment,
+                        _sym, _tails, certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system,
+                        sequence_cost)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
@@ -52,14 +54,26 @@ MAX_WALK_LENGTH = 12
 MAX_OPEN = 20000
 #: Walks re-valued with the refined sweep (hinf).
 REFINED = 4
+#: The guided search for runs that settle into a closed walk after a first stretch (cost, :func:`worst_run`): runs
+#: kept per step, steps (transitions), and the closed walks (at most ``TAIL_WALKS``, up to ``TAIL_LENGTH`` long, from
+#: every node) that may end a run.
+RUN_BEAM = 64
+RUN_DEPTH = 60
+TAIL_WALKS = 400
+TAIL_LENGTH = 8
+#: The guided search runs while the bracket is open by more than this (relative to the upper end).
+LOWER_CLOSED = 1e-6
 #: Rounds of the gain refinement of the stability design's gains (:func:`refine_gains`), and the relative gain of a
 #: round below which it stops.
 REFINE_ROUNDS = 8
 REFINE_TOL = 1e-3
-#: A bracket open by more than this (upper / lower - 1) tries the bound of memory one (:func:`memory_bracket`).
+#: A bracket open by more than this (upper / lower - 1) tries the bounds with memory (:func:`memory_bracket`).
 MEMORY_GAP = 1e-2
-#: Most matrices of memory one (transitions, plus the start nodes for the cost) the brackets try.
+#: Most matrices of a bound with memory (:func:`memory_lift`) the brackets try: memory one, a longer memory (each
+#: costs a Clarabel SDP of that many matrices: 170 took 11 s, 42 1.3 s), and the longest memory.
 MAX_MEMORY_NODES = 256
+MAX_LONGER_MEMORY_NODES = 64
+MAX_MEMORY = 3
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
 LIMIT_SLACK = 1e-6
@@ -614,6 +628,69 @@ def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float 
     return (None if arg is None else best), arg, count
 
 
+def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None = None,
+              nodes: np.ndarray | None = None, floor: float = -np.inf, stop: float = np.inf):
+    """The costliest admissible run found that takes a first stretch once and then repeats a closed walk (cost):
+    ``(value, lead, walk, runs valued)``, ``value`` None when none beats ``floor``.
+
+    A beam over the automaton from the start nodes: each run is carried as its cost so far and the moment
+    ``Sigma = T M T'`` of its state (``M`` x0's or the trace's on the initial history, ``T`` the stretch's
+    transition), extended by every transition leaving its node; the ``RUN_BEAM`` best by their cost so far plus
+    ``<P_v, Sigma>`` (``nodes``, the certificate: what the rest may cost at most; without it the best tail) go on,
+    for ``RUN_DEPTH`` steps or until ``stop``.  Every extension is valued as a lower bound with the costliest stable
+    closed walk from its node repeated after it; the best is re-valued on its own (:func:`solver.brackets.
+    sequence_cost`, the walk's equation in the certificate's coordinates).  A closed walk from a start node alone
+    (:func:`lower_bound`) misses runs whose first intervals cost most from x0 and whose worst period comes later
+    (docs/design.md §11.3, "The lower end")."""
+    prob, V = ch.prob, len(ch.prob.nodes)
+    by_node = [[] for _ in range(V)]
+    for w in closed_walks(prob, np.arange(V), TAIL_LENGTH, TAIL_WALKS):
+        by_node[int(prob.src[w[0]])].append(w)
+    tails = [_tails(data, walks, None if nodes is None else nodes[v]) for v, walks in enumerate(by_node)]
+    tail_P = [np.stack([P for _, P in t]) if t else None for t in tails]
+    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    src = np.asarray(prob.src)
+    acc, at = np.zeros(len(ch.start)), np.asarray(ch.start, dtype=int)
+    sig, paths = np.stack([M] * len(ch.start)), [()] * len(ch.start)
+    best, found, count = floor, None, 0
+    for _ in range(RUN_DEPTH):
+        parts = []
+        for e, d in enumerate(data):
+            rows = np.flatnonzero(at == src[e])
+            if rows.size:
+                nxt = d["A"][None] @ sig[rows] @ d["A"].T[None]
+                parts.append((acc[rows] + np.einsum("ij,bji->b", d["S"], sig[rows]), np.full(rows.size, d["dst"]),
+                              0.5 * (nxt + np.swapaxes(nxt, 1, 2)), [paths[r] + (e,) for r in rows]))
+        if not parts:
+            break
+        acc = np.concatenate([p[0] for p in parts])
+        at = np.concatenate([p[1] for p in parts])
+        sig = np.concatenate([p[2] for p in parts])
+        paths = [q for p in parts for q in p[3]]
+        count += acc.size
+        tail_value, tail_arg = np.zeros(acc.size), np.full(acc.size, -1)
+        for v in np.unique(at):
+            rows = np.flatnonzero(at == v)
+            if tail_P[v] is not None:
+                values = np.einsum("cij,bji->bc", tail_P[v], sig[rows])
+                tail_value[rows], tail_arg[rows] = values.max(axis=1), values.argmax(axis=1)
+        low = acc + tail_value
+        i = int(np.argmax(low))
+        if low[i] > best and tail_arg[i] >= 0:
+            best, found = float(low[i]), (paths[i], tails[at[i]][tail_arg[i]][0])
+        if best >= stop:
+            break
+        ahead = tail_value if nodes is None else np.einsum("bij,bji->b", nodes[at], sig)
+        keep = np.argsort(-(acc + ahead), kind="stable")[:RUN_BEAM]
+        acc, at, sig, paths = acc[keep], at[keep], sig[keep], [paths[j] for j in keep]
+    if found is None:
+        return None, 0, (), count
+    lead, walk = found
+    hint = None if nodes is None else nodes[int(prob.src[walk[0]])]
+    value = sequence_cost(data, lead, walk, M, hint)
+    return (value, len(lead), tuple(lead) + tuple(walk), count) if value > floor else (None, 0, (), count)
+
+
 def _walk_labels(prob, walk) -> list:
     """``(plant, eta)`` (lifted) or ``(plant, age)`` (augmented) per transition: the witness."""
     out = []
@@ -628,47 +705,95 @@ def _walk_labels(prob, walk) -> list:
     return out
 
 
-def memory_lift(ch: Channels, data: list[dict], kind: str) -> tuple[Channels, list[dict]]:
-    """The transition graph with one node per transition (the state just after it), and for the cost one per start
-    node (a run's first state): a quadratic function per node of this graph is a path-dependent Lyapunov function
-    of memory one, which may bound far below the automaton's node matrices (docs/design.md §11.3, "Memory of the
-    last transition").  Returns the channels with the start copies as start nodes and the lifted data, whose
-    transitions carry their data (and its rounding bounds) unchanged."""
+def memory_count(ch: Channels, data: list[dict], kind: str, memory: int = 1) -> int:
+    """The number of matrices of :func:`memory_lift`, counted without building it."""
+    src, dst = np.array([d["src"] for d in data]), np.array([d["dst"] for d in data])
+    follows = (dst[:, None] == src[None, :]).astype(float)  # e then f
+    ending = np.ones(len(data))  # admissible sequences of the last l transitions, by the last one
+    for _ in range(memory - 1):
+        ending = ending @ follows
+    count = float(ending.sum())
+    if kind == "cost":  # the start-rooted ones shorter than the memory
+        reach = np.zeros(len(data))
+        for v in ch.start:
+            reach += (src == int(v)).astype(float)
+        count += len(ch.start)
+        for _ in range(memory - 1):
+            count += float(reach.sum())
+            reach = reach @ follows
+    return int(count)
+
+
+def memory_lift(ch: Channels, data: list[dict], kind: str, memory: int = 1):
+    """The transition graph with one node per admissible sequence of the last ``memory`` transitions (the state just
+    after them), and for the cost one per start node and per shorter sequence taken from it (a run's first states):
+    a quadratic function per node of this graph is a path-dependent Lyapunov function of that memory, which may bound
+    far below the automaton's node matrices (docs/design.md §11.3, "Memory of the last transitions").
+
+    Returns ``(channels, lifted data, keys)``: the channels with the start copies as start nodes, the lifted data
+    (each transition's data and rounding bounds unchanged) and each lifted node's key ``(start node or None, the last
+    transitions)``; with ``memory = 1`` the nodes are the transitions in order, then the start nodes."""
     E = len(data)
-    lifted = [dict(data[f], src=e, dst=f) for e in range(E) for f in range(E) if data[f]["src"] == data[e]["dst"]]
-    start = []
-    if kind == "cost":
-        for i, v in enumerate(ch.start):
-            lifted += [dict(data[f], src=E + i, dst=f) for f in range(E) if data[f]["src"] == int(v)]
-            start.append(E + i)
-    return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted
+    seqs = [(e,) for e in range(E)]
+    for _ in range(memory - 1):
+        seqs = [q + (f,) for q in seqs for f in range(E) if data[f]["src"] == data[q[-1]]["dst"]]
+    keys = [(None, q) for q in seqs] + ([(int(v), ()) for v in ch.start] if kind == "cost" else [])
+    index = {key: i for i, key in enumerate(keys)}
+    lifted, i = [], 0
+    while i < len(keys):  # the start-rooted sequences join as they are reached
+        v, q = keys[i]
+        at = v if not q else data[q[-1]]["dst"]
+        for f in range(E):
+            if data[f]["src"] == at:
+                longer = q + (f,)
+                key = (None, longer[-memory:]) if v is None or len(longer) >= memory else (v, longer)
+                if key not in index:
+                    index[key] = len(keys)
+                    keys.append(key)
+                lifted.append(dict(data[f], src=i, dst=index[key]))
+        i += 1
+    start = [index[(int(v), ())] for v in ch.start] if kind == "cost" else []
+    return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted, keys
+
+
+def _shorter(key: tuple, memory: int) -> tuple:
+    """The key of :func:`memory_lift` with ``memory`` transitions that a node of a longer memory refines."""
+    v, q = key
+    return (None, q[len(q) - memory:]) if v is None or len(q) >= memory else (v, q)
 
 
 def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
-                   time_limit: float | None = None, trace_weight: np.ndarray | None = None):
-    """The certified bound of memory one (:func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the
-    coordinates of the node matrices ``nodes`` when given (each lifted node takes its automaton node's), re-checked
-    as any node matrices (:func:`certify`).  ``(P (E [+ s], k, k) or None, upper or None, reason)``."""
-    starts = [int(v) for v in ch.start] if kind == "cost" else []
-    count = len(data) + len(starts)
-    if count > MAX_MEMORY_NODES:
-        return None, None, f"{count} matrices of memory one exceed {MAX_MEMORY_NODES}"
-    lch, lifted = memory_lift(ch, data, kind)
-    coordinates = None if nodes is None else np.asarray(nodes)[[d["dst"] for d in data] + starts]
+                   time_limit: float | None = None, trace_weight: np.ndarray | None = None, memory: int = 1,
+                   previous: tuple | None = None):
+    """The certified bound of ``memory`` (:func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the
+    coordinates of ``previous`` (``(P, keys, memory)`` of a certified bound of a shorter memory: each node takes the matrix
+    of the node it refines) or else of the node matrices ``nodes`` (each lifted node its automaton node's),
+    re-checked as any node matrices (:func:`certify`).  ``(P (count, k, k) or None, upper or None, keys, reason)``."""
+    count, cap = memory_count(ch, data, kind, memory), MAX_MEMORY_NODES if memory == 1 else MAX_LONGER_MEMORY_NODES
+    if count > cap:
+        return None, None, [], f"{count} matrices of memory {memory} exceed {cap}"
+    lch, lifted, keys = memory_lift(ch, data, kind, memory)
+    coordinates = None
+    if previous is not None:
+        where = {key: i for i, key in enumerate(previous[1])}
+        coordinates = np.asarray(previous[0])[[where[_shorter(key, previous[2])] for key in keys]]
+    elif nodes is not None:
+        coordinates = np.asarray(nodes)[[v if not q else data[q[-1]]["dst"] for v, q in keys]]
     P0, why = fixed_gain(lch, lifted, kind, x0, time_limit, trace_weight=trace_weight, coordinates=coordinates,
                          n_nodes=count)
     if P0 is None:
-        return None, None, why
+        return None, None, keys, why
     P, upper, why = certify(P0, lch, lifted, kind, x0, trace_weight)
-    if P is None and coordinates is not None:
+    if coordinates is not None:
         # the SDP's optimum is on the cone's edge (P_v - A' P_w A singular where the stage cost is), where rounding
-        # leaves it just outside; a little of the node matrices, a certificate of the lift with room, brings it in
+        # leaves it just outside or the re-check's multiple far above it; a little of the coordinates' matrices, a
+        # certificate of the lift with room, brings it in: the least bound that passes is kept
         norm = np.linalg.norm(P0, 2, axis=(-2, -1)).max() / np.linalg.norm(coordinates, 2, axis=(-2, -1)).max()
         for share in (1e-8, 1e-6, 1e-4, 1e-2):
-            P, upper, why = certify(P0 + share * norm * coordinates, lch, lifted, kind, x0, trace_weight)
-            if P is not None:
-                break
-    return P, upper, why
+            P_s, upper_s, why_s = certify(P0 + share * norm * coordinates, lch, lifted, kind, x0, trace_weight)
+            if P_s is not None and (P is None or upper_s < upper):
+                P, upper, why = P_s, upper_s, why_s
+    return P, upper, keys, why
 
 
 def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
@@ -677,7 +802,8 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
     """The certified bracket of ``kind`` for given gains on the network (float64 upper, witnessed lower;
     ``time_limit``: the fixed-gain SDP's, in seconds, 0 to skip it; ``trace_weight``: the cost's trace weights,
     balanced coordinates, :func:`history_value`).  ``memory``: when the node matrices leave the bracket open by
-    more than ``MEMORY_GAP``, try the bound of memory one (:func:`memory_bracket`; ``mode_certificate``)."""
+    more than ``MEMORY_GAP``, try the bounds of memory one, two, ... ``MAX_MEMORY`` (:func:`memory_bracket`, each
+    in the coordinates of the last one certified; ``mode_certificate``, ``memory``) while it stays open."""
     start = time.perf_counter()
     data = ch.numeric(gains)
     P = upper = None
@@ -691,35 +817,50 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
     lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper, certificate=P,
                                      weight=trace_weight)
+    lead = 0
+    if kind == "cost" and lower is not None and np.isfinite(lower) and \
+            (upper is None or lower < upper * (1 - LOWER_CLOSED)):
+        value, found_lead, found, runs = worst_run(ch, data, x0, trace_weight, P, floor=lower,
+                                                   stop=np.inf if upper is None else upper)
+        count += runs
+        if value is not None:
+            lower, lead, walk = value, found_lead, found
     if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
-    node_upper, memory_P = upper, None
-    left = None if time_limit is None or time_limit <= 0 else time_left(time_limit, start, floor=1e-3)
-    if memory and (upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and \
-            (left is None or left > 1e-3) and (lower is None or np.isfinite(lower)):
-        Pm, bound, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight)
+    node_upper, memory_P, level, previous = upper, None, 0, None
+    for tried in range(1, (MAX_MEMORY if memory else 0) + 1):
+        left = None if time_limit is None or time_limit <= 0 else time_left(time_limit, start, floor=1e-3)
+        if not ((upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and
+                (left is None or left > 1e-3) and (lower is None or np.isfinite(lower))):
+            break
+        Pm, bound, keys, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight, tried, previous)
         if Pm is not None and (lower is None or lower <= bound * (1 + 1e-6)) and (upper is None or bound < upper):
-            memory_P, upper = Pm, bound
-        elif P is None:
-            reason = f"{reason}; memory one: {why}" if why else reason
+            memory_P, upper, level, previous = Pm, bound, tried, (Pm, keys, tried)
+        elif P is None and memory_P is None and why:
+            reason = f"{reason}; memory {tried}: {why}"
+        if Pm is None:  # too many matrices, or a lift the SDP or the re-check failed on: a longer one is larger
+            break
     what = "cost" if kind == "cost" else "l2 gain"
     if memory_P is not None:
-        message = (f"{what} certified <= {upper:.6g} (float64 re-check of one matrix per transition, the last taken"
-                   f"{', and per start node' if kind == 'cost' else ''})")
+        last = "last transition" if level == 1 else f"sequence of the last {level} transitions"
+        starts = ", and per start node" + (" and run start shorter than that" if level > 1 else "")
+        message = (f"{what} certified <= {upper:.6g} (float64 re-check of one matrix per {last}"
+                   f"{starts if kind == 'cost' else ''})")
         if node_upper is not None:
             message += f"; the node matrices alone: {node_upper:.6g}"
     else:
         message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None
                    else f"no certified upper bound: {reason}")
     if lower is not None:
-        message += f"; worst admissible closed walk searched: {lower:.6g} ({count} walks)"
+        shape = f"; {lead} transitions once, then a closed walk of {len(walk) - lead} repeated" if lead else ""
+        message += f"; worst admissible run searched: {lower:.6g} ({count} walks and runs valued{shape})"
     prob = ch.prob
     return NetworkPerformance(
         kind=kind, upper=upper, lower=lower, witness=[] if walk is None else _walk_labels(prob, walk),
         certificate=P, verified=P is not None or memory_P is not None, x0=x0, patterns=count, message=message,
         walk=[] if walk is None else [dict(prob.labels[e]) for e in walk], form=prob.form,
         start_nodes=[int(prob.nodes[v]) for v in ch.start], certificate_upper=node_upper,
-        mode_certificate=memory_P)
+        mode_certificate=memory_P, lead=lead, memory=level)
 
 
 # ------------------------------------------------------------------------------------------- the design SDP
@@ -1221,7 +1362,7 @@ def _balanced_bracket(ch: Channels, scale, gains: np.ndarray, objective: str, P0
     k = scale.cost if objective == "cost" else scale.gain
     message = perf.message
     what = "cost" if objective == "cost" else "l2 gain"
-    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst admissible closed walk searched: ", perf.lower),
+    for phrase, v in ((f"{what} certified <= ", perf.upper), ("worst admissible run searched: ", perf.lower),
                       ("the node matrices alone: ", perf.certificate_upper)):
         if v is not None and np.isfinite(v):
             message = message.replace(f"{phrase}{v:.6g}", f"{phrase}{v * k:.6g}", 1)
@@ -1232,7 +1373,7 @@ def _balanced_bracket(ch: Channels, scale, gains: np.ndarray, objective: str, P0
                                                   "same inequalities)",
         walk=perf.walk, form=perf.form, start_nodes=perf.start_nodes,
         certificate_upper=None if perf.certificate_upper is None else perf.certificate_upper * k,
-        mode_certificate=scale.quadratic_back(perf.mode_certificate, objective))
+        mode_certificate=scale.quadratic_back(perf.mode_certificate, objective), lead=perf.lead, memory=perf.memory)
 
 
 def _rank(c: dict) -> tuple:

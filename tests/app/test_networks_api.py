@@ -247,6 +247,7 @@ def test_cost_design_on_a_delay_network_matches_the_library(http):
     typed = _performance(perf)
     assert isinstance(typed, NetworkPerformance) and typed.form == "augmented" and typed.walk == direct.walk
     assert typed.start_nodes == direct.start_nodes and typed.certificate.shape == (nodes, 4, 4)
+    assert (typed.memory, typed.lead) == (direct.memory, direct.lead) == (perf["memory"], perf["lead"])
     assert typed.to_dict() == perf or typed.upper == pytest.approx(direct.upper, rel=1e-6)
 
 
