@@ -16,7 +16,12 @@ of the analysis, and the load average.  Bounded drops is timed both ways: ``desi
 (:func:`analysis_table`), over bounded_drops(3), delays(1, 3), delays(2, 3), weakly_hard(2, 5, 3), (3, 8, 4), (4, 10, 5)
 and n = 2, 4, 8.
 
+``--brackets``: how far the cost and l2-gain brackets close on badly scaled families (:func:`brackets_table`): random
+3-state families (``bench.cases.random_family(3, 2, 1, seed)``, seeds 0-5) in coordinates whose state scales are drawn
+from 1e-3 to 1e3, on delays(1, 2) and weakly_hard(1, 3, 2), the trace cost and the l2 gain from ``E = G_1``.
+
     python -m bench network [--quick] [--largest] [--time-limit 120] [--overhead-only] [--solvers] [--analysis]
+                            [--brackets]
 """
 
 from __future__ import annotations
@@ -216,6 +221,45 @@ def bounded_drops_overhead(repeats: int = 15) -> list[str]:
     return out
 
 
+def badly_scaled(fam, seed: int):
+    """The family in coordinates ``x = T x~``, state scales drawn from 1e-3 to 1e3 (generator seed ``100 + seed``;
+    inputs unscaled)."""
+    from solver import PlantFamily
+
+    t = np.exp(np.random.default_rng(100 + seed).uniform(np.log(1e-3), np.log(1e3), fam.n_states))
+    return PlantFamily(F=np.asarray(fam.F) / t[None, :, None] * t[None, None, :], G=np.asarray(fam.G) / t[None, :, None])
+
+
+def brackets_table(seeds=range(6)) -> None:
+    """Upper / lower end of each network bracket (one design per cell, in this process), the bound's memory (0: node
+    matrices, L: one matrix per sequence of the last L transitions) and the CPU; a line of counts per row."""
+    from solver import Network, design
+
+    from .cases import random_family
+
+    print("| network | objective | upper / lower (memory) per seed | within 1 % / 5 % | widest | CPU s |")
+    print("|---|---|---|---|---|---|")
+    for net in (Network.delays(1, 2), Network.weakly_hard(1, 3, 2)):
+        for objective in ("cost", "hinf"):
+            cells, ratios, cpu = [], [], 0.0
+            for seed in seeds:
+                fam = badly_scaled(random_family(3, 2, 1, seed=seed), seed)
+                extra = {} if objective == "cost" else {"disturbance": np.asarray(fam.G[0])}
+                start = time.process_time()
+                res = design(fam, network=net, objective=objective, **extra)
+                cpu += time.process_time() - start
+                perf = res.performance
+                if res.outcome != "stabilized" or perf is None or not perf.lower:
+                    cells.append(res.outcome)
+                    continue
+                ratios.append(perf.upper / perf.lower)
+                cells.append(f"{ratios[-1]:.3f} ({perf.memory})")
+            close = sum(r <= 1.01 for r in ratios), sum(r <= 1.05 for r in ratios)
+            widest = f"{max(ratios):.3f}" if ratios else "-"
+            print(f"| {net.describe()} | {objective} | {', '.join(cells)} | {close[0]} / {close[1]} of {len(ratios)} | "
+                  f"{widest} | {cpu:.1f} |", flush=True)
+
+
 def main(argv=None) -> int:
     """Print the networks table, then the bounded-drops overhead (``--overhead-only``: just that)."""
     from solver import Network
@@ -227,10 +271,15 @@ def main(argv=None) -> int:
     ap.add_argument("--solvers", action="store_true", help="the IPM beside Clarabel (the network LMI and design())")
     ap.add_argument("--analysis", action="store_true",
                     help="analyze(network=) on the IPM beside Clarabel, against states and n (docs/performance.md)")
+    ap.add_argument("--brackets", action="store_true",
+                    help="how far the cost and l2-gain brackets close on badly scaled families (docs/performance.md)")
     ap.add_argument("--largest", action="store_true",
                     help="also weakly_hard(4, 10, 5) at n = 2 (256 nodes) and delays(3, 5) at n = 4 (~15 min)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
+    if args.brackets:
+        brackets_table(range(2) if args.quick else range(6))
+        return 0
     if args.overhead_only:
         for line in bounded_drops_overhead(40):
             print(line, flush=True)

@@ -26,6 +26,7 @@ the stability design's gains are bracketed instead, or its Farkas refutation of 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 import warnings
 from dataclasses import dataclass
@@ -54,6 +55,11 @@ MAX_WALK_LENGTH = 12
 MAX_OPEN = 20000
 #: Walks re-valued with the refined sweep (hinf).
 REFINED = 4
+#: Pairs of the best closed walks combined for the l2 gain (:func:`combined_walks`): how many walks, the largest power
+#: of each, the longest combination (transitions).
+COMBINE_BEST = 8
+COMBINE_POWER = 3
+COMBINE_LENGTH = 24
 #: The guided search for runs that settle into a closed walk after a first stretch (cost, :func:`worst_run`): runs
 #: kept per step, steps (transitions), and the closed walks (at most ``TAIL_WALKS``, up to ``TAIL_LENGTH`` long, from
 #: every node) that may end a run.
@@ -597,6 +603,33 @@ def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None, hint: n
     return hinf_norm_lower(sys, refine=False)
 
 
+def combined_walks(prob, walks: list, values: list) -> list:
+    """Longer closed walks for the l2 gain's lower end: ``a^i b^j`` (``i, j <= COMBINE_POWER``, at most
+    ``COMBINE_LENGTH`` transitions) for each pair of the ``COMBINE_BEST`` best walks (by ``values``) through a common
+    node, both rotated to start there.  A gain that needs the loop to alternate between two bad cycles (the worst
+    direction of one feeding the other's) is missed by short walks alone: on the badly scaled families of
+    docs/design.md §11.3 they raised the lower end by 1-5 %."""
+    order = np.argsort(-np.nan_to_num(np.asarray(values, dtype=float), nan=-np.inf))[:COMBINE_BEST]
+    through = {}
+    for i in order:
+        w = tuple(walks[i])
+        for r in range(len(w)):
+            rotated = w[r:] + w[:r]
+            through.setdefault(int(prob.src[rotated[0]]), []).append(rotated)
+    seen = {tuple(w) for w in walks}
+    out = []
+    for node in sorted(through):
+        rotations = list(dict.fromkeys(through[node]))
+        for a, b in itertools.combinations(rotations, 2):
+            for i in range(1, COMBINE_POWER + 1):
+                for j in range(1, COMBINE_POWER + 1):
+                    w = a * i + b * j
+                    if len(w) <= COMBINE_LENGTH and w not in seen:
+                        seen.add(w)
+                        out.append(w)
+    return out
+
+
 def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float = np.inf,
                 max_length: int = MAX_WALK_LENGTH, certificate: np.ndarray | None = None,
                 weight: np.ndarray | None = None):
@@ -618,6 +651,16 @@ def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float 
                 best, arg = v, w
         if best >= stop:
             break
+    walks = walks[:len(values)]
+    if kind == "hinf" and arg is not None and best < stop:
+        more = combined_walks(ch.prob, walks, values)
+        for w in more:
+            v = walk_value(data, w, ch, kind)
+            walks.append(w)
+            values.append(v)
+            if np.isfinite(v) and v > best:
+                best, arg = v, w
+        count += len(more)
     if kind == "hinf" and arg is not None:  # the best coarse sweeps refined
         order = np.argsort(-np.nan_to_num(np.array(values), nan=-np.inf))[:REFINED]
         for i in order:

@@ -8,6 +8,7 @@ from math import gcd
 import numpy as np
 import pytest
 
+from bench.network_bench import badly_scaled
 from solver import InvalidInput, Network, PlantFamily, analyze, design, exact
 from solver.compiled import design_size
 from solver.methods import network_lmi
@@ -291,19 +292,13 @@ def exact_positive_definite(M):
     return True
 
 
-def _badly_scaled(fam, seed):
-    """The family in coordinates x = T x~ with state scales from 1e-3 to 1e3 (inputs unscaled)."""
-    t = np.exp(np.random.default_rng(100 + seed).uniform(np.log(1e-3), np.log(1e3), fam.n_states))
-    return PlantFamily(F=np.asarray(fam.F) / t[None, :, None] * t[None, None, :], G=np.asarray(fam.G) / t[None, :, None])
-
-
 def test_network_design_balances_badly_scaled_plants_and_proves_the_users_loop():
     """The network design runs in balanced coordinates (docs/design.md §11.1, "Scaling"): on a badly scaled copy of
     a random family it is certified, in the user's coordinates, where the unbalanced design found nothing."""
     from bench.cases import random_family
 
     net = Network.weakly_hard(1, 3, 2)
-    fam = _badly_scaled(random_family(3, 2, 1, seed=1), 1)
+    fam = badly_scaled(random_family(3, 2, 1, seed=1), 1)
     unbalanced = design(fam, network=net, decay_rate=None, scaling="none")
     assert unbalanced.outcome != "stabilized"
     res = design(fam, network=net, decay_rate=None)
