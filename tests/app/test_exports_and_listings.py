@@ -51,7 +51,7 @@ def test_gains_mat_reads_back_as_the_json_result(client, design):
 def test_gains_m_defines_the_same_numbers(client, design):
     resp = client.get(f"/v1/designs/{design['id']}/gains.m")
     assert resp.status_code == 200 and resp.headers["content-type"].startswith("text/x-matlab")
-    assert resp.headers["content-disposition"].endswith(f'.m"')
+    assert resp.headers["content-disposition"].endswith('.m"')
     text = resp.text
     K1 = design["result"]["gains"][0][0]
     line = next(ln for ln in text.splitlines() if ln.startswith("K1 = "))

@@ -20,9 +20,6 @@ import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.specs.openapi.checks import positive_data_acceptance
 
-from .conftest import REPO
-
-import sys
 
 from bench.harness import Server  # noqa: E402
 

@@ -9,11 +9,8 @@ a cancelled job; the job's URL reloads the result; the phone width. Every state 
 
 from __future__ import annotations
 
-import io
-import json
 import os
 import shutil
-import time
 import zipfile
 from pathlib import Path
 

@@ -1,7 +1,6 @@
 """Numerical fuzzing: odd plant families never crash the solver or fake a certificate."""
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

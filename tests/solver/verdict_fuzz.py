@@ -92,7 +92,6 @@ def _lmi_point(modes: ModeSet, gains: np.ndarray):
     if not (t > 0 and np.linalg.eigvalsh(X)[0] > 0):
         return None
     W = np.linalg.inv(X)
-    n = W.shape[0]
     taus = []
     for a in A:
         L = np.block([[W, (a @ W).T], [a @ W, W]])
