@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _moment,
-                        _sym, _tails, certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system,
+                        _norms_pruned, _sym, _tails, certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system,
                         sequence_cost)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
@@ -53,8 +53,9 @@ MAX_WALKS_HINF = 300
 MAX_WALK_LENGTH = 12
 #: Open walks kept while extending (the breadth of the search).
 MAX_OPEN = 20000
-#: Walks re-valued with the refined sweep (hinf).
+#: Walks re-valued with the refined sweep (hinf), and (cost) on their own after the stacked values.
 REFINED = 4
+REFINED_COST = 16
 #: Pairs of the best closed walks combined for the l2 gain (:func:`combined_walks`, while the bracket is open by more
 #: than ``COMBINE_ABOVE_GAP``): how many walks (8 found the same witnesses on the badly scaled families at 1.5x the
 #: CPU, 4 and 5 lower ends up to 5 % lower), the largest power of each, the longest combination (transitions).
@@ -580,10 +581,10 @@ def closed_walks(prob, start, max_length: int = MAX_WALK_LENGTH, max_count: int 
 WALK_RESIDUAL = 1e-12
 
 
-def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None, hint: np.ndarray | None = None,
+def walk_value(data: list[dict], walk, ch: Channels, x0=None, hint: np.ndarray | None = None,
                weight: np.ndarray | None = None) -> float:
-    """The exact cost from the walk's start (``x0' S' P_per S x0``, ``trace``) of repeating it, or a lower bound
-    on its l2 gain (frequency sweep of the period's lifted system); ``inf`` for an unstable costly walk.
+    """The exact cost from the walk's start (``x0' S' P_per S x0``, ``trace``) of repeating it; ``inf`` for an
+    unstable walk.
 
     ``hint``: the certificate's matrix of the walk's first node (``Phi' P_v Phi < P_v`` over a closed walk), the
     coordinates of :func:`solver.brackets.lyapunov` when scipy's answer has a residual above
@@ -592,25 +593,23 @@ def walk_value(data: list[dict], walk, ch: Channels, kind: str, x0=None, hint: n
     contraction coordinates, 3-20x slower over 4000 walks, only serve the ones it gets wrong."""
     sys = period_system(data, list(walk))
     if not np.max(np.abs(np.linalg.eigvals(sys["Phi"]))) < 1:
-        return np.inf if kind == "cost" else np.nan
-    if kind == "cost":
-        Phi, Q = sys["Phi"], sys["L"].T @ sys["L"]
-        Pp = _lyapunov_once(Phi, Q, "direct" if Phi.shape[0] < 10 else "bilinear")
-        if Pp is None or _lyapunov_residual(Phi, Pp, Q) > WALK_RESIDUAL:
-            try:
-                Pp = lyapunov(Phi, Q, hint)
-            except np.linalg.LinAlgError:
-                return np.nan
-        return history_value(Pp, ch.history, x0, weight)
-    return hinf_norm_lower(sys, refine=False)
+        return np.inf
+    Phi, Q = sys["Phi"], sys["L"].T @ sys["L"]
+    Pp = _lyapunov_once(Phi, Q, "direct" if Phi.shape[0] < 10 else "bilinear")
+    if Pp is None or _lyapunov_residual(Phi, Pp, Q) > WALK_RESIDUAL:
+        try:
+            Pp = lyapunov(Phi, Q, hint)
+        except np.linalg.LinAlgError:
+            return np.nan
+    return history_value(Pp, ch.history, x0, weight)
 
 
-def combined_walks(prob, walks: list, values: list) -> list:
+def combined_walks(prob, walks: list, values) -> list:
     """Longer closed walks for the l2 gain's lower end: ``a^i b^j`` (``i, j <= COMBINE_POWER``, at most
     ``COMBINE_LENGTH`` transitions) for each pair of the ``COMBINE_BEST`` best walks (by ``values``) through a common
     node, both rotated to start there.  A gain that needs the loop to alternate between two bad cycles (the worst
     direction of one feeding the other's) is missed by short walks alone: on the badly scaled families of
-    docs/design.md §11.3 they raised the lower end by 1-5 %."""
+    docs/design.md §11.3 they raised the lower end by 1-5 %.  ``values``: the walks' (nan for none)."""
     order = np.argsort(-np.nan_to_num(np.asarray(values, dtype=float), nan=-np.inf))[:COMBINE_BEST]
     through = {}
     for i in order:
@@ -637,40 +636,71 @@ def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float 
                 weight: np.ndarray | None = None):
     """Worst closed walk searched: ``(value, walk, walks valued)``; the search stops once ``stop`` is reached.
 
-    ``certificate``: node matrices ``P_v`` (one per node), the coordinates of each walk's Lyapunov equation;
-    ``weight``: the trace's (:func:`history_value`)."""
+    Every walk is valued in stacks first (:mod:`solver.periodic`), the best again on its own.  cost: the walks from
+    the start nodes (:func:`_costliest_walks`, :func:`walk_value`); ``certificate``: node matrices ``P_v`` (one per
+    node), the coordinates of each walk's Lyapunov equation; ``weight``: the trace's (:func:`history_value`).
+    hinf: the walks from every node and, while the bracket is open, their combinations (:func:`combined_walks`),
+    by :func:`_stacked_gains`, the ``REFINED`` best by the refined sweep."""
     start = ch.start if kind == "cost" else np.arange(len(ch.prob.nodes))
     walks = closed_walks(ch.prob, start, max_length, MAX_WALKS if kind == "cost" else MAX_WALKS_HINF)
-    best, arg, count = -np.inf, None, 0
-    values = []
-    for w in walks:
-        hint = None if certificate is None else certificate[int(ch.prob.src[w[0]])]
-        v = walk_value(data, w, ch, kind, x0, hint, weight)
-        count += 1
-        values.append(v)
-        if np.isfinite(v) or (kind == "cost" and v == np.inf):
-            if v > best:
-                best, arg = v, w
-        if best >= stop:
-            break
-    walks = walks[:len(values)]
-    if kind == "hinf" and arg is not None and best < stop * (1 - COMBINE_ABOVE_GAP):
+    if not walks:
+        return None, None, 0
+    best, arg = -np.inf, None
+    if kind == "cost":
+        for i in _costliest_walks(ch, data, walks, x0, weight):
+            hint = None if certificate is None else certificate[int(ch.prob.src[walks[i][0]])]
+            v = walk_value(data, walks[i], ch, x0, hint, weight)
+            if (np.isfinite(v) or v == np.inf) and v > best:
+                best, arg = v, walks[i]
+        return (None if arg is None else best), arg, len(walks)
+    values = _stacked_gains(data, walks)
+    if np.any(np.isfinite(values)) and np.nanmax(values) < stop * (1 - COMBINE_ABOVE_GAP):
         more = combined_walks(ch.prob, walks, values)
-        for w in more:
-            v = walk_value(data, w, ch, kind)
-            walks.append(w)
-            values.append(v)
-            if np.isfinite(v) and v > best:
-                best, arg = v, w
-        count += len(more)
-    if kind == "hinf" and arg is not None:  # the best coarse sweeps refined
-        order = np.argsort(-np.nan_to_num(np.array(values), nan=-np.inf))[:REFINED]
-        for i in order:
-            if np.isfinite(values[i]):
-                fine = hinf_norm_lower(period_system(data, list(walks[i])))
-                if fine > best:
-                    best, arg = fine, walks[i]
-    return (None if arg is None else best), arg, count
+        walks = walks + more
+        values = np.concatenate([values, _stacked_gains(data, more)])
+    for i in np.argsort(-np.nan_to_num(values, nan=-np.inf))[:REFINED]:
+        if np.isfinite(values[i]):  # the stacked value is a gain evaluated at a frequency; the sweep may beat it
+            fine = max(float(values[i]), hinf_norm_lower(period_system(data, list(walks[i]))))
+            if fine > best:
+                best, arg = fine, walks[i]
+    return (None if arg is None else best), arg, len(walks)
+
+
+def _stacked_gains(data: list[dict], walks: list) -> np.ndarray:
+    """The l2 gain of repeating each walk (``nan``: unstable, or pruned as below the ``max(REFINED,
+    COMBINE_BEST)`` best), by the stacked level-set iteration of :func:`solver.brackets._norms_pruned`: every
+    value is a gain evaluated at a frequency, a lower bound on the walk's."""
+    from .. import periodic
+
+    values = np.full(len(walks), np.nan)
+    if not walks:
+        return values
+    arrays = periodic.mode_arrays(data)
+    systems = []
+    for pos, idx in periodic.group_by_length(walks).values():
+        sys = periodic.period_stack(arrays, idx, "hinf")
+        good = periodic.spectral_radius(sys["Phi"]) < 1
+        systems.append((pos[good], {key: v[good] for key, v in sys.items()}))
+    _norms_pruned(systems, values, max(REFINED, COMBINE_BEST))
+    return values
+
+
+def _costliest_walks(ch: Channels, data: list[dict], walks: list, x0, weight) -> np.ndarray:
+    """Indices of the ``REFINED_COST`` costliest walks by their stacked values (:mod:`solver.periodic`: the
+    Stein sum by doubling, ``<P_per, M>`` with ``M`` the initial history's moment), unstable walks first, then those
+    whose sum did not settle (a radius within rounding of 1); :func:`walk_value` then values them on their own.  One
+    Lyapunov solve per walk (4000 a bracket) was half of a network cost design's CPU."""
+    from .. import periodic
+
+    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    arrays = periodic.mode_arrays(data)
+    approx, rank = np.full(len(walks), -np.inf), np.zeros(len(walks))
+    for pos, idx in periodic.group_by_length(walks).values():
+        sys = periodic.period_stack(arrays, idx, "cost")
+        Pp, stable, done = periodic.stein_screened(sys["Phi"], sys["S"])
+        approx[pos] = np.einsum("ij,pji->p", M, np.where(done[:, None, None], Pp, 0.0))
+        rank[pos] = np.where(stable, np.where(done, 0.0, 1.0), 2.0)  # an unstable walk first: its cost is unbounded
+    return np.lexsort((-approx, -rank))[:REFINED_COST]
 
 
 def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None = None,
@@ -751,22 +781,24 @@ def _walk_labels(prob, walk) -> list:
 
 
 def memory_count(ch: Channels, data: list[dict], kind: str, memory: int = 1) -> int:
-    """The number of matrices of :func:`memory_lift`, counted without building it."""
+    """The number of matrices of :func:`memory_lift`, counted without building it (by node, O(transitions) a step)."""
     src, dst = np.array([d["src"] for d in data]), np.array([d["dst"] for d in data])
-    follows = (dst[:, None] == src[None, :]).astype(float)  # e then f
+    V = int(max(src.max(), dst.max())) + 1
+
+    def extend(last):  # sequences one longer, by their last transition, from those by theirs
+        return np.bincount(dst, weights=last, minlength=V)[src]
+
     ending = np.ones(len(data))  # admissible sequences of the last l transitions, by the last one
     for _ in range(memory - 1):
-        ending = ending @ follows
+        ending = extend(ending)
     count = float(ending.sum())
     if kind == "cost":  # the start-rooted ones shorter than the memory
-        reach = np.zeros(len(data))
-        for v in ch.start:
-            reach += (src == int(v)).astype(float)
+        reach = np.bincount(np.asarray(ch.start, dtype=int), minlength=V)[src].astype(float)
         count += len(ch.start)
         for _ in range(memory - 1):
             count += float(reach.sum())
-            reach = reach @ follows
-    return int(count)
+            reach = extend(reach)
+    return int(round(count))
 
 
 def memory_lift(ch: Channels, data: list[dict], kind: str, memory: int = 1):
@@ -829,10 +861,11 @@ def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np
     if P0 is None:
         return None, None, keys, why
     P, upper, why = certify(P0, lch, lifted, kind, x0, trace_weight)
-    if coordinates is not None:
+    if coordinates is not None and (P is None or kind == "cost"):
         # the SDP's optimum is on the cone's edge (P_v - A' P_w A singular where the stage cost is), where rounding
         # leaves it just outside or the re-check's multiple far above it; a little of the coordinates' matrices, a
-        # certificate of the lift with room, brings it in: the least bound that passes is kept
+        # certificate of the lift with room, brings it in: the least bound that passes is kept (the l2 gain's
+        # re-check, a bisection on the level, costs 10-20 of the cost's: there only when the answer alone fails)
         norm = np.linalg.norm(P0, 2, axis=(-2, -1)).max() / np.linalg.norm(coordinates, 2, axis=(-2, -1)).max()
         for share in (1e-8, 1e-6, 1e-4, 1e-2):
             P_s, upper_s, why_s = certify(P0 + share * norm * coordinates, lch, lifted, kind, x0, trace_weight)
