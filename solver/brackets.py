@@ -1241,11 +1241,13 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
                 note = f"witness grown from the best short patterns ({grown_count} longer patterns valued)"
     if witness is None:
         return LowerBound(None, [], len(pats) + grown_count, f"no stable periodic pattern ({skipped} unstable)")
-    # (a)(a) and (a) are one infinite sequence with one value: which of them wins the comparisons above is decided by
-    # rounding (it changed with the machine's BLAS), so the reported period is the shortest one
+    # (a)(a) and (a) are one infinite sequence with one value, and so are b (a) and (a) when b = a: which of them wins
+    # the comparisons above is decided by rounding (it changed with the machine's BLAS), so the reported period is the
+    # shortest one after the shortest prefix
     valued = list(witness[lead:])
-    witness = list(witness[:lead]) + _primitive_period(valued)
-    if peak is not None and len(witness) < len(valued):
+    prefix, period = shortest_lead(witness[:lead], _primitive_period(valued))
+    witness, lead = prefix + period, len(prefix)
+    if peak is not None and len(period) < len(valued):
         peak = primitive_peak(data, witness, len(valued) // len(witness), peak)
     labels = []
     for s in witness:
@@ -1273,6 +1275,17 @@ def _primitive_period(period: list) -> list:
         if n % k == 0 and period == period[:k] * (n // k):
             return period[:k]
     return period
+
+
+def shortest_lead(prefix, period) -> tuple[list, list]:
+    """``prefix`` once, then ``period`` forever, as the same sequence with the shortest prefix: a prefix that ends
+    with the period's last element is the period rotated (``a`` then ``(a)`` forever is ``(a)`` forever).  Which of
+    the two a search reports is decided by rounding (the two values agree to it), so the witness is this one."""
+    prefix, period = list(prefix), list(period)
+    while prefix and prefix[-1] == period[-1]:
+        prefix.pop()
+        period = period[-1:] + period[:-1]
+    return prefix, period
 
 
 def _tails(data: list[dict], seqs: list, hint: np.ndarray | None = None) -> list:

@@ -35,8 +35,8 @@ import numpy as np
 import scipy.linalg
 
 from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _moment,
-                        _norms_pruned, _sym, _tails, certify_hinf, check_x0, hinf_norm_lower, lyapunov, period_system,
-                        sequence_cost)
+                        _norms_pruned, _primitive_period, _sym, _tails, certify_hinf, check_x0, hinf_norm_lower,
+                        lyapunov, period_system, sequence_cost, shortest_lead)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
@@ -918,6 +918,9 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
             reason = f"{reason}; memory {tried}: {why}"
         if Pm is None:  # too many matrices, or a lift the SDP or the re-check failed on: a longer one is larger
             break
+    if walk is not None:  # one infinite run, one witness, whatever rounding picked among its spellings
+        prefix, period = shortest_lead(walk[:lead], _primitive_period(list(walk[lead:])))
+        walk, lead = tuple(prefix + period), len(prefix)
     what = "cost" if kind == "cost" else "l2 gain"
     if memory_P is not None:
         last = "last transition" if level == 1 else f"sequence of the last {level} transitions"

@@ -924,3 +924,25 @@ def test_exact_witness_recovers_from_a_misplaced_float64_peak():
     with mp.workdps(60):
         assert mp.mpf(Fraction(value).numerator) / Fraction(value).denominator <= ref
     assert value >= float(ref) * (1 - 1e-12)
+
+
+def test_a_witness_is_spelled_with_the_shortest_prefix():
+    """``prefix`` then ``period`` forever and its spelling by :func:`solver.brackets.shortest_lead` are the same
+    sequence (compared over 60 terms on random short spellings), and no shorter prefix spells it: the reported
+    witness no longer depends on which spelling rounding let win (``a`` then ``(a)`` forever is ``(a)``)."""
+    from solver.brackets import shortest_lead
+
+    def unrolled(prefix, period, count=60):
+        return (list(prefix) + list(period) * count)[:count]
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        prefix = list(rng.integers(0, 2, size=rng.integers(0, 4)))
+        period = list(rng.integers(0, 2, size=rng.integers(1, 4)))
+        short, rotated = shortest_lead(prefix, period)
+        seq, p = unrolled(prefix, period), len(period)
+        assert unrolled(short, rotated) == seq and len(rotated) == p
+        # the sequence repeats with period p from len(short) on, and from no earlier term
+        first = min(k for k in range(len(prefix) + 1) if all(seq[i] == seq[i + p] for i in range(k, 60 - p)))
+        assert len(short) == first
+    assert shortest_lead([(0, 1)], [(0, 1)]) == ([], [(0, 1)])
