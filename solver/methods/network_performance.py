@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _moment,
-                        _norms_pruned, _primitive_period, _sym, _tails, certify_hinf, check_x0, hinf_norm_lower,
+                        _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         lyapunov, period_system, sequence_cost, shortest_lead)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
@@ -79,9 +79,10 @@ REFINE_TOL = 1e-3
 #: A bracket open by more than this (upper / lower - 1) tries the bounds with memory (:func:`memory_bracket`).
 MEMORY_GAP = 1e-2
 #: Most matrices of a bound with memory (:func:`memory_lift`) the brackets try: memory one, a longer memory (each
-#: costs a Clarabel SDP of that many matrices: 170 took 11 s, 42 1.3 s), and the longest memory.
+#: costs a Clarabel SDP of that many matrices: 170 took 11 s, 42 1.3 s; 85 lowered a delays(1, 3) bound by 6 %), and
+#: the longest memory.
 MAX_MEMORY_NODES = 256
-MAX_LONGER_MEMORY_NODES = 64
+MAX_LONGER_MEMORY_NODES = 128
 MAX_MEMORY = 3
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
@@ -690,17 +691,27 @@ def _costliest_walks(ch: Channels, data: list[dict], walks: list, x0, weight) ->
     Stein sum by doubling, ``<P_per, M>`` with ``M`` the initial history's moment), unstable walks first, then those
     whose sum did not settle (a radius within rounding of 1); :func:`walk_value` then values them on their own.  One
     Lyapunov solve per walk (4000 a bracket) was half of a network cost design's CPU."""
+    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    Pp, stable, done = _walk_costs(data, walks)
+    approx = np.einsum("ij,pji->p", M, Pp)
+    rank = np.where(stable, np.where(done, 0.0, 1.0), 2.0)  # an unstable walk first: its cost is unbounded
+    return np.lexsort((-approx, -rank))[:REFINED_COST]
+
+
+def _walk_costs(data: list[dict], walks: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(P, stable, settled)``: each walk's periodic cost matrix from its first node (the Stein sum by doubling of
+    :mod:`solver.periodic`, zero where it did not settle), whether the walk is stable, and whether its sum settled."""
     from .. import periodic
 
-    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    k = data[0]["A"].shape[0]
+    P = np.zeros((len(walks), k, k))
+    stable, settled = np.zeros(len(walks), dtype=bool), np.zeros(len(walks), dtype=bool)
     arrays = periodic.mode_arrays(data)
-    approx, rank = np.full(len(walks), -np.inf), np.zeros(len(walks))
     for pos, idx in periodic.group_by_length(walks).values():
         sys = periodic.period_stack(arrays, idx, "cost")
-        Pp, stable, done = periodic.stein_screened(sys["Phi"], sys["S"])
-        approx[pos] = np.einsum("ij,pji->p", M, np.where(done[:, None, None], Pp, 0.0))
-        rank[pos] = np.where(stable, np.where(done, 0.0, 1.0), 2.0)  # an unstable walk first: its cost is unbounded
-    return np.lexsort((-approx, -rank))[:REFINED_COST]
+        Pp, stable[pos], settled[pos] = periodic.stein_screened(sys["Phi"], sys["S"])
+        P[pos] = np.where(settled[pos][:, None, None], Pp, 0.0)
+    return P, stable, settled
 
 
 def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None = None,
@@ -718,11 +729,11 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
     (:func:`lower_bound`) misses runs whose first intervals cost most from x0 and whose worst period comes later
     (docs/design.md §11.3, "The lower end")."""
     prob, V = ch.prob, len(ch.prob.nodes)
-    by_node = [[] for _ in range(V)]
-    for w in closed_walks(prob, np.arange(V), TAIL_LENGTH, TAIL_WALKS):
-        by_node[int(prob.src[w[0]])].append(w)
-    tails = [_tails(data, walks, None if nodes is None else nodes[v]) for v, walks in enumerate(by_node)]
-    tail_P = [np.stack([P for _, P in t]) if t else None for t in tails]
+    cycles = closed_walks(prob, np.arange(V), TAIL_LENGTH, TAIL_WALKS)
+    cycle_P, _, settled = _walk_costs(data, cycles) if cycles else (None, None, np.zeros(0, dtype=bool))
+    first = np.array([int(prob.src[w[0]]) for w in cycles], dtype=int)
+    tails = [[cycles[i] for i in np.flatnonzero(settled & (first == v))] for v in range(V)]
+    tail_P = [cycle_P[settled & (first == v)] if tails[v] else None for v in range(V)]
     M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
     src = np.asarray(prob.src)
     acc, at = np.zeros(len(ch.start)), np.asarray(ch.start, dtype=int)
@@ -752,7 +763,7 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
         low = acc + tail_value
         i = int(np.argmax(low))
         if low[i] > best and tail_arg[i] >= 0:
-            best, found = float(low[i]), (paths[i], tails[at[i]][tail_arg[i]][0])
+            best, found = float(low[i]), (paths[i], tails[at[i]][tail_arg[i]])
         if best >= stop:
             break
         ahead = tail_value if nodes is None else np.einsum("bij,bji->b", nodes[at], sig)
