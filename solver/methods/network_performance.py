@@ -321,6 +321,12 @@ def history_value(P: np.ndarray, S: np.ndarray, x0: np.ndarray | None, weight: n
     return float(np.trace(M)) if weight is None else float(np.sum(weight * np.diagonal(M)))
 
 
+def history_moment(ch: Channels, x0: np.ndarray | None, weight: np.ndarray | None = None) -> np.ndarray:
+    """``M`` on the Lyapunov state with ``<P, M> = history_value(P, S, x0, weight)``: ``S x0 x0' S'``, or
+    ``S diag(w) S'`` (the trace)."""
+    return ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+
+
 def bound_of(P: np.ndarray, ch: Channels, x0: np.ndarray | None, weight: np.ndarray | None = None) -> float:
     """``max_v x0' S' P_v S x0`` (the trace without x0, weighted with ``weight``) over the start nodes."""
     return max(history_value(P[v], ch.history, x0, weight) for v in ch.start)
@@ -635,7 +641,8 @@ def combined_walks(prob, walks: list, values) -> list:
 def lower_bound(ch: Channels, data: list[dict], kind: str, x0=None, stop: float = np.inf,
                 max_length: int = MAX_WALK_LENGTH, certificate: np.ndarray | None = None,
                 weight: np.ndarray | None = None):
-    """Worst closed walk searched: ``(value, walk, walks valued)``; the search stops once ``stop`` is reached.
+    """Worst closed walk searched: ``(value, walk, walks valued)``; ``stop`` (the certified upper end): no walks
+    combined (hinf) once the best is within ``COMBINE_ABOVE_GAP`` of it.
 
     Every walk is valued in stacks first (:mod:`solver.periodic`), the best again on its own.  cost: the walks from
     the start nodes (:func:`_costliest_walks`, :func:`walk_value`); ``certificate``: node matrices ``P_v`` (one per
@@ -691,7 +698,7 @@ def _costliest_walks(ch: Channels, data: list[dict], walks: list, x0, weight) ->
     Stein sum by doubling, ``<P_per, M>`` with ``M`` the initial history's moment), unstable walks first, then those
     whose sum did not settle (a radius within rounding of 1); :func:`walk_value` then values them on their own.  One
     Lyapunov solve per walk (4000 a bracket) was half of a network cost design's CPU."""
-    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    M = history_moment(ch, x0, weight)
     Pp, stable, done = _walk_costs(data, walks)
     approx = np.einsum("ij,pji->p", M, Pp)
     rank = np.where(stable, np.where(done, 0.0, 1.0), 2.0)  # an unstable walk first: its cost is unbounded
@@ -734,7 +741,7 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
     first = np.array([int(prob.src[w[0]]) for w in cycles], dtype=int)
     tails = [[cycles[i] for i in np.flatnonzero(settled & (first == v))] for v in range(V)]
     tail_P = [cycle_P[settled & (first == v)] if tails[v] else None for v in range(V)]
-    M = ch.history @ _moment(ch.history.shape[1], x0, weight) @ ch.history.T
+    M = history_moment(ch, x0, weight)
     src = np.asarray(prob.src)
     acc, at = np.zeros(len(ch.start)), np.asarray(ch.start, dtype=int)
     sig, paths = np.stack([M] * len(ch.start)), [()] * len(ch.start)
