@@ -147,8 +147,9 @@ def performance_summary(perf: dict | None, name: str) -> list[str]:
     quadratic = perf.get("certificate_upper")
     if perf.get("mode_certificate") is not None and perf.get("start_nodes") is not None:  # §11.3
         memory = int(perf.get("memory") or 1)
-        source = ("one re-checked matrix per last transition" if memory == 1 else
-                  f"one re-checked matrix per sequence of the last {memory} transitions") + (
+        when = "next" if perf.get("kind") == "cost" else "last"  # look-ahead for the cost, memory for the l2 gain
+        source = (f"one re-checked matrix per {when} transition" if memory == 1 else
+                  f"one re-checked matrix per sequence of the {when} {memory} transitions") + (
             "" if quadratic is None else f"; the node matrices alone: {quadratic:.6g}")
     elif perf.get("upper") is not None and quadratic is not None and quadratic > perf["upper"]:
         source = f"prefix tree on the re-checked certificate, whose bound alone is {quadratic:.6g}"  # §8.4

@@ -115,11 +115,12 @@ class Performance:
         smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
         ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] - diag(P_s, gamma^2 I) <= 0`` for every pair of
         consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").  On a
-        network (:class:`NetworkPerformance`), shape (count, k, k): one matrix per sequence of the last ``memory``
-        transitions, for the state just after it, then for the cost one per start node and shorter run start
-        (:func:`solver.methods.network_performance.memory_lift`'s order): a path-dependent Lyapunov function, used
-        when it bounds below the node matrices or they pass no re-check (``certificate`` may then be None;
-        docs/design.md §11.3).
+        network (:class:`NetworkPerformance`), shape (count, k, k): for the cost one matrix per sequence of the next
+        ``memory`` transitions, for the state just before it (:func:`solver.methods.network_performance.
+        lookahead_lift`'s order); for the l2 gain one per sequence of the last ``memory`` transitions, for the state
+        just after it (:func:`~solver.methods.network_performance.memory_lift`'s order): a path-dependent Lyapunov
+        function, used when it bounds below the node matrices or they pass no re-check (``certificate`` may then be
+        None; docs/design.md §11.3).
     """
 
     kind: str
@@ -204,8 +205,8 @@ class NetworkPerformance(Performance):
     ``walk[:lead]`` taken once from a start node, then ``walk[lead:]`` repeated forever, is an admissible run whose
     value is ``lower``.  ``form`` as in :class:`solver.methods.network_lmi.NodeCertificate`; ``start_nodes``: the
     nodes the bound covers as starts.  ``memory``: 0 when ``upper`` is the node matrices' bound, else the number of
-    last transitions each matrix of ``mode_certificate`` is for (docs/design.md §11.3, "Memory of the last
-    transitions").
+    transitions each matrix of ``mode_certificate`` is for: the next ones for the cost, the last ones for the l2 gain
+    (docs/design.md §11.3, "Look-ahead" and "Memory of the last transitions").
     """
 
     walk: list = field(default_factory=list)

@@ -291,8 +291,8 @@ class Performance(_Open):
     start_nodes: list[int] | None = Field(None, description="On a `network`: the automaton nodes a run may start "
                                                             "in; the bound is the largest over them.")
     memory: int | None = Field(None, description="On a `network`: 0 when `upper` is the node matrices' bound, else the "
-                                                 "number of last transitions each matrix of `mode_certificate` is for "
-                                                 "(docs/design.md §11.3).")
+                                                 "number of transitions each matrix of `mode_certificate` is for: the "
+                                                 "next ones (cost) or the last ones (l2 gain; docs/design.md §11.3).")
 
 
 class ObserverObstruction(_Open):

@@ -78,12 +78,13 @@ REFINE_ROUNDS = 8
 REFINE_TOL = 1e-3
 #: A bracket open by more than this (upper / lower - 1) tries the bounds with memory (:func:`memory_bracket`).
 MEMORY_GAP = 1e-2
-#: Most matrices of a bound with memory (:func:`memory_lift`) the brackets try: memory one, a longer memory (each
-#: costs a Clarabel SDP of that many matrices: 170 took 11 s, 42 1.3 s; 85 lowered a delays(1, 3) bound by 6 %), and
-#: the longest memory.
+#: Most matrices of a bound with memory (:func:`lookahead_lift` for the cost, :func:`memory_lift` for the l2 gain)
+#: the brackets try: memory one, a longer memory (each costs a Clarabel SDP of that many matrices: 170 took 11 s, 42
+#: 1.3 s; 85 lowered a delays(1, 3) bound by 6 %), and the longest memory (the count caps it first on the six
+#: families of docs/performance.md; a look-ahead of 4 closed a two-mode switched loop to 0.03 %).
 MAX_MEMORY_NODES = 256
 MAX_LONGER_MEMORY_NODES = 128
-MAX_MEMORY = 3
+MAX_MEMORY = 6
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
 LIMIT_SLACK = 1e-6
@@ -409,15 +410,14 @@ def _fixed_gain_sdp(ch: Channels, data: list[dict], kind: str, history: np.ndarr
         for d in data:
             M = P[d["src"]] - d["A"].T @ P[d["dst"]] @ d["A"] - d["S"] / size
             cons.append(0.5 * (M + M.T) >> 0)
+        # the bound from start v is <P_v, H_v>, H_v = S_v G S_v' (G = x0 x0', diag(trace_weight) or I), each H_v
+        # divided by the largest one's norm (the same P): with trace weights spanning 11 decades (badly
+        # scaled states) Clarabel failed on the weights written out and solves this form (docs/design.md §11.3)
+        G = np.outer(x0, x0) if x0 is not None else np.diag(trace_weight) if trace_weight is not None else None
+        H = {v: _sym(history[v] @ history[v].T if G is None else history[v] @ G @ history[v].T) for v in ch.start}
+        scale = max(max(float(np.linalg.norm(h, 2)) for h in H.values()), 1e-300)
         for v in ch.start:
-            S = history[v]
-            if x0 is not None:
-                val = x0 @ S.T @ P[v] @ S @ x0
-            elif trace_weight is not None:
-                val = cp.sum(cp.multiply(trace_weight, cp.diag(S.T @ P[v] @ S)))
-            else:
-                val = cp.trace(S.T @ P[v] @ S)
-            cons.append(val <= tau)
+            cons.append(cp.trace((H[v] / scale) @ P[v]) <= tau)
         cons += [X >> 0 for X in P]
         obj = tau
     else:
@@ -722,14 +722,17 @@ def _walk_costs(data: list[dict], walks: list) -> tuple[np.ndarray, np.ndarray, 
 
 
 def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None = None,
-              nodes: np.ndarray | None = None, floor: float = -np.inf, stop: float = np.inf):
+              nodes: np.ndarray | None = None, floor: float = -np.inf, stop: float = np.inf,
+              memory: tuple | None = None):
     """The costliest admissible run found that takes a first stretch once and then repeats a closed walk (cost):
     ``(value, lead, walk, runs valued)``, ``value`` None when none beats ``floor``.
 
     A beam over the automaton from the start nodes: each run is carried as its cost so far and the moment
     ``Sigma = T M T'`` of its state (``M`` x0's or the trace's on the initial history, ``T`` the stretch's
     transition), extended by every transition leaving its node; the ``RUN_BEAM`` best by their cost so far plus
-    ``<P_v, Sigma>`` (``nodes``, the certificate: what the rest may cost at most; without it the best tail) go on,
+    ``<P_v, Sigma>`` (``nodes``, the certificate: what the rest may cost at most; without it the best tail; with
+    ``memory = (P, keys, L)``, a certified look-ahead of :func:`memory_bracket`, a closer estimate: the largest
+    ``<P_q, Sigma>`` over the sequences q leaving the run's node) go on,
     for ``RUN_DEPTH`` steps or until ``stop``.  Every extension is valued as a lower bound with the costliest stable
     closed walk from its node repeated after it; the best is re-valued on its own (:func:`solver.brackets.
     sequence_cost`, the walk's equation in the certificate's coordinates).  A closed walk from a start node alone
@@ -745,6 +748,10 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
     src = np.asarray(prob.src)
     acc, at = np.zeros(len(ch.start)), np.asarray(ch.start, dtype=int)
     sig, paths = np.stack([M] * len(ch.start)), [()] * len(ch.start)
+    lookahead = None  # per node, the look-ahead's matrices of the sequences leaving it
+    if memory is not None:
+        first = np.array([int(data[q[0]]["src"]) for _, q in memory[1]])
+        lookahead = [memory[0][first == v] if np.any(first == v) else None for v in range(V)]
     best, found, count = floor, None, 0
     for _ in range(RUN_DEPTH):
         parts = []
@@ -773,7 +780,14 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
             best, found = float(low[i]), (paths[i], tails[at[i]][tail_arg[i]])
         if best >= stop:
             break
-        ahead = tail_value if nodes is None else np.einsum("bij,bji->b", nodes[at], sig)
+        if lookahead is not None:  # the most the next transitions' matrices allow from the node
+            ahead = np.full(acc.size, -np.inf)
+            for v in np.unique(at):
+                rows = np.flatnonzero(at == v)
+                if lookahead[v] is not None:
+                    ahead[rows] = np.einsum("cij,bji->bc", lookahead[v], sig[rows]).max(axis=1)
+        else:
+            ahead = tail_value if nodes is None else np.einsum("bij,bji->b", nodes[at], sig)
         keep = np.argsort(-(acc + ahead), kind="stable")[:RUN_BEAM]
         acc, at, sig, paths = acc[keep], at[keep], sig[keep], [paths[j] for j in keep]
     if found is None:
@@ -851,29 +865,56 @@ def memory_lift(ch: Channels, data: list[dict], kind: str, memory: int = 1):
     return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted, keys
 
 
+def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
+    """The transition graph with one node per admissible sequence of the next ``memory`` transitions (the state
+    just before them): a node ``q = (e_1, ..., e_L)`` goes to ``(e_2, ..., e_L, f)`` for every ``f`` leaving
+    ``dst(e_L)``, carrying ``e_1``'s data; the start nodes are the sequences whose first transition leaves a start
+    node.  Matrices ``P_q`` with ``A_1' P_q' A_1 - P_q + S_1 <= 0`` on its edges bound the cost of every run by
+    ``max_q <P_q, M>`` over those start nodes: one matrix per first stretch, where the memory of the last
+    transitions (:func:`memory_lift`) has one for all runs from a start (docs/design.md §11.3, "Look-ahead").
+
+    Returns ``(channels, lifted data, keys)`` as :func:`memory_lift`, the keys ``("next", q)``."""
+    E = len(data)
+    seqs = [(e,) for e in range(E)]
+    for _ in range(memory - 1):
+        seqs = [q + (f,) for q in seqs for f in range(E) if data[f]["src"] == data[q[-1]]["dst"]]
+    index = {q: i for i, q in enumerate(seqs)}
+    leaving = [[f for f in range(E) if data[f]["src"] == v] for v in range(1 + max(max(d["src"], d["dst"]) for d in data))]
+    lifted = [dict(data[q[0]], src=i, dst=index[q[1:] + (f,)]) for i, q in enumerate(seqs)
+              for f in leaving[data[q[-1]]["dst"]]]
+    starts = {int(v) for v in ch.start}
+    start = [i for i, q in enumerate(seqs) if int(data[q[0]]["src"]) in starts]
+    return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted, [("next", q) for q in seqs]
+
+
 def _shorter(key: tuple, memory: int) -> tuple:
     """The key of :func:`memory_lift` with ``memory`` transitions that a node of a longer memory refines."""
     v, q = key
+    if v == "next":  # a look-ahead refines the one of its first transitions
+        return v, q[:memory]
     return (None, q[len(q) - memory:]) if v is None or len(q) >= memory else (v, q)
 
 
 def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
                    time_limit: float | None = None, trace_weight: np.ndarray | None = None, memory: int = 1,
-                   previous: tuple | None = None):
-    """The certified bound of ``memory`` (:func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the
+                   previous: tuple | None = None, lookahead: bool = False):
+    """The certified bound of ``memory`` (:func:`memory_lift`, or :func:`lookahead_lift` with ``lookahead``, whose
+    count is the sequences without start copies): the fixed-gain SDP on the lifted graph, posed in the
     coordinates of ``previous`` (``(P, keys, memory)`` of a certified bound of a shorter memory: each node takes the matrix
     of the node it refines) or else of the node matrices ``nodes`` (each lifted node its automaton node's),
     re-checked as any node matrices (:func:`certify`).  ``(P (count, k, k) or None, upper or None, keys, reason)``."""
-    count, cap = memory_count(ch, data, kind, memory), MAX_MEMORY_NODES if memory == 1 else MAX_LONGER_MEMORY_NODES
+    count = memory_count(ch, data, "hinf" if lookahead else kind, memory)  # ("hinf": no start-rooted sequences)
+    cap = MAX_MEMORY_NODES if memory == 1 else MAX_LONGER_MEMORY_NODES
     if count > cap:
         return None, None, [], f"{count} matrices of memory {memory} exceed {cap}"
-    lch, lifted, keys = memory_lift(ch, data, kind, memory)
+    lch, lifted, keys = lookahead_lift(ch, data, memory) if lookahead else memory_lift(ch, data, kind, memory)
     coordinates = None
     if previous is not None:
         where = {key: i for i, key in enumerate(previous[1])}
         coordinates = np.asarray(previous[0])[[where[_shorter(key, previous[2])] for key in keys]]
     elif nodes is not None:
-        coordinates = np.asarray(nodes)[[v if not q else data[q[-1]]["dst"] for v, q in keys]]
+        coordinates = np.asarray(nodes)[[data[q[0]]["src"] if v == "next" else v if not q else data[q[-1]]["dst"]
+                                         for v, q in keys]]
     P0, why = fixed_gain(lch, lifted, kind, x0, time_limit, trace_weight=trace_weight, coordinates=coordinates,
                          n_nodes=count)
     if P0 is None:
@@ -899,7 +940,9 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
     ``time_limit``: the fixed-gain SDP's, in seconds, 0 to skip it; ``trace_weight``: the cost's trace weights,
     balanced coordinates, :func:`history_value`).  ``memory``: when the node matrices leave the bracket open by
     more than ``MEMORY_GAP``, try the bounds of memory one, two, ... ``MAX_MEMORY`` (:func:`memory_bracket`, each
-    in the coordinates of the last one certified; ``mode_certificate``, ``memory``) while it stays open."""
+    in the coordinates of the last one certified; ``mode_certificate``, ``memory``) while it stays open: for the
+    cost one matrix per sequence of the next transitions (:func:`lookahead_lift`), for the l2 gain of the last
+    (:func:`memory_lift`)."""
     start = time.perf_counter()
     data = ch.numeric(gains)
     P = upper = None
@@ -929,22 +972,31 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         if not ((upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and
                 (left is None or left > 1e-3) and (lower is None or np.isfinite(lower))):
             break
-        Pm, bound, keys, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight, tried, previous)
+        Pm, bound, keys, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight, tried, previous,
+                                              lookahead=kind == "cost")
         if Pm is not None and (lower is None or lower <= bound * (1 + 1e-6)) and (upper is None or bound < upper):
             memory_P, upper, level, previous = Pm, bound, tried, (Pm, keys, tried)
         elif P is None and memory_P is None and why:
             reason = f"{reason}; memory {tried}: {why}"
         if Pm is None:  # too many matrices, or a lift the SDP or the re-check failed on: a longer one is larger
             break
+    if kind == "cost" and previous is not None and lower is not None and np.isfinite(lower) and \
+            lower < upper * (1 - LOWER_CLOSED):
+        # the run search again, ranked by the look-ahead's matrices: the node matrices' ranking, looser, let the
+        # beam drop the run that led to the costliest stretch (delays(1, 2), badly scaled seed 1)
+        value, found_lead, found, runs = worst_run(ch, data, x0, trace_weight, P, floor=lower, stop=upper,
+                                                   memory=previous)
+        count += runs
+        if value is not None and value <= upper * (1 + 1e-6):
+            lower, lead, walk = value, found_lead, found
     if walk is not None:  # one infinite run, one witness, whatever rounding picked among its spellings
         prefix, period = shortest_lead(walk[:lead], _primitive_period(list(walk[lead:])))
         walk, lead = tuple(prefix + period), len(prefix)
     what = "cost" if kind == "cost" else "l2 gain"
     if memory_P is not None:
-        last = "last transition" if level == 1 else f"sequence of the last {level} transitions"
-        starts = ", and per start node" + (" and run start shorter than that" if level > 1 else "")
-        message = (f"{what} certified <= {upper:.6g} (float64 re-check of one matrix per {last}"
-                   f"{starts if kind == 'cost' else ''})")
+        when = "next" if kind == "cost" else "last"
+        last = f"{when} transition" if level == 1 else f"sequence of the {when} {level} transitions"
+        message = f"{what} certified <= {upper:.6g} (float64 re-check of one matrix per {last})"
         if node_upper is not None:
             message += f"; the node matrices alone: {node_upper:.6g}"
     else:
