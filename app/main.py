@@ -20,7 +20,7 @@ from app.jobs import store
 from app.jobs.database import Database, run_migrations
 from app.jobs.dispatcher import make_dispatcher
 from app.api.middleware import BodySizeLimit, BodyTimeout, JsonBodiesOnly
-from app.api import analyses, channels, designs, health, margins, problem_pages, simulations
+from app.api import analyses, channels, designs, health, margin_routes, problem_pages, simulations
 from app.settings import Settings
 from app.jobs.sync_pool import SyncPool
 from app.jobs.watch import JobWatch
@@ -158,7 +158,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(simulations.router)
     app.include_router(analyses.router)
     app.include_router(channels.router)
-    app.include_router(margins.router)
+    app.include_router(margin_routes.router)
     app.include_router(health.router)
     app.include_router(problem_pages.router)
 

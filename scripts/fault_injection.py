@@ -43,7 +43,7 @@ from bench.harness import (FAST, SLOW, TERMINAL, Server, ensure_postgres_running
 from sqlalchemy import event, func, select, text  # noqa: E402
 
 from app.jobs.database import Database  # noqa: E402
-from app.jobs.model import Job  # noqa: E402
+from app.jobs.tables import Job  # noqa: E402
 
 
 def local_postgres() -> bool:

@@ -91,7 +91,7 @@ def carry_multipliers(X: np.ndarray, eta: np.ndarray, lam: float, new: float) ->
     Parameters
     ----------
     X : ndarray, shape (S, 2n, 2n)
-        The multipliers of rate ``lam`` (:func:`solver.ipm.problems.lmi_problem`'s block order).
+        The multipliers of rate ``lam`` (:func:`solver.ipm.design_blocks.lmi_problem`'s block order).
     eta : ndarray, shape (S,)
     lam, new : float
 

@@ -10,7 +10,7 @@ from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBea
 
 from app.jobs.database import Database
 from app.api.problems import ProblemException
-from app.jobs.errors import InvalidComputeInput
+from app.jobs.job_errors import InvalidComputeInput
 from app.settings import Settings
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,

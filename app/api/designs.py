@@ -18,8 +18,8 @@ from app.compute.requests import DesignRequest
 from app.examples import DESIGN_EXAMPLES
 from app.jobs import store
 from app.jobs.database import Database
-from app.jobs.model import Status
 from app.jobs.store import canonical_json
+from app.jobs.tables import Status
 from app.settings import Settings
 
 router = job_router("design")

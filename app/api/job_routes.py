@@ -18,7 +18,7 @@ from app.api.schemas import JOB_MODELS, JobList, JobSummary
 from app.api.views import full, summary
 from app.jobs import store
 from app.jobs.database import Database, unavailable
-from app.jobs.model import FINISHED
+from app.jobs.tables import FINISHED
 
 ERRORS = {
     404: {"description": "Unknown job id", **PROBLEM},

@@ -13,8 +13,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.jobs.database import database_reason
-from app.jobs.errors import (ComputeFailed, ComputeTimeLimit, IdempotencyKeyReused, JobAlreadyFinished, JobNotFound,
-                             MemoryLimitExceeded, OwnerQueueFull, QueueFull, WorkerDied)
+from app.jobs.job_errors import (ComputeFailed, ComputeTimeLimit, IdempotencyKeyReused, JobAlreadyFinished,
+                                 JobNotFound, MemoryLimitExceeded, OwnerQueueFull, QueueFull, WorkerDied)
 
 log = logging.getLogger("app")
 
@@ -263,7 +263,7 @@ def install(app: FastAPI) -> None:
         return problem_response(request, exc.status, exc.title, exc.detail, exc.type, exc.errors,
                                 exc.headers)
 
-    # The job and compute layers' refusals (app.jobs.errors) and their HTTP answers, in one table.
+    # The job and compute layers' refusals (app.jobs.job_errors) and their HTTP answers, in one table.
     for error, (status, title, slug) in DOMAIN_ERRORS.items():
         app.add_exception_handler(error, _domain_handler(status, title, slug))
 

@@ -9,7 +9,7 @@ from pydantic import BaseModel, ValidationError
 
 from app.api.schemas import (DesignJob, DesignResult, JobSummary, Links, MarginJob, MarginResult, PlantSummary)
 from app.compute.requests import DesignRequest, MarginRequest
-from app.jobs.model import Job as JobRow
+from app.jobs.tables import Job as JobRow
 
 log = logging.getLogger("app")
 

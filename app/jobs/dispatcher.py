@@ -37,7 +37,7 @@ from app.compute.messages import Begun, Cancelled, ExecutorEvent, Failed, Lost, 
 from app.jobs import store as jobs
 from app.jobs.database import Database, database_reason
 from app.jobs.executor import Executor
-from app.jobs.model import Status
+from app.jobs.tables import Status
 from app.jobs.watch import resolve_from_thread
 from app.settings import Settings
 

@@ -8,7 +8,7 @@ dispatcher and a cancel request can never both win.
 The paths every job takes (submit, claim, finish, get, the waiters' "which are finished") are constant
 Core statements with bound parameters on a plain connection: SQLAlchemy compiles each once, and a job
 costs a few statements' worth of driver work instead of the ORM's per-call statement building and unit
-of work. They answer with :class:`~app.jobs.model.JobRecord` snapshots.
+of work. They answer with :class:`~app.jobs.tables.JobRecord` snapshots.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 
 from app.jobs.database import Database
-from app.jobs.errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, OwnerQueueFull, QueueFull
-from app.jobs.model import Job, JobRecord, Status, new_id, utcnow
+from app.jobs.job_errors import IdempotencyKeyReused, JobAlreadyFinished, JobNotFound, OwnerQueueFull, QueueFull
+from app.jobs.tables import Job, JobRecord, Status, new_id, utcnow
 
 _T = Job.__table__
 _C = _T.c

@@ -8,7 +8,7 @@ Free slots are handed out round-robin over the callers' keys (their API key, els
 that queues many long requests delays another key's request by at most one request per slot, never by
 its whole backlog. The time limit counts from the moment a call gets its slot, not while it waits.
 
-Outcomes other than a result are raised as domain errors (``app.jobs.errors``).
+Outcomes other than a result are raised as domain errors (``app.jobs.job_errors``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 from app.compute.messages import SyncFailed, SyncInvalid, SyncOverMemory, SyncResult
 from app.compute.process import memory_message
-from app.jobs.errors import ComputeFailed, ComputeTimeLimit, InvalidComputeInput, MemoryLimitExceeded, WorkerDied
+from app.jobs.job_errors import ComputeFailed, ComputeTimeLimit, InvalidComputeInput, MemoryLimitExceeded, WorkerDied
 
 log = logging.getLogger("app.jobs.sync_pool")
 

@@ -40,12 +40,12 @@ Public entry points: :func:`solve_lmi` (the ``lmi`` design),
 
 from .algorithm import GroupedSolution, IPMOptions, IPMSolution, WarmStart, solve_block_lmi, solve_grouped
 from .blas import blas_threads, heap_reuse
+from .design_blocks import (LMISolution, SwitchedSolution, _gain_L, _gain_scale, _split_Y,  # noqa: F401 (ccl)
+                            design_solve, design_solve_fixed_gain, lmi_problem, solve_common_fixed_gain, solve_lmi,
+                            solve_switched, switched_problem)
 from .model import BlockGroup, BlockLMI, GroupedLMI, MatrixVariable
 from .network_blocks import NetworkIPMSolution, network_problem, solve_network
 from .performance_blocks import PerformanceProblem, PerformanceSolution, performance_problem, solve_performance
-from .problems import (LMISolution, SwitchedSolution, _gain_L, _gain_scale, _split_Y, design_solve,  # noqa: F401 (ccl)
-                       design_solve_fixed_gain, lmi_problem, solve_common_fixed_gain, solve_lmi, solve_switched,
-                       switched_problem)
 
 __all__ = [
     "MatrixVariable",

@@ -87,7 +87,7 @@ def network_problem(free, coef, right, src, dst, n_nodes: int, zblocks: int, sca
     dst_all = np.concatenate([np.asarray(dst, dtype=int), extra])
     A0 = np.zeros((nb, k, k))
     A0[:E] = sc[:, None, None] * free
-    # the gains' coefficients, each gain scaled to unit size (as solver.ipm.problems._gain_scale)
+    # the gains' coefficients, each gain scaled to unit size (as solver.ipm.design_blocks._gain_scale)
     cf = np.zeros((nb, N, k, m))
     for j in range(N):
         on = right[:, j] >= 0

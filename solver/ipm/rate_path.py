@@ -1,6 +1,6 @@
 """One interior-point path that follows the decay rate (docs/design.md §3.2.2, "The rate-following path").
 
-The ``lmi`` design SDP in the congruent form (:func:`solver.ipm.problems.lmi_problem`) has data
+The ``lmi`` design SDP in the congruent form (:func:`solver.ipm.design_blocks.lmi_problem`) has data
 ``c_s free_s``, ``c_s coef_s`` with ``c_s = lambda^(-eta_s)``: one problem per rate, all of one shape and one
 basis, so an iterate ``(y, X)`` of one rate is an iterate of every other.  :func:`follow_rate` runs the
 interior-point iteration of :mod:`solver.ipm.algorithm` once and moves lambda between its iterations (the
@@ -35,7 +35,7 @@ import numpy as np
 
 from .algorithm import IPMOptions, _cholesky, _eigvalsh, _inv, _ipm_core
 from .blas import blas_threads, heap_reuse
-from .problems import _check_data, _gain_L, _gain_scale, lmi_problem
+from .design_blocks import _check_data, _gain_L, _gain_scale, lmi_problem
 from .schur import dense_ops
 
 __all__ = ["RatePathResult", "follow_rate", "certified_rate", "refuted_rate"]
@@ -152,7 +152,7 @@ def refuted_rate(X: np.ndarray, eta: np.ndarray, lam: float) -> float:
     Parameters
     ----------
     X : ndarray, shape (S, 2n, 2n)
-        The multipliers at rate ``lam`` (the block order of :func:`solver.ipm.problems.lmi_problem`).
+        The multipliers at rate ``lam`` (the block order of :func:`solver.ipm.design_blocks.lmi_problem`).
     eta : ndarray, shape (S,)
         Interval lengths.
     lam : float

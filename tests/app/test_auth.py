@@ -14,7 +14,7 @@ from app.cli import access_notice
 from app.jobs.database import Database
 from app.api.deps import match_key, owner_of
 from app.examples import PAPER_GAINS_H01, PAPER_PLANT
-from app.jobs.model import Job
+from app.jobs.tables import Job
 
 from .conftest import assert_problem, running_client, wait_for
 

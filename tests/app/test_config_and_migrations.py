@@ -11,7 +11,7 @@ from sqlalchemy import create_engine, inspect
 
 from app.jobs.database import run_migrations
 from app.examples import PAPER_GAINS_H01, PAPER_PLANT
-from app.jobs.model import Base
+from app.jobs.tables import Base
 from app.settings import Settings
 
 from .conftest import REPO, assert_problem, running_client

@@ -83,7 +83,7 @@ def test_paper_example_on_the_cluster_matches_the_solver(client, cluster, method
         assert job["progress"]["iteration"] is not None
     # It ran in one of the cluster's worker processes.
     from app.jobs.database import Database
-    from app.jobs.model import Job
+    from app.jobs.tables import Job
 
     db = Database(client.app.state.settings.database_url)
     with db.read() as s:

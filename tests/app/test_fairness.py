@@ -16,7 +16,7 @@ from sqlalchemy import select
 
 from app.api.deps import owner_of
 from app.jobs.database import Database
-from app.jobs.model import Job
+from app.jobs.tables import Job
 from bench.harness import FAST, SLOW
 
 KEY_A, KEY_B = "key-a-" + "0" * 16, "key-b-" + "1" * 16

@@ -11,7 +11,7 @@ from sqlalchemy import update
 
 from app.jobs.database import Database
 from app.examples import PAPER_PLANT
-from app.jobs.model import Job, utcnow
+from app.jobs.tables import Job, utcnow
 
 from .conftest import running_client, wait_for, worker_pid_of
 

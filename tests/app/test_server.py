@@ -12,7 +12,7 @@ import numpy as np
 
 from app.jobs.database import Database
 from app.examples import PAPER_PLANT
-from app.jobs.model import Job
+from app.jobs.tables import Job
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 PAPER_LMI = {"plant": PAPER_PLANT, "n_drop": 3, "method": "lmi"}

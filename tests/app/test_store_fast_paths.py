@@ -13,7 +13,7 @@ from sqlalchemy import select
 from app.jobs import database as database_module
 from app.jobs import store
 from app.jobs.database import Database, json_text, run_migrations
-from app.jobs.model import Job
+from app.jobs.tables import Job
 from tests.app.conftest import PG_URL, make_settings
 
 DOCUMENTS = [

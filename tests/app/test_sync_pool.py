@@ -10,7 +10,7 @@ import asyncio
 
 import pytest
 
-from app.jobs.errors import ComputeTimeLimit
+from app.jobs.job_errors import ComputeTimeLimit
 from app.jobs.sync_pool import SyncPool
 from tests.app import sync_pool_tasks
 

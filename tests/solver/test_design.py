@@ -164,9 +164,9 @@ def test_auto_fallback_to_clarabel_respects_max_memory(monkeypatch):
 def test_failed_ipm_then_clarabel_reports_one_record(monkeypatch):
     """_after_failure re-checks the IPM's last iterate and then Clarabel's answer: the callback sees one record,
     the returned verdict's (it used to see the discarded iterate's as well)."""
-    from solver.ipm import problems
+    from solver.ipm import design_blocks
 
-    solve_lmi = problems.solve_lmi
+    solve_lmi = design_blocks.solve_lmi
 
     def spoiled(*args, **kwargs):  # stops short with an iterate whose gains are far off: no verdict from it
         sol = solve_lmi(*args, **kwargs)
@@ -174,7 +174,7 @@ def test_failed_ipm_then_clarabel_reports_one_record(monkeypatch):
         sol.Y = sol.Y * 1e3
         return sol
 
-    monkeypatch.setattr(problems, "solve_lmi", spoiled)
+    monkeypatch.setattr(design_blocks, "solve_lmi", spoiled)
     fam = PlantFamily.paper_example(0.1)
     seen = []
     res = design(fam, n_drop=3, method="lmi", decay_rate=None, callback=seen.append)
@@ -187,16 +187,16 @@ def test_failed_ipm_then_clarabel_reports_one_record(monkeypatch):
 def test_ipm_stopping_short_keeps_its_iterate_for_the_rechecks(monkeypatch, rate):
     # the IPM's max_iterations / numerical_error near the feasibility boundary (issue 29): its last iterate is
     # strictly feasible for its own margin, so its gains (or its multipliers) are re-checked like any answer
-    from solver.ipm import problems
+    from solver.ipm import design_blocks
 
-    solve_lmi = problems.solve_lmi
+    solve_lmi = design_blocks.solve_lmi
 
     def capped(*args, **kwargs):
         sol = solve_lmi(*args, **kwargs)
         sol.status = "max_iterations"
         return sol
 
-    monkeypatch.setattr(problems, "solve_lmi", capped)
+    monkeypatch.setattr(design_blocks, "solve_lmi", capped)
     fam = PlantFamily.paper_example(0.1)
     res = design(fam, n_drop=3, method="lmi", solver="IPM", decay_rate=rate)
     assert res.solver == "IPM" and "from the last iterate after: IPM ended with status 'max_iterations'" in res.message

@@ -323,7 +323,7 @@ def test_carried_multipliers_keep_the_residual_and_the_dual_bound(seed):
     """Multipliers carried down in rate (off-diagonal blocks scaled, docs/design.md §3.2.1) give the new rate's
     problem the old rate's ``A^*(X)`` and ``<C, X>`` (its own operators as the reference), stay positive
     semidefinite, and so start a warm solve primal feasible where the uncarried ones do not."""
-    from solver.ipm.problems import lmi_problem
+    from solver.ipm.design_blocks import lmi_problem
     from solver.rate_search import carry_multipliers
 
     family = random_family(3, 2, 1, seed=seed, spread=0.3)

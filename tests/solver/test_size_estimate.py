@@ -18,7 +18,7 @@ from .textbook import pendulum
 
 
 def _built_lmi(fam, n_drop, switching="per_interval", scheme="predictive"):
-    from solver.ipm.problems import lmi_problem
+    from solver.ipm.design_blocks import lmi_problem
 
     modes = ModeSet.from_family(fam, n_drop, plant_switching=switching, scheme=scheme)
     coef, active = modes.scheme_coef()

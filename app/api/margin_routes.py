@@ -22,7 +22,7 @@ from app.compute.requests import MarginRequest
 from app.examples import MARGIN_EXAMPLES
 from app.jobs import store
 from app.jobs.database import Database
-from app.jobs.model import Status
+from app.jobs.tables import Status
 from app.settings import Settings
 
 KIND = "margin"
