@@ -110,11 +110,15 @@ class Performance:
         the bounded-real inequality at ``upper^2`` (the game refinement's), checked exactly on the deployed loop.
         ``certificate`` then stays a float64 certificate (of a larger bound) when one passed, else it is this P's
         float64 rounding (the message says which).  JSON: strings ``"p/q"``.
-    mode_certificate : ndarray, shape (S, n, n), or None
+    mode_certificate : ndarray, shape (S, n, n) or (S^L, n, n), or None
         hinf over several modes: one storage matrix ``P_s`` per loop mode (user coordinates) when they certify a
         smaller l2 gain than the common P (``upper`` is then their bound, ``certificate_upper`` the common one's):
         ``[A_s B_s; C_s D_s]' diag(P_t, I) [A_s B_s; C_s D_s] - diag(P_s, gamma^2 I) <= 0`` for every pair of
-        consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").  On a
+        consecutive modes s, t, re-checked in float64 (docs/design.md §8.4, "Mode-dependent storage").  The cost
+        over several modes: one matrix ``P_q`` per sequence ``q = (s_1, ..., s_L)`` of the next L interval modes
+        (lexicographic order), ``A_s1' P_q' A_s1 - P_q + S_s1 <= 0`` for ``q' = (s_2, ..., s_L, t)`` and every t,
+        the bound the largest ``x0' P_q x0`` (``trace P_q``), when below the common P's (docs/design.md §8.4,
+        "Look-ahead").  On a
         network (:class:`NetworkPerformance`), shape (count, k, k): for the cost one matrix per sequence of the next
         ``memory`` transitions, for the state just before it (:func:`solver.methods.network_performance.
         lookahead_lift`'s order); for the l2 gain one per sequence of the last ``memory`` transitions, for the state
@@ -249,7 +253,11 @@ def bracket_back(perf: Performance, scale, lifted: Lifted, gains: np.ndarray, x0
     if P is not None:
         data = lifted.numeric(gains)
         ok = check_cost(P, data)[0] if cost else check_hinf(P, (perf.certificate_upper * k)**2, data)[0]
-        if mode_P is not None:
+        if mode_P is not None and cost:
+            from .methods.network_performance import lookahead_check
+
+            ok = ok and lookahead_check(data, mode_P)
+        elif mode_P is not None:
             ok = ok and check_hinf(mode_P, (perf.upper * k)**2, mode_pairs(data))[0]
         message += "" if ok else "; P re-checked in balanced coordinates (powers-of-two scaling)"
     exact_P = None
@@ -2006,6 +2014,17 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         # the prefix tree's certified bound (docs/design.md §8.4, "Tree bound"): the same P, a tighter number
         upper = found.bound
         tree = f"{found.tree}; the quadratic certificate alone: {quadratic:.6g}"
+    if kind == "cost" and P is not None and exact_P is None and len(data) > 1 and lower is not None and \
+            np.isfinite(lower) and upper > lower * (1 + LOOKAHEAD_GAP) and not out_of_time(seconds_left):
+        # a switched loop whose single P leaves a gap: one matrix per sequence of the next intervals (docs/design.md
+        # §8.4, "Look-ahead"; a two-mode loop near the stability boundary: 181 -> 120.73 against a run of 120.70)
+        from .methods.network_performance import lookahead_cost
+
+        ahead = lookahead_cost(data, x0, weight, P, lower, None if seconds_left is None else seconds_left())
+        if ahead is not None and ahead[1] < upper:
+            mode_P, upper, memory = ahead
+            tree = (f"one matrix per sequence of the next {memory} intervals, {len(mode_P)} matrices; the quadratic "
+                    f"certificate alone: {quadratic:.6g}")
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
         P, upper, quadratic, mode_P = None, None, None, None
@@ -2025,6 +2044,8 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
                        mode_certificate=mode_P)
 
 
+#: A cost bracket open by more than this (upper / lower - 1) tries the look-ahead bounds (:func:`bracket`).
+LOOKAHEAD_GAP = 1e-2
 #: The exact witness (:func:`exact_gain_lower`) is evaluated only for a period of at most this many intervals times
 #: states (``len(seq) n``): the real form of ``(zI - Phi) Y = B`` has side ``2n`` and the period's rationals grow by
 #: ~53 bits per interval (docs/design.md §8.4, "Lower bound").

@@ -114,7 +114,7 @@ def matlab_variables(result, family: PlantFamily | None = None) -> dict[str, Any
             "perf_lower": nan if perf.get("lower") is None else float(perf["lower"]),
             "P_perf": np.zeros((0, 0)) if perf.get("certificate") is None else np.asarray(perf["certificate"], float),
         })
-        if perf.get("mode_certificate") is not None:  # hinf: one storage per loop mode certifies perf_upper
+        if perf.get("mode_certificate") is not None:  # hinf: one storage per loop mode; cost: per next modes
             out["P_perf_modes"] = np.moveaxis(np.asarray(perf["mode_certificate"], float), 0, -1)
     X_inv = _get(result, "invariant_set")
     if X_inv is not None:  # inputs within u_max from every x with x' X_inv x <= 1

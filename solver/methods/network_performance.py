@@ -887,6 +887,48 @@ def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
     return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted, [("next", q) for q in seqs]
 
 
+def _one_node(data: list[dict], n: int) -> tuple:
+    """Interval modes any of which may follow any (bounded drops, :mod:`solver.brackets`) as a one-node graph:
+    ``(channels, data)`` for :func:`memory_bracket` (the Lyapunov state is the state, the history the identity)."""
+    ch = Channels(prob=type("OneNode", (), {"k": n, "nodes": (0,)})(), state=None, cost=None, output=None, B=None,
+                  D=None, start=np.zeros(1, dtype=int), history=np.eye(n))
+    return ch, [dict(d, src=0, dst=0) for d in data]
+
+
+def lookahead_cost(data: list[dict], x0=None, weight: np.ndarray | None = None, P: np.ndarray | None = None,
+                   lower: float | None = None, time_limit: float | None = None):
+    """The cost bound of one matrix per sequence of the next L interval modes of a bounded-drops loop (``data`` of
+    :meth:`solver.lifting.Lifted.numeric`; every mode may follow every mode): L = 1, 2, ... ``MAX_MEMORY`` while at
+    most ``MAX_LONGER_MEMORY_NODES`` matrices and open by more than ``MEMORY_GAP`` above ``lower``, the first in the
+    coordinates of the common certificate ``P``, each in the last's (docs/design.md §8.4, "Look-ahead").
+    ``(matrices (S^L, n, n) in :func:`lookahead_lift`'s order, upper, L)`` of the least certified, or None."""
+    n = data[0]["A"].shape[0]
+    ch, graph = _one_node(data, n)
+    start, best, previous = time.perf_counter(), None, None
+    for memory in range(1, MAX_MEMORY + 1):
+        if best is not None and lower is not None and best[1] <= lower * (1 + MEMORY_GAP):
+            break
+        left = None if time_limit is None else time_left(time_limit, start, floor=1e-3)
+        Pm, bound, keys, _ = memory_bracket(ch, graph, "cost", x0, None if P is None else P[None], left, weight, memory,
+                                            previous, lookahead=True)
+        if Pm is None:
+            break
+        if best is None or bound < best[1]:
+            best = (Pm, bound, memory)
+        previous = (Pm, keys, memory)
+    return best
+
+
+def lookahead_check(data: list[dict], P: np.ndarray) -> bool:
+    """The float64 re-check of :func:`lookahead_cost`'s matrices ``P`` (S^L, n, n) on ``data`` (S modes)."""
+    S, count = len(data), P.shape[0]
+    memory = max(1, int(round(np.log(count) / np.log(S)))) if S > 1 else 1
+    if S ** memory != count:
+        return False
+    _, lifted, _ = lookahead_lift(*_one_node(data, P.shape[-1]), memory)
+    return check_cost_nodes(P, lifted)[0]
+
+
 def _shorter(key: tuple, memory: int) -> tuple:
     """The key of :func:`memory_lift` with ``memory`` transitions that a node of a longer memory refines."""
     v, q = key

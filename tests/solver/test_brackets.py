@@ -4,6 +4,8 @@ References: scipy's DARE (LQR), python-control's H-infinity norm and a direct se
 step-by-step simulation of the buffer (written here, not the library's lifting), seeded random patterns.
 """
 
+import itertools
+
 import control
 import numpy as np
 import pytest
@@ -247,6 +249,52 @@ def test_simulated_costs_stay_below_the_certificate_and_the_witness_reaches_the_
     cost, x = run_pattern(fam, res.gains, x0, lead + period * (2000 // len(period)))
     assert np.linalg.norm(x) < 1e-8
     assert cost == pytest.approx(perf.lower, rel=1e-9)
+
+
+@pytest.mark.parametrize("with_x0", [False, True], ids=["trace", "x0"])
+def test_a_switched_loop_near_the_boundary_is_bracketed_by_a_lookahead(with_x0):
+    """Two plant modes near the stability boundary with a weak input (bench.ipm_check "boundary" seed 7033, n = 4,
+    n_drop = 1): the common P bounds the trace cost at 521.5 and its prefix tree at 181.0 against a run of 120.70,
+    since one quadratic form must bound every run from every initial state.  One matrix per sequence of the next L
+    intervals (docs/design.md §8.4, "Look-ahead") closes the bracket.  Independent check, stepped sample by sample:
+    for every sequence of 10 plant modes, the cost of those samples from each initial state plus the look-ahead's
+    matrix of the next L modes at the state reached never exceeds the upper end (so neither does any run), and the
+    witness costs the lower end."""
+    from bench.ipm_check import draw_family
+
+    fam, N, _ = draw_family(7033, max_n=4, max_lmi_rows=48)[:3]
+    assert N == 1 and fam.n_modes == 2
+    x0 = np.array([1.0, -0.5, 0.25, 2.0]) if with_x0 else None
+    res = design(fam, N, objective="cost", decay_rate=None, x0=x0)
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and "next" in perf.message and perf.lower <= perf.upper <= 1.01 * perf.lower
+    assert perf.certificate_upper > 2 * perf.upper
+    P = perf.mode_certificate
+    L = int(round(np.log2(P.shape[0])))
+    assert P.shape == (2 ** L, 4, 4) and L >= 2
+    K = res.gains[0]
+    A = [fam.F[p] + fam.G[p] @ K for p in range(2)]
+    starts = [x0] if with_x0 else list(np.eye(4))
+    T = 10
+    for seq in itertools.product(range(2), repeat=T):
+        cost, ends = 0.0, []
+        for x in starts:
+            for p in seq:
+                u = K @ x
+                cost += x @ x + u @ u  # Q = I, R = I
+                x = A[p] @ x
+            ends.append(x)
+        for nxt in itertools.product(range(2), repeat=L):  # any continuation: its window's matrix bounds the rest
+            index = int("".join(map(str, nxt)), 2)
+            assert cost + sum(x @ P[index] @ x for x in ends) <= perf.upper * (1 + 1e-9)
+    lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
+    total = 0.0
+    for x in starts:
+        cost, x = run_pattern(fam, res.gains, x, lead + period * (6000 // len(period)))
+        assert np.linalg.norm(x) < 1e-8
+        total += cost
+    assert total == pytest.approx(perf.lower, rel=1e-9)
 
 
 def test_simulated_l2_gain_stays_below_the_certificate():
