@@ -702,6 +702,18 @@ def test_combined_closed_walks_raise_the_l2_gains_lower_end(name, seed):
     assert 0.99 * perf.lower <= gain <= perf.upper
 
 
+def assert_refines(previous, keys, memory, lifted, lch, upper):
+    """The certified matrices of memory L - 1 (``previous = (P, keys, L - 1, bound)``), each node of memory L taking
+    the one it refines, pass memory L's re-check with the same bound, and memory L's bound ``upper`` is no larger."""
+    if previous is None:
+        return
+    where = {key: i for i, key in enumerate(previous[1])}
+    mapped = previous[0][[where[network_performance._shorter(key, memory - 1)] for key in keys]]
+    assert network_performance.check_cost_nodes(mapped, lifted)[0]
+    assert network_performance.bound_of(mapped, lch, None) == pytest.approx(previous[3], rel=1e-12)
+    assert upper <= previous[3] * (1 + 1e-6)
+
+
 @pytest.mark.parametrize("net", [Network.delays(1, 2), Network.weakly_hard(1, 3, 2)], ids=lambda n: n.describe())
 def test_the_memory_lift_follows_every_admissible_run_and_refines_the_shorter_memory(net):
     """The lift of memory L (docs/design.md §11.3): counted as built; deterministic, so every admissible run of the
@@ -739,12 +751,7 @@ def test_the_memory_lift_follows_every_admissible_run_and_refines_the_shorter_me
             continue
         P, upper, _, why = network_performance.memory_bracket(ch, data, "cost", memory=memory, previous=previous)
         assert P is not None, why
-        if previous is not None:
-            where = {key: i for i, key in enumerate(previous[1])}
-            mapped = previous[0][[where[network_performance._shorter(key, memory - 1)] for key in keys]]
-            assert network_performance.check_cost_nodes(mapped, lifted)[0]
-            assert network_performance.bound_of(mapped, lch, None) == pytest.approx(previous[3], rel=1e-12)
-            assert upper <= previous[3] * (1 + 1e-6)
+        assert_refines(previous, keys, memory, lifted, lch, upper)
         previous = (P, keys, memory, upper)
 
 
@@ -788,12 +795,7 @@ def test_the_lookahead_lift_bounds_every_run_by_its_first_transitions_matrix(net
                 longer += [(q[1:] + (f,), cost, sig) for f in range(E) if prob.src[f] == prob.dst[q[-1]]]
             runs = longer
             assert max(float(c + np.trace(P[index[q]] @ sig)) for q, c, sig in runs) <= upper * (1 + 1e-9)
-        if previous is not None:
-            where = {key: i for i, key in enumerate(previous[1])}
-            mapped = previous[0][[where[network_performance._shorter(key, memory - 1)] for key in keys]]
-            assert network_performance.check_cost_nodes(mapped, lifted)[0]
-            assert network_performance.bound_of(mapped, lch, None) == pytest.approx(previous[3], rel=1e-12)
-            assert upper <= previous[3] * (1 + 1e-6)
+        assert_refines(previous, keys, memory, lifted, lch, upper)
         previous = (P, keys, memory, upper)
 
 
