@@ -2020,7 +2020,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         # §8.4, "Look-ahead"; a two-mode loop near the stability boundary: 181 -> 120.73 against a run of 120.70)
         from .methods.network_performance import lookahead_cost
 
-        ahead = lookahead_cost(data, x0, weight, P, lower, None if seconds_left is None else seconds_left())
+        ahead = lookahead_cost(data, x0, weight, P, lower, None if seconds_left is None else seconds_left(), upper)
         if ahead is not None and ahead[1] < upper:
             mode_P, upper, memory = ahead
             tree = (f"one matrix per sequence of the next {memory} intervals, {len(mode_P)} matrices; the quadratic "

@@ -896,11 +896,12 @@ def _one_node(data: list[dict], n: int) -> tuple:
 
 
 def lookahead_cost(data: list[dict], x0=None, weight: np.ndarray | None = None, P: np.ndarray | None = None,
-                   lower: float | None = None, time_limit: float | None = None):
+                   lower: float | None = None, time_limit: float | None = None, upper: float | None = None):
     """The cost bound of one matrix per sequence of the next L interval modes of a bounded-drops loop (``data`` of
     :meth:`solver.lifting.Lifted.numeric`; every mode may follow every mode): L = 1, 2, ... ``MAX_MEMORY`` while at
     most ``MAX_LONGER_MEMORY_NODES`` matrices and open by more than ``MEMORY_GAP`` above ``lower``, the first in the
-    coordinates of the common certificate ``P``, each in the last's (docs/design.md §8.4, "Look-ahead").
+    coordinates of the common certificate ``P``, each in the last's (docs/design.md §8.4, "Look-ahead"); stopped
+    when the last step's fall, repeated, would not reach ``upper`` (the bound already certified otherwise).
     ``(matrices (S^L, n, n) in :func:`lookahead_lift`'s order, upper, L)`` of the least certified, or None."""
     n = data[0]["A"].shape[0]
     ch, graph = _one_node(data, n)
@@ -913,9 +914,12 @@ def lookahead_cost(data: list[dict], x0=None, weight: np.ndarray | None = None, 
                                             previous, lookahead=True)
         if Pm is None:
             break
+        fall = np.inf if best is None else best[1] - bound
         if best is None or bound < best[1]:
             best = (Pm, bound, memory)
         previous = (Pm, keys, memory)
+        if upper is not None and bound - fall > upper:  # (a slowly contracting loop: 967, 611, 551, 517 against 468)
+            break
     return best
 
 
