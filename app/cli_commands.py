@@ -151,6 +151,9 @@ def performance_summary(perf: dict | None, name: str) -> list[str]:
         source = (f"one re-checked matrix per {when} transition" if memory == 1 else
                   f"one re-checked matrix per sequence of the {when} {memory} transitions") + (
             "" if quadratic is None else f"; the node matrices alone: {quadratic:.6g}")
+    elif perf.get("mode_certificate") is not None and quadratic is not None:  # §8.4
+        source = ("one re-checked matrix per sequence of the next intervals" if perf.get("kind") == "cost" else
+                  "one re-checked storage per loop mode") + f"; the common certificate alone: {quadratic:.6g}"
     elif perf.get("upper") is not None and quadratic is not None and quadratic > perf["upper"]:
         source = f"prefix tree on the re-checked certificate, whose bound alone is {quadratic:.6g}"  # §8.4
     lower = "-" if perf.get("lower") is None else f"{perf['lower']:.6g}"

@@ -232,3 +232,18 @@ def test_solver_flag(workdir):
     assert json.loads((workdir / "clarabel.json").read_text())["solver"] == "CLARABEL"
     out = ncs("design", "motor.json", cwd=workdir)
     assert out.returncode == 2 and "--n-drop is required" in out.stderr
+
+
+def test_the_cli_summary_names_what_certified_the_upper_end():
+    """The summary line says which certificate gave ``upper`` (docs/design.md §8.4, §11.3): a look-ahead over the
+    next intervals, a network's next or last transitions, or the prefix tree on the common P."""
+    from app.cli_commands import performance_summary
+
+    base = {"lower": 120.7, "certificate_upper": 521.5, "witness": [[0, 1]]}
+    ahead = performance_summary(dict(base, kind="cost", upper=120.8, mode_certificate=[[[1.0]]]), "cost")[0]
+    assert "next intervals; the common certificate alone: 521.5" in ahead
+    net = dict(base, upper=120.8, mode_certificate=[[[1.0]]], start_nodes=[0], memory=3)
+    assert "sequence of the next 3 transitions" in performance_summary(dict(net, kind="cost"), "cost")[0]
+    assert "sequence of the last 3 transitions" in performance_summary(dict(net, kind="hinf"), "l2 gain")[0]
+    tree = performance_summary(dict(base, kind="cost", upper=180.0), "cost")[0]
+    assert "prefix tree on the re-checked certificate, whose bound alone is 521.5" in tree
