@@ -85,6 +85,10 @@ MEMORY_GAP = 1e-2
 MAX_MEMORY_NODES = 256
 MAX_LONGER_MEMORY_NODES = 128
 MAX_MEMORY = 6
+#: Largest look-ahead SDP of a switched loop tried (:func:`lookahead_cost`): its blocks (S^(L+1)) times their side
+#: squared.  Each is a Clarabel SDP: a design of 50 interval modes at n = 12 would pose 2500 blocks of side 12 even at
+#: L = 1; the hold-out families that closed pose at most 32 blocks of side 4 (n = 4, 2 modes, L = 4).
+LOOKAHEAD_WORK = 20000
 #: Extra strictness of the invariance blocks and slack on u_max inside the SDP (as in the single-network design).
 STRICT = 1e-5
 LIMIT_SLACK = 1e-6
@@ -908,6 +912,8 @@ def lookahead_cost(data: list[dict], x0=None, weight: np.ndarray | None = None, 
     start, best, previous = time.perf_counter(), None, None
     for memory in range(1, MAX_MEMORY + 1):
         if best is not None and lower is not None and best[1] <= lower * (1 + MEMORY_GAP):
+            break
+        if len(data) ** (memory + 1) * n * n > LOOKAHEAD_WORK:  # its S^(L+1) blocks of side n on Clarabel
             break
         left = None if time_limit is None else time_left(time_limit, start, floor=1e-3)
         Pm, bound, keys, _ = memory_bracket(ch, graph, "cost", x0, None if P is None else P[None], left, weight, memory,
