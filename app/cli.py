@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     port = args.port if args.port is not None else settings.port
     print(access_notice(settings.api_keys, host), file=sys.stderr, flush=True)
     uvicorn.run(create_app(settings), host=host, port=port, log_level=args.log_level,
-                timeout_graceful_shutdown=10)
+                timeout_graceful_shutdown=10, timeout_keep_alive=settings.keep_alive)
     return 0
 
 

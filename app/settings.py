@@ -79,6 +79,11 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(
         1_000_000, ge=1024, description="Largest accepted request body in bytes (413 above).",
     )
+    keep_alive: float = Field(
+        30.0, gt=0, le=3600, description="Seconds an idle keep-alive connection stays open. Above the clients' own "
+        "idle expiry (httpx: 5 s), so a pooled connection is never reused just as the service closes it (at uvicorn's "
+        "5 s a loaded client's POST met a closed connection).",
+    )
     max_states: int = Field(
         60, ge=1, description="Largest number of states n (lmi designs n = 60, r = 5, n_drop = 10 in 44 s of CPU on "
         "a 2-core machine: README, Service settings).",

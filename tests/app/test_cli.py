@@ -247,3 +247,22 @@ def test_the_cli_summary_names_what_certified_the_upper_end():
     assert "sequence of the last 3 transitions" in performance_summary(dict(net, kind="hinf"), "l2 gain")[0]
     tree = performance_summary(dict(base, kind="cost", upper=180.0), "cost")[0]
     assert "prefix tree on the re-checked certificate, whose bound alone is 521.5" in tree
+
+
+def test_serve_keeps_idle_connections_past_the_clients_expiry(monkeypatch, tmp_path):
+    """uvicorn's own keep-alive (5 s) equals httpx's pool expiry: a loaded client reused a connection just as the
+    service closed it (test_200_concurrent_submissions: "Server disconnected without sending a response").  `serve`
+    passes NCS_KEEP_ALIVE (default 30 s, above the clients' expiry) to uvicorn."""
+    import uvicorn
+
+    from app import cli
+    from app.settings import Settings
+
+    seen = {}
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: seen.update(kw))
+    monkeypatch.setenv("NCS_DATABASE_URL", f"sqlite:///{tmp_path / 'k.db'}")
+    assert cli.main(["serve", "--port", "0"]) == 0
+    assert seen["timeout_keep_alive"] == Settings().keep_alive == 30.0 > 5.0
+    monkeypatch.setenv("NCS_KEEP_ALIVE", "75")
+    assert cli.main(["serve", "--port", "0"]) == 0
+    assert seen["timeout_keep_alive"] == 75.0
