@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
+import types
 import warnings
 from dataclasses import dataclass
 
@@ -754,8 +755,8 @@ def worst_run(ch: Channels, data: list[dict], x0=None, weight: np.ndarray | None
     sig, paths = np.stack([M] * len(ch.start)), [()] * len(ch.start)
     lookahead = None  # per node, the look-ahead's matrices of the sequences leaving it
     if memory is not None:
-        first = np.array([int(data[q[0]]["src"]) for _, q in memory[1]])
-        lookahead = [memory[0][first == v] if np.any(first == v) else None for v in range(V)]
+        leaves = np.array([int(data[q[0]]["src"]) for _, q in memory[1]])  # the node each sequence leaves
+        lookahead = [memory[0][leaves == v] if np.any(leaves == v) else None for v in range(V)]
     best, found, count = floor, None, 0
     for _ in range(RUN_DEPTH):
         parts = []
@@ -883,7 +884,8 @@ def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
     for _ in range(memory - 1):
         seqs = [q + (f,) for q in seqs for f in range(E) if data[f]["src"] == data[q[-1]]["dst"]]
     index = {q: i for i, q in enumerate(seqs)}
-    leaving = [[f for f in range(E) if data[f]["src"] == v] for v in range(1 + max(max(d["src"], d["dst"]) for d in data))]
+    nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
+    leaving = [[f for f in range(E) if data[f]["src"] == v] for v in range(nodes)]
     lifted = [dict(data[q[0]], src=i, dst=index[q[1:] + (f,)]) for i, q in enumerate(seqs)
               for f in leaving[data[q[-1]]["dst"]]]
     starts = {int(v) for v in ch.start}
@@ -894,8 +896,8 @@ def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
 def _one_node(data: list[dict], n: int) -> tuple:
     """Interval modes any of which may follow any (bounded drops, :mod:`solver.brackets`) as a one-node graph:
     ``(channels, data)`` for :func:`memory_bracket` (the Lyapunov state is the state, the history the identity)."""
-    ch = Channels(prob=type("OneNode", (), {"k": n, "nodes": (0,)})(), state=None, cost=None, output=None, B=None,
-                  D=None, start=np.zeros(1, dtype=int), history=np.eye(n))
+    ch = Channels(prob=types.SimpleNamespace(k=n, nodes=(0,)), state=None, cost=None, output=None, B=None, D=None,
+                  start=np.zeros(1, dtype=int), history=np.eye(n))
     return ch, [dict(d, src=0, dst=0) for d in data]
 
 

@@ -594,10 +594,11 @@ def test_a_barely_stable_badly_scaled_loop_is_bracketed_in_its_certificates_coor
     assert 0 < worst_trace_cost(fam, res.gains, net) <= perf.upper
 
 
-def test_memory_of_the_last_transitions_closes_a_bracket_the_node_matrices_leave_open():
+def test_matrices_per_sequence_of_transitions_close_a_bracket_the_node_matrices_leave_open():
     """Seed 1 (state scales 1e-3 to 1e3, delays(1, 2)), the stability design's barely stable gains: the least bound
-    of node matrices is about 3.5e12 against a witnessed 5.7e9 (when Clarabel answers their SDP at all).  Matrices per sequence of the last transitions
-    (docs/design.md §11.3, "Memory of the last transitions") bound the same gains within 20 %, and the lower end is a
+    of node matrices is about 3.5e12 against a witnessed 5.7e9 (when Clarabel answers their SDP at all).  Matrices
+    per sequence of transitions (for the cost the next ones: docs/design.md §11.3, "Look-ahead") bound the same
+    gains within 20 %, and the lower end is a
     run that takes a first stretch once before its costliest period ("The lower end").  Independent checks: every
     admissible 8-sample run, stepped sample by sample from the unit vectors, costs at most the upper end, and the
     witness run (its stretch, then its period repeated) costs the lower end."""
@@ -778,7 +779,8 @@ def test_the_lookahead_lift_bounds_every_run_by_its_first_transitions_matrix(net
         assert {keys[i][1] for i in lch.start} == {q for q in seqs if int(prob.src[q[0]]) in set(map(int, ch.start))}
         index = {q: i for i, (_, q) in enumerate(keys)}
         edges = {(d["src"], d["dst"]) for d in lifted}
-        assert edges == {(index[q], index[q[1:] + (f,)]) for q in seqs for f in range(E) if prob.src[f] == prob.dst[q[-1]]}
+        assert edges == {(index[q], index[q[1:] + (f,)])
+                         for q in seqs for f in range(E) if prob.src[f] == prob.dst[q[-1]]}
         assert all(d["A"] is data[keys[d["src"]][1][0]]["A"] for d in lifted)
         if len(keys) > network_performance.MAX_LONGER_MEMORY_NODES:
             continue
