@@ -817,57 +817,42 @@ def _walk_labels(prob, walk) -> list:
     return out
 
 
-def memory_count(ch: Channels, data: list[dict], kind: str, memory: int = 1) -> int:
-    """The number of matrices of :func:`memory_lift`, counted without building it (by node, O(transitions) a step)."""
+def memory_count(data: list[dict], memory: int = 1) -> int:
+    """The number of admissible sequences of ``memory`` transitions (the matrices of :func:`memory_lift` and of
+    :func:`lookahead_lift`), counted without listing them (by node, O(transitions) a step)."""
     src, dst = np.array([d["src"] for d in data]), np.array([d["dst"] for d in data])
     V = int(max(src.max(), dst.max())) + 1
-
-    def extend(last):  # sequences one longer, by their last transition, from those by theirs
-        return np.bincount(dst, weights=last, minlength=V)[src]
-
     ending = np.ones(len(data))  # admissible sequences of the last l transitions, by the last one
     for _ in range(memory - 1):
-        ending = extend(ending)
-    count = float(ending.sum())
-    if kind == "cost":  # the start-rooted ones shorter than the memory
-        reach = np.bincount(np.asarray(ch.start, dtype=int), minlength=V)[src].astype(float)
-        count += len(ch.start)
-        for _ in range(memory - 1):
-            count += float(reach.sum())
-            reach = extend(reach)
-    return int(round(count))
+        ending = np.bincount(dst, weights=ending, minlength=V)[src]
+    return int(round(float(ending.sum())))
 
 
-def memory_lift(ch: Channels, data: list[dict], kind: str, memory: int = 1):
-    """The transition graph with one node per admissible sequence of the last ``memory`` transitions (the state just
-    after them), and for the cost one per start node and per shorter sequence taken from it (a run's first states):
-    a quadratic function per node of this graph is a path-dependent Lyapunov function of that memory, which may bound
-    far below the automaton's node matrices (docs/design.md §11.3, "Memory of the last transitions").
-
-    Returns ``(channels, lifted data, keys)``: the channels with the start copies as start nodes, the lifted data
-    (each transition's data and rounding bounds unchanged) and each lifted node's key ``(start node or None, the last
-    transitions)``; with ``memory = 1`` the nodes are the transitions in order, then the start nodes."""
-    E = len(data)
-    seqs = [(e,) for e in range(E)]
+def _sequences(data: list[dict], memory: int) -> list[tuple]:
+    """The admissible sequences of ``memory`` transitions, in lexicographic order."""
+    seqs = [(e,) for e in range(len(data))]
     for _ in range(memory - 1):
-        seqs = [q + (f,) for q in seqs for f in range(E) if data[f]["src"] == data[q[-1]]["dst"]]
-    keys = [(None, q) for q in seqs] + ([(int(v), ()) for v in ch.start] if kind == "cost" else [])
-    index = {key: i for i, key in enumerate(keys)}
-    lifted, i = [], 0
-    while i < len(keys):  # the start-rooted sequences join as they are reached
-        v, q = keys[i]
-        at = v if not q else data[q[-1]]["dst"]
-        for f in range(E):
-            if data[f]["src"] == at:
-                longer = q + (f,)
-                key = (None, longer[-memory:]) if v is None or len(longer) >= memory else (v, longer)
-                if key not in index:
-                    index[key] = len(keys)
-                    keys.append(key)
-                lifted.append(dict(data[f], src=i, dst=index[key]))
-        i += 1
-    start = [index[(int(v), ())] for v in ch.start] if kind == "cost" else []
-    return dataclasses.replace(ch, start=np.asarray(start, dtype=int)), lifted, keys
+        seqs = [q + (f,) for q in seqs for f in range(len(data)) if data[f]["src"] == data[q[-1]]["dst"]]
+    return seqs
+
+
+def memory_lift(ch: Channels, data: list[dict], memory: int = 1):
+    """The transition graph of the l2 gain's bound with memory: one node per admissible sequence ``q`` of the last
+    ``memory`` transitions (the state just after them), ``q`` going to ``q[1:] + (f,)`` with ``f``'s data for every
+    ``f`` leaving ``dst(q[-1])``.  A quadratic function per node of this graph is a path-dependent Lyapunov function
+    of that memory, which may bound far below the automaton's node matrices (docs/design.md §11.3, "Memory of the
+    last transitions").  The cost looks ahead instead (:func:`lookahead_lift`).
+
+    Returns ``(channels, lifted data, keys)``: the channels (no start nodes: the l2 gain starts from rest), the lifted
+    data (each transition's data and rounding bounds unchanged) and each lifted node's key ``("last", q)``; with
+    ``memory = 1`` the nodes are the transitions in order."""
+    seqs = _sequences(data, memory)
+    index = {q: i for i, q in enumerate(seqs)}
+    nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
+    leaving = [[f for f in range(len(data)) if data[f]["src"] == v] for v in range(nodes)]
+    lifted = [dict(data[f], src=i, dst=index[(q + (f,))[-memory:]]) for i, q in enumerate(seqs)
+              for f in leaving[data[q[-1]]["dst"]]]
+    return dataclasses.replace(ch, start=np.zeros(0, dtype=int)), lifted, [("last", q) for q in seqs]
 
 
 def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
@@ -876,16 +861,13 @@ def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
     ``dst(e_L)``, carrying ``e_1``'s data; the start nodes are the sequences whose first transition leaves a start
     node.  Matrices ``P_q`` with ``A_1' P_q' A_1 - P_q + S_1 <= 0`` on its edges bound the cost of every run by
     ``max_q <P_q, M>`` over those start nodes: one matrix per first stretch, where the memory of the last
-    transitions (:func:`memory_lift`) has one for all runs from a start (docs/design.md §11.3, "Look-ahead").
+    transitions (:func:`memory_lift`) would have one for all runs from a start (docs/design.md §11.3, "Look-ahead").
 
     Returns ``(channels, lifted data, keys)`` as :func:`memory_lift`, the keys ``("next", q)``."""
-    E = len(data)
-    seqs = [(e,) for e in range(E)]
-    for _ in range(memory - 1):
-        seqs = [q + (f,) for q in seqs for f in range(E) if data[f]["src"] == data[q[-1]]["dst"]]
+    seqs = _sequences(data, memory)
     index = {q: i for i, q in enumerate(seqs)}
     nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
-    leaving = [[f for f in range(E) if data[f]["src"] == v] for v in range(nodes)]
+    leaving = [[f for f in range(len(data)) if data[f]["src"] == v] for v in range(nodes)]
     lifted = [dict(data[q[0]], src=i, dst=index[q[1:] + (f,)]) for i, q in enumerate(seqs)
               for f in leaving[data[q[-1]]["dst"]]]
     starts = {int(v) for v in ch.start}
@@ -919,7 +901,7 @@ def lookahead_cost(data: list[dict], x0=None, weight: np.ndarray | None = None, 
             break
         left = None if time_limit is None else time_left(time_limit, start, floor=1e-3)
         Pm, bound, keys, _ = memory_bracket(ch, graph, "cost", x0, None if P is None else P[None], left, weight, memory,
-                                            previous, lookahead=True)
+                                            previous)
         if Pm is None:
             break
         fall = np.inf if best is None else best[1] - bound
@@ -942,33 +924,33 @@ def lookahead_check(data: list[dict], P: np.ndarray) -> bool:
 
 
 def _shorter(key: tuple, memory: int) -> tuple:
-    """The key of :func:`memory_lift` with ``memory`` transitions that a node of a longer memory refines."""
-    v, q = key
-    if v == "next":  # a look-ahead refines the one of its first transitions
-        return v, q[:memory]
-    return (None, q[len(q) - memory:]) if v is None or len(q) >= memory else (v, q)
+    """The key with ``memory`` transitions that a node of a longer memory refines: a look-ahead's (``("next", q)``)
+    that of its first transitions, a memory's (``("last", q)``) that of its last."""
+    when, q = key
+    return when, q[:memory] if when == "next" else q[len(q) - memory:]
 
 
 def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
                    time_limit: float | None = None, trace_weight: np.ndarray | None = None, memory: int = 1,
-                   previous: tuple | None = None, lookahead: bool = False):
-    """The certified bound of ``memory`` (:func:`memory_lift`, or :func:`lookahead_lift` with ``lookahead``, whose
-    count is the sequences without start copies): the fixed-gain SDP on the lifted graph, posed in the
-    coordinates of ``previous`` (``(P, keys, memory)`` of a certified bound of a shorter memory: each node takes the matrix
-    of the node it refines) or else of the node matrices ``nodes`` (each lifted node its automaton node's),
-    re-checked as any node matrices (:func:`certify`).  ``(P (count, k, k) or None, upper or None, keys, reason)``."""
-    count = memory_count(ch, data, "hinf" if lookahead else kind, memory)  # ("hinf": no start-rooted sequences)
+                   previous: tuple | None = None):
+    """The certified bound of ``memory`` transitions (the cost's look-ahead, :func:`lookahead_lift`; the l2 gain's
+    memory, :func:`memory_lift`): the fixed-gain SDP on the lifted graph, posed in the coordinates of ``previous``
+    (``(P, keys, memory)`` of a certified bound of a shorter memory: each node takes the matrix of the node it
+    refines) or else of the node matrices ``nodes`` (each lifted node its automaton node: the one its sequence leaves
+    for the cost, the one it reached for the l2 gain), re-checked as any node matrices (:func:`certify`).
+    ``(P (count, k, k) or None, upper or None, keys, reason)``."""
+    count = memory_count(data, memory)
     cap = MAX_MEMORY_NODES if memory == 1 else MAX_LONGER_MEMORY_NODES
     if count > cap:
         return None, None, [], f"{count} matrices of memory {memory} exceed {cap}"
-    lch, lifted, keys = lookahead_lift(ch, data, memory) if lookahead else memory_lift(ch, data, kind, memory)
+    lch, lifted, keys = lookahead_lift(ch, data, memory) if kind == "cost" else memory_lift(ch, data, memory)
     coordinates = None
     if previous is not None:
         where = {key: i for i, key in enumerate(previous[1])}
         coordinates = np.asarray(previous[0])[[where[_shorter(key, previous[2])] for key in keys]]
     elif nodes is not None:
-        coordinates = np.asarray(nodes)[[data[q[0]]["src"] if v == "next" else v if not q else data[q[-1]]["dst"]
-                                         for v, q in keys]]
+        coordinates = np.asarray(nodes)[[data[q[0]]["src"] if when == "next" else data[q[-1]]["dst"]
+                                         for when, q in keys]]
     P0, why = fixed_gain(lch, lifted, kind, x0, time_limit, trace_weight=trace_weight, coordinates=coordinates,
                          n_nodes=count)
     if P0 is None:
@@ -1026,8 +1008,7 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         if not ((upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and
                 (left is None or left > 1e-3) and (lower is None or np.isfinite(lower))):
             break
-        Pm, bound, keys, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight, tried, previous,
-                                              lookahead=kind == "cost")
+        Pm, bound, keys, why = memory_bracket(ch, data, kind, x0, P, left, trace_weight, tried, previous)
         if Pm is not None and (lower is None or lower <= bound * (1 + 1e-6)) and (upper is None or bound < upper):
             memory_P, upper, level, previous = Pm, bound, tried, (Pm, keys, tried)
         elif P is None and memory_P is None and why:

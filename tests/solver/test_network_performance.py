@@ -9,7 +9,7 @@ import pytest
 import scipy.linalg
 
 from bench.network_bench import badly_scaled
-from solver import InvalidInput, Network, PlantFamily, design
+from solver import InvalidInput, Network, PlantFamily, brackets, design
 from solver.methods import network_performance
 
 from .paper_data import EQ20_F, EQ20_G
@@ -703,56 +703,58 @@ def test_combined_closed_walks_raise_the_l2_gains_lower_end(name, seed):
     assert 0.99 * perf.lower <= gain <= perf.upper
 
 
-def assert_refines(previous, keys, memory, lifted, lch, upper):
+def assert_refines(previous, keys, memory, lifted, lch, upper, kind="cost"):
     """The certified matrices of memory L - 1 (``previous = (P, keys, L - 1, bound)``), each node of memory L taking
     the one it refines, pass memory L's re-check with the same bound, and memory L's bound ``upper`` is no larger."""
     if previous is None:
         return
     where = {key: i for i, key in enumerate(previous[1])}
     mapped = previous[0][[where[network_performance._shorter(key, memory - 1)] for key in keys]]
-    assert network_performance.check_cost_nodes(mapped, lifted)[0]
-    assert network_performance.bound_of(mapped, lch, None) == pytest.approx(previous[3], rel=1e-12)
+    if kind == "cost":
+        assert network_performance.check_cost_nodes(mapped, lifted)[0]
+        assert network_performance.bound_of(mapped, lch, None) == pytest.approx(previous[3], rel=1e-12)
+    else:
+        assert brackets.check_hinf(mapped, previous[3] ** 2, lifted)[0]
     assert upper <= previous[3] * (1 + 1e-6)
 
 
 @pytest.mark.parametrize("net", [Network.delays(1, 2), Network.weakly_hard(1, 3, 2)], ids=lambda n: n.describe())
 def test_the_memory_lift_follows_every_admissible_run_and_refines_the_shorter_memory(net):
-    """The lift of memory L (docs/design.md §11.3): counted as built; deterministic, so every admissible run of the
-    automaton (enumerated here, 6 transitions from each start node) is one path of it, each lifted node recording the
-    run's last L transitions (or its whole start); and the certified matrices of memory L - 1, each node taking the
-    one it refines, pass memory L's re-check with the same bound (where the brackets try it)."""
-    ch = network_performance.channels(MOTOR, net, "cost")
+    """The l2 gain's lift of memory L (docs/design.md §11.3, "Memory of the last transitions"): counted as built;
+    deterministic, so every admissible run of the automaton (enumerated here, 4 transitions from every sequence of L)
+    is one path of it, each lifted node recording the run's last L transitions with that transition's data; and the
+    certified matrices of memory L - 1, each node taking the one it refines, pass memory L's bounded-real re-check at
+    the same level, and memory L's gain is no larger (the brackets' premise for trying it)."""
+    ch = network_performance.channels(MOTOR, net, "hinf", disturbance=E)
     gains = design(MOTOR, network=net).gains
     data = ch.numeric(gains)
-    prob = ch.prob
+    prob, transitions = ch.prob, range(len(data))
     previous = None
     for memory in (1, 2, 3):
-        lch, lifted, keys = network_performance.memory_lift(ch, data, "cost", memory)
-        assert len(keys) == network_performance.memory_count(ch, data, "cost", memory)
+        lch, lifted, keys = network_performance.memory_lift(ch, data, memory)
+        assert len(keys) == network_performance.memory_count(data, memory) and len(lch.start) == 0
         step = {}
-        for d, e in zip(lifted, itertools.chain.from_iterable(
-                [f for f in range(len(data)) if data[f]["src"] == (v if not q else data[q[-1]]["dst"])]
-                for v, q in keys)):
-            assert (d["src"], e) not in step
-            step[(d["src"], e)] = d["dst"]
-            assert d["A"] is data[e]["A"]
-        for v0, node in zip(ch.start, lch.start):
-            runs = [((), int(v0))]
-            for _ in range(6):
-                runs = [(r + (e,), int(prob.dst[e])) for r, at in runs for e in range(prob.n_blocks)
-                        if prob.src[e] == at]
+        for d, f in zip(lifted, itertools.chain.from_iterable(
+                [f for f in transitions if prob.src[f] == prob.dst[q[-1]]] for _, q in keys)):
+            assert (d["src"], f) not in step
+            step[(d["src"], f)] = d["dst"]
+            assert d["A"] is data[f]["A"] and d["B"] is data[f]["B"]
+        for node, (when, q) in enumerate(keys):
+            assert when == "last" and all(prob.src[f] == prob.dst[e] for e, f in zip(q, q[1:]))
+            runs = [((), int(prob.dst[q[-1]]))]
+            for _ in range(4):
+                runs = [(r + (f,), int(prob.dst[f])) for r, at in runs for f in transitions if prob.src[f] == at]
                 for r, _ in runs:
                     here = node
-                    for e in r:
-                        here = step[(here, e)]
-                    v, q = keys[here]
-                    assert q == r[-memory:] and (v is None) == (len(r) >= memory)
+                    for f in r:
+                        here = step[(here, f)]
+                    assert keys[here][1] == (q + r)[-memory:]
         if len(keys) > (network_performance.MAX_MEMORY_NODES if memory == 1 else
                         network_performance.MAX_LONGER_MEMORY_NODES):
             continue
-        P, upper, _, why = network_performance.memory_bracket(ch, data, "cost", memory=memory, previous=previous)
+        P, upper, _, why = network_performance.memory_bracket(ch, data, "hinf", memory=memory, previous=previous)
         assert P is not None, why
-        assert_refines(previous, keys, memory, lifted, lch, upper)
+        assert_refines(previous, keys, memory, lifted, lch, upper, kind="hinf")
         previous = (P, keys, memory, upper)
 
 
@@ -784,8 +786,7 @@ def test_the_lookahead_lift_bounds_every_run_by_its_first_transitions_matrix(net
         assert all(d["A"] is data[keys[d["src"]][1][0]]["A"] for d in lifted)
         if len(keys) > network_performance.MAX_LONGER_MEMORY_NODES:
             continue
-        P, upper, _, why = network_performance.memory_bracket(ch, data, "cost", memory=memory, previous=previous,
-                                                              lookahead=True)
+        P, upper, _, why = network_performance.memory_bracket(ch, data, "cost", memory=memory, previous=previous)
         assert P is not None, why
         runs = [(q, np.zeros(()), M) for q in seqs if int(prob.src[q[0]]) in set(map(int, ch.start))]
         for _ in range(6):
