@@ -9,7 +9,8 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
       hinf:  [A_s B_s; C_s D_s]' diag(P, I) [A_s B_s; C_s D_s] - diag(P, gamma^2 I) <= 0
 
   For the cost, the prefix tree on that P (:func:`prefix_search`, :func:`tree_bound`) may prove a smaller bound,
-  with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"); the quadratic bound stays in
+  with a rigorous rounding allowance per node (docs/design.md §8.4, "Tree bound"), and so may one matrix per
+  sequence of the next interval modes and the tree on those (§8.4, "Look-ahead"); the quadratic bound stays in
   ``certificate_upper``.
 
 * ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (level-set iteration in float64, then
@@ -1498,6 +1499,10 @@ class _TreeValues:
     (its cost-to-go ``<Q, F>`` has ``0 <= Q <= P``); one congruence ``A Sigma A'`` errs by ``gamma_2n |A||Sigma||A'|``
     (``p' . p = w_s'|Sigma|w_s`` with ``w_s = |A_s|'p``), its symmetrization by ``u |Sigma'|``; an inner product of
     ``n^2`` terms by ``gamma_{n^2+1}``; an addition by ``u`` of its result.
+
+    ``P`` (Q, n, n): look-ahead matrices (one per sequence of the next intervals, docs/design.md §8.4, "Look-ahead"):
+    every continuation then costs at most ``max_q <P_q, Sigma>``, and ``p``, ``|P|`` are the entrywise largest over
+    q (each cost-to-go is below one of them).
     """
 
     def __init__(self, data: list[dict], P: np.ndarray):
@@ -1505,10 +1510,11 @@ class _TreeValues:
         self.At = np.swapaxes(self.A, 1, 2)
         self.Sm = np.stack([_sym(d["S"]) for d in data])
         self.P = _sym(P)
+        self.Ps = self.P if self.P.ndim == 3 else self.P[None]
         n = self.A.shape[1]
-        self.p = np.sqrt(np.maximum(np.diagonal(self.P), 0.0))
+        self.p = np.sqrt(np.maximum(np.diagonal(self.Ps, axis1=1, axis2=2).max(axis=0), 0.0))
         self.Wp = np.einsum("sij,i->sj", np.abs(self.A), self.p)  # (S, n)
-        self.absS, self.absP = np.abs(self.Sm), np.abs(self.P)
+        self.absS, self.absP = np.abs(self.Sm), np.abs(self.Ps).max(axis=0)
         self.g_dot, self.g_mom, self.g_one = _gamma(n * n + 1), _gamma(2 * n), _gamma(1)
         # gradual underflow breaks the relative model: at most a few n^3 roundings of 2^-1074 per entry and step
         self.tiny = n**3 * 1e-300 * (1.0 + float(np.sum(self.p)))**2
@@ -1518,7 +1524,7 @@ class _TreeValues:
         ``x0 x0'``)."""
         Sig = _sym(M)
         allow = self.g_one * float(self.p @ np.abs(Sig) @ self.p)
-        value = float(np.sum(self.P * Sig))
+        value = float(np.max(np.sum(self.Ps * Sig, axis=(1, 2))))
         cert = float(_certified(value, allow + self.g_dot * float(np.sum(self.absP * np.abs(Sig)))
                                 + self.g_one * abs(value)))
         return Sig[None], np.zeros(1), np.array([allow]), cert
@@ -1535,7 +1541,10 @@ class _TreeValues:
         allow2 = (allow[:, None] + self.g_dot * np.einsum("sij,bij->bs", self.absS, absSig) + self.g_one * np.abs(c2)
                   + self.g_mom * np.einsum("si,bij,sj->bs", self.Wp, absSig, self.Wp)
                   + self.g_one * np.einsum("i,bsij,j->bs", self.p, absSig2, self.p) + self.tiny)
-        up = c2 + np.einsum("ij,bsji->bs", self.P, Sig2)
+        if self.Ps.shape[0] == 1:
+            up = c2 + np.einsum("ij,bsji->bs", self.Ps[0], Sig2)
+        else:
+            up = c2 + np.einsum("qij,bsji->bsq", self.Ps, Sig2).max(axis=-1)
         cert = _certified(up, allow2 + self.g_dot * np.einsum("ij,bsij->bs", self.absP, absSig2)
                           + self.g_one * np.abs(up))
         return c2, Sig2, allow2, up, cert
@@ -2021,10 +2030,18 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         from .methods.network_performance import lookahead_cost
 
         ahead = lookahead_cost(data, x0, weight, P, lower, None if seconds_left is None else seconds_left(), upper)
-        if ahead is not None and ahead[1] < upper:
-            mode_P, upper, memory = ahead
-            tree = (f"one matrix per sequence of the next {memory} intervals, {len(mode_P)} matrices; the quadratic "
-                    f"certificate alone: {quadratic:.6g}")
+        if ahead is not None:
+            Pq, bound, memory = ahead
+            what = f"one matrix per sequence of the next {memory} intervals, {len(Pq)} matrices"
+            if bound > lower * (1 + LOOKAHEAD_GAP) and not out_of_time(seconds_left):
+                # the prefix tree on the look-ahead matrices: a node's continuations cost at most max_q <P_q, Sigma>
+                # (docs/design.md §8.4, "Look-ahead"), below both the tree on P and the look-ahead alone
+                again, count = tree_bound(data, Pq, _moment(data[0]["A"].shape[0], x0, weight), lower)
+                if again < bound:
+                    bound, what = again, f"prefix tree on {what}, best first ({count} prefixes valued)"
+            if bound < upper:
+                mode_P, upper = Pq, bound
+                tree = f"{what}; the quadratic certificate alone: {quadratic:.6g}"
     if P is not None and lower is not None and np.isfinite(lower) and lower > upper * (1 + 1e-6):
         # cannot happen for a valid certificate: refuse both rather than report a contradiction
         P, upper, quadratic, mode_P = None, None, None, None

@@ -236,12 +236,17 @@ def test_solver_flag(workdir):
 
 def test_the_cli_summary_names_what_certified_the_upper_end():
     """The summary line says which certificate gave ``upper`` (docs/design.md §8.4, §11.3): a look-ahead over the
-    next intervals, a network's next or last transitions, or the prefix tree on the common P."""
+    next intervals (with the prefix tree on its matrices when ``upper`` is below their own bound), a network's next or
+    last transitions, or the prefix tree on the common P."""
     from app.cli_commands import performance_summary
 
     base = {"lower": 120.7, "certificate_upper": 521.5, "witness": [[0, 1]]}
-    ahead = performance_summary(dict(base, kind="cost", upper=120.8, mode_certificate=[[[1.0]]]), "cost")[0]
-    assert "next intervals; the common certificate alone: 521.5" in ahead
+    ahead = performance_summary(dict(base, kind="cost", upper=120.8, mode_certificate=[[[120.8]]]), "cost")[0]
+    assert "(one re-checked matrix per sequence of the next intervals; the common certificate alone: 521.5)" in ahead
+    tree_ahead = performance_summary(dict(base, kind="cost", upper=120.8, mode_certificate=[[[1.0, 0], [0, 130]]],
+                                          x0=[0.0, 1.0]), "cost")[0]
+    assert "prefix tree on one re-checked matrix per sequence of the next intervals, whose bound alone is 130" \
+        in tree_ahead
     net = dict(base, upper=120.8, mode_certificate=[[[1.0]]], start_nodes=[0], memory=3)
     assert "sequence of the next 3 transitions" in performance_summary(dict(net, kind="cost"), "cost")[0]
     assert "sequence of the last 3 transitions" in performance_summary(dict(net, kind="hinf"), "l2 gain")[0]

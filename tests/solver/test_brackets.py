@@ -297,6 +297,50 @@ def test_a_switched_loop_near_the_boundary_is_bracketed_by_a_lookahead(with_x0):
     assert total == pytest.approx(perf.lower, rel=1e-9)
 
 
+@pytest.mark.parametrize("with_x0", [False, True], ids=["trace", "x0"])
+def test_the_prefix_tree_on_lookahead_matrices_closes_what_each_leaves_open(with_x0):
+    """A two-mode loop near the stability boundary, n = 11 (bench.ipm_check "boundary" seed 7033): the common P
+    bounds the cost 2.6-3x above the worst run, its prefix tree 7-11 % above, the look-ahead matrices alone more than
+    1 % above; the tree valued with the look-ahead matrices (a node's continuations cost at most
+    ``max_q <P_q, Sigma>``, docs/design.md §8.4, "Look-ahead") closes it to 2 %.  Independent check: every sequence of
+    10 plant modes followed by either mode forever (its cost-to-go a discrete Lyapunov solution of that mode's loop)
+    costs at most the upper end, which is at most the look-ahead matrices' own bound; the witness costs the lower."""
+    from bench.ipm_check import draw_family
+
+    fam, N, _ = draw_family(7033)[:3]
+    n = fam.n_states
+    assert N == 1 and fam.n_modes == 2 and n == 11
+    x0 = np.random.default_rng(7033).standard_normal(n) if with_x0 else None
+    res = design(fam, N, objective="cost", decay_rate=None, x0=x0)
+    assert res.outcome == "stabilized", res.message
+    perf = res.performance
+    assert perf.verified and "prefix tree on one matrix per sequence of the next" in perf.message, perf.message
+    assert perf.lower <= perf.upper <= 1.02 * perf.lower and perf.certificate_upper > 1.5 * perf.upper
+    M = np.outer(x0, x0) if with_x0 else np.eye(n)
+    assert perf.upper <= max(float(np.sum(P * M)) for P in perf.mode_certificate) * (1 + 1e-12)
+    K = res.gains[0]
+    A = [fam.F[p] + fam.G[p] @ K for p in range(2)]
+    stage = np.eye(n) + K.T @ K  # Q = I, R = I
+    to_go = [scipy.linalg.solve_discrete_lyapunov(a.T, stage) for a in A]
+    starts = [x0] if with_x0 else list(np.eye(n))
+    for seq in itertools.product(range(2), repeat=10):
+        cost, ends = 0.0, []
+        for x in starts:
+            for p in seq:
+                cost += x @ stage @ x
+                x = A[p] @ x
+            ends.append(x)
+        for tail in to_go:
+            assert cost + sum(x @ tail @ x for x in ends) <= perf.upper * (1 + 1e-9)
+    lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
+    total = 0.0
+    for x in starts:
+        cost, x = run_pattern(fam, res.gains, x, lead + period * (20000 // len(period)))
+        assert np.linalg.norm(x) < 1e-6 * max(1.0, float(np.linalg.norm(x0 if with_x0 else 1.0)))
+        total += cost
+    assert total == pytest.approx(perf.lower, rel=1e-7)
+
+
 def test_simulated_l2_gain_stays_below_the_certificate():
     fam = unstable_family()
     E = np.array([[0.5], [1.0]])
