@@ -341,6 +341,33 @@ def test_the_prefix_tree_on_lookahead_matrices_closes_what_each_leaves_open(with
     assert total == pytest.approx(perf.lower, rel=1e-7)
 
 
+def test_the_lower_search_follows_tails_a_prefix_steers_to():
+    """Four slowly contracting plants, n_drop = 5 (bench.ipm_check "boundary" seed 7159, n = 2: 20 interval modes),
+    cost from x0: from x0 itself every plant-0 period is the costliest, yet one interval (0, 2) steers the state to
+    where plant 1's (1, 1) repeated costs far more.  The search now also tries the one-interval periods costliest in
+    their worst direction as tails and continuations (docs/design.md §8.4, "Lower bound"): its witness costs at least
+    that run (stepped sample by sample, its tail by a discrete Lyapunov solution), which the tails best from x0 missed
+    (52.8 against 82.9), and the witness simulated costs the lower end."""
+    from bench.brackets_check import request
+    from bench.ipm_check import draw_family
+
+    fam, N, _ = draw_family(7159)[:3]
+    assert (fam.n_states, fam.n_modes, N) == (2, 4, 5)
+    x0 = request("cost (x0)", fam, np.random.default_rng(7159))["x0"]
+    res = design(fam, N, objective="cost", decay_rate=None, x0=x0)
+    perf = res.performance
+    assert res.outcome == "stabilized" and perf.verified
+    cost, x = run_pattern(fam, res.gains, x0, [(0, 2)])
+    A1 = fam.F[1] + fam.G[1] @ res.gains[0]
+    steered = cost + x @ scipy.linalg.solve_discrete_lyapunov(A1.T, np.eye(2) + res.gains[0].T @ res.gains[0]) @ x
+    assert steered > 1.5 * 52.8
+    assert steered <= perf.lower <= perf.upper
+    lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
+    cost, x = run_pattern(fam, res.gains, x0, lead + period * (40000 // sum(e for _, e in period)))
+    assert np.linalg.norm(x) < 1e-9 * np.linalg.norm(x0)
+    assert cost == pytest.approx(perf.lower, rel=1e-7)
+
+
 def test_simulated_l2_gain_stays_below_the_certificate():
     fam = unstable_family()
     E = np.array([[0.5], [1.0]])
