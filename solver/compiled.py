@@ -270,8 +270,8 @@ def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbance
     * cost: the patterns' products and Stein doublings (about ``(6 L + 60) n^3`` each), the two-run search
       (``c (c - 1)`` mode pairs, ``c = min(S, RUN_MODES)``, ``RUN_LENGTH^2`` patterns of ``70 n^3`` each) and the
       prefix search (``NODE_BUDGET min(1, (8 / n)^3)`` nodes of ``4 n^3 + 2 (TAILS + STEERED_TAILS) n^2``); memory:
-      the stacked doublings (``6 P n^2`` numbers) and the prefix search's moments (``beam S n^2`` numbers, ``beam`` capped
-      at ``2e6 / (S n^2)`` in code: 16 MB per depth), four copies each;
+      the stacked doublings (``6 P n^2`` numbers) and the prefix search's moments (``beam S n^2`` numbers, ``beam``
+      capped at ``2e6 / (S n^2)`` in code: 16 MB per depth), four copies each;
     * hinf: per pattern a frequency sweep (``SWEEP`` points of ``11 n^3 + 16 n^2 w + 8 n w^2`` flops, complex,
       ``w = L n_drop min(p_w, p_z)`` the smaller side of the lifted period) and its eigenvalue bound
       (``40 n^3``), for the exhaustive patterns and the grown ones (``GROW_BUDGET min(1, (4 / n)^3)`` pattern

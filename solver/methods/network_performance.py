@@ -836,6 +836,12 @@ def _sequences(data: list[dict], memory: int) -> list[tuple]:
     return seqs
 
 
+def _leaving(data: list[dict]) -> list[list[int]]:
+    """The transitions leaving each automaton node (index: node)."""
+    nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
+    return [[f for f in range(len(data)) if data[f]["src"] == v] for v in range(nodes)]
+
+
 def memory_lift(ch: Channels, data: list[dict], memory: int = 1):
     """The transition graph of the l2 gain's bound with memory: one node per admissible sequence ``q`` of the last
     ``memory`` transitions (the state just after them), ``q`` going to ``q[1:] + (f,)`` with ``f``'s data for every
@@ -848,8 +854,7 @@ def memory_lift(ch: Channels, data: list[dict], memory: int = 1):
     ``memory = 1`` the nodes are the transitions in order."""
     seqs = _sequences(data, memory)
     index = {q: i for i, q in enumerate(seqs)}
-    nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
-    leaving = [[f for f in range(len(data)) if data[f]["src"] == v] for v in range(nodes)]
+    leaving = _leaving(data)
     lifted = [dict(data[f], src=i, dst=index[(q + (f,))[-memory:]]) for i, q in enumerate(seqs)
               for f in leaving[data[q[-1]]["dst"]]]
     return dataclasses.replace(ch, start=np.zeros(0, dtype=int)), lifted, [("last", q) for q in seqs]
@@ -866,8 +871,7 @@ def lookahead_lift(ch: Channels, data: list[dict], memory: int = 1):
     Returns ``(channels, lifted data, keys)`` as :func:`memory_lift`, the keys ``("next", q)``."""
     seqs = _sequences(data, memory)
     index = {q: i for i, q in enumerate(seqs)}
-    nodes = 1 + max(max(d["src"], d["dst"]) for d in data)
-    leaving = [[f for f in range(len(data)) if data[f]["src"] == v] for v in range(nodes)]
+    leaving = _leaving(data)
     lifted = [dict(data[q[0]], src=i, dst=index[q[1:] + (f,)]) for i, q in enumerate(seqs)
               for f in leaving[data[q[-1]]["dst"]]]
     starts = {int(v) for v in ch.start}

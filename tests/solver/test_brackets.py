@@ -345,7 +345,7 @@ def test_the_lower_search_follows_tails_a_prefix_steers_to():
     """Four slowly contracting plants, n_drop = 5 (bench.ipm_check "boundary" seed 7159, n = 2: 20 interval modes),
     cost from x0: from x0 itself every plant-0 period is the costliest, yet one interval (0, 2) steers the state to
     where plant 1's (1, 1) repeated costs far more.  The search now also tries the one-interval periods costliest in
-    their worst direction as tails and continuations (docs/design.md §8.4, "Lower bound"): its witness costs at least
+    their worst direction as tails and continuations (docs/design.md §8.4, "Prefix search"): its witness costs at least
     that run (stepped sample by sample, its tail by a discrete Lyapunov solution), which the tails best from x0 missed
     (52.8 against 82.9), and the witness simulated costs the lower end."""
     from bench.brackets_check import request
