@@ -181,7 +181,7 @@ def _ipm_status(status: str) -> str | None:
 
 def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver: str,
           time_limit: float | None = None, cap: float | None = None, trace_weight: np.ndarray | None = None,
-          tie_weight: float | None = None):
+          tie_weight: float | None = None, fallback: bool = True):
     """Build and solve one design SDP: ``(info, W, Y, scalars)`` (``W``, ``Y`` None without an answer).
 
     The tie-break stage (cost from x0): ``cap`` for cvxpy (``min trace Z`` s.t. ``gamma <= cap``), ``tie_weight``
@@ -190,8 +190,9 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
     ``solver``: ``"AUTO"``/``"IPM"``: the structured IPM (:func:`solver.ipm.solve_performance`), returning
     phase 2's last (strictly feasible) iterate when phase 2 did not converge (``info.status`` says so: the
     re-checks judge it, and :func:`run` asks Clarabel too under ``"AUTO"`` when it does not certify);
-    ``"AUTO"`` falls back to Clarabel when the IPM ends without an iterate or a proof, ``"IPM"`` raises
-    :class:`SolverFailed` then; ``"CLARABEL"``/``"SCS"``: cvxpy.
+    ``"AUTO"`` falls back to Clarabel when the IPM ends without an iterate or a proof (``fallback``; else it
+    returns no answer, for :func:`run` to decide), ``"IPM"`` raises :class:`SolverFailed` then;
+    ``"CLARABEL"``/``"SCS"``: cvxpy.
     ``scalars``: ``gamma`` (cost from x0), ``g`` (hinf) as floats when the problem has them.  ``info.setup``
     holds the seconds spent building the problem (cvxpy's canonicalization included).
     """
@@ -241,7 +242,7 @@ def solve(lifted: Lifted, objective: str, x0, u_max, rate: float | None, solver:
             # the CTMS pendulum's LQR: numerical_error after 121 iterations at the Riccati value, where
             # Clarabel fails); run() asks Clarabel as well under "AUTO" when this one does not certify
             return info, sol.W, sol.Y, dict(sol.scalars, ipm=sol)
-        if status == cp.INFEASIBLE or name == "IPM":
+        if status == cp.INFEASIBLE or name == "IPM" or not fallback:
             if status is None and name == "IPM":
                 raise SolverFailed(f"IPM ended with status {sol.status!r} after {sol.raw.iterations} iterations "
                                    f"(primal residual {sol.raw.primal_residual:.1e}, gap {sol.raw.gap:.1e})",
@@ -453,10 +454,11 @@ def block_sides(lifted: Lifted, objective: str, compact: bool = False) -> list[i
 
 
 def _propose(lifted: Lifted, objective: str, x0, u_max, rate, solver: str, clock: RunClock, time_limit,
-             trace_weight=None):
-    """One solver's proposal ``(info, W, Y, extra)``, with the x0 tie-break stage; raises :class:`SolverFailed`."""
+             trace_weight=None, fallback: bool = True):
+    """One solver's proposal ``(info, W, Y, extra)``, with the x0 tie-break stage; raises :class:`SolverFailed`.
+    ``fallback``: the first stage's, :func:`solve`'s."""
     info, Wv, Yv, extra = solve(lifted, objective, x0, u_max, rate, solver, clock.remaining(time_limit),
-                                trace_weight=trace_weight)
+                                trace_weight=trace_weight, fallback=fallback)
     clock.setup += info.setup
     clock.add(info)
     if Wv is not None and objective == "cost" and x0 is not None and u_max is None:
@@ -843,8 +845,9 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
     solver_weight = None if trace_weight is None else trace_weight / np.max(trace_weight)
     candidates, failures, info = [], [], None
     try:
+        # under "AUTO" an IPM without an answer leaves Clarabel to the second proposal below, after the plain design
         info, Wv, Yv, extra = _propose(lifted, objective, x0, u_max, rate, options.solver, clock,
-                                       options.time_limit, solver_weight)
+                                       options.time_limit, solver_weight, fallback=False)
     except SolverFailed as err:
         Wv, failures = None, [str(err)]
     infeasible = info is not None and info.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE)
@@ -860,6 +863,14 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
                                         trace_weight))
         except SolverFailed as err:
             failures.append(f"the re-check of the SDP's gains: {err}")
+    base = None
+    if name == "AUTO" and not infeasible and not any(c is not None and c["cert"] is not None for c in candidates):
+        # no certified gains from the IPM: the plain design (one SDP) may prove that none exist before Clarabel's
+        # second proposal is asked for (an infeasible family, n = 12, 6 loop modes: Clarabel failed twice in 35 s)
+        base = lmi.run(modes, options)
+        if base.outcome == "infeasible":  # ("marginal" leaves designs of a smaller margin: the refinements below)
+            reason = "; ".join(failures) or f"the {objective} SDP gave no certified gains"
+            return _no_design(lifted, options, clock, objective, reason, info, x0, u_max, base)
     if name == "AUTO" and not infeasible and not _good(candidates[-1] if candidates else None, u_max) and (
             info is None or info.solver == "IPM") and \
             compiled.clarabel_fits("lmi", modes.n_states, modes.n_inputs, modes.n_plants, modes.n_drop,
@@ -937,16 +948,16 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         if c is not None:
             best = c
     if best is None and infeasible:
-        return _no_design(lifted, options, clock, objective, failures[0], info, x0, u_max)
+        return _no_design(lifted, options, clock, objective, failures[0], info, x0, u_max, base)
     if best is None:
         reason = f"the {objective} SDP " + ("failed (" + "; ".join(failures) + ")" if failures else
                                             f"ended with status {info.status!r}" if info is not None else "failed")
-        return _no_design(lifted, options, clock, objective, reason, info, x0, u_max)
+        return _no_design(lifted, options, clock, objective, reason, info, x0, u_max, base)
     info, gains, cert, A = best["info"], best["gains"], best["cert"], best["A"]
     performance, invariant, inv_reason = best["performance"], best["invariant"], best["inv_reason"]
     record = IterationRecord(0, info.objective, None, False, None, info.solve_time, clock.elapsed)
     if cert is None:  # perhaps no stabilizing design exists at all: the plain design may prove it
-        base = lmi.run(modes, options)
+        base = lmi.run(modes, options) if base is None else base
         if base.outcome in ("infeasible", "marginal"):  # each names what its Farkas certificate proves
             base.message = f"the {objective} SDP gave no certified gains; {base.message}"
             base.objective = objective
@@ -1065,11 +1076,12 @@ def _game_refine(lifted: Lifted, options: DesignOptions, clock: RunClock, info, 
 
 
 def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objective: str, reason: str,
-               info: SolveInfo | None, x0: np.ndarray | None = None, u_max: np.ndarray | None = None) -> DesignResult:
+               info: SolveInfo | None, x0: np.ndarray | None = None, u_max: np.ndarray | None = None,
+               base: DesignResult | None = None) -> DesignResult:
     """No certified design: "infeasible"/"marginal" (proven) or "not_converged".
 
     With input limits and ``x0``, a Farkas certificate of the limits (:mod:`solver.limit_proofs`) decides
-    first; otherwise the plain stability design.
+    first; otherwise the plain stability design (``base`` when it already ran).
 
     Every objective here asks for a common quadratic Lyapunov function that the plain ``lmi`` design also
     needs (cost with Q > 0 and input limits imply its strict inequality), so its Farkas proof excludes them too.
@@ -1099,7 +1111,7 @@ def _no_design(lifted: Lifted, options: DesignOptions, clock: RunClock, objectiv
             res.objective = objective
             return res
         reason = f"{reason}; {why_not}"
-    base = lmi.run(lifted.modes, options)
+    base = lmi.run(lifted.modes, options) if base is None else base
     if base.outcome in ("infeasible", "marginal"):  # each names what its Farkas certificate proves
         base.message = f"{reason}; {base.message}"
         base.objective = objective

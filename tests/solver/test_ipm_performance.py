@@ -444,3 +444,23 @@ def test_centring_power_keeps_the_optimum():
                 assert values[1] == pytest.approx(clarabel, rel=1e-6), (seed, objective)
                 compared += 1
     assert compared >= 1
+
+
+@pytest.mark.parametrize("kwargs", [{"objective": "cost"}, {"objective": "cost", "x0": np.ones(12)}])
+def test_a_family_the_plain_design_proves_infeasible_asks_clarabel_nothing(kwargs, monkeypatch):
+    """Two 12-state plants, n_drop = 3 (bench.ipm_check "independent" seed 9318): no common quadratic design
+    exists.  The cost SDP's IPM ends without certified gains; the plain design's Farkas proof (one SDP, re-checked)
+    answers "infeasible" before Clarabel's second proposal is asked for (which failed twice, 35 s, before it)."""
+    from bench.ipm_check import draw_family
+
+    fam, N, _ = draw_family(9318, max_n=12, max_lmi_rows=200)[:3]
+    assert (fam.n_states, fam.n_modes, N) == (12, 2, 3)
+    assert design(fam, N, decay_rate=None).outcome == "infeasible"
+
+    def refused(*args, **kw):
+        raise AssertionError("Clarabel asked for a family the plain design proves infeasible")
+
+    monkeypatch.setattr(perf, "solve_sdp", refused)
+    res = design(fam, N, **kwargs)
+    assert res.outcome == "infeasible" and "Farkas certificate re-checked" in res.message
+    assert res.gains is None
