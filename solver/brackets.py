@@ -15,7 +15,8 @@ A performance figure is a bracket (docs/design.md, "Performance brackets"):
 
 * ``lower``: the exact cost (periodic Lyapunov equation) or H-infinity norm (level-set iteration in float64, then
   the witness's gain at its peak frequency evaluated in exact arithmetic, :func:`exact_witness`: a proven lower
-  bound) of the worst allowed periodic pattern searched; ``witness`` is that pattern.
+  bound) of the worst allowed periodic pattern searched, or of a prefix followed by one (the cost's prefix search;
+  hinf: a charge and its release, :mod:`solver.transients`); ``witness`` is that run.
 """
 
 from __future__ import annotations
@@ -83,7 +84,9 @@ class Performance:
         Certified upper bound (None when no certificate passed the re-check; ``message`` says why): for the cost
         the smaller of ``certificate_upper`` and the prefix tree's certified bound on the same P.
     lower : float or None
-        The value of the worst periodic allowed pattern searched (``inf`` when one is unstable).
+        The value of the worst allowed run searched (``inf`` when a periodic pattern is unstable): a periodic
+        pattern's, or a prefix's followed by one (``lead``); for hinf exact, and with a prefix the charge-then-release
+        witness (docs/design.md §8.4, "Transient witness").
     witness : list of tuple
         That pattern, one period: ``(plant_mode, eta)`` per interval (``plant_mode`` a tuple of plant
         indices per sample under per-sample switching).
@@ -101,7 +104,8 @@ class Performance:
     message : str
     lead : int
         ``witness[:lead]`` runs once, then ``witness[lead:]`` repeats forever (0: the whole witness is the
-        period, repeated from the start; a prefix comes from the prefix search, docs/design.md §8.4).
+        period, repeated from the start; a prefix comes from the prefix search, docs/design.md §8.4; hinf: the
+        disturbance acts in the prefix only, the period releases at rest).
     certificate_upper : float or None
         The common quadratic certificate's own bound (``x0' P x0``, ``trace P`` or ``gamma``), what the design's
         SDP minimizes.  ``upper`` is the smaller of it and the prefix tree's certified bound (cost,
@@ -1271,14 +1275,21 @@ def lower_bound(lifted: Lifted, gains: np.ndarray, kind: str, x0: np.ndarray | N
     witness, lead = prefix + period, len(prefix)
     if peak is not None and len(period) < len(valued):
         peak = primitive_peak(data, witness, len(valued) // len(witness), peak)
-    labels = []
-    for s in witness:
-        lm = lifted.lifted[s]
-        plant = lm.plants[0] if lifted.modes.plant_switching == "per_interval" else tuple(lm.plants)
-        labels.append((plant, lm.eta))
+    labels = _labels(lifted, witness)
     if skipped:
         note = (note + "; " if note else "") + f"{skipped} unstable periodic patterns skipped"
     return LowerBound(best, labels, len(pats) + grown_count, note, lead, bound, tree or "", tuple(witness), peak)
+
+
+def _labels(lifted: Lifted, seq) -> list:
+    """``(plant_mode, eta)`` per interval of the loop-mode indices ``seq`` (a witness as :class:`Performance` shows
+    it)."""
+    labels = []
+    for s in seq:
+        lm = lifted.lifted[s]
+        plant = lm.plants[0] if lifted.modes.plant_switching == "per_interval" else tuple(lm.plants)
+        labels.append((plant, lm.eta))
+    return labels
 
 
 def primitive_peak(data: list[dict], period, r: int, peak: float) -> float:
@@ -2001,6 +2012,23 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         if value is not None:
             lower = value
         note = f"{note}; {why}" if note else why
+    if kind == "hinf" and len(data) > 1 and lower is not None and np.isfinite(lower) and lower > 0 and \
+            (upper is None or upper > lower * (1 + GROW_ABOVE_GAP)) and not out_of_time(seconds_left):
+        # a disturbance that charges the loop under one pattern, released as output under another at rest, can beat
+        # every periodic pattern (docs/design.md §8.4, "Transient witness"; zero-input hold-out seed 9124: 23.8 -> 30.1)
+        from .transients import transient_witness
+
+        found_transient = transient_witness(data, lower)
+        if found_transient is not None:
+            t = found_transient
+            prefix, period = shortest_lead(list(t.charge) * t.periods, list(t.release))
+            lower, lead = t.value, len(prefix)
+            witness = _labels(lifted, prefix + period)
+            loop = "the deployed loop" if t.deployed else "the float64 loop data as exact rationals"
+            what = (f"witness: a {len(t.charge)}-interval pattern driven {t.periods} times, then a "
+                    f"{len(t.release)}-interval pattern without disturbance forever (evaluated exactly on {loop}; "
+                    f"float64: {t.float_value / t.value - 1:+.2g} relative)")
+            note = f"{what}; periodic search: {note}" if note else what
     if kind == "hinf" and len(data) == 1 and seed is not None and np.isfinite(seed) and seed > 0 and (
             upper is None or upper > seed * (1 + 1e-7)):
         # one LTI loop (one mode, n_drop = 1): the witness is its l2 gain (frequency sweep), and the bounded-real

@@ -252,12 +252,14 @@ class Performance(_Open):
                                                   "why).")
     certificate_upper: float | None = Field(None, description="The quadratic certificate's own bound (`x0'Px`, "
                                                               "`trace P` or gamma): what the design's SDP minimizes.")
-    lower: float | None = Field(None, description="The value of the worst allowed periodic pattern searched (exact "
-                                                  "cost; H-infinity norm by a frequency sweep, a lower bound).")
+    lower: float | None = Field(None, description="The value of the worst allowed run searched (`witness`): its "
+                                                  "exact cost, or a proven lower bound on its l2 gain (docs/design.md "
+                                                  "§8.4).")
     lower_infinite: bool | None = Field(None, description="True when a periodic pattern is unstable (infinite cost).")
     witness: list[list[int | list[int]]] | None = Field(
-        None, description="That pattern, one period: `[plant_mode, eta]` per interval (`plant_mode` a list of "
-        "plant modes per sample under per-sample switching).")
+        None, description="That run: `[plant_mode, eta]` per interval (`plant_mode` a list of plant modes per sample "
+        "under per-sample switching), the first `lead` once, then the rest repeated forever (hinf: the disturbance "
+        "acts in the first `lead` only).")
     certificate: Matrix | list[Matrix] | None = Field(
         None, description="P (n x n) of the upper bound: `x'Px` bounds the cost from x (cost), or is the bounded-real "
         "storage (hinf). On a `network`: one P per node matrix (V x k x k, `form` says on which state).")
