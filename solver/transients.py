@@ -106,17 +106,20 @@ def _top_direction(op: np.ndarray, n: int) -> tuple[float, np.ndarray]:
     return value, v
 
 
-def transient_witness(data: list[dict], floor: float) -> Transient | None:
+def transient_witness(data: list[dict], floor: float, patterns: list | None = None,
+                      nodes: list | None = None) -> Transient | None:
     """The best charge-then-release witness found above ``floor`` (a gain), exactly evaluated, or None.
 
-    ``data``: the loop modes' interval data (:meth:`solver.lifting.Lifted.numeric`, with a disturbance channel).
+    ``data``: the loop modes' interval data (:meth:`solver.lifting.Lifted.numeric`, with a disturbance channel),
+    any of which may follow any; or a network's transitions with ``patterns`` its closed walks (tuples of
+    ``data`` indices) and ``nodes`` the node each starts from: a charge and a release then share their node.
     """
     from .brackets import exact_period, period_system
 
     if data[0].get("B") is None:
         return None
     n = data[0]["A"].shape[0]
-    pats = _candidates(data)
+    pats = _candidates(data) if patterns is None else [tuple(p) for p in patterns]
     systems = [period_system(data, p) for p in pats]
     Phi = np.stack([s["Phi"] for s in systems])
     BB = np.stack([s["B"] @ s["B"].T for s in systems])
@@ -129,8 +132,13 @@ def transient_witness(data: list[dict], floor: float) -> Transient | None:
     roots = _sqrt_psd(W[ok])
     # lambda_max(W_c O_d) = lambda_max(W_c^1/2 O_d W_c^1/2): the charge forever, then the release forever
     score = np.linalg.eigvalsh(np.einsum("aij,bjk,akl->abil", roots, O[ok], roots))[..., -1]
+    if nodes is not None:
+        at = np.asarray(nodes)[ok]
+        score[at[:, None] != at[None, :]] = -np.inf
     best = None
     for flat in np.argsort(score, axis=None)[::-1][:TRANSIENT_PAIRS]:
+        if not np.isfinite(score.flat[flat]):
+            break
         a, b = (int(ok[i]) for i in np.unravel_index(flat, score.shape))
         c = systems[a]
         radius = float(np.max(np.abs(np.linalg.eigvals(c["Phi"]))))

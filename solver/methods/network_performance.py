@@ -39,6 +39,7 @@ from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_o
                         _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         lyapunov, period_system, sequence_cost, shortest_lead)
 from ..certificates import uncontrollable_mode
+from ..transients import TRANSIENT_WORK, transient_witness
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import TINY, check_channel, check_weights, lift_modes
@@ -588,6 +589,8 @@ def closed_walks(prob, start, max_length: int = MAX_WALK_LENGTH, max_count: int 
     return found
 
 
+#: Closed walks at most (the shortest) that charge and release in the l2 gain's transient witness (all pairs scored).
+TRANSIENT_WALKS = 64
 #: Relative residual of scipy's answer above which a walk's Lyapunov equation is solved again in the coordinates
 #: of the certificate (:func:`walk_value`).
 WALK_RESIDUAL = 1e-12
@@ -996,7 +999,7 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         reason = why if not reason else f"{reason}; fixed-gain SDP: {why}"
     lower, walk, count = lower_bound(ch, data, kind, x0, stop=np.inf if upper is None else upper, certificate=P,
                                      weight=trace_weight)
-    lead = 0
+    lead, released = 0, None
     if kind == "cost" and lower is not None and np.isfinite(lower) and \
             (upper is None or lower < upper * (1 - LOWER_CLOSED)):
         value, found_lead, found, runs = worst_run(ch, data, x0, trace_weight, P, floor=lower,
@@ -1004,6 +1007,16 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         count += runs
         if value is not None:
             lower, lead, walk = value, found_lead, found
+    if kind == "hinf" and lower is not None and np.isfinite(lower) and lower > 0 and \
+            (upper is None or upper > lower * (1 + COMBINE_ABOVE_GAP)):
+        # driven along one closed walk, released at rest along another from the same node (docs/design.md §11.3)
+        walks = closed_walks(ch.prob, np.arange(len(ch.prob.nodes)), MAX_WALK_LENGTH,
+                             min(TRANSIENT_WALKS, int(np.sqrt(TRANSIENT_WORK) / ch.prob.k)))
+        released = transient_witness(data, lower, walks, [int(ch.prob.src[w[0]]) for w in walks])
+        count += len(walks)
+        if released is not None:
+            lower, lead, walk = released.value, len(released.charge) * released.periods, \
+                tuple(released.charge * released.periods + released.release)
     if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
     node_upper, memory_P, level, previous = upper, None, 0, None
@@ -1043,6 +1056,9 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
                    else f"no certified upper bound: {reason}")
     if lower is not None:
         shape = f"; {lead} transitions once, then a closed walk of {len(walk) - lead} repeated" if lead else ""
+        if lead and kind == "hinf":
+            on = "the deployed loop" if released.deployed else "the float64 transition data as exact rationals"
+            shape += f" at rest (the disturbance in the first ones only; evaluated exactly on {on})"
         message += f"; worst admissible run searched: {lower:.6g} ({count} walks and runs valued{shape})"
     prob = ch.prob
     return NetworkPerformance(

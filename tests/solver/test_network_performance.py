@@ -837,3 +837,46 @@ def test_an_l2_gain_no_node_matrices_certify_is_bracketed_with_memory_of_the_las
     assert perf.mode_certificate is not None
     assert net.admissible([0] * 10)
     assert all(peak <= perf.upper * (1 + 1e-9) for peak in fresh_loop_peaks(fam, res.gains, Ew))
+
+
+def released_gain(fam, K, Ew, driven, release) -> float:
+    """The l2 gain of the run ``driven`` then ``release`` ((age, plant) per sample) from rest with the disturbance on
+    the ``driven`` samples only: the largest singular value of the map from ``w`` there to every ``z = [x; u]``,
+    all unit disturbances stepped at once sample by sample (``x+ = F x + G u + E w``, ``u(t) = K_(d+1) x(t - d)``)."""
+    F, G = np.asarray(fam.F), np.asarray(fam.G)
+    n, cols = fam.n_states, len(driven) * Ew.shape[1]
+    X = np.zeros((n, cols))
+    hist, rows = {t: X for t in range(-K.shape[0], 1)}, []
+    for t, (d, l) in enumerate(driven + release):
+        U = K[d] @ hist[t - d]
+        rows += [X, U]
+        W = np.zeros((Ew.shape[1], cols))
+        if t < len(driven):
+            W[:, t * Ew.shape[1]:(t + 1) * Ew.shape[1]] = np.eye(Ew.shape[1])
+        X = F[l] @ X + G[l] @ U + Ew @ W
+        hist[t + 1] = X
+    return float(np.linalg.norm(np.vstack(rows), 2))
+
+
+def test_a_network_run_driven_along_one_walk_and_released_along_another_beats_every_closed_walk():
+    """Three unforced 4-state plants (bench.ipm_check "zero_g" seed 9124) on delays(1, 3), l2 gain from a disturbance
+    on the first state: the closed walks reach 23.8 (plant 1 held), a disturbance on 226 transitions of plant 2
+    followed by plant 1 at rest 31.08 of the certified 33.81 (docs/design.md §8.4, "Transient witness", on a
+    network's closed walks from one node).  Stepped sample by sample with the delays (its release over 20 000
+    samples, the rest below 1e-9 of the value), the witness run's gain is the lower end."""
+    from bench.ipm_check import draw_family
+
+    fam = draw_family(9124, max_n=6, max_lmi_rows=200)[0]
+    E = np.eye(4)[:, :1]
+    net = Network.delays(1, 3)
+    res = design(fam, network=net, objective="hinf", disturbance=E)
+    perf = res.performance
+    assert res.outcome == "stabilized" and perf.verified and perf.lead > 0
+    assert perf.lower <= perf.upper and "at rest" in perf.message
+    driven, release = walk_samples(perf.walk[:perf.lead]), walk_samples(perf.walk[perf.lead:])
+    assert net.admissible([a for a, _ in driven + release * 4])
+    gain = released_gain(fam, res.gains, E, driven, release * (20000 // len(release)))
+    assert gain == pytest.approx(perf.lower, rel=1e-8)
+    ch = network_performance.channels(fam, net, "hinf", disturbance=E)
+    walks = network_performance.lower_bound(ch, ch.numeric(res.gains), "hinf")[0]
+    assert perf.lower > 1.25 * walks
