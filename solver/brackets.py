@@ -2018,16 +2018,15 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         # every periodic pattern (docs/design.md §8.4, "Transient witness"; zero-input hold-out seed 9124: 23.8 -> 30.1)
         from .transients import transient_witness
 
-        found_transient = transient_witness(data, lower)
-        if found_transient is not None:
-            t = found_transient
-            prefix, period = shortest_lead(list(t.charge) * t.periods, list(t.release))
-            lower, lead = t.value, len(prefix)
+        released = transient_witness(data, lower)
+        if released is not None:
+            prefix, period = shortest_lead(list(released.charge) * released.periods, list(released.release))
+            lower, lead = released.value, len(prefix)
             witness = _labels(lifted, prefix + period)
-            loop = "the deployed loop" if t.deployed else "the float64 loop data as exact rationals"
-            what = (f"witness: a {len(t.charge)}-interval pattern driven {t.periods} times, then a "
-                    f"{len(t.release)}-interval pattern without disturbance forever (evaluated exactly on {loop}; "
-                    f"float64: {t.float_value / t.value - 1:+.2g} relative)")
+            loop = "the deployed loop" if released.deployed else "the float64 loop data as exact rationals"
+            what = (f"witness: a {len(released.charge)}-interval pattern driven {released.periods} times, then a "
+                    f"{len(released.release)}-interval pattern without disturbance forever (evaluated exactly on "
+                    f"{loop}; float64: {released.float_value / released.value - 1:+.2g} relative)")
             note = f"{what}; periodic search: {note}" if note else what
     if kind == "hinf" and len(data) == 1 and seed is not None and np.isfinite(seed) and seed > 0 and (
             upper is None or upper > seed * (1 + 1e-7)):

@@ -4,7 +4,7 @@ A periodic pattern's l2 gain, the lower end :func:`solver.brackets.lower_bound` 
 out of one pattern repeated from rest.  A switched loop can give more: a disturbance that drives the state up
 under one pattern (the *charge*), after which the loop switches to a pattern that turns that state into output
 without any disturbance (the *release*).  Over the best pair the energy ratio
-``(|z| over the charge + x' O x) / |w|^2`` (``O`` the release pattern's observability Gramian) can exceed every
+``(|z|^2 over the charge + x' O x) / |w|^2`` (``O`` the release pattern's observability Gramian) can exceed every
 periodic pattern's (a loop that switches from a slowly charging to a slowly releasing mode).
 
 :func:`transient_witness` scores every pair of short stable patterns by ``lambda_max(W_c O_d)`` (``W_c`` the
@@ -29,7 +29,7 @@ from .exact import add, exact, matmul, positive_definite_integer, rational_down
 TRANSIENT_PAIRS = 4
 #: Loop modes at most for which the patterns of two intervals (every ordered pair) charge and release too.
 TRANSIENT_SHORT = 16
-#: Disturbance entries at most in the charge (the float64 SVD that picks the disturbance has this many columns).
+#: Disturbance entries at most in the charge (the columns of the charge's operator, whose top direction is sought).
 TRANSIENT_INPUTS = 512
 #: The charge runs until its state map's square has fallen to this (the Gramian's tail left out).
 TRANSIENT_DECAY = 1e-6
@@ -77,14 +77,12 @@ def _charge_operator(c: dict, k: int, release_root: np.ndarray) -> np.ndarray:
     powers = [B]  # Phi^i B
     for _ in range(k - 1):
         powers.append(Phi @ powers[-1])
-    M = np.zeros((k * p + n, k * q))
-    for i in range(k):
-        M[i * p:(i + 1) * p, i * q:(i + 1) * q] = D
-        for j in range(i):
-            M[i * p:(i + 1) * p, j * q:(j + 1) * q] = C @ powers[i - 1 - j]
-    for j in range(k):
-        M[k * p:, j * q:(j + 1) * q] = release_root @ powers[k - 1 - j]
-    return M
+    powers = np.stack(powers)
+    lag = np.arange(k)[:, None] - 1 - np.arange(k)[None, :]  # block (i, j) is C Phi^(i-1-j) B below the diagonal
+    blocks = np.where((lag >= 0)[:, :, None, None], np.einsum("pn,knq->kpq", C, powers)[np.maximum(lag, 0)], 0.0)
+    blocks[np.arange(k), np.arange(k)] = D
+    tail = np.einsum("nm,kmq->nkq", release_root, powers[::-1]).reshape(n, k * q)
+    return np.vstack([blocks.transpose(0, 2, 1, 3).reshape(k * p, k * q), tail])
 
 
 def _top_direction(op: np.ndarray, n: int) -> tuple[float, np.ndarray]:
@@ -151,7 +149,8 @@ def transient_witness(data: list[dict], floor: float, patterns: list | None = No
     if best is None or not best[0] > floor:
         return None
     value, a, b, k, v = best
-    exact_value = _exact_value(exact_period(data, pats[a]), exact_period(data, pats[b]), k, v, O[b])
+    exact_value = _exact_value(exact_period(data, pats[a]), exact_period(data, pats[b]), k, v, O[b],
+                               systems[b]["Phi"])
     if exact_value is None or not exact_value[0] > floor:
         return None
     return Transient(exact_value[0], pats[a], k, pats[b], value, exact_value[1])
@@ -161,17 +160,18 @@ def _bits(X: np.ndarray) -> int:
     return max((abs(int(x)).bit_length() for x in X.ravel()), default=0)
 
 
-def _release_floor(release: dict, O: np.ndarray) -> tuple | None:
+def _release_floor(release: dict, O: np.ndarray, Phif: np.ndarray) -> tuple | None:
     """A rational ``O_low <= O_true`` for the release period (exact ``(N, s)``), or None.
 
     ``O_true = sum_i Phi'^i C'C Phi^i`` is the release's output energy from a state at rest.  Checked exactly:
     ``L > 0`` and ``L - Phi' L Phi > 0`` (Phi stable), and ``C'C + Phi' O_low Phi - O_low >= 0``; iterating the
     last, ``O_low <= sum_{i<J} Phi'^i C'C Phi^i + Phi'^J O_low Phi^J``, whose last term vanishes as J grows.
+    ``O`` and ``Phif``: float64 approximations of O_true and of the release's state map (any will do: the checks are
+    exact).
     """
     (AB, sa), (CD, sc) = release["AB"], release["CD"]
     n = release["n"]
     Phi, C = (AB[:, :n], sa), (CD[:, :n], sc)
-    Phif = np.array([[int(x) for x in row] for row in Phi[0]], dtype=float) / 2.0 ** sa
     L = periodic.stein_doubling(Phif[None], np.eye(n)[None])[0][0]
     L = 0.5 * (L + L.T)
 
@@ -197,11 +197,13 @@ def _release_floor(release: dict, O: np.ndarray) -> tuple | None:
     return None
 
 
-def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarray, O: np.ndarray):
-    """``(rounded-down gain, deployed)`` of the witness with disturbance ``v`` (k periods), exactly, or None."""
+def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarray, O: np.ndarray,
+                 Phif: np.ndarray):
+    """``(rounded-down gain, deployed)`` of the witness with disturbance ``v`` (k periods), exactly, or None
+    (``O``, ``Phif``: the release's float64 Gramian and state map, :func:`_release_floor`)."""
     if charge is None or release is None:
         return None
-    Ol = _release_floor(release, O)
+    Ol = _release_floor(release, O, Phif)
     if Ol is None:
         return None
     n = charge["n"]

@@ -83,7 +83,7 @@ def test_the_exact_value_is_the_closed_form_of_a_scalar_charge_and_release():
     k = 12
     v = np.array([a ** (k - 1 - i) for i in range(k)])
     O = np.array([[c1 * c1 / (1 - a1 * a1)]])
-    got, deployed = _exact_value(exact_period(data, (0,)), exact_period(data, (1,)), k, v, O)
+    got, deployed = _exact_value(exact_period(data, (0,)), exact_period(data, (1,)), k, v, O, data[1]["A"])
     assert not deployed
     F = [Fraction(t) for t in (a, b, c, d, a1, c1)]
     scale = max(abs(t) for t in v)
@@ -96,3 +96,26 @@ def test_the_exact_value_is_the_closed_form_of_a_scalar_charge_and_release():
     ratio = energy / sum(w * w for w in V)
     assert Fraction(got) ** 2 <= ratio
     assert got == pytest.approx(float(ratio) ** 0.5, rel=1e-12)
+
+
+def test_a_release_with_subnormal_entries_is_evaluated_without_overflow():
+    """A release whose state map holds a subnormal entry (5e-324: its exact form is over 2^1074, beyond float64's
+    range when converted back whole, which raised OverflowError before): the exact value still comes, within 1e-12
+    of the float64 ratio with the release's energy from a discrete Lyapunov solution."""
+    A1 = np.array([[0.95, 5e-324], [0.0, 0.5]])
+    C1 = np.array([[2.0, 1.0]])
+    data = [{"A": np.diag([0.9, 0.8]), "B": np.array([[1.0], [0.5]]), "C": np.array([[0.25, 0.0]]),
+             "D": np.array([[0.5]])},
+            {"A": A1, "B": np.zeros((2, 1)), "C": C1, "D": np.zeros((1, 1))}]
+    O = scipy.linalg.solve_discrete_lyapunov(A1.T, C1.T @ C1)
+    k = 10
+    v = np.array([0.9 ** (k - 1 - i) for i in range(k)])
+    got = _exact_value(exact_period(data, (0,)), exact_period(data, (1,)), k, v, O, A1)
+    assert got is not None
+    x, energy = np.zeros(2), 0.0
+    for w in v / np.max(np.abs(v)):
+        energy += float((data[0]["C"] @ x + data[0]["D"][:, 0] * w) @ (data[0]["C"] @ x + data[0]["D"][:, 0] * w))
+        x = data[0]["A"] @ x + data[0]["B"][:, 0] * w
+    energy += float(x @ O @ x)
+    reference = (energy / float(np.sum((v / np.max(np.abs(v))) ** 2))) ** 0.5
+    assert got[0] == pytest.approx(reference, rel=1e-12)
