@@ -39,13 +39,13 @@ from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_o
                         _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, hinf_norm_lower,
                         lyapunov, period_system, sequence_cost, shortest_lead)
 from ..certificates import uncontrollable_mode
-from ..transients import TRANSIENT_WORK, transient_witness
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
 from ..lifting import TINY, check_channel, check_weights, lift_modes
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
 from ..scaling import Scaling
+from ..transients import TRANSIENT_WORK, transient_witness
 from . import network_lmi
 
 #: Closed walks valued for the lower bound at most (cost; hinf: ``MAX_WALKS_HINF``), shortest first.
