@@ -129,7 +129,7 @@ def transient_witness(data: list[dict], floor: float, patterns: list | None = No
         return None
     roots = _sqrt_psd(W[ok])
     # lambda_max(W_c O_d) = lambda_max(W_c^1/2 O_d W_c^1/2): the charge forever, then the release forever
-    score = np.linalg.eigvalsh(np.einsum("aij,bjk,akl->abil", roots, O[ok], roots))[..., -1]
+    score = np.linalg.eigvalsh(roots[:, None] @ O[ok][None] @ roots[:, None])[..., -1]
     if nodes is not None:
         at = np.asarray(nodes)[ok]
         score[at[:, None] != at[None, :]] = -np.inf
