@@ -88,8 +88,8 @@ class Performance:
         pattern's, or a prefix's followed by one (``lead``); for hinf exact, and with a prefix the charge-then-release
         witness (docs/design.md §8.4, "Transient witness").
     witness : list of tuple
-        That pattern, one period: ``(plant_mode, eta)`` per interval (``plant_mode`` a tuple of plant
-        indices per sample under per-sample switching).
+        That run: ``(plant_mode, eta)`` per interval (``plant_mode`` a tuple of plant indices per sample under
+        per-sample switching), its period from ``lead`` on.
     certificate : ndarray, shape (n, n), or None
         P (user coordinates) of the upper bound.
     verified : bool
@@ -2015,7 +2015,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
     if kind == "hinf" and len(data) > 1 and lower is not None and np.isfinite(lower) and lower > 0 and \
             (upper is None or upper > lower * (1 + GROW_ABOVE_GAP)) and not out_of_time(seconds_left):
         # a disturbance that charges the loop under one pattern, released as output under another at rest, can beat
-        # every periodic pattern (docs/design.md §8.4, "Transient witness"; zero-input hold-out seed 9124: 23.8 -> 30.1)
+        # every periodic pattern (docs/design.md §8.4, "Transient witness"; zero-input hold-out seed 9124: 23.8 -> 31.1)
         from .transients import transient_witness
 
         released = transient_witness(data, lower)

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import periodic
-from .exact import add, exact, matmul, positive_definite_integer, rational_down
+from .exact import add, exact, matmul, positive_definite_integer
 
 #: Pairs (charge, release) refined by their finite charge's top singular vector, the best by the Gramian score.
 TRANSIENT_PAIRS = 4
@@ -227,7 +227,7 @@ def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarra
     if norm == 0 or energy <= 0:
         return None
     ratio = energy / norm
-    f = rational_down(Fraction(math.sqrt(float(ratio))))
-    while Fraction(f) ** 2 > ratio:
+    f = math.sqrt(float(ratio))
+    while Fraction(f) ** 2 > ratio:  # rounded down: its square at most the ratio
         f = float(np.nextafter(f, 0.0))
     return f, bool(charge["deployed"] and release["deployed"])
