@@ -2020,7 +2020,9 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
 
         released = transient_witness(data, lower)
         if released is not None:
-            prefix, period = shortest_lead(list(released.charge) * released.periods, list(released.release))
+            # spelled as evaluated (no shortest_lead: moving an interval of the charge into the period would move it
+            # out of the stretch the disturbance acts on, which `lead` marks)
+            prefix, period = list(released.charge) * released.periods, list(released.release)
             lower, lead = released.value, len(prefix)
             witness = _labels(lifted, prefix + period)
             loop = "the deployed loop" if released.deployed else "the float64 loop data as exact rationals"

@@ -1041,7 +1041,8 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         count += runs
         if value is not None and value <= upper * (1 + 1e-6):
             lower, lead, walk = value, found_lead, found
-    if walk is not None:  # one infinite run, one witness, whatever rounding picked among its spellings
+    if walk is not None and released is None:  # one infinite run, one witness, whatever rounding picked among its
+        # spellings (a transient stays as evaluated: `lead` marks where its disturbance acts)
         prefix, period = shortest_lead(walk[:lead], _primitive_period(list(walk[lead:])))
         walk, lead = tuple(prefix + period), len(prefix)
     what = "cost" if kind == "cost" else "l2 gain"
