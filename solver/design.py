@@ -426,6 +426,7 @@ def _network_design(family: PlantFamily, network, method: str, *, solver, margin
                                           plant_switching=plant_switching, scaling=scaling,
                                           time_limit=time_limit, callback=callback, solver=solver,
                                           fallback=fallback)
+        res = _performance_proof(family, network, res, objective, plant_switching, start, time_limit)
         res.network = network.to_dict()
         if getattr(res.certificate, "form", None) == "augmented" and family.n_modes > 1 and \
                 plant_switching == "per_interval":
@@ -489,6 +490,26 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
     base.message = (f"infeasible on {network.describe()}: it admits every run of bounded_drops({network.n_drop}), "
                     f"and for those: {base.message} (network design before this proof: {res.outcome})")
     return base
+
+
+def _performance_proof(family, network, res: DesignResult, objective: str, plant_switching, start,
+                       time_limit) -> DesignResult:
+    """A performance design on ``network`` that found no gains, answered "infeasible" where the stability design on
+    the same network is (:func:`_bounded_drops_proof`: the bounded-drops runs it admits): gains with a certified cost
+    or l2-gain bound stabilize those runs, so that proof holds for them as well (docs/design.md §11.3)."""
+    from .methods import network_lmi
+
+    if res.gains is not None or res.outcome not in ("not_certified", "not_converged") or \
+            not network_lmi.contains_bounded_drops(network):
+        return res
+    proof = _bounded_drops_proof(family, network, res, plant_switching, start, time_limit)
+    if proof is res:
+        return res
+    proof.objective = objective
+    proof.timings = dict(res.timings, total=time.perf_counter() - start)
+    proof.message += (f"; a certified {objective} bound needs gains that stabilize these runs, so this proof answers "
+                      "it too")
+    return proof
 
 
 def _network_rates(family, network, prob, decay_rate, rate_tol, time_limit, callback, max_iter, plant_switching,

@@ -256,6 +256,19 @@ def test_infeasible_carries_over_to_a_network_that_admits_every_bounded_drops_ru
     # the converse direction is not used: weakly_hard(2, 5, 3) is designed above although bounded_drops(3) is not
 
 
+@pytest.mark.parametrize("request_", [{"objective": "cost"}, {"objective": "cost", "x0": [1.0]},
+                                      {"objective": "hinf", "disturbance": [[1.0]]}], ids=["cost", "cost_x0", "hinf"])
+def test_a_performance_design_carries_the_same_proof(request_):
+    # every gain leaves an expanding 3-sample interval (closed form above), so no gain has a finite cost or l2 gain
+    # on delays(1, 3); the performance design answers with the stability design's re-checked proof ("not_certified"
+    # before: its own SDP's Farkas certificate excludes only its form)
+    net = Network.delays(1, 3)
+    res = design(WEAKLY_HARD_FAMILY, network=net, **request_)
+    assert res.outcome == "infeasible" and res.certificate.kind == "farkas" and res.gains is None, res.message
+    assert res.objective == request_["objective"] and res.network is not None
+    assert "admits every run of bounded_drops(3)" in res.message and "this proof answers it too" in res.message
+
+
 def test_decay_rate_on_a_network_bounds_every_admissible_cycle():
     net = Network.weakly_hard(2, 5, 3)
     res = design(WEAKLY_HARD_FAMILY, network=net, decay_rate="max", rate_tol=1e-2)
