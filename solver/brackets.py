@@ -2005,6 +2005,13 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         # one loop, one allowed pattern: its cost is the exact P's value (the float64 witness of a loop whose P spans
         # 1e13 is off by more than 1e-6, hold-out seed 9: above the exact bound)
         lower = exact_lower
+    elif kind == "cost" and lower is not None and np.isfinite(lower) and lower > 0:
+        # the witness's cost valued exactly (docs/design.md §8.4, "Lower bound"): a proven lower end
+        value, why = exact_cost_witness(data, found, x0, weight, seconds_left)
+        if value is not None:
+            lower = value
+        if why:
+            note = f"{note}; {why}" if note else why
     elif kind == "hinf" and lower is not None and np.isfinite(lower) and lower > 0 and found.peak is not None:
         # the float64 witness is no proof on an ill-conditioned loop (above the pattern's exact gain by up to 27x):
         # the pattern's exact lifted period evaluated at its peak frequency (docs/design.md §8.4, "Lower bound")
@@ -2108,16 +2115,33 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
 
 #: A cost bracket open by more than this (upper / lower - 1) tries the look-ahead bounds (:func:`bracket`).
 LOOKAHEAD_GAP = 1e-2
-#: The exact witness (:func:`exact_gain_lower`) is evaluated only for a period of at most this many intervals times
-#: states (``len(seq) n``): the real form of ``(zI - Phi) Y = B`` has side ``2n`` and the period's rationals grow by
-#: ~53 bits per interval (docs/design.md §8.4, "Lower bound").
-EXACT_PERIOD_MAX_WORK = 32
+#: The exact witness (:func:`exact_gain_lower`) is evaluated only where its elimination's work :func:`exact_work`,
+#: ``k^3 L^2``, is at most this: ``(zI - Phi) Y = B`` has side k = 2n in real form (n at w = 0 or pi, where z is
+#: real) and the period's integers grow with its L intervals (docs/design.md §8.4, "Lower bound").  One interval at
+#: n = 30 off the real axis (2.2e5: 2.8 s) is in, two at n = 20 (2.6e5: 4.3 s) only on it (3.2e4: 0.4 s).
+EXACT_PERIOD_MAX_WORK = 2.3e5
+#: A frequency this close (rad/sample) to 0 or pi is evaluated there, at z = 1 or -1 (:func:`_exact_gain_at`): the
+#: float64 peak search stops up to ~6e-8 short of pi (its bounded search's tolerance), and the gain, even about pi,
+#: changes by O(1e-12) relative over 1e-6 (the n = 20 bench: 3e-12 at 1e-5).
+REAL_SNAP = 1e-6
 #: ... nor when the integers of that system exceed this many bits (subnormal data; an elimination's cost grows
 #: with the square of the bits).
 EXACT_PERIOD_MAX_BITS = 20000
 #: Where the exact value at the float64 peak is this much (relative) below the float64 witness, w = 0, pi and the
 #: period's pole angles are evaluated exactly too.
 EXACT_SHORTFALL = 1e-6
+
+
+def _real_frequency(w: float) -> bool:
+    """Whether :func:`_exact_gain_at` evaluates ``w`` at the real z = 1 or -1 (within :data:`REAL_SNAP`)."""
+    return min(abs(w), abs(np.pi - abs(w))) <= REAL_SNAP
+
+
+def exact_work(n: int, length: int, w: float) -> float:
+    """The work ``k^3 L^2`` of one exact evaluation (:func:`_exact_gain_at`) of a period of ``length`` intervals of
+    ``n`` states at ``w``: Bareiss elimination on side ``k`` (n for real z, else 2n) whose integers grow with L."""
+    k = n if _real_frequency(w) else 2 * n
+    return float(k) ** 3 * float(length) ** 2
 
 
 def _stack_pairs(pairs: list, axis: int) -> tuple:
@@ -2153,7 +2177,7 @@ def exact_period(data: list[dict], seq, deployed: bool | None = None) -> dict | 
     n = data[seq[0]]["A"].shape[0]
     blocks = None
     if deployed is not False:
-        loops = [_exact_loop(data[s]) for s in seq]
+        loops = [_exact_loop(data[s]) for s in seq] if _rebuildable(data, seq, "hinf") else [None]
         if all(lp is not None and lp[2] is not None for lp in loops):
             blocks = []
             for lp in loops:
@@ -2189,7 +2213,10 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     z is the float64 ``cos w + j sin w`` as a rational, lifted by factors ``1 + 2^-50`` to ``|z| >= 1``: for a
     stable period the gain there is at most the H-infinity norm (maximum modulus), which is the pattern's l2 gain
     from x = 0 (lifting is an isometry); an unstable period's gain is infinite or that of its stable minimal part.
-    ``(zI - Phi) Y = B`` is solved in its real form (side 2n) over the integers (:func:`solver.exact.solve_integer`),
+    Within :data:`REAL_SNAP` of 0 or pi, z is exactly 1 or -1 (the gain of a real system is even about both, so the
+    move costs ``O(REAL_SNAP^2)`` of the value, and a value short by more asks for more frequencies,
+    :func:`exact_witness`) and the system is real.  ``(zI - Phi) Y = B`` is solved over the
+    integers (:func:`solver.exact.solve_integer`; complex z: its real form, side 2n, 8x the work of side n),
     H formed exactly, v the top right singular vector of H's float64 rounding, and ``|H v|^2 / |v|^2`` compared
     with the float64 square root in rationals.  None where ``zI - Phi`` is singular or the integers exceed
     :data:`EXACT_PERIOD_MAX_BITS`.
@@ -2198,15 +2225,18 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
 
     n = period["n"]
     (Nab, sab), (Ncd, scd) = period["AB"], period["CD"]
-    zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
-    while zr * zr + zi * zi < 1:
-        zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
+    if _real_frequency(w):
+        zr, zi = Fraction(1 if np.cos(w) > 0 else -1), Fraction(0)
+    else:
+        zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
+        while zr * zr + zi * zi < 1:
+            zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
     # v: the top right singular vector of H(z) from the exact period rounded once to float64 (only H v is formed
     # exactly: one right-hand side instead of the period's p disturbance columns, each a column of big integers;
     # a v off by e costs e^2 of the value, never its validity)
     ABf = np.array([[int(x) / (1 << sab) for x in row] for row in Nab], dtype=float).reshape(Nab.shape)
     CDf = np.array([[int(x) / (1 << scd) for x in row] for row in Ncd], dtype=float).reshape(Ncd.shape)
-    z = complex(float(zr), float(zi))
+    z = float(zr) if zi == 0 else complex(float(zr), float(zi))  # real z: a real H, a real v
     try:
         Hf = CDf[:, n:] + CDf[:, :n] @ np.linalg.solve(z * np.eye(n) - ABf[:, :n], ABf[:, n:])
     except np.linalg.LinAlgError:
@@ -2222,17 +2252,22 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     if norm_v == 0:
         return None
     # (zI - Phi) y = B v over the integers, scaled by 2^(t + sab + u): (Z 2^sab - Phi_N 2^t) y = B_N (V) 2^t,
-    # in real form [[Mr, -Zi], [Zi, Mr]] [yr; yi] = [B Vr; B Vi] 2^t
+    # in real form [[Mr, -Zi], [Zi, Mr]] [yr; yi] = [B Vr; B Vi] 2^t, or Mr yr = B Vr 2^t where z and v are real
     Zr, Zi = Z[0] << sab, Z[1] << sab
     A, B = Nab[:, :n] * (1 << t), Nab[:, n:] * (1 << t)
-    M = [[0] * (2 * n) for _ in range(2 * n)]
+    real = Zi == 0 and not any(Vi)
+    k = n if real else 2 * n
+    M = [[0] * k for _ in range(k)]
     for i in range(n):
         for j in range(n):
-            M[i][j] = M[n + i][n + j] = -A[i, j]
+            M[i][j] = -A[i, j]
+            if not real:
+                M[n + i][n + j] = -A[i, j]
         M[i][i] += Zr
-        M[n + i][n + i] += Zr
-        M[i][n + i], M[n + i][i] = -Zi, Zi
-    rhs = [[int(x)] for x in np.dot(B, Vr)] + [[int(x)] for x in np.dot(B, Vi)]
+        if not real:
+            M[n + i][n + i] += Zr
+            M[i][n + i], M[n + i][i] = -Zi, Zi
+    rhs = [[int(x)] for x in np.dot(B, Vr)] + ([] if real else [[int(x)] for x in np.dot(B, Vi)])
     bits = max(max((abs(int(x)).bit_length() for row in M for x in row), default=0),
                max((abs(r[0]).bit_length() for r in rhs), default=0))
     if bits > EXACT_PERIOD_MAX_BITS:
@@ -2241,7 +2276,8 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     if solved is None:
         return None
     Y, d = solved  # d (yr; yi), integers: y = Y / d, and H v = (C Y / d + D V) / (2^scd 2^u)
-    yr, yi = np.array([r[0] for r in Y[:n]], dtype=object), np.array([r[0] for r in Y[n:]], dtype=object)
+    yr = np.array([r[0] for r in Y[:n]], dtype=object)
+    yi = np.zeros(n, dtype=object) * 0 if real else np.array([r[0] for r in Y[n:]], dtype=object)
     C, D = Ncd[:, :n], Ncd[:, n:]
     re, im = np.dot(C, yr) + np.dot(D, Vr) * d, np.dot(C, yi) + np.dot(D, Vi) * d
     scale = d << scd  # |H v|^2 / |v|^2 = |re + j im|^2 / (|V|^2 scale^2): 2^u cancels
@@ -2260,20 +2296,23 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     seq, n = tuple(found.pattern), data[0]["A"].shape[0]
     if not seq or found.peak is None:
         return None, "float64 witness (no peak frequency to evaluate exactly)"
-    if len(seq) * n > EXACT_PERIOD_MAX_WORK:
-        return None, (f"float64 witness, not a proof (period {len(seq)} x {n} states is above the exact "
-                      f"evaluation's {EXACT_PERIOD_MAX_WORK})")
+    if exact_work(n, len(seq), found.peak) > EXACT_PERIOD_MAX_WORK:
+        return None, (f"float64 witness, not a proof (period {len(seq)} x {n} states at w = {found.peak:.6g} is "
+                      f"above the exact evaluation's work {EXACT_PERIOD_MAX_WORK:.3g})")
     if out_of_time(seconds_left):
         return None, "float64 witness, not a proof (no time left for its exact evaluation)"
     period = exact_period(data, seq)
     if period is None:
         return None, "float64 witness, not a proof (no disturbance channel to evaluate exactly)"
-    value, where = exact_gain_lower(data, seq, found.peak, period=period), f"w = {found.peak:.6g} rad/sample"
+    w = found.peak
+    at = ("w = 0 (z = 1)" if abs(w) < 1 else "w = pi (z = -1)") if _real_frequency(w) else f"w = {w:.6g} rad/sample"
+    value, where = exact_gain_lower(data, seq, w, period=period), at
     if value is None or value < found.value * (1 - EXACT_SHORTFALL):
         # far below float64's value: the float64 peak may be misplaced (an ill-conditioned period); the level-set
         # iteration's own starting points too (w = 0, pi, the poles' angles), the largest kept
         Phi = floats([[Fraction(int(v), 1 << period["AB"][1]) for v in row[:period["n"]]] for row in period["AB"][0]])
         more = [0.0, float(np.pi)] + sorted({float(w) for w in np.abs(np.angle(np.linalg.eigvals(Phi)))})
+        more = [w for w in more if exact_work(n, len(seq), w) <= EXACT_PERIOD_MAX_WORK]
         other = exact_gain_lower(data, seq, more, period=period)
         if other is not None and (value is None or other > value):
             value, where = other, "w = 0, pi and the poles' angles (above the float64 peak's)"
@@ -2282,6 +2321,130 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     loop = "the deployed loop" if period["deployed"] else "the float64 loop data as exact rationals"
     return value, (f"witness gain evaluated exactly at {where} on {loop} "
                    f"(float64: {found.value / value - 1:+.2g} relative)")
+
+
+#: The exact cost witness (:func:`exact_cost_witness`) runs for a prefix of at most this many intervals (each adds
+#: the interval's bits to the state's integers) ...
+EXACT_PREFIX_MAX = 64
+#: ... and prefix intervals times n^2 times the starts (x0: one; the trace: n) at most this (products of big
+#: integers: n = 30, the trace, a prefix of 11 intervals took 0.3 s).
+EXACT_PREFIX_WORK = 4e5
+
+
+def _rebuildable(data: list[dict], modes, kind: str) -> bool:
+    """Whether :func:`_exact_loop` rebuilds every loop mode of ``modes`` with the ``kind`` ("cost": S, "hinf": the
+    channel) before any is built (the rebuild in Fractions costs ~0.2 s at n = 12, wasted where one mode lacks it)."""
+    for s in modes:
+        pl = data[s].get("plant")
+        if pl is None or len(pl["F"]) > EXACT_LOOP_MAX_SAMPLES:
+            return False
+        if kind == "cost" and (pl["Q"] is None or data[s].get("S") is None):
+            return False
+        if kind == "hinf" and (pl["channel"] is None or data[s].get("B") is None):
+            return False
+    return True
+
+
+def _exact_cost_modes(data: list[dict], modes) -> tuple[dict, bool]:
+    """``({s: (A_s, S_s)}, deployed)``: each loop mode's interval map and stage cost as exact ``(N, s)`` pairs, the
+    deployed loop rebuilt from F, G, K, Q, R (:func:`_exact_loop`) when every mode carries it, else the float64
+    interval data taken as exact rationals (S symmetrized exactly)."""
+    from .exact import dyadic, exact
+
+    n = data[0]["A"].shape[0]
+    rebuilt = _rebuildable(data, modes, "cost")
+    loops = {s: _exact_loop(data[s]) for s in modes} if rebuilt else {}
+    if rebuilt and all(lp is not None and lp[1] is not None for lp in loops.values()):
+        out = {}
+        for s, lp in loops.items():
+            (NA, ta), (NS, ts) = dyadic(lp[0]), dyadic(lp[1])
+            out[s] = ((np.array(NA, dtype=object).reshape(n, n), ta), (np.array(NS, dtype=object).reshape(n, n), ts))
+        return out, True
+    out = {}
+    for s in modes:
+        NS, ts = exact(data[s]["S"])
+        out[s] = (exact(data[s]["A"]), (NS + NS.T, ts + 1))
+    return out, False
+
+
+def exact_cost_witness(data: list[dict], found: LowerBound, x0=None, weight=None, seconds_left=None,
+                       history: np.ndarray | None = None) -> tuple[float | None, str]:
+    """The cost witness ``found`` (:func:`lower_bound`: ``pattern[:lead]`` once, then ``pattern[lead:]`` forever)
+    valued in exact arithmetic: ``(value, note)``, value a proven lower bound on that sequence's cost from ``x0``
+    (``trace`` weighted by ``weight`` without it), or None with the reason the float64 value stays.
+
+    The prefix's stage costs ``x' S_s x`` are summed exactly along the exact states (one per column of the moment's
+    square root: x0, or the unit vectors weighted); the tail's cost from the last state, ``x' P_tail x``, is bounded
+    below by a rational ``P_low <= P_tail`` whose Stein inequality ``S_per + Phi' P_low Phi - P_low > 0`` is checked
+    exactly (:func:`solver.exact.stein_floor`, the transient witness's release floor).  On the deployed loop (F, G,
+    K, Q, R in rationals) where the data carry it, else on the float64 interval data (docs/design.md §8.4, "Lower
+    bound").  ``history`` (k x n): the map from x0 to the loop's state (a network's initial history; None: I)."""
+    seq, lead = tuple(found.pattern), found.lead
+    if not seq or found.value is None or not np.isfinite(found.value) or found.value <= 0:
+        return None, ""
+    n = data[0]["A"].shape[0]
+    prefix, tail = seq[:lead], seq[lead:]
+    starts_count = 1 if x0 is not None else (n if history is None else np.asarray(history).shape[1])
+    if len(prefix) > EXACT_PREFIX_MAX or len(prefix) * n * n * starts_count > EXACT_PREFIX_WORK or \
+            exact_work(n, len(tail), 0.0) > EXACT_PERIOD_MAX_WORK:
+        return None, (f"float64 witness, not a proof (a prefix of {len(prefix)} and a period of {len(tail)} intervals "
+                      f"of {n} states are above the exact evaluation's)")
+    if out_of_time(seconds_left):
+        return None, "float64 witness, not a proof (no time left for its exact evaluation)"
+    try:
+        return _exact_cost_value(data, found, prefix, tail, x0, weight, history)
+    except (ValueError, ArithmeticError) as err:  # non-finite data, a singular or overflowing float64 step
+        return None, f"float64 witness, not a proof (its exact evaluation failed: {err})"
+
+
+def _exact_cost_value(data: list[dict], found: LowerBound, prefix, tail, x0, weight, history) -> tuple:
+    """:func:`exact_cost_witness`'s evaluation, once its size passed."""
+    from .exact import add as add_exact
+    from .exact import exact, identity, matmul, rational_down, stein_floor
+
+    n = data[0]["A"].shape[0]
+    mats, deployed = _exact_cost_modes(data, set(prefix) | set(tail))
+
+    def transpose(X):
+        return X[0].T.copy(), X[1]
+
+    def value_of(q):  # a 1 x 1 exact pair as a Fraction
+        return Fraction(int(q[0][0, 0]), 1 << q[1])
+
+    Phi, Sper = identity(n), (np.zeros((n, n), dtype=object) * 0, 0)
+    for k in tail:
+        A, S = mats[k]
+        image = matmul(matmul(transpose(Phi), S), Phi)
+        Sper = add_exact(Sper, image)
+        Phi = matmul(A, Phi)
+    sys = period_system(data, list(tail))
+    try:
+        Pt = lyapunov(sys["Phi"], sys["L"].T @ sys["L"])
+    except np.linalg.LinAlgError:
+        Pt = None
+    Pl = None if Pt is None else stein_floor(Phi, Sper, Pt, sys["Phi"])
+    if Pl is None:
+        return None, "float64 witness, not a proof (its period's exact Stein check failed)"
+    H = exact(np.eye(n) if history is None else np.asarray(history, dtype=float))
+    if x0 is not None:
+        starts = [(matmul(H, exact(np.asarray(x0, dtype=float).reshape(-1, 1))), Fraction(1))]
+    else:
+        w = np.ones(H[0].shape[1]) if weight is None else np.asarray(weight, dtype=float)
+        starts = [((H[0][:, i:i + 1].copy(), H[1]), Fraction(float(w[i]))) for i in range(len(w)) if w[i] != 0]
+    total = Fraction(0)
+    for x, c in starts:
+        for k in prefix:
+            A, S = mats[k]
+            total += c * value_of(matmul(matmul(transpose(x), S), x))
+            x = matmul(A, x)
+            if max((abs(int(v)).bit_length() for v in x[0].ravel()), default=0) > EXACT_PERIOD_MAX_BITS:
+                return None, "float64 witness, not a proof (its state's integers grew past the exact evaluation's)"
+        total += c * value_of(matmul(matmul(transpose(x), Pl), x))
+    if total <= 0:
+        return None, "float64 witness, not a proof (its exact evaluation gave no positive bound)"
+    value = rational_down(total)
+    loop = "the deployed loop" if deployed else "the float64 loop data as exact rationals"
+    return value, f"witness cost evaluated exactly on {loop} (float64: {found.value / value - 1:+.2g} relative)"
 
 
 def exact_gain_lower(data: list[dict], seq=(0,), peak: float | None = None, points: int = 2001,

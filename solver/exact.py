@@ -363,6 +363,47 @@ def positive_definite_integer(B) -> bool:
     return True
 
 
+def stein_floor(Phi: tuple, Q: tuple, O: np.ndarray, Phif: np.ndarray) -> tuple | None:
+    """A rational ``O_low <= O_true = sum_i Phi'^i Q Phi^i`` (exact ``(N, s)``), or None.
+
+    ``Phi``, ``Q`` exact ``(N, s)`` pairs (n x n, Q symmetric); ``O`` and ``Phif`` float64 approximations of O_true
+    and Phi (any will do: the checks are exact).  Checked exactly: ``L > 0`` and ``L - Phi' L Phi - I/2 > 0`` (Phi
+    stable, L from Phif) and ``Q + Phi' O_low Phi - O_low > 0`` for ``O_low = (1 - eps) O`` or ``O - eps |O| L`` (eps
+    from 1e-14 up);
+    iterating the last, ``O_low <= sum_{i<J} Phi'^i Q Phi^i + Phi'^J O_low Phi^J``, whose last term vanishes as J
+    grows (docs/design.md §8.4, "Transient witness").  O_low need not be semidefinite."""
+    from .periodic import stein_doubling
+
+    n = Phif.shape[0]
+    L = stein_doubling(Phif[None], np.eye(n)[None])[0][0]
+    L = 0.5 * (L + L.T)
+    if not np.all(np.isfinite(L)) or not np.all(np.isfinite(O)):
+        return None
+
+    def transpose(X):
+        return X[0].T.copy(), X[1]
+
+    def negative(X):
+        return -X[0], X[1]
+
+    def definite(X) -> bool:
+        return positive_definite_integer([[int(X[0][i, j]) for j in range(n)] for i in range(n)])
+
+    Le, half = exact(L), exact(0.5 * np.eye(n))
+    decrease = add(add(Le, negative(matmul(matmul(transpose(Phi), Le), Phi))), negative(half))
+    if not (definite(Le) and definite(decrease)):
+        return None
+    scale, Os = float(np.linalg.norm(O, 2)), 0.5 * (O + O.T)
+    for eps in (1e-14, 1e-12, 1e-10, 1e-8):
+        # O shrunk first (it adds eps (O - Phi' O Phi) ~ eps Q to the residual and costs eps of the value), then
+        # less eps |O| L (any Q, singular too; it costs eps |O| <L, M>, up to 1e-6 relative on a badly scaled slowly
+        # contracting loop)
+        for Ol in (exact((1.0 - eps) * Os), exact(Os - eps * scale * L)):
+            if definite(add(add(Q, matmul(matmul(transpose(Phi), Ol), Phi)), negative(Ol))):
+                return Ol
+    return None
+
+
 def lyapunov_decrease(X: np.ndarray, F: np.ndarray, G: np.ndarray, K: np.ndarray, plants, shift: float = 0.0) -> bool:
     """Exactly decide ``X > 0`` and ``X - A_s' X A_s > shift I`` for every mode, on the float64 numbers.
 

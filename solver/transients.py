@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import periodic
-from .exact import add, exact, matmul, positive_definite_integer
+from .exact import exact, matmul, stein_floor
 
 #: Pairs (charge, release) refined by their finite charge's top singular vector, the best by the Gramian score.
 TRANSIENT_PAIRS = 4
@@ -161,40 +161,13 @@ def _bits(X: np.ndarray) -> int:
 
 
 def _release_floor(release: dict, O: np.ndarray, Phif: np.ndarray) -> tuple | None:
-    """A rational ``O_low <= O_true`` for the release period (exact ``(N, s)``), or None.
-
-    ``O_true = sum_i Phi'^i C'C Phi^i`` is the release's output energy from a state at rest.  Checked exactly:
-    ``L > 0`` and ``L - Phi' L Phi > 0`` (Phi stable), and ``C'C + Phi' O_low Phi - O_low >= 0``; iterating the
-    last, ``O_low <= sum_{i<J} Phi'^i C'C Phi^i + Phi'^J O_low Phi^J``, whose last term vanishes as J grows.
-    ``O`` and ``Phif``: float64 approximations of O_true and of the release's state map (any will do: the checks are
-    exact).
-    """
+    """A rational ``O_low <= O_true`` for the release period (exact ``(N, s)``), or None: :func:`solver.exact.
+    stein_floor` of its state map and ``C'C`` (``O``, ``Phif``: float64 approximations of O_true and of the state
+    map)."""
     (AB, sa), (CD, sc) = release["AB"], release["CD"]
     n = release["n"]
     Phi, C = (AB[:, :n], sa), (CD[:, :n], sc)
-    L = periodic.stein_doubling(Phif[None], np.eye(n)[None])[0][0]
-    L = 0.5 * (L + L.T)
-
-    def transpose(X):
-        return X[0].T.copy(), X[1]
-
-    def definite(X) -> bool:
-        N, s = X
-        return positive_definite_integer([[int(N[i, j]) for j in range(n)] for i in range(n)])
-
-    Le, half = exact(L), exact(0.5 * np.eye(n))
-    image = matmul(matmul(transpose(Phi), Le), Phi)
-    decrease = add(add(Le, (-image[0], image[1])), (-half[0], half[1]))
-    if not (definite(Le) and definite(decrease)):
-        return None
-    CC = matmul(transpose(C), C)
-    scale = float(np.linalg.norm(O, 2))
-    for eps in (1e-14, 1e-12, 1e-10, 1e-8):
-        Ol = exact(0.5 * (O + O.T) - eps * scale * L)
-        residual = add(add(CC, matmul(matmul(transpose(Phi), Ol), Phi)), (-Ol[0], Ol[1]))
-        if definite(residual):
-            return Ol
-    return None
+    return stein_floor(Phi, matmul((C[0].T.copy(), C[1]), C), O, Phif)
 
 
 def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarray, O: np.ndarray,

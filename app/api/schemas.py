@@ -252,9 +252,10 @@ class Performance(_Open):
                                                   "why).")
     certificate_upper: float | None = Field(None, description="The quadratic certificate's own bound (`x0'Px`, "
                                                               "`trace P` or gamma): what the design's SDP minimizes.")
-    lower: float | None = Field(None, description="The value of the worst allowed run searched (`witness`): its "
-                                                  "exact cost, or a proven lower bound on its l2 gain (docs/design.md "
-                                                  "§8.4).")
+    lower: float | None = Field(None, description="The value of the worst allowed run searched (`witness`): a "
+                                                  "proven lower bound on its cost or l2 gain, evaluated in exact "
+                                                  "arithmetic (the message says where a float64 value stands "
+                                                  "instead; docs/design.md §8.4).")
     lower_infinite: bool | None = Field(None, description="True when a periodic pattern is unstable (infinite cost).")
     witness: list[list[int | list[int]]] | None = Field(
         None, description="That run: `[plant_mode, eta]` per interval (`plant_mode` a list of plant modes per sample "

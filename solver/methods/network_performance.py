@@ -35,9 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..brackets import (NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual, _moment,
-                        _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, hinf_norm_lower,
-                        lyapunov, period_system, sequence_cost, shortest_lead)
+from ..brackets import (LowerBound, NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual,
+                        _moment, _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, exact_cost_witness,
+                        exact_witness, hinf_norm_lower, hinf_norm_peak, lyapunov, period_system, sequence_cost,
+                        shortest_lead)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
@@ -1041,6 +1042,19 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
         count += runs
         if value is not None and value <= upper * (1 + 1e-6):
             lower, lead, walk = value, found_lead, found
+    exact_note = ""
+    if released is None and walk is not None and lower is not None and np.isfinite(lower) and lower > 0:
+        # the witness valued exactly, as on bounded drops (docs/design.md §11.3): the closed walk's gain at its peak,
+        # the run's cost along its exact states
+        left = None if time_limit is None or time_limit <= 0 else (lambda: time_left(time_limit, start))
+        found = LowerBound(value=lower, witness=[], patterns=count, note="", lead=lead, pattern=tuple(walk))
+        if kind == "hinf":
+            found = found._replace(peak=hinf_norm_peak(period_system(data, list(walk)), frequency=True)[1])
+            value, exact_note = exact_witness(data, found, left)
+        else:
+            value, exact_note = exact_cost_witness(data, found, x0, trace_weight, left, ch.history)
+        if value is not None and (upper is None or value <= upper * (1 + 1e-6)):
+            lower = value
     if walk is not None and released is None:  # one infinite run, one witness, whatever rounding picked among its
         # spellings (a transient stays as evaluated: `lead` marks where its disturbance acts)
         prefix, period = shortest_lead(walk[:lead], _primitive_period(list(walk[lead:])))
@@ -1061,6 +1075,8 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
             on = "the deployed loop" if released.deployed else "the float64 transition data as exact rationals"
             shape += f" at rest (the disturbance in the first ones only; evaluated exactly on {on})"
         message += f"; worst admissible run searched: {lower:.6g} ({count} walks and runs valued{shape})"
+        if exact_note and released is None:
+            message += f"; {exact_note}"
     prob = ch.prob
     return NetworkPerformance(
         kind=kind, upper=upper, lower=lower, witness=[] if walk is None else _walk_labels(prob, walk),

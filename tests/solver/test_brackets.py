@@ -5,6 +5,7 @@ step-by-step simulation of the buffer (written here, not the library's lifting),
 """
 
 import itertools
+from fractions import Fraction
 
 import control
 import numpy as np
@@ -249,6 +250,76 @@ def test_simulated_costs_stay_below_the_certificate_and_the_witness_reaches_the_
     cost, x = run_pattern(fam, res.gains, x0, lead + period * (2000 // len(period)))
     assert np.linalg.norm(x) < 1e-8
     assert cost == pytest.approx(perf.lower, rel=1e-9)
+
+
+def _mp_run_cost(fam, K, Q, R, starts, intervals, tail, dps: int = 60):
+    """The cost of ``intervals`` once, then ``tail`` repeated until the state is below 1e-45 of its start, from each
+    start (summed), stepped sample by sample through the buffer in mpmath at ``dps`` digits with the float64 F, G,
+    K, Q, R taken as exact: an independent reference of a witness's cost (the neglected rest is ~1e-90)."""
+    import mpmath as mp
+
+    with mp.workdps(dps):
+        def m(X):
+            return mp.matrix(np.atleast_2d(np.asarray(X, dtype=float)).tolist())
+
+        F, G = [m(f) for f in fam.F], [m(g) for g in fam.G]
+        Ks, Qm, Rm = [m(k) for k in K], m(Q), m(R)
+        total = mp.mpf(0)
+        for x0 in starts:
+            x = m(np.asarray(x0, dtype=float).reshape(-1, 1))
+            size0 = mp.norm(x)
+
+            def run(x, seq):
+                cost = mp.mpf(0)
+                for plant, eta in seq:
+                    xm = x
+                    for t in range(eta):
+                        u = Ks[t] * xm
+                        cost += (x.T * Qm * x)[0] + (u.T * Rm * u)[0]
+                        x = F[plant] * x + G[plant] * u
+                return cost, x
+
+            cost, x = run(x, intervals)
+            total += cost
+            for _ in range(100000):
+                if mp.norm(x) < size0 * mp.mpf(10) ** -45:
+                    break
+                cost, x = run(x, tail)
+                total += cost
+            else:
+                raise AssertionError("the tail did not settle")
+        return total
+
+
+@pytest.mark.parametrize("with_x0", [False, True], ids=["trace", "x0"])
+def test_the_cost_witness_is_valued_exactly_below_its_60_digit_cost(with_x0):
+    # the witness's cost (a prefix once, then a period forever), stepped sample by sample through the buffer at 60
+    # digits, is at least the lower end and within 1e-12 of it: the exact evaluation (the prefix's stage costs in
+    # integers, the period's cost from below by a Stein inequality checked exactly) is a proof, no float64 value
+    import mpmath as mp
+
+    fam = unstable_family()
+    x0 = np.array([1.0, -1.0]) if with_x0 else None
+    res = design(fam, 3, objective="cost", weights=(Q2, R1), x0=x0)
+    perf = res.performance
+    assert res.outcome == "stabilized" and perf.verified
+    assert "witness cost evaluated exactly on the deployed loop" in perf.message, perf.message
+    lead, period = perf.witness[:perf.lead], perf.witness[perf.lead:]
+    ref = _mp_run_cost(fam, res.gains, Q2, R1, [x0] if with_x0 else list(np.eye(2)), lead, period)
+    with mp.workdps(60):
+        assert mp.mpf(Fraction(perf.lower).numerator) / Fraction(perf.lower).denominator <= ref
+    assert perf.lower >= float(ref) * (1 - 1e-12) and perf.lower <= perf.upper
+
+
+def test_a_cost_witness_too_long_to_value_exactly_keeps_its_float64_value_and_says_so(monkeypatch):
+    from solver import brackets
+
+    fam = unstable_family()
+    exact = design(fam, 3, objective="cost", weights=(Q2, R1)).performance
+    monkeypatch.setattr(brackets, "EXACT_PERIOD_MAX_WORK", 1)
+    floated = design(fam, 3, objective="cost", weights=(Q2, R1)).performance
+    assert "float64 witness, not a proof" in floated.message and "evaluated exactly" not in floated.message
+    assert floated.lower == pytest.approx(exact.lower, rel=1e-12)
 
 
 @pytest.mark.parametrize("with_x0", [False, True], ids=["trace", "x0"])
@@ -1043,6 +1114,71 @@ def test_exact_witness_recovers_from_a_misplaced_float64_peak():
     with mp.workdps(60):
         assert mp.mpf(Fraction(value).numerator) / Fraction(value).denominator <= ref
     assert value >= float(ref) * (1 - 1e-12)
+
+
+def _mp_period_gain(per: dict, z, dps: int = 60):
+    """``sigma_max(D + C (zI - Phi)^-1 B)`` of :func:`solver.brackets.exact_period`'s integers at ``z`` in mpmath at
+    ``dps`` digits: an independent reference of the exact evaluation."""
+    import mpmath as mp
+
+    n = per["n"]
+    (Nab, sab), (Ncd, scd) = per["AB"], per["CD"]
+    with mp.workdps(dps):
+        def mat(N, s):
+            return mp.matrix([[mp.mpf(int(v)) / mp.mpf(2) ** s for v in row] for row in N])
+
+        Phi, B, C, D = mat(Nab[:, :n], sab), mat(Nab[:, n:], sab), mat(Ncd[:, :n], scd), mat(Ncd[:, n:], scd)
+        H = D + C * mp.inverse(z * mp.eye(n) - Phi) * B
+        S = mp.svd_c(H, compute_uv=False)
+        return max(S[i] for i in range(S.rows))
+
+
+def test_a_peak_at_0_or_pi_is_evaluated_on_the_real_system_and_a_longer_period_is_proven():
+    # w within REAL_SNAP of pi (the float64 search stops ~6e-8 short of it) or of 0 is evaluated at z = -1 or 1: a
+    # real system of side n (the complex one has side 2n; 20-50x the time), its value the 60-digit gain there (never
+    # above); off the axis the complex form still runs.  Two intervals of 20 states at pi, above the old work cap
+    # (period x n <= 32), now give a proven lower end.
+    from fractions import Fraction
+    import mpmath as mp
+    import solver.exact
+    from solver import brackets
+    from solver.brackets import LowerBound, _exact_gain_at, exact_period, exact_witness, period_system, _sigma_max
+
+    rng = np.random.default_rng(5)
+    n, r = 20, 2
+    F = rng.normal(size=(r, n, n))
+    F = np.array([f * 0.97 / max(abs(np.linalg.eigvals(f))) for f in F])
+    fam = PlantFamily(F=F, G=rng.normal(size=(r, n, 1)))
+    E = rng.normal(size=(n, 1))
+    lifted = lift_modes(ModeSet.from_family(fam, 1), None, E)
+    data = lifted.numeric(np.zeros((1, 1, n)))
+    seq = (0, 1)
+    per = exact_period(data, seq)
+    sides = []
+    real_solve = solver.exact.solve_integer
+
+    def recording(M, rhs):
+        sides.append(len(M))
+        return real_solve(M, rhs)
+
+    solver.exact.solve_integer = recording
+    try:
+        for w, z in ((np.pi - 6e-8, -1), (3e-7, 1), (0.3, mp.expj(mp.mpf(0.3)))):
+            value = _exact_gain_at(per, w)
+            with mp.workdps(60):
+                ref = _mp_period_gain(per, z)
+                assert mp.mpf(Fraction(value).numerator) / Fraction(value).denominator <= ref * (1 + mp.mpf(2) ** -48)
+                assert value >= float(ref) * (1 - 1e-12), w
+    finally:
+        solver.exact.solve_integer = real_solve
+    assert sides == [n, n, 2 * n]
+    # the witness: the float64 gain at pi - 6e-8, evaluated exactly at pi
+    w = np.pi - 6e-8
+    found = LowerBound(value=float(_sigma_max(period_system(data, seq), np.array([w]))[0]), witness=[], patterns=1,
+                       note="", pattern=seq, peak=w)
+    assert len(seq) * n > 32 and brackets.exact_work(n, len(seq), w) <= brackets.EXACT_PERIOD_MAX_WORK
+    value, note = exact_witness(data, found)
+    assert "evaluated exactly" in note and value == pytest.approx(found.value, rel=1e-12)
 
 
 def test_a_witness_is_spelled_with_the_shortest_prefix():

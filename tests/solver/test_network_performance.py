@@ -159,6 +159,8 @@ def test_cost_bound_covers_every_admissible_run_and_the_witness_attains_the_lowe
     value = run_cost(MOTOR.F, MOTOR.G, res.gains, Q, R, x0, ages, [p for _, p in samples], ages[0])
     assert value == pytest.approx(perf.lower, rel=1e-6)
     assert worst <= perf.upper and perf.lower <= perf.upper
+    # valued exactly along the run's exact states (tests/solver/test_brackets.py checks that evaluation at 60 digits)
+    assert "witness cost evaluated exactly" in perf.message, perf.message
 
 
 def fresh_loop_peaks(fam, K, Ew, points=400):
@@ -186,6 +188,12 @@ def test_hinf_bracket_on_a_network(net):
     for peak in fresh_loop_peaks(MOTOR, res.gains, E):
         assert peak <= perf.upper * (1 + 1e-9)
         assert peak <= perf.lower * (1 + 1e-6)
+    # the worst closed walk's gain is evaluated exactly (a proven lower end, tests/solver/test_brackets.py checks the
+    # evaluation against 60 digits): the float64 walk value to rounding
+    assert "evaluated exactly" in perf.message, perf.message
+    ch = network_performance.channels(MOTOR, net, "hinf", disturbance=E)
+    assert perf.lower == pytest.approx(network_performance.lower_bound(ch, ch.numeric(res.gains), "hinf")[0],
+                                       rel=1e-12)
 
 
 def test_a_larger_network_covers_the_smaller_ones_runs():

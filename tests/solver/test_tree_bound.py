@@ -133,6 +133,11 @@ def test_the_refusal_of_a_contradiction_still_works(monkeypatch):
         return out._replace(value=out.bound * (1 + 1e-5))
 
     monkeypatch.setattr(brackets, "lower_bound", inflated)
+    # the exact evaluation of the witness corrects a float64 value 1e-5 too high ...
+    perf = brackets.bracket(lifted, np.asarray(res.gains, float), "cost", P0=res.performance.certificate)
+    assert perf.verified and perf.lower <= perf.upper and "(float64: +1e-05 relative)" in perf.message
+    # ... and an exact value above the upper end is refused with it
+    monkeypatch.setattr(brackets, "exact_cost_witness", lambda data, found, *a, **k: (found.value, ""))
     perf = brackets.bracket(lifted, np.asarray(res.gains, float), "cost", P0=res.performance.certificate)
     assert perf.upper is None and not perf.verified and "refused" in perf.message
 
