@@ -2006,7 +2006,7 @@ def bracket(lifted: Lifted, gains: np.ndarray, kind: str, P0: np.ndarray | None 
         # 1e13 is off by more than 1e-6, hold-out seed 9: above the exact bound)
         lower = exact_lower
     elif kind == "cost" and lower is not None and np.isfinite(lower) and lower > 0:
-        # the witness's cost valued exactly (docs/design.md §8.4, "Lower bound"): a proven lower end
+        # the witness's cost valued exactly (docs/design.md §8.4, "Exact witness (cost)"): a proven lower end
         value, why = exact_cost_witness(data, found, x0, weight, seconds_left)
         if value is not None:
             lower = value
@@ -2120,9 +2120,10 @@ LOOKAHEAD_GAP = 1e-2
 #: real) and the period's integers grow with its L intervals (docs/design.md §8.4, "Lower bound").  One interval at
 #: n = 30 off the real axis (2.2e5: 2.8 s) is in, two at n = 20 (2.6e5: 4.3 s) only on it (3.2e4: 0.4 s).
 EXACT_PERIOD_MAX_WORK = 2.3e5
-#: A frequency this close (rad/sample) to 0 or pi is evaluated there, at z = 1 or -1 (:func:`_exact_gain_at`): the
-#: float64 peak search stops up to ~6e-8 short of pi (its bounded search's tolerance), and the gain, even about pi,
-#: changes by O(1e-12) relative over 1e-6 (the n = 20 bench: 3e-12 at 1e-5).
+#: A frequency this close (rad/sample) to 0 or pi is evaluated there, at z = 1 or -1 (:func:`_exact_gain_at`), where
+#: the float64 gain there is within ``EXACT_SHORTFALL`` of the gain at the frequency itself (:func:`_snaps`): the
+#: float64 peak search stops up to ~6e-8 short of pi (its bounded search's tolerance; the n = 20 bench: 3e-12
+#: relative lost at 1e-5), while a pole 1e-8 inside the circle at pi - 5e-7 loses 24x of its peak there.
 REAL_SNAP = 1e-6
 #: ... nor when the integers of that system exceed this many bits (subnormal data; an elimination's cost grows
 #: with the square of the bits).
@@ -2133,14 +2134,30 @@ EXACT_SHORTFALL = 1e-6
 
 
 def _real_frequency(w: float) -> bool:
-    """Whether :func:`_exact_gain_at` evaluates ``w`` at the real z = 1 or -1 (within :data:`REAL_SNAP`)."""
+    """Whether ``w`` is within :data:`REAL_SNAP` of 0 or pi."""
     return min(abs(w), abs(np.pi - abs(w))) <= REAL_SNAP
 
 
-def exact_work(n: int, length: int, w: float) -> float:
+def _snaps(AB: np.ndarray, CD: np.ndarray, w: float) -> bool:
+    """Whether :func:`_exact_gain_at` evaluates ``w`` at the real z = 1 or -1: within :data:`REAL_SNAP` of 0 or pi,
+    and the float64 gain of the period ``[Phi B]``, ``[C D]`` there within ``EXACT_SHORTFALL`` of its gain at ``w``
+    (a lightly damped pole near the axis peaks off it)."""
+    if not _real_frequency(w):
+        return False
+    n = AB.shape[0]
+    sys = {"Phi": AB[:, :n], "B": AB[:, n:], "C": CD[:, :n], "D": CD[:, n:]}
+    with np.errstate(all="ignore"):
+        try:
+            at, real = _sigma_max(sys, np.array([w, 0.0 if abs(w) < 1 else np.pi]))
+        except np.linalg.LinAlgError:
+            return False
+    return bool(np.isfinite(real) and real >= at * (1 - EXACT_SHORTFALL))
+
+
+def exact_work(n: int, length: int, real: bool) -> float:
     """The work ``k^3 L^2`` of one exact evaluation (:func:`_exact_gain_at`) of a period of ``length`` intervals of
-    ``n`` states at ``w``: Bareiss elimination on side ``k`` (n for real z, else 2n) whose integers grow with L."""
-    k = n if _real_frequency(w) else 2 * n
+    ``n`` states: Bareiss elimination on side ``k`` (n for real z, else 2n) whose integers grow with L."""
+    k = n if real else 2 * n
     return float(k) ** 3 * float(length) ** 2
 
 
@@ -2213,9 +2230,9 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     z is the float64 ``cos w + j sin w`` as a rational, lifted by factors ``1 + 2^-50`` to ``|z| >= 1``: for a
     stable period the gain there is at most the H-infinity norm (maximum modulus), which is the pattern's l2 gain
     from x = 0 (lifting is an isometry); an unstable period's gain is infinite or that of its stable minimal part.
-    Within :data:`REAL_SNAP` of 0 or pi, z is exactly 1 or -1 (the gain of a real system is even about both, so the
-    move costs ``O(REAL_SNAP^2)`` of the value, and a value short by more asks for more frequencies,
-    :func:`exact_witness`) and the system is real.  ``(zI - Phi) Y = B`` is solved over the
+    Within :data:`REAL_SNAP` of 0 or pi, z is exactly 1 or -1 where the float64 gain there is as large
+    (:func:`_snaps`: the gain of a real system is even about both, so the move costs ``O(REAL_SNAP^2)`` of a peak
+    that is not lightly damped) and the system is real.  ``(zI - Phi) Y = B`` is solved over the
     integers (:func:`solver.exact.solve_integer`; complex z: its real form, side 2n, 8x the work of side n),
     H formed exactly, v the top right singular vector of H's float64 rounding, and ``|H v|^2 / |v|^2`` compared
     with the float64 square root in rationals.  None where ``zI - Phi`` is singular or the integers exceed
@@ -2225,17 +2242,16 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
 
     n = period["n"]
     (Nab, sab), (Ncd, scd) = period["AB"], period["CD"]
-    if _real_frequency(w):
-        zr, zi = Fraction(1 if np.cos(w) > 0 else -1), Fraction(0)
-    else:
-        zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
-        while zr * zr + zi * zi < 1:
-            zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
+    zr, zi = Fraction(float(np.cos(w))), Fraction(float(np.sin(w)))
+    while zr * zr + zi * zi < 1:
+        zr, zi = zr * (1 + Fraction(1, 2 ** 50)), zi * (1 + Fraction(1, 2 ** 50))
     # v: the top right singular vector of H(z) from the exact period rounded once to float64 (only H v is formed
     # exactly: one right-hand side instead of the period's p disturbance columns, each a column of big integers;
     # a v off by e costs e^2 of the value, never its validity)
     ABf = np.array([[int(x) / (1 << sab) for x in row] for row in Nab], dtype=float).reshape(Nab.shape)
     CDf = np.array([[int(x) / (1 << scd) for x in row] for row in Ncd], dtype=float).reshape(Ncd.shape)
+    if _snaps(ABf, CDf, w):
+        zr, zi = Fraction(1 if np.cos(w) > 0 else -1), Fraction(0)
     z = float(zr) if zi == 0 else complex(float(zr), float(zi))  # real z: a real H, a real v
     try:
         Hf = CDf[:, n:] + CDf[:, :n] @ np.linalg.solve(z * np.eye(n) - ABf[:, :n], ABf[:, n:])
@@ -2296,7 +2312,13 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     seq, n = tuple(found.pattern), data[0]["A"].shape[0]
     if not seq or found.peak is None:
         return None, "float64 witness (no peak frequency to evaluate exactly)"
-    if exact_work(n, len(seq), found.peak) > EXACT_PERIOD_MAX_WORK:
+    fl = period_system(data, seq)
+
+    def snapped(w: float) -> bool:  # as _exact_gain_at decides it, on the float64 period
+        return fl.get("B") is not None and _snaps(np.hstack([fl["Phi"], fl["B"]]), np.hstack([fl["C"], fl["D"]]), w)
+
+    real = snapped(found.peak)
+    if exact_work(n, len(seq), real) > EXACT_PERIOD_MAX_WORK:
         return None, (f"float64 witness, not a proof (period {len(seq)} x {n} states at w = {found.peak:.6g} is "
                       f"above the exact evaluation's work {EXACT_PERIOD_MAX_WORK:.3g})")
     if out_of_time(seconds_left):
@@ -2305,14 +2327,14 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     if period is None:
         return None, "float64 witness, not a proof (no disturbance channel to evaluate exactly)"
     w = found.peak
-    at = ("w = 0 (z = 1)" if abs(w) < 1 else "w = pi (z = -1)") if _real_frequency(w) else f"w = {w:.6g} rad/sample"
+    at = ("w = 0 (z = 1)" if abs(w) < 1 else "w = pi (z = -1)") if real else f"w = {w:.6g} rad/sample"
     value, where = exact_gain_lower(data, seq, w, period=period), at
     if value is None or value < found.value * (1 - EXACT_SHORTFALL):
         # far below float64's value: the float64 peak may be misplaced (an ill-conditioned period); the level-set
         # iteration's own starting points too (w = 0, pi, the poles' angles), the largest kept
         Phi = floats([[Fraction(int(v), 1 << period["AB"][1]) for v in row[:period["n"]]] for row in period["AB"][0]])
         more = [0.0, float(np.pi)] + sorted({float(w) for w in np.abs(np.angle(np.linalg.eigvals(Phi)))})
-        more = [w for w in more if exact_work(n, len(seq), w) <= EXACT_PERIOD_MAX_WORK]
+        more = [w for w in more if exact_work(n, len(seq), snapped(w)) <= EXACT_PERIOD_MAX_WORK]
         other = exact_gain_lower(data, seq, more, period=period)
         if other is not None and (value is None or other > value):
             value, where = other, "w = 0, pi and the poles' angles (above the float64 peak's)"
@@ -2323,8 +2345,10 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
                    f"(float64: {found.value / value - 1:+.2g} relative)")
 
 
-#: The exact cost witness (:func:`exact_cost_witness`) runs for a prefix of at most this many intervals (each adds
-#: the interval's bits to the state's integers) ...
+#: The exact cost witness (:func:`exact_cost_witness`) runs where the period's intervals' bits, times 2n (the Stein
+#: checks' elimination), are at most this (n = 20, five intervals of 53-80-bit data: ~1e4), ...
+EXACT_COST_MAX_BITS = 1e5
+#: ... for a prefix of at most this many intervals (each adds the interval's bits to the state's integers) ...
 EXACT_PREFIX_MAX = 64
 #: ... and prefix intervals times n^2 times the starts (x0: one; the trace: n) at most this (products of big
 #: integers: n = 30, the trace, a prefix of 11 intervals took 0.3 s).
@@ -2343,6 +2367,11 @@ def _rebuildable(data: list[dict], modes, kind: str) -> bool:
         if kind == "hinf" and (pl["channel"] is None or data[s].get("B") is None):
             return False
     return True
+
+
+def _bits(N: np.ndarray) -> int:
+    """The largest bit length of the integers ``N``."""
+    return max((abs(int(v)).bit_length() for v in np.asarray(N).ravel()), default=0)
 
 
 def _exact_cost_modes(data: list[dict], modes) -> tuple[dict, bool]:
@@ -2380,13 +2409,13 @@ def exact_cost_witness(data: list[dict], found: LowerBound, x0=None, weight=None
     K, Q, R in rationals) where the data carry it, else on the float64 interval data (docs/design.md §8.4, "Lower
     bound").  ``history`` (k x n): the map from x0 to the loop's state (a network's initial history; None: I)."""
     seq, lead = tuple(found.pattern), found.lead
-    if not seq or found.value is None or not np.isfinite(found.value) or found.value <= 0:
+    if not seq[lead:] or found.value is None or not np.isfinite(found.value) or found.value <= 0:
         return None, ""
     n = data[0]["A"].shape[0]
     prefix, tail = seq[:lead], seq[lead:]
     starts_count = 1 if x0 is not None else (n if history is None else np.asarray(history).shape[1])
     if len(prefix) > EXACT_PREFIX_MAX or len(prefix) * n * n * starts_count > EXACT_PREFIX_WORK or \
-            exact_work(n, len(tail), 0.0) > EXACT_PERIOD_MAX_WORK:
+            exact_work(n, len(tail), True) > EXACT_PERIOD_MAX_WORK:
         return None, (f"float64 witness, not a proof (a prefix of {len(prefix)} and a period of {len(tail)} intervals "
                       f"of {n} states are above the exact evaluation's)")
     if out_of_time(seconds_left):
@@ -2404,6 +2433,11 @@ def _exact_cost_value(data: list[dict], found: LowerBound, prefix, tail, x0, wei
 
     n = data[0]["A"].shape[0]
     mats, deployed = _exact_cost_modes(data, set(prefix) | set(tail))
+    # the period's integers grow by each interval's bits, the Stein checks' (side n, Bareiss) n-fold on top: data of a
+    # wide exponent range (a subnormal entry: 1100-bit integers) took 36 s at n = 20 before this cap
+    grown = sum(max(_bits(mats[k][0][0]), _bits(mats[k][1][0])) for k in tail)
+    if 2 * n * grown > EXACT_COST_MAX_BITS:
+        return None, "float64 witness, not a proof (its period's integers are too wide for the exact evaluation)"
 
     def transpose(X):
         return X[0].T.copy(), X[1]
@@ -2437,7 +2471,7 @@ def _exact_cost_value(data: list[dict], found: LowerBound, prefix, tail, x0, wei
             A, S = mats[k]
             total += c * value_of(matmul(matmul(transpose(x), S), x))
             x = matmul(A, x)
-            if max((abs(int(v)).bit_length() for v in x[0].ravel()), default=0) > EXACT_PERIOD_MAX_BITS:
+            if _bits(x[0]) > EXACT_PERIOD_MAX_BITS:
                 return None, "float64 witness, not a proof (its state's integers grew past the exact evaluation's)"
         total += c * value_of(matmul(matmul(transpose(x), Pl), x))
     if total <= 0:

@@ -495,8 +495,8 @@ def _bounded_drops_proof(family, network, res: DesignResult, plant_switching, st
 def _performance_proof(family, network, res: DesignResult, objective: str, plant_switching, start,
                        time_limit) -> DesignResult:
     """A performance design on ``network`` that found no gains, answered "infeasible" where the stability design on
-    the same network is (:func:`_bounded_drops_proof`: the bounded-drops runs it admits): gains with a certified cost
-    or l2-gain bound stabilize those runs, so that proof holds for them as well (docs/design.md §11.3)."""
+    the same network is (:func:`_bounded_drops_proof`: the bounded-drops runs it admits), with that proof and in its
+    sense (docs/design.md §5, "Infeasible or marginal"; §11.3): gains with a certified bound stabilize those runs."""
     from .methods import network_lmi
 
     if res.gains is not None or res.outcome not in ("not_certified", "not_converged") or \
@@ -507,8 +507,8 @@ def _performance_proof(family, network, res: DesignResult, objective: str, plant
         return res
     proof.objective = objective
     proof.timings = dict(res.timings, total=time.perf_counter() - start)
-    proof.message += (f"; a certified {objective} bound needs gains that stabilize these runs, so this proof answers "
-                      "it too")
+    proof.message += (f"; the stability design's verdict on this network, which the {objective} design shares (its "
+                      "gains would have to pass the same proof)")
     return proof
 
 

@@ -1055,6 +1055,8 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
             value, exact_note = exact_cost_witness(data, found, x0, trace_weight, left, ch.history)
         if value is not None and (upper is None or value <= upper * (1 + 1e-6)):
             lower = value
+        elif value is not None:  # (cannot happen for a valid certificate) the float64 value stays, and says so
+            exact_note = f"float64 witness, not a proof (its exact value {value:.6g} is above the certified bound)"
     if walk is not None and released is None:  # one infinite run, one witness, whatever rounding picked among its
         # spellings (a transient stays as evaluated: `lead` marks where its disturbance acts)
         prefix, period = shortest_lead(walk[:lead], _primitive_period(list(walk[lead:])))

@@ -1181,6 +1181,24 @@ def test_a_peak_at_0_or_pi_is_evaluated_on_the_real_system_and_a_longer_period_i
     assert "evaluated exactly" in note and value == pytest.approx(found.value, rel=1e-12)
 
 
+@pytest.mark.parametrize("angle", [np.pi - 5e-7, 3e-7], ids=["near_pi", "near_0"])
+def test_a_lightly_damped_peak_near_the_axis_is_not_moved_onto_it(angle):
+    # a pole pair 1e-8 inside the circle at 5e-7 from pi (or 3e-7 from 0): its gain at z = -1 (1) is ~24x below the
+    # peak, so the exact evaluation keeps the complex form there; the value is the float64 peak's (review of the
+    # snap to the real axis: it had returned 2.0e6 against 5.0e7)
+    from solver.brackets import LowerBound, exact_witness, hinf_norm_peak, period_system
+
+    r = 1 - 1e-8
+    A = r * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    data = [{"A": A, "B": np.array([[1.0], [0.0]]), "C": np.array([[0.0, 1.0]]), "D": np.zeros((1, 1)), "L": None,
+             "S": None}]
+    value, peak = hinf_norm_peak(period_system(data, [0]), frequency=True)
+    found = LowerBound(value=value, witness=[], patterns=1, note="", pattern=(0,), peak=peak)
+    exact, note = exact_witness(data, found)
+    assert "evaluated exactly" in note and "z = " not in note, note
+    assert exact == pytest.approx(value, rel=1e-6) and exact <= value * (1 + 1e-12)
+
+
 def test_a_witness_is_spelled_with_the_shortest_prefix():
     """``prefix`` then ``period`` forever and its spelling by :func:`solver.brackets.shortest_lead` are the same
     sequence (compared over 60 terms on random short spellings), and no shorter prefix spells it: the reported
