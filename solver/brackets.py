@@ -2406,8 +2406,9 @@ def exact_cost_witness(data: list[dict], found: LowerBound, x0=None, weight=None
     square root: x0, or the unit vectors weighted); the tail's cost from the last state, ``x' P_tail x``, is bounded
     below by a rational ``P_low <= P_tail`` whose Stein inequality ``S_per + Phi' P_low Phi - P_low > 0`` is checked
     exactly (:func:`solver.exact.stein_floor`, the transient witness's release floor).  On the deployed loop (F, G,
-    K, Q, R in rationals) where the data carry it, else on the float64 interval data (docs/design.md §8.4, "Lower
-    bound").  ``history`` (k x n): the map from x0 to the loop's state (a network's initial history; None: I)."""
+    K, Q, R in rationals) where the data carry it, else on the float64 interval data (docs/design.md §8.4, "Exact
+    witness (cost)").  ``history`` (k x n): the map from x0 to the loop's state (a network's initial history; None:
+    I)."""
     seq, lead = tuple(found.pattern), found.lead
     if not seq[lead:] or found.value is None or not np.isfinite(found.value) or found.value <= 0:
         return None, ""

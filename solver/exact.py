@@ -368,10 +368,9 @@ def stein_floor(Phi: tuple, Q: tuple, O: np.ndarray, Phif: np.ndarray) -> tuple 
 
     ``Phi``, ``Q`` exact ``(N, s)`` pairs (n x n, Q symmetric); ``O`` and ``Phif`` float64 approximations of O_true
     and Phi (any will do: the checks are exact).  Checked exactly: ``L > 0`` and ``L - Phi' L Phi - I/2 > 0`` (Phi
-    stable, L from Phif) and ``Q + Phi' O_low Phi - O_low > 0`` for ``O_low = (1 - eps) O`` or ``O - eps |O| L`` (eps
-    from 1e-14 up);
-    iterating the last, ``O_low <= sum_{i<J} Phi'^i Q Phi^i + Phi'^J O_low Phi^J``, whose last term vanishes as J
-    grows (docs/design.md §8.4, "Transient witness").  O_low need not be semidefinite."""
+    stable, L from Phif) and ``Q + Phi' O_low Phi - O_low > 0`` for ``O_low = (1 - eps) O`` or ``O - eps |O| L``
+    (eps from 1e-14 up); iterating the last, ``O_low <= sum_{i<J} Phi'^i Q Phi^i + Phi'^J O_low Phi^J``, whose last
+    term vanishes as J grows (docs/design.md §8.4, "Exact witness (cost)").  O_low need not be semidefinite."""
     from .periodic import stein_doubling
 
     n = Phif.shape[0]
