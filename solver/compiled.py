@@ -276,8 +276,8 @@ def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbance
       ``w = L n_drop min(p_w, p_z)`` the smaller side of the lifted period) and its eigenvalue bound
       (``40 n^3``), for the exhaustive patterns and the grown ones (``GROW_BUDGET min(1, (4 / n)^3)`` pattern
       intervals, periods up to ``GROW_LENGTH``); memory: the stacked period systems (``P (L r (L q + n) + n^2)``
-      numbers, ``r = n_drop p_z``, ``q = n_drop p_w``, three copies) and one sweep chunk (``CHUNK`` patterns x
-      frequencies of ``3 (n^2 + n w + w^2)`` complex numbers).
+      numbers, ``r = n_drop p_z``, ``q = n_drop p_w``, three copies) and one sweep step (``CHUNK`` patterns x
+      frequencies of ``3 (n^2 + n w + w^2)`` complex numbers, at most ``periodic.STEP_BYTES``).
     """
     from . import brackets, periodic
 
@@ -321,8 +321,9 @@ def lower_bound_work(kind: str, n: int, n_modes: int, n_drop: int, n_disturbance
     flops = P * sweep(L_used) + grown * sweep(L_grow) + brackets.REFINED * 40 * (n + 3) * sweep(L_max) / brackets.SWEEP
     w_max = L_max * min(q, r)
     chunk = min(periodic.CHUNK, (periodic.CHUNK // brackets.SWEEP) * brackets.SWEEP)
-    memory = (8 * 3 * max(P * (L_used * r * (L_used * q + n) + n * n), grown * (L_grow * r * (L_grow * q + n)))
-              + 16 * 3 * chunk * (n * n + n * w_max + w_max * w_max))
+    per = 16 * 3 * (n * n + n * w_max + w_max * w_max)  # one pattern at one frequency
+    step = min(chunk * per, max(periodic.STEP_BYTES, brackets.SWEEP * per))  # at least one pattern's sweep
+    memory = 8 * 3 * max(P * (L_used * r * (L_used * q + n) + n * n), grown * (L_grow * r * (L_grow * q + n))) + step
     return float(flops), float(memory)
 
 

@@ -20,8 +20,19 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-#: Patterns (times frequencies) per stacked step: bounds the memory of the batched arrays.
+#: Patterns (times frequencies) per stacked step: bounds the memory of the batched arrays ...
 CHUNK = 4096
+#: ... and bytes at most of one step's complex Gram stacks (three ``w x w`` per pattern and frequency, w the smaller
+#: side of the lifted period): a 4-state loop with 30 disturbance entries per interval grown to periods of 6
+#: (w = 180) would have taken 6.5 GB in one step of 4096 (the size guard refused the design for it).
+STEP_BYTES = 256 * 2**20
+
+
+def _step(count: int, n: int, w: int) -> int:
+    """Patterns (or pairs) per batched step of ``count`` frequencies each: within :data:`CHUNK` and
+    :data:`STEP_BYTES`."""
+    per = 48.0 * count * (w * w + n * w + n * n)
+    return int(max(1, min(CHUNK // max(1, count), STEP_BYTES // per)))
 
 
 def group_by_length(pats: list) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -160,7 +171,7 @@ def sweep_gains(sys: dict, omega: np.ndarray) -> np.ndarray:
     P, n = B.shape[:2]
     z = np.exp(1j * np.asarray(omega, dtype=float))
     out = np.zeros(P)
-    step = max(1, CHUNK // max(1, z.size))
+    step = _step(z.size, n, DtD.shape[-1])
     eye = np.eye(n)
     for lo in range(0, P, step):
         sl = slice(lo, min(P, lo + step))
@@ -268,7 +279,7 @@ def gram_gains(sys: dict, rows: np.ndarray, omega: np.ndarray) -> np.ndarray:
     out = np.empty(rows.size)
     n = sys["Phi"].shape[1]
     eye = np.eye(n)
-    step = max(1, CHUNK // 4)
+    step = _step(4, n, sys["DtD"].shape[-1])
     for lo in range(0, rows.size, step):
         r, w = rows[lo:lo + step], np.asarray(omega[lo:lo + step], dtype=float)
         X = np.linalg.solve(np.exp(1j * w)[:, None, None] * eye - sys["Phi"][r], sys["B"][r].astype(complex))

@@ -156,6 +156,40 @@ def test_the_gram_form_gives_the_same_sweeps_and_a_bound(motor_data):
         np.testing.assert_allclose(periodic.gain_upper_bounds(stack), old, rtol=1e-9)
 
 
+def test_a_sweep_step_bounded_in_bytes_gives_the_same_gains(motor_data, monkeypatch):
+    # the batched sweeps take fewer patterns per step as the Gram side w grows (periodic.STEP_BYTES): the gains do
+    # not depend on the step (one pattern per step against the default)
+    _, hinf, gains = motor_data
+    data = hinf.numeric(gains)
+    pats = patterns(len(data), 3, 80, rotations=False)
+    omega = np.linspace(0.0, np.pi, 97)
+    stacks = [periodic.gram_form(periodic.period_stack(periodic.mode_arrays(data), idx, "hinf"))
+              for _, idx in periodic.group_by_length(pats).values()]
+    rows = np.arange(3)
+    wide = [(periodic.sweep_gains(g, omega), periodic.gram_gains(g, rows, omega[:3])) for g in stacks]
+    monkeypatch.setattr(periodic, "STEP_BYTES", 1)
+    assert periodic._step(97, 2, 8) == 1
+    for g, (sweep, pairs) in zip(stacks, wide):
+        np.testing.assert_array_equal(periodic.sweep_gains(g, omega), sweep)
+        np.testing.assert_array_equal(periodic.gram_gains(g, rows, omega[:3]), pairs)
+
+
+def test_a_small_hinf_design_with_wide_disturbances_is_not_refused_for_memory():
+    # hold-out draw_family seed 9476 (4 states, one plant, n_drop 10, the 3 input columns as disturbances): the size
+    # guard estimated 6.9 GB for the lower-bound search's sweep (4096 patterns of w = 180 in one step) and refused
+    # the design; the step is now bounded in bytes, the estimate under 1 GB, and the design answers (measured: ~0.2
+    # GB of search at most, 1.7 s)
+    from bench.ipm_check import draw_family
+    from solver.design import request_size
+
+    fam, N, _ = draw_family(9476, max_n=12, max_lmi_rows=200)
+    assert fam.n_states == 4 and N == 10
+    size = request_size("lmi", fam, N, decay_rate=None, objective="hinf", disturbance=list(fam.G))
+    assert size.memory < 2**30
+    res = design(fam, N, decay_rate=None, objective="hinf", disturbance=list(fam.G))
+    assert res.outcome == "stabilized" and res.performance.verified
+
+
 def test_triangular_inverses_are_the_inverses():
     from solver.ipm.algorithm import _tri_inverse
 
