@@ -1176,7 +1176,7 @@ def test_a_peak_at_0_or_pi_is_evaluated_on_the_real_system_and_a_longer_period_i
     w = np.pi - 6e-8
     found = LowerBound(value=float(_sigma_max(period_system(data, seq), np.array([w]))[0]), witness=[], patterns=1,
                        note="", pattern=seq, peak=w)
-    assert len(seq) * n > 32 and brackets.exact_work(n, len(seq), w) <= brackets.EXACT_PERIOD_MAX_WORK
+    assert len(seq) * n > 32 and brackets.exact_work(n, len(seq), True) <= brackets.EXACT_PERIOD_MAX_WORK
     value, note = exact_witness(data, found)
     assert "evaluated exactly" in note and value == pytest.approx(found.value, rel=1e-12)
 
