@@ -2138,14 +2138,12 @@ def _real_frequency(w: float) -> bool:
     return min(abs(w), abs(np.pi - abs(w))) <= REAL_SNAP
 
 
-def _snaps(AB: np.ndarray, CD: np.ndarray, w: float) -> bool:
+def _snaps(sys: dict, w: float) -> bool:
     """Whether :func:`_exact_gain_at` evaluates ``w`` at the real z = 1 or -1: within :data:`REAL_SNAP` of 0 or pi,
-    and the float64 gain of the period ``[Phi B]``, ``[C D]`` there within ``EXACT_SHORTFALL`` of its gain at ``w``
-    (a lightly damped pole near the axis peaks off it)."""
-    if not _real_frequency(w):
+    and the float64 gain of the period ``sys`` (``Phi``, ``B``, ``C``, ``D``) there within ``EXACT_SHORTFALL`` of
+    its gain at ``w`` (a lightly damped pole near the axis peaks off it)."""
+    if not _real_frequency(w) or sys.get("B") is None:
         return False
-    n = AB.shape[0]
-    sys = {"Phi": AB[:, :n], "B": AB[:, n:], "C": CD[:, :n], "D": CD[:, n:]}
     with np.errstate(all="ignore"):
         try:
             at, real = _sigma_max(sys, np.array([w, 0.0 if abs(w) < 1 else np.pi]))
@@ -2250,7 +2248,7 @@ def _exact_gain_at(period: dict, w: float) -> float | None:
     # a v off by e costs e^2 of the value, never its validity)
     ABf = np.array([[int(x) / (1 << sab) for x in row] for row in Nab], dtype=float).reshape(Nab.shape)
     CDf = np.array([[int(x) / (1 << scd) for x in row] for row in Ncd], dtype=float).reshape(Ncd.shape)
-    if _snaps(ABf, CDf, w):
+    if _snaps({"Phi": ABf[:, :n], "B": ABf[:, n:], "C": CDf[:, :n], "D": CDf[:, n:]}, w):
         zr, zi = Fraction(1 if np.cos(w) > 0 else -1), Fraction(0)
     z = float(zr) if zi == 0 else complex(float(zr), float(zi))  # real z: a real H, a real v
     try:
@@ -2312,12 +2310,8 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
     seq, n = tuple(found.pattern), data[0]["A"].shape[0]
     if not seq or found.peak is None:
         return None, "float64 witness (no peak frequency to evaluate exactly)"
-    fl = period_system(data, seq)
-
-    def snapped(w: float) -> bool:  # as _exact_gain_at decides it, on the float64 period
-        return fl.get("B") is not None and _snaps(np.hstack([fl["Phi"], fl["B"]]), np.hstack([fl["C"], fl["D"]]), w)
-
-    real = snapped(found.peak)
+    fl = period_system(data, seq)  # the float64 period: where _exact_gain_at will snap, for the work cap
+    real = _snaps(fl, found.peak)
     if exact_work(n, len(seq), real) > EXACT_PERIOD_MAX_WORK:
         return None, (f"float64 witness, not a proof (period {len(seq)} x {n} states at w = {found.peak:.6g} is "
                       f"above the exact evaluation's work {EXACT_PERIOD_MAX_WORK:.3g})")
@@ -2334,7 +2328,7 @@ def exact_witness(data: list[dict], found: LowerBound, seconds_left=None) -> tup
         # iteration's own starting points too (w = 0, pi, the poles' angles), the largest kept
         Phi = floats([[Fraction(int(v), 1 << period["AB"][1]) for v in row[:period["n"]]] for row in period["AB"][0]])
         more = [0.0, float(np.pi)] + sorted({float(w) for w in np.abs(np.angle(np.linalg.eigvals(Phi)))})
-        more = [w for w in more if exact_work(n, len(seq), snapped(w)) <= EXACT_PERIOD_MAX_WORK]
+        more = [w for w in more if exact_work(n, len(seq), _snaps(fl, w)) <= EXACT_PERIOD_MAX_WORK]
         other = exact_gain_lower(data, seq, more, period=period)
         if other is not None and (value is None or other > value):
             value, where = other, "w = 0, pi and the poles' angles (above the float64 peak's)"
@@ -2367,11 +2361,6 @@ def _rebuildable(data: list[dict], modes, kind: str) -> bool:
         if kind == "hinf" and (pl["channel"] is None or data[s].get("B") is None):
             return False
     return True
-
-
-def _bits(N: np.ndarray) -> int:
-    """The largest bit length of the integers ``N``."""
-    return max((abs(int(v)).bit_length() for v in np.asarray(N).ravel()), default=0)
 
 
 def _exact_cost_modes(data: list[dict], modes) -> tuple[dict, bool]:
@@ -2430,18 +2419,15 @@ def exact_cost_witness(data: list[dict], found: LowerBound, x0=None, weight=None
 def _exact_cost_value(data: list[dict], found: LowerBound, prefix, tail, x0, weight, history) -> tuple:
     """:func:`exact_cost_witness`'s evaluation, once its size passed."""
     from .exact import add as add_exact
-    from .exact import exact, identity, matmul, rational_down, stein_floor
+    from .exact import bits, exact, identity, matmul, rational_down, stein_floor, transpose
 
     n = data[0]["A"].shape[0]
     mats, deployed = _exact_cost_modes(data, set(prefix) | set(tail))
     # the period's integers grow by each interval's bits, the Stein checks' (side n, Bareiss) n-fold on top: data of a
     # wide exponent range (a subnormal entry: 1100-bit integers) took 36 s at n = 20 before this cap
-    grown = sum(max(_bits(mats[k][0][0]), _bits(mats[k][1][0])) for k in tail)
+    grown = sum(max(bits(mats[k][0][0]), bits(mats[k][1][0])) for k in tail)
     if 2 * n * grown > EXACT_COST_MAX_BITS:
         return None, "float64 witness, not a proof (its period's integers are too wide for the exact evaluation)"
-
-    def transpose(X):
-        return X[0].T.copy(), X[1]
 
     def value_of(q):  # a 1 x 1 exact pair as a Fraction
         return Fraction(int(q[0][0, 0]), 1 << q[1])
@@ -2472,7 +2458,7 @@ def _exact_cost_value(data: list[dict], found: LowerBound, prefix, tail, x0, wei
             A, S = mats[k]
             total += c * value_of(matmul(matmul(transpose(x), S), x))
             x = matmul(A, x)
-            if _bits(x[0]) > EXACT_PERIOD_MAX_BITS:
+            if bits(x[0]) > EXACT_PERIOD_MAX_BITS:
                 return None, "float64 witness, not a proof (its state's integers grew past the exact evaluation's)"
         total += c * value_of(matmul(matmul(transpose(x), Pl), x))
     if total <= 0:

@@ -51,6 +51,16 @@ def matmul(a: tuple, b: tuple) -> tuple:
     return np.dot(a[0], b[0]), a[1] + b[1]
 
 
+def transpose(a: tuple) -> tuple:
+    """``a'`` of an ``(M, s)`` pair."""
+    return a[0].T.copy(), a[1]
+
+
+def bits(M) -> int:
+    """The largest bit length of the integers ``M`` (an array of any shape)."""
+    return max((abs(int(v)).bit_length() for v in np.asarray(M, dtype=object).ravel()), default=0)
+
+
 def identity(n: int) -> tuple:
     M = np.zeros((n, n), dtype=object)
     for i in range(n):
@@ -380,9 +390,6 @@ def stein_floor(Phi: tuple, Q: tuple, O: np.ndarray, Phif: np.ndarray) -> tuple 
     L = 0.5 * (L + L.T)
     if not np.all(np.isfinite(L)) or not np.all(np.isfinite(O)):
         return None
-
-    def transpose(X):
-        return X[0].T.copy(), X[1]
 
     def negative(X):
         return -X[0], X[1]

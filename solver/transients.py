@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import periodic
-from .exact import exact, matmul, stein_floor
+from .exact import bits, exact, matmul, stein_floor, transpose
 
 #: Pairs (charge, release) refined by their finite charge's top singular vector, the best by the Gramian score.
 TRANSIENT_PAIRS = 4
@@ -156,10 +156,6 @@ def transient_witness(data: list[dict], floor: float, patterns: list | None = No
     return Transient(exact_value[0], pats[a], k, pats[b], value, exact_value[1])
 
 
-def _bits(X: np.ndarray) -> int:
-    return max((abs(int(x)).bit_length() for x in X.ravel()), default=0)
-
-
 def _release_floor(release: dict, O: np.ndarray, Phif: np.ndarray) -> tuple | None:
     """A rational ``O_low <= O_true`` for the release period (exact ``(N, s)``), or None: :func:`solver.exact.
     stein_floor` of its state map and ``C'C`` (``O``, ``Phif``: float64 approximations of O_true and of the state
@@ -167,7 +163,7 @@ def _release_floor(release: dict, O: np.ndarray, Phif: np.ndarray) -> tuple | No
     (AB, sa), (CD, sc) = release["AB"], release["CD"]
     n = release["n"]
     Phi, C = (AB[:, :n], sa), (CD[:, :n], sc)
-    return stein_floor(Phi, matmul((C[0].T.copy(), C[1]), C), O, Phif)
+    return stein_floor(Phi, matmul(transpose(C), C), O, Phif)
 
 
 def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarray, O: np.ndarray,
@@ -192,7 +188,7 @@ def _exact_value(charge: dict | None, release: dict | None, k: int, v: np.ndarra
         z = matmul((CD, sc), xw)
         energy += Fraction(int(np.dot(z[0][:, 0], z[0][:, 0])), 1 << (2 * z[1]))
         x = matmul((AB, sa), xw)
-        if _bits(x[0]) > TRANSIENT_MAX_BITS:
+        if bits(x[0]) > TRANSIENT_MAX_BITS:
             return None
     tail = matmul(matmul((x[0].T.copy(), x[1]), Ol), x)
     energy += Fraction(int(tail[0][0, 0]), 1 << tail[1])
