@@ -853,9 +853,12 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     exactly from F, G and ``gains``, :func:`solver.exact.closed_loop`: the float64 ``A`` is their rounding, and a
     margin float64 cannot see is one that rounding can flip, docs/design.md §8.5): then the set is invariant at
     packet times and every input ``K_q x(i_m)`` has ``|(K_q)_j x| <= sqrt((K_q)_j X^{-1} (K_q)_j') / sqrt(c)``.
-    ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``.
+    ``c`` is chosen so that this is ``u_max[j]`` for the tightest row.  Returns ``(c X or None, reason)``; with
+    every gain zero (no input ever moves) ``X = 0``, the whole state space.
     """
     X = _sym(X)
+    if not np.any(gains):  # every input is zero from every state: the whole space, x' 0 x <= 1
+        return np.zeros_like(X), ""
     eigX = np.linalg.eigvalsh(X)
     if eigX[0] <= 0:
         return None, "the candidate ellipsoid matrix is not positive definite"
@@ -873,8 +876,6 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
     need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
     c = float(np.max(need)) * (1 + 1e-12)
-    if c <= 0:
-        return None, "all gains are zero: every state keeps the inputs at zero (no ellipsoid needed)"
     Xc = c * X
     if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
         Xc = c * (1 + 1e-9) * X  # rounding of the solve

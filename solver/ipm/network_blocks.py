@@ -34,7 +34,7 @@ from .algorithm import IPMOptions, WarmStart, _SolveStatus, solve_block_lmi
 from .model import BlockLMI, MatrixVariable
 from .sparse_schur import NodeStructure
 
-__all__ = ["NetworkIPMSolution", "network_problem", "node_problem", "solve_network", "solve_node"]
+__all__ = ["NetworkIPMSolution", "edge_problem", "network_problem", "node_problem", "solve_network", "solve_node"]
 
 
 def _pseudo(src: np.ndarray, dst: np.ndarray, V: int) -> np.ndarray:
@@ -274,19 +274,40 @@ def node_problem(A_states, succ, rho: float = 1.0, schur: str = "auto") -> Block
         One variable ``P`` (V D, D), a stack of symmetric matrices; blocks: the edges in ``succ`` order, then
         one ``P_v >= t I`` per state.
     """
+    A_states = np.asarray(A_states, dtype=np.float64)
+    V = A_states.shape[0]
+    src = np.array([v for v in range(V) for _ in succ[v]], dtype=int)
+    dst = np.array([w for v in range(V) for w in succ[v]], dtype=int)
+    return edge_problem(A_states[src], src, dst, V, np.full(len(src), float(rho) ** 2), schur)
+
+
+def edge_problem(A_edges, src, dst, n_nodes: int, rho2, schur: str = "auto") -> BlockLMI:
+    """:func:`node_problem` with a map and a rate per edge: ``max t`` s.t. ``rho2_e P_v - A_e^T P_w A_e - t I >= 0``
+    for every edge ``e: v -> w``, ``P_v - t I >= 0``, ``sum_v trace P_v = V D`` (the fixed-gain node SDP of a
+    network design, :func:`solver.methods.network_lmi.node_analysis`, where parallel edges carry different maps).
+
+    Parameters
+    ----------
+    A_edges : ndarray, shape (E, D, D)
+    src, dst : ndarray of int, shape (E,)
+    n_nodes : int
+    rho2 : ndarray, shape (E,)
+        The squared rate of every edge.
+    schur : {"auto", "sparse", "dense"}
+        As :func:`node_problem`.
+    """
     if schur not in ("auto", "sparse", "dense"):
         raise ValueError(f"schur must be 'auto', 'sparse' or 'dense', got {schur!r}")
-    A_states = np.asarray(A_states, dtype=np.float64)
-    V, D = A_states.shape[0], A_states.shape[1]
-    src = np.array([v for v in range(V) for _ in succ[v]] + list(range(V)), dtype=int)
-    dst = np.array([w for v in range(V) for w in succ[v]] + list(range(V)), dtype=int)
-    E = len(src) - V
+    A_edges = np.asarray(A_edges, dtype=np.float64)
+    V, D, E = int(n_nodes), A_edges.shape[1], A_edges.shape[0]
+    src = np.concatenate([np.asarray(src, dtype=int), np.arange(V)])
+    dst = np.concatenate([np.asarray(dst, dtype=int), np.arange(V)])
     nb = len(src)
     eye = np.eye(D)
-    c = np.concatenate([np.full(E, float(rho) ** 2), np.ones(V)])
+    c = np.concatenate([np.asarray(rho2, dtype=np.float64), np.ones(V)])
     L1 = c[:, None, None] * eye  # c_b P_src: sym(c_b P R) with R = I and coefficient 1/2
     L2 = np.zeros((nb, D, D))
-    L2[:E] = np.swapaxes(A_states[src[:E]], 1, 2)  # - A_v^T P_w A_v (zero on the positivity blocks)
+    L2[:E] = np.swapaxes(A_edges, 1, 2)  # - A_e^T P_w A_e (zero on the positivity blocks)
     P = MatrixVariable("P", (V * D, D), D, [
         (L1, np.broadcast_to(eye, (nb, D, D)), 0.5, src),
         (L2, None, -1.0, dst)])

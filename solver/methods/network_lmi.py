@@ -531,12 +531,19 @@ def check_network_farkas(prob: NetworkProblem, multipliers: list, scale: np.ndar
 def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = None,
                   time_limit: float | None = None) -> NodeCertificate | None:
     """Node matrices for fixed ``gains`` (``max t``: ``P_v >= t I``, ``rho_e P_v - A_e^T P_w A_e >= t I``,
-    ``sum tr P_v = V k``), re-checked by :func:`recheck_network`; None when no certificate passes."""
+    ``sum tr P_v = V k``), re-checked by :func:`recheck_network`; None when no certificate passes.
+
+    The structured IPM solves it first (:func:`solver.ipm.network_blocks.edge_problem`, when its memory fits the
+    budget); Clarabel only when the IPM neither certified nor converged to ``t* <= 0`` (CCL runs this after every
+    iteration: docs/design.md §11.1)."""
     A = prob.closed_loops(gains)
     if not np.all(np.isfinite(A)):
         return None
     rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
     k, V = prob.k, len(prob.nodes)
+    decided = _node_analysis_ipm(prob, A, rho, gains, rate, time_limit)
+    if decided is not False:
+        return decided
     P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
     t = cp.Variable()
     eye = np.eye(k)
@@ -552,6 +559,32 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
         return None
     cert = recheck_network(prob, np.stack([X.value for X in P]), gains, rate, source="network_analysis")
     return cert if cert.verified else None
+
+
+def _node_analysis_ipm(prob: NetworkProblem, A: np.ndarray, rho: np.ndarray, gains: np.ndarray, rate,
+                       time_limit: float | None):
+    """:func:`node_analysis` on the structured IPM: the re-checked certificate, None when the IPM converged to
+    ``t* <= 0``, False when it decided nothing (or its memory is over the budget)."""
+    from ..compiled import MAX_SOLVER_MEMORY
+    from ..ipm import IPMOptions
+    from ..ipm.algorithm import solve_block_lmi
+    from ..ipm.network_blocks import edge_problem, node_memory
+
+    V = len(prob.nodes)
+    succ = [[int(w) for v_, w in zip(prob.src, prob.dst) if v_ == v] for v in range(V)]
+    if node_memory(succ, prob.k) > MAX_SOLVER_MEMORY:
+        return False
+    try:
+        sol = solve_block_lmi(edge_problem(A, prob.src, prob.dst, V, rho), IPMOptions(time_limit=time_limit))
+    except (SolverFailed, np.linalg.LinAlgError, ValueError):
+        return False
+    t = float(sol.t)
+    if np.isfinite(t) and t > 0:
+        P = sol.V[0].reshape(V, prob.k, prob.k)
+        cert = recheck_network(prob, 0.5 * (P + np.swapaxes(P, 1, 2)), gains, rate, source="network_analysis")
+        if cert.verified:
+            return cert
+    return None if sol.status == "optimal" and not t > 0 else False
 
 
 def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndarray, rate: float | None = None, *,

@@ -88,6 +88,10 @@ MEMORY_GAP = 1e-2
 MAX_MEMORY_NODES = 256
 MAX_LONGER_MEMORY_NODES = 128
 MAX_MEMORY = 6
+#: Largest fixed-gain SDP of a memory the brackets solve without a time limit (with one: the time left), in
+#: Clarabel's CPU seconds as :func:`fixed_gain_seconds` estimates them; a longer memory is not tried and the message
+#: says so (a 6-state loop on delays(2, 3): memory one 4.4 s, two 20 s, three 116 s, estimated 107 s).
+MEMORY_LEVEL_SECONDS = 60.0
 #: Largest look-ahead SDP of a switched loop tried (:func:`lookahead_cost`): its blocks (S^(L+1)) times their side
 #: squared.  Each is a Clarabel SDP: a design of 50 interval modes at n = 12 would pose 2500 blocks of side 12 even at
 #: L = 1; the hold-out families that closed pose at most 32 blocks of side 4 (n = 4, 2 modes, L = 4).
@@ -938,6 +942,13 @@ def _shorter(key: tuple, memory: int) -> tuple:
     return when, q[:memory] if when == "next" else q[len(q) - memory:]
 
 
+def fixed_gain_seconds(blocks: int, side: int) -> float:
+    """Clarabel's CPU seconds on a fixed-gain SDP of ``blocks`` transition blocks of side ``side``, fitted on 2-core
+    machine A (8, 21, 55 and 144 blocks of side 18 took 1.3, 4.4, 20 and 116 s; 68 and 328 blocks of side 12, 3.4 and
+    38 s; each within 1.25x of the fit)."""
+    return 2.66e-9 * float(blocks) ** 1.6 * float(side) ** 5.7
+
+
 def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np.ndarray | None = None,
                    time_limit: float | None = None, trace_weight: np.ndarray | None = None, memory: int = 1,
                    previous: tuple | None = None):
@@ -952,6 +963,13 @@ def memory_bracket(ch: Channels, data: list[dict], kind: str, x0=None, nodes: np
     if count > cap:
         return None, None, [], f"{count} matrices of memory {memory} exceed {cap}"
     lch, lifted, keys = lookahead_lift(ch, data, memory) if kind == "cost" else memory_lift(ch, data, memory)
+    side = lch.prob.k + (0 if kind == "cost" else lifted[0]["B"].shape[1])
+    seconds = fixed_gain_seconds(len(lifted), side)
+    cap, what = (MEMORY_LEVEL_SECONDS, "the cap without a time limit") if time_limit is None else \
+        (time_limit, "the time left")
+    if seconds > cap:
+        return None, None, keys, (f"not tried: its SDP ({len(lifted)} blocks of side {side}) is estimated at "
+                                  f"{seconds:.3g} s, above {what} ({cap:.3g} s)")
     coordinates = None
     if previous is not None:
         where = {key: i for i, key in enumerate(previous[1])}
@@ -1020,7 +1038,7 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
                 tuple(released.charge * released.periods + released.release)
     if P is not None and lower is not None and lower > upper * (1 + 1e-6):  # inf: an unstable walk
         P, upper, reason = None, None, f"the witness walk ({lower:.6g}) exceeds the certified bound; refused"
-    node_upper, memory_P, level, previous = upper, None, 0, None
+    node_upper, memory_P, level, previous, skipped = upper, None, 0, None, ""
     for tried in range(1, (MAX_MEMORY if memory else 0) + 1):
         left = None if time_limit is None or time_limit <= 0 else time_left(time_limit, start, floor=1e-3)
         if not ((upper is None or lower is None or upper > lower * (1 + MEMORY_GAP)) and
@@ -1031,6 +1049,8 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
             memory_P, upper, level, previous = Pm, bound, tried, (Pm, keys, tried)
         elif P is None and memory_P is None and why:
             reason = f"{reason}; memory {tried}: {why}"
+        if Pm is None and why.startswith("not tried"):
+            skipped = f"; memory {tried} {why}"
         if Pm is None:  # too many matrices, or a lift the SDP or the re-check failed on: a longer one is larger
             break
     if kind == "cost" and previous is not None and lower is not None and np.isfinite(lower) and \
@@ -1071,6 +1091,7 @@ def bracket(ch: Channels, gains: np.ndarray, kind: str, P0=None, x0=None,
     else:
         message = (f"{what} certified <= {upper:.6g} (float64 re-check of the node matrices)" if P is not None
                    else f"no certified upper bound: {reason}")
+    message += skipped if P is not None or memory_P is not None else ""
     if lower is not None:
         shape = f"; {lead} transitions once, then a closed walk of {len(walk) - lead} repeated" if lead else ""
         if lead and kind == "hinf":
@@ -1440,8 +1461,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                             timings=timings, solver_status=best["status"], objective=objective, performance=perf,
                             **base, message=f"stabilizing gains found on {where} (node certificate re-checked) but "
                                             f"no certified {objective} bound: {perf.message}{via}")
-    limits = ("; inputs within u_max from every state of the node ellipsoids (invariant along every admissible "
-              "run; re-checked)") if kothare else ""
+    limits = "" if not kothare else "; every gain is zero, so every input is zero: within u_max from every state" \
+        if not np.any(inv) else ("; inputs within u_max from every state of the node ellipsoids (invariant along "
+                                 "every admissible run; re-checked)")
     res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history, timings=timings,
                        solver_status=best["status"], objective=objective, performance=perf,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
@@ -1652,9 +1674,12 @@ def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndar
     ``lambda^(2 length_e)``): a state in ``E_v`` at node v is in ``E_w`` at the next node w.  Every input applied
     from node v is ``K_j R_b xi`` (``R_b`` the state block the gain reads), whose largest value on ``E_v`` is
     ``sqrt(r X_v^-1 r') / sqrt(c)``; ``c`` makes the tightest of them ``u_max``.  x0 (its initial history ``S x0``)
-    must lie in every node's set.  Returns ``(c X or None, reason)``.
+    must lie in every node's set.  Returns ``(c X or None, reason)``; with no input ever moving ``X = 0``, the
+    whole state space.
     """
     X = _sym(np.asarray(X, float))
+    if not np.any(gains):  # every input is zero from every state: the whole space, x' 0 x <= 1
+        return np.zeros_like(X), ""
     if not np.all(np.isfinite(X)) or np.linalg.eigvalsh(X)[:, 0].min() <= 0:
         return None, "a node ellipsoid matrix is not positive definite"
     A = prob.closed_loops(gains)
@@ -1672,8 +1697,8 @@ def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndar
             rows[:, b * n:(b + 1) * n] = gains[j]
             need = max(need, float(np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(X[v], rows.T).T)
                                           / u_max**2)))
-    if need <= 0:
-        return None, "all gains are zero: the inputs stay at zero (no ellipsoid needed)"
+    if need <= 0:  # the gains that are not zero never act (no node applies them)
+        return np.zeros_like(X), ""
     Xc = need * (1 + 1e-9) * X
     if x0 is not None:
         s = history @ x0
@@ -1814,7 +1839,10 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
                        solver_status=status, objective="stability", decay_rate=decay_rate,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
                        message=f"stabilized on {where}{rate_txt}; node certificate re-checked (relative margin "
-                               f"{cert.margin:.3g}); inputs within u_max from every state of the node ellipsoids "
-                               f"(invariant along every admissible run; re-checked)")
+                               f"{cert.margin:.3g}); " + ("every gain is zero, so every input is zero: within u_max "
+                                                          "from every state" if not np.any(inv) else
+                                                          "inputs within u_max from every state of the node "
+                                                          "ellipsoids (invariant along every admissible run; "
+                                                          "re-checked)"))
     res.invariant_set = inv
     return res

@@ -984,7 +984,9 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         if cert.exact:
             message = (f"stabilized; {cert.kind} certificate re-checked exactly (float64 relative margin "
                        f"{cert.margin:.3g}, below what float64 confirms)")
-        if u_max is not None:
+        if u_max is not None and not np.any(invariant):
+            message += "; every gain is zero, so every input is zero: within u_max from every state"
+        elif u_max is not None:
             message += "; inputs within u_max from every state of the invariant set (re-checked)"
     if best.get("refined") == "game":
         how = (" by exact Newton steps, its least level (the disturbance block's root)"

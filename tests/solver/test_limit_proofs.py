@@ -192,3 +192,28 @@ def test_both_solvers_report_t_in_the_same_normalization():
         C_in[0, 0] = 0.01 ** 2
         value = np.sum(C_x0 * mult.x0) + sum(np.sum(C_in * Z) for Z in mult.inputs.reshape(-1, 3, 3))
         assert mult.t == pytest.approx(value, rel=1e-12, abs=1e-15) and mult.t < 0
+
+
+def test_limits_hold_from_every_state_when_every_gain_is_zero():
+    """A plant its inputs do not reach (G = 0, stable F; hold-out draw_family 9796 answered "not_converged": "all
+    gains are zero ... the input limits are not proven"): the cost design's gains are zero, every input is zero from
+    every state, so the limits hold with the whole space as the set (``invariant_set`` = 0).  Independent check: one
+    mode with n_drop = 1, the cost is x0' P x0 of the discrete Lyapunov equation; on a network the same verdict."""
+    import scipy.linalg
+
+    from solver import Network
+
+    F1, F2 = np.array([[0.9, 0.2], [0.0, 0.7]]), np.array([[0.8, -0.1], [0.1, 0.6]])
+    G0 = np.zeros((2, 1))
+    one = design(PlantFamily(F=[F1], G=[G0]), 1, objective="cost", u_max=[0.5], x0=X0)
+    assert one.outcome == "stabilized" and not np.any(one.gains), one.message
+    assert one.invariant_set is not None and not np.any(one.invariant_set)
+    assert "every input is zero" in one.message
+    lyap = X0 @ scipy.linalg.solve_discrete_lyapunov(F1.T, np.eye(2)) @ X0
+    assert one.performance.lower <= lyap * (1 + 1e-9) and one.performance.upper == pytest.approx(lyap, rel=1e-9)
+    two = PlantFamily(F=[F1, F2], G=[G0, G0])
+    for res in (design(two, 2, objective="cost", u_max=[0.5], x0=X0),
+                design(two, network=Network.delays(1, 2), objective="cost", u_max=[0.5], x0=X0)):
+        assert res.outcome == "stabilized" and not np.any(res.gains), res.message
+        assert res.invariant_set is not None and not np.any(res.invariant_set)
+        assert "every input is zero" in res.message and res.performance.verified

@@ -670,6 +670,44 @@ def test_a_longer_memory_closes_a_weakly_hard_bracket():
     assert 0 < worst <= perf.upper
 
 
+def test_a_memory_whose_sdp_is_estimated_above_the_cap_is_not_tried(monkeypatch):
+    """The family above with the memory SDPs' cap (``MEMORY_LEVEL_SECONDS``) between memory one's estimate and memory
+    two's: memory one only, the message says why memory two was not tried; with the cap at zero, the node matrices'
+    bound, still certified and at or above the worst run found, and with a time limit the memories it leaves time for.
+    The estimate grows with the blocks and their side."""
+    from bench.cases import random_family
+
+    fam, net = badly_scaled(random_family(3, 2, 1, seed=1), seed=1), Network.weakly_hard(1, 3, 2)
+    assert network_performance.fixed_gain_seconds(20, 12) < network_performance.fixed_gain_seconds(40, 12) \
+        < network_performance.fixed_gain_seconds(40, 13)
+    seen = []
+    estimate = network_performance.fixed_gain_seconds
+
+    def recorded(blocks, side):
+        seen.append(estimate(blocks, side))
+        return seen[-1]
+
+    monkeypatch.setattr(network_performance, "fixed_gain_seconds", recorded)
+    full = design(fam, network=net, objective="cost")
+    assert full.performance.memory >= 2 and len(seen) >= 2 and seen[1] > seen[0]
+    monkeypatch.setattr(network_performance, "MEMORY_LEVEL_SECONDS", 0.5 * (seen[0] + seen[1]))
+    one = design(fam, network=net, objective="cost")
+    perf = one.performance
+    assert one.outcome == "stabilized" and perf.verified and perf.memory == 1, one.message
+    assert "memory 2 not tried: its SDP" in perf.message and perf.upper >= full.performance.upper * (1 - 1e-6)
+    assert perf.lower <= perf.upper
+    monkeypatch.setattr(network_performance, "MEMORY_LEVEL_SECONDS", 0.0)
+    none = design(fam, network=net, objective="cost")
+    perf = none.performance
+    assert none.outcome == "stabilized" and perf.verified and perf.memory == 0, none.message
+    assert "memory 1 not tried" in perf.message and perf.upper == perf.certificate_upper
+    assert perf.lower <= perf.upper
+    assert witness_trace_cost(fam, none.gains, perf, net) == pytest.approx(perf.lower, rel=1e-9)
+    # with a time limit the time left is the cap instead
+    timed = design(fam, network=net, objective="cost", time_limit=600.0)
+    assert timed.performance.memory == full.performance.memory, timed.message
+
+
 def finite_horizon_gain(fam, K, Ew, samples) -> float:
     """The l2 gain of the run ``samples`` ((age, plant) per sample) over its length, zero initial state: the largest
     singular value of the map from ``w(0..T-1)`` to ``z = [x; u]`` over the same samples, each column stepped sample
