@@ -499,3 +499,21 @@ def test_rate_search_steps_skip_the_fixed_rate_fallback(monkeypatch):
     assert probe.outcome != "stabilized" and not calls
     fixed = network_lmi.run(WEAKLY_HARD_FAMILY, net, decay_rate=0.95, use_ccl=False)
     assert fixed.outcome == "stabilized" and calls
+
+
+def test_a_rate_the_solvers_give_up_on_is_a_failed_step_of_the_default_search():
+    """Hold-out draw_family 9818 (two identical 2-state modes, three inputs: nearly deadbeat) on weakly_hard(1, 3, 3):
+    the default's search certified rates down to 0.011, then a probe at 0.0016 made both solvers give up (IPM
+    max_iterations, Clarabel failed: the blocks carry rate^-3 ~ 2e8) and the SolverFailed ended the design as
+    "not_converged".  Now that probe is a failed step: the search goes on, the design at the target is certified, and
+    the independent network analysis finds the gains stable."""
+    from bench.ipm_check import draw_family
+
+    fam, _, _ = draw_family(9818, max_n=8, max_lmi_rows=200)
+    net = Network.weakly_hard(1, 3, 3)
+    res = design(fam, network=net)
+    assert res.outcome == "stabilized", res.message
+    failed = [t for t in res.rate_search if t["outcome"] == "not_converged"]
+    assert failed and all(t["decay_rate"] < res.rate_bracket["upper"] for t in failed)
+    assert res.decay_rate >= res.rate_bracket["upper"]
+    assert analyze(fam, res.gains, network=net).stable is True
