@@ -876,6 +876,8 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     lim = np.tile(np.asarray(u_max, dtype=float), gains.shape[0])
     need = np.einsum("ij,ij->i", rows, np.linalg.solve(X, rows.T).T) / lim**2
     c = float(np.max(need)) * (1 + 1e-12)
+    if not (np.isfinite(c) and c > 0):  # (u_max so large that its square overflows)
+        return None, f"the input limits' scale is not a positive float64 ({c!r})"
     Xc = c * X
     if np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(Xc, rows.T).T) / lim**2) > 1:
         Xc = c * (1 + 1e-9) * X  # rounding of the solve

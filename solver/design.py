@@ -804,8 +804,9 @@ def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeS
         res.message += f"; the plain design's gains stabilize, but their ellipsoid is not re-checked: {why}"
         return res
     plain.invariant_set = invariant
-    plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; inputs within u_max from "
-                     f"every state of its invariant set (re-checked)")
+    within = "every gain is zero, so every input is zero: within u_max from every state" if not np.any(invariant) \
+        else "inputs within u_max from every state of its invariant set (re-checked)"
+    plain.message = f"{res.message}; the plain design's gains instead: {plain.message}; {within}"
     return plain
 
 

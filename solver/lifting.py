@@ -288,6 +288,25 @@ def _per_plant(value, r: int, rows: int | None, cols: int | None, name: str, fie
     return arr
 
 
+#: The range of an input limit: its square enters the SDPs and the re-checks, and must stay a normal float64.
+U_MAX_RANGE = (1e-150, 1e150)
+
+
+def check_u_max(u_max, m: int) -> np.ndarray:
+    """``u_max`` as m positive float64 within :data:`U_MAX_RANGE`, or InvalidInput naming the field."""
+    try:
+        u = np.array(u_max, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
+    if u.size != m or not np.all(np.isfinite(u)) or np.any(u <= 0):
+        raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+    low, high = U_MAX_RANGE
+    if np.any(u < low) or np.any(u > high):
+        raise InvalidInput(f"u_max entries must lie between {low:g} and {high:g} (their squares enter the "
+                           "certificates); for inputs without a limit, leave u_max out", ("u_max",))
+    return u
+
+
 def check_weights(weights, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, R)``: Q symmetric positive semidefinite n x n, R symmetric positive definite m x m."""
     if weights is None:

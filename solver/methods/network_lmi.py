@@ -541,9 +541,12 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
         return None
     rho = np.ones(prob.n_blocks) if rate is None else float(rate) ** (2.0 * prob.length)
     k, V = prob.k, len(prob.nodes)
+    begin = time.perf_counter()
     decided = _node_analysis_ipm(prob, A, rho, gains, rate, time_limit)
     if decided is not False:
         return decided
+    if time_limit is not None:
+        time_limit = max(time_limit - (time.perf_counter() - begin), 1e-3)
     P = [cp.Variable((k, k), symmetric=True) for _ in range(V)]
     t = cp.Variable()
     eye = np.eye(k)
@@ -563,8 +566,8 @@ def node_analysis(prob: NetworkProblem, gains: np.ndarray, rate: float | None = 
 
 def _node_analysis_ipm(prob: NetworkProblem, A: np.ndarray, rho: np.ndarray, gains: np.ndarray, rate,
                        time_limit: float | None):
-    """:func:`node_analysis` on the structured IPM: the re-checked certificate, None when the IPM converged to
-    ``t* <= 0``, False when it decided nothing (or its memory is over the budget)."""
+    """:func:`node_analysis` on the structured IPM: the re-checked certificate, None when the IPM converged with
+    its upper bound on ``t*`` at or below 0, False when it decided nothing (or its memory is over the budget)."""
     from ..compiled import MAX_SOLVER_MEMORY
     from ..ipm import IPMOptions
     from ..ipm.algorithm import solve_block_lmi
@@ -584,7 +587,7 @@ def _node_analysis_ipm(prob: NetworkProblem, A: np.ndarray, rho: np.ndarray, gai
         cert = recheck_network(prob, 0.5 * (P + np.swapaxes(P, 1, 2)), gains, rate, source="network_analysis")
         if cert.verified:
             return cert
-    return None if sol.status == "optimal" and not t > 0 else False
+    return None if sol.status == "optimal" and np.isfinite(sol.upper) and sol.upper <= 0 else False
 
 
 def fixed_rate_certificate(prob: NetworkProblem, family, network, gains: np.ndarray, rate: float | None = None, *,

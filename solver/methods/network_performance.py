@@ -42,7 +42,7 @@ from ..brackets import (LowerBound, NetworkPerformance, _allowance, _data_error,
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
-from ..lifting import TINY, check_channel, check_weights, lift_modes
+from ..lifting import TINY, check_channel, check_u_max, check_weights, lift_modes
 from ..network import ModeSet
 from ..result import DesignResult, IterationRecord
 from ..scaling import Scaling
@@ -1223,16 +1223,6 @@ def gains_from(prob, Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
 OBJECTIVES = ("cost", "hinf")
 
 
-def check_u_max(u_max, m: int) -> np.ndarray:
-    try:
-        u = np.array(u_max, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
-    if u.size != m or not np.all(np.isfinite(u)) or np.any(u <= 0):
-        raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
-    return u
-
-
 def check_request(network, objective: str, weights, x0, disturbance, output, u_max, decay_rate, n: int, m: int):
     """Refuse what does not carry over to a network (docs/design.md §11.3), naming the field and why.
 
@@ -1461,9 +1451,9 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                             timings=timings, solver_status=best["status"], objective=objective, performance=perf,
                             **base, message=f"stabilizing gains found on {where} (node certificate re-checked) but "
                                             f"no certified {objective} bound: {perf.message}{via}")
-    limits = "" if not kothare else "; every gain is zero, so every input is zero: within u_max from every state" \
-        if not np.any(inv) else ("; inputs within u_max from every state of the node ellipsoids (invariant along "
-                                 "every admissible run; re-checked)")
+    limits = "" if not kothare else "; every applied gain is zero, so every input is zero: within u_max from " \
+        "every state" if not np.any(inv) else ("; inputs within u_max from every state of the node ellipsoids "
+                                               "(invariant along every admissible run; re-checked)")
     res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history, timings=timings,
                        solver_status=best["status"], objective=objective, performance=perf,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
@@ -1674,8 +1664,8 @@ def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndar
     ``lambda^(2 length_e)``): a state in ``E_v`` at node v is in ``E_w`` at the next node w.  Every input applied
     from node v is ``K_j R_b xi`` (``R_b`` the state block the gain reads), whose largest value on ``E_v`` is
     ``sqrt(r X_v^-1 r') / sqrt(c)``; ``c`` makes the tightest of them ``u_max``.  x0 (its initial history ``S x0``)
-    must lie in every node's set.  Returns ``(c X or None, reason)``; with no input ever moving ``X = 0``, the
-    whole state space.
+    must lie in every node's set.  Returns ``(c X or None, reason)``; with every applied gain zero (no input ever
+    moves) ``X = 0``, the whole state space.
     """
     X = _sym(np.asarray(X, float))
     if not np.any(gains):  # every input is zero from every state: the whole space, x' 0 x <= 1
@@ -1690,15 +1680,18 @@ def check_invariant_nodes(X: np.ndarray, prob, gains: np.ndarray, u_max: np.ndar
         if np.linalg.eigvalsh(_sym(APA - rho[e] * X[prob.src[e]]))[-1] / size >= -_allowance(X.shape[-1]):
             return None, f"the node ellipsoids are not shown invariant on transition {e} (float64 re-check)"
     n, k = prob.n, prob.k
-    need = 0.0
+    need, applied = 0.0, False
     for v, pairs in enumerate(gain_rows(prob)):
         for j, b in pairs:
+            applied = applied or bool(np.any(gains[j]))
             rows = np.zeros((prob.m, k))
             rows[:, b * n:(b + 1) * n] = gains[j]
             need = max(need, float(np.max(np.einsum("ij,ij->i", rows, np.linalg.solve(X[v], rows.T).T)
                                           / u_max**2)))
-    if need <= 0:  # the gains that are not zero never act (no node applies them)
+    if not applied:  # the gains that are not zero never act (no node applies them)
         return np.zeros_like(X), ""
+    if not (np.isfinite(need) and need > 0):  # (u_max so large that its square overflows)
+        return None, f"the input limits' scale is not a positive float64 ({need!r})"
     Xc = need * (1 + 1e-9) * X
     if x0 is not None:
         s = history @ x0
@@ -1839,8 +1832,8 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
                        solver_status=status, objective="stability", decay_rate=decay_rate,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
                        message=f"stabilized on {where}{rate_txt}; node certificate re-checked (relative margin "
-                               f"{cert.margin:.3g}); " + ("every gain is zero, so every input is zero: within u_max "
-                                                          "from every state" if not np.any(inv) else
+                               f"{cert.margin:.3g}); " + ("every applied gain is zero, so every input is zero: within "
+                                                          "u_max from every state" if not np.any(inv) else
                                                           "inputs within u_max from every state of the node "
                                                           "ellipsoids (invariant along every admissible run; "
                                                           "re-checked)"))

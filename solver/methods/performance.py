@@ -34,7 +34,7 @@ from ..compiled import SolveInfo, check_memory, ipm_memory, out_of_time, schur_b
 from ..errors import SolverFailed
 from ..errors import InvalidInput
 from ..exact import floats, fractions
-from ..lifting import Lifted, lift_modes
+from ..lifting import Lifted, check_u_max, lift_modes
 from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_hinf_exact, check_invariant,
                         check_x0, lyapunov, solve_sdp)
 from ..result import DesignResult, IterationRecord
@@ -396,12 +396,7 @@ def prepare(modes, method: str, objective: str, weights, x0, disturbance, output
     n, m = modes.n_states, modes.n_inputs
     x0 = check_x0(x0, n)
     if u_max is not None:
-        try:
-            u_max = np.array(u_max, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            raise InvalidInput("u_max must be a list of m positive numbers", ("u_max",)) from None
-        if u_max.size != m or not np.all(np.isfinite(u_max)) or np.any(u_max <= 0):
-            raise InvalidInput(f"u_max must have {m} positive finite entries", ("u_max",))
+        u_max = check_u_max(u_max, m)
         if objective == "hinf":
             raise InvalidInput("u_max with objective='hinf' is not available (the set would depend on the "
                                "disturbance energy)", ("u_max",))

@@ -254,6 +254,7 @@ def test_cost_design_on_a_delay_network_matches_the_library(http):
 @pytest.mark.parametrize("extra, pointer, words", [
     ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "u_max": [1.0]}, "/u_max", "disturbance energy"),
     ({"objective": "hinf", "disturbance": [[1.0], [0.0]], "x0": [1.0, 0.0]}, "/x0", "x = 0"),
+    ({"u_max": [1e200], "x0": [1.0, 0.0]}, "/u_max", "between 1e-150 and 1e+150"),
 ])
 def test_network_performance_requests_that_do_not_carry_over_are_422s(http, extra, pointer, words):
     problem = assert_problem(http.post("/v1/designs", json={"plant": PAPER_PLANT, "network": DELAYS, **extra}), 422,

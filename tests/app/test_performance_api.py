@@ -60,6 +60,7 @@ def test_hinf_analysis_of_the_paper_gains(client):
     ({"objective": "cost", "method": "ccl"}, "/method"),
     ({"objective": "bogus"}, "/objective"),
     ({"u_max": [-1.0]}, "/u_max"),
+    ({"u_max": [1e200], "x0": [1.0, 0.0]}, "/u_max"),  # its square overflows float64
 ])
 def test_bad_performance_fields_are_422_naming_the_field(client, extra, pointer):
     resp = client.post("/v1/designs", json={"plant": PAPER_PLANT, "n_drop": 2, **extra})

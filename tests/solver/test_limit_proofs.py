@@ -217,3 +217,17 @@ def test_limits_hold_from_every_state_when_every_gain_is_zero():
         assert res.outcome == "stabilized" and not np.any(res.gains), res.message
         assert res.invariant_set is not None and not np.any(res.invariant_set)
         assert "every input is zero" in res.message and res.performance.verified
+
+
+def test_an_input_limit_whose_square_is_not_a_float64_is_invalid_input():
+    """u_max = 1e200 squared overflows: the limits' scale came out 0, the network re-check read that as "every
+    input is zero" and the bounded-drops one raised LinAlgError (found by review).  Now the request is refused up
+    front, on both paths, naming the field."""
+    from solver import InvalidInput, Network
+
+    fam = PlantFamily.paper_example(0.1)
+    for args, kw in (((fam, 3), {}), ((fam,), {"network": Network.delays(1, 2)})):
+        for u in (1e200, 1e-200):
+            with pytest.raises(InvalidInput, match="between 1e-150 and 1e") as err:
+                design(*args, u_max=[u], x0=X0, **kw)
+            assert tuple(err.value.field) == ("u_max",)

@@ -168,6 +168,7 @@ def test_edge_problem_with_parallel_edges_matches_clarabel():
     agree, infeasible (squared rates near 1: t* = -0.27) and feasible (4: t* = 0.83)."""
     import cvxpy as cp
 
+    from solver.ipm import IPMOptions
     from solver.ipm.algorithm import solve_block_lmi
     from solver.ipm.network_blocks import edge_problem
 
@@ -183,7 +184,9 @@ def test_edge_problem_with_parallel_edges_matches_clarabel():
                 A.append(0.8 * M / max(abs(np.linalg.eigvals(M))))
     src, dst, A = np.array(src), np.array(dst), np.array(A)
     for rho2, sign in ((rng.uniform(0.9, 1.1, len(src)), -1), (np.full(len(src), 4.0), 1)):
-        ts = [solve_block_lmi(edge_problem(A, src, dst, V, rho2, schur=s)).t for s in ("dense", "sparse")]
+        # dense=False: the Kronecker path, where the sparse structure is used (small problems take the dense operator)
+        ts = [solve_block_lmi(edge_problem(A, src, dst, V, rho2, schur=s), IPMOptions(dense=False)).t
+              for s in ("dense", "sparse")]
         P = [cp.Variable((D, D), symmetric=True) for _ in range(V)]
         t = cp.Variable()
         cons = [sum(cp.trace(X) for X in P) == V * D] + [X - t * np.eye(D) >> 0 for X in P]
