@@ -888,6 +888,14 @@ def check_invariant(X: np.ndarray, A: np.ndarray, gains: np.ndarray, u_max: np.n
     return Xc, ""
 
 
+def limits_note(invariant: np.ndarray, where: str) -> str:
+    """What a re-checked input-limit set (:func:`check_invariant`, ``check_invariant_nodes``) proves, for a message:
+    ``X = 0`` (every applied gain zero) holds from every state, any other set from every state of ``where``."""
+    if not np.any(invariant):
+        return "every applied gain is zero, so every input is zero: within u_max from every state"
+    return f"inputs within u_max from every state of {where}"
+
+
 def _invariant_exact(X: np.ndarray, plant: tuple, gains: np.ndarray, modes: list) -> bool:
     """Exactly ``X - A_s' X A_s >= 0`` for the modes ``modes``, ``A_s`` rebuilt exactly from ``plant = (F, G,
     plants)`` and ``gains`` (:func:`solver.exact.closed_loop`), ``X`` (n x n float64, symmetrized exactly)."""

@@ -786,7 +786,7 @@ def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeS
     re-check) scales it until every buffered input meets its limit (docs/design.md §8.2, "Input limits"); with
     x0 the set must contain it.  Without such a set ``res`` (not_converged) is returned with the reason.
     """
-    from .brackets import check_invariant
+    from .brackets import check_invariant, limits_note
 
     plain = _plain_design(family, modes, solver, margin, rate, time_limit, start, scaling)
     if plain is None:
@@ -804,9 +804,8 @@ def _limited_plain_fallback(res: DesignResult, family: PlantFamily, modes: ModeS
         res.message += f"; the plain design's gains stabilize, but their ellipsoid is not re-checked: {why}"
         return res
     plain.invariant_set = invariant
-    within = "every gain is zero, so every input is zero: within u_max from every state" if not np.any(invariant) \
-        else "inputs within u_max from every state of its invariant set (re-checked)"
-    plain.message = f"{res.message}; the plain design's gains instead: {plain.message}; {within}"
+    plain.message = (f"{res.message}; the plain design's gains instead: {plain.message}; "
+                     f"{limits_note(invariant, 'its invariant set (re-checked)')}")
     return plain
 
 

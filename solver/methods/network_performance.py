@@ -37,8 +37,8 @@ import scipy.linalg
 
 from ..brackets import (LowerBound, NetworkPerformance, _allowance, _data_error, _lyapunov_once, _lyapunov_residual,
                         _moment, _norms_pruned, _primitive_period, _sym, certify_hinf, check_x0, exact_cost_witness,
-                        exact_witness, hinf_norm_lower, hinf_norm_peak, lyapunov, period_system, sequence_cost,
-                        shortest_lead)
+                        exact_witness, hinf_norm_lower, hinf_norm_peak, limits_note, lyapunov, period_system,
+                        sequence_cost, shortest_lead)
 from ..certificates import uncontrollable_mode
 from ..compiled import cp, time_left
 from ..errors import InvalidInput, SolverFailed
@@ -92,6 +92,8 @@ MAX_MEMORY = 6
 #: Clarabel's CPU seconds as :func:`fixed_gain_seconds` estimates them; a longer memory is not tried and the message
 #: says so (a 6-state loop on delays(2, 3): memory one 4.4 s, two 20 s, three 116 s, estimated 107 s).
 MEMORY_LEVEL_SECONDS = 60.0
+#: The input-limited designs' sets, as their messages name them.
+NODE_SETS = "the node ellipsoids (invariant along every admissible run; re-checked)"
 #: Largest look-ahead SDP of a switched loop tried (:func:`lookahead_cost`): its blocks (S^(L+1)) times their side
 #: squared.  Each is a Clarabel SDP: a design of 50 interval modes at n = 12 would pose 2500 blocks of side 12 even at
 #: L = 1; the hold-out families that closed pose at most 32 blocks of side 4 (n = 4, 2 modes, L = 4).
@@ -1451,9 +1453,7 @@ def run(family, network, objective: str, *, weights=None, x0=None, disturbance=N
                             timings=timings, solver_status=best["status"], objective=objective, performance=perf,
                             **base, message=f"stabilizing gains found on {where} (node certificate re-checked) but "
                                             f"no certified {objective} bound: {perf.message}{via}")
-    limits = "" if not kothare else "; every applied gain is zero, so every input is zero: within u_max from " \
-        "every state" if not np.any(inv) else ("; inputs within u_max from every state of the node ellipsoids "
-                                               "(invariant along every admissible run; re-checked)")
+    limits = f"; {limits_note(inv, NODE_SETS)}" if kothare else ""
     res = DesignResult(outcome="stabilized", gains=gains, certificate=cert, history=history, timings=timings,
                        solver_status=best["status"], objective=objective, performance=perf,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
@@ -1832,10 +1832,6 @@ def run_limits(family, network, u_max, *, x0=None, decay_rate: float | None = No
                        solver_status=status, objective="stability", decay_rate=decay_rate,
                        spectral_radii=network_lmi.spectral_radii(prob.closed_loops(gains)), **base,
                        message=f"stabilized on {where}{rate_txt}; node certificate re-checked (relative margin "
-                               f"{cert.margin:.3g}); " + ("every applied gain is zero, so every input is zero: within "
-                                                          "u_max from every state" if not np.any(inv) else
-                                                          "inputs within u_max from every state of the node "
-                                                          "ellipsoids (invariant along every admissible run; "
-                                                          "re-checked)"))
+                               f"{cert.margin:.3g}); {limits_note(inv, NODE_SETS)}")
     res.invariant_set = inv
     return res

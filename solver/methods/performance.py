@@ -36,7 +36,7 @@ from ..errors import InvalidInput
 from ..exact import floats, fractions
 from ..lifting import Lifted, check_u_max, lift_modes
 from ..brackets import (EXACT_COST_MAX_N, bracket, check_cost, check_cost_exact, check_hinf_exact, check_invariant,
-                        check_x0, lyapunov, solve_sdp)
+                        check_x0, limits_note, lyapunov, solve_sdp)
 from ..result import DesignResult, IterationRecord
 from . import lmi
 from .common import DesignOptions, RunClock, certify_gains, congruent_scale, finish, proof_outcome
@@ -979,10 +979,8 @@ def run(lifted: Lifted, options: DesignOptions, objective: str, x0: np.ndarray |
         if cert.exact:
             message = (f"stabilized; {cert.kind} certificate re-checked exactly (float64 relative margin "
                        f"{cert.margin:.3g}, below what float64 confirms)")
-        if u_max is not None and not np.any(invariant):
-            message += "; every gain is zero, so every input is zero: within u_max from every state"
-        elif u_max is not None:
-            message += "; inputs within u_max from every state of the invariant set (re-checked)"
+        if u_max is not None:
+            message += f"; {limits_note(invariant, 'the invariant set (re-checked)')}"
     if best.get("refined") == "game":
         how = (" by exact Newton steps, its least level (the disturbance block's root)"
                if best.get("game_how") == "exact" else ", its least solvable level by bisection")
